@@ -1,0 +1,5 @@
+import sys
+
+from fabkit.cli import main
+
+sys.exit(main())

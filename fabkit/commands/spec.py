@@ -1,0 +1,18 @@
+"""``fabkit spec FILE``: validate a spec and print its summary."""
+
+from __future__ import annotations
+
+import argparse
+
+from fabkit.spec import describe_spec, load_spec
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("spec", help="validate a design spec and print a summary")
+    parser.add_argument("file", help="spec file (TOML), e.g. examples/two_shapes.toml")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    print(describe_spec(load_spec(args.file)))
+    return 0

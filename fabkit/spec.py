@@ -1,0 +1,407 @@
+"""The design problem as a researcher writes it: a TOML spec, validated into a :class:`Spec`.
+
+See ``docs/spec.md`` for every key. Every problem a user can make in a spec is a
+:class:`FabkitError` with one line naming the key and what to fix.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fabkit.errors import FabkitError
+from fabkit.expr import Expression, parse
+from fabkit.material import ALONG, Material, check_unstretched
+from fabkit.surfaces import Surface, build_surface
+from fabkit.surfaces.analytic import check_keys, number
+from fabkit.surfaces.base import UNBOUNDED
+
+ALL_QUADRANTS = ((1, 1), (-1, 1), (-1, -1), (1, -1))
+PERPENDICULAR_TOLERANCE = 1e-6
+"""Largest |cos| between the initial curves' tangents at t = 0 accepted as perpendicular."""
+
+
+@dataclass(frozen=True)
+class Target:
+    """One surface of the problem: geometry, stimulus, and (for targets) start point and director.
+
+    ``start`` and ``director`` are chart coordinates (2,); the director is unit in the metric.
+    Surface 0 (the flat sheet) takes both from the initial u-curve.
+    """
+
+    name: str
+    surface: Surface
+    stimulus: tuple[float, ...]
+    start: np.ndarray
+    director: np.ndarray
+
+
+@dataclass(frozen=True)
+class InitialData:
+    """The Goursat data: curves on the flat sheet (parameter t) and eps with its slope.
+
+    ``eps[i]`` and ``slope[i]`` are functions of t along the u-curve for a feature acting
+    along the director (slope = q) and along the v-curve for one acting across (slope = p).
+    """
+
+    u_curve: tuple[Expression, Expression]
+    v_curve: tuple[Expression, Expression]
+    eps: tuple[Expression, ...]
+    slope: tuple[Expression, ...]
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """Grid step (design units), diagonals per quadrant, quadrants (sign of u, sign of v)."""
+
+    step: float = 0.05
+    diagonals: int = 200
+    quadrants: tuple[tuple[int, int], ...] = ALL_QUADRANTS
+    max_strain: float = 3.0
+
+
+@dataclass(frozen=True)
+class Spec:
+    """A validated design problem."""
+
+    material: Material
+    classes: tuple[str, ...]
+    targets: tuple[Target, ...]
+    initial: InitialData
+    solver: SolverSettings
+    normalised: dict[str, Any]
+
+    @property
+    def stimuli(self) -> np.ndarray:
+        """(S, k) stimulus of every surface."""
+        return np.array([t.stimulus for t in self.targets], dtype=float)
+
+    def to_json(self) -> str:
+        """The normalised spec as JSON; :func:`spec_from_json` rebuilds the same Spec."""
+        return json.dumps(self.normalised, sort_keys=True)
+
+    def with_solver(self, **changes: Any) -> Spec:
+        """A copy with some solver settings replaced (e.g. from command-line options)."""
+        solver_table = dict(self.normalised["solver"])
+        for key, value in changes.items():
+            if value is not None:
+                solver_table[key] = [list(q) for q in value] if key == "quadrants" else value
+        return build_spec({**self.normalised, "solver": solver_table}, Path("."))
+
+
+def load_spec(path: str | Path) -> Spec:
+    """Read and validate a TOML spec file."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FabkitError(f"spec file '{path}' does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise FabkitError(f"cannot read spec file '{path}': {exc}") from None
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise FabkitError(f"{path}: not valid TOML: {exc}") from None
+    return build_spec(table, path.resolve().parent)
+
+
+def spec_from_json(text: str) -> Spec:
+    """Rebuild a Spec from :meth:`Spec.to_json` (file paths in it are absolute)."""
+    try:
+        table = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FabkitError(f"embedded spec is not valid JSON: {exc}") from None
+    return build_spec(table, Path("."))
+
+
+def build_spec(table: Mapping[str, Any], base_dir: Path) -> Spec:
+    """Validate a spec given as nested tables; ``base_dir`` resolves data file paths."""
+    check_keys(table, {"material", "surfaces", "initial", "solver"}, "spec")
+    for key in ("material", "surfaces", "initial"):
+        if key not in table:
+            raise FabkitError(f"spec: missing section [{key}]")
+    material, material_table = _material(_table(table["material"], "material"))
+    targets, surface_tables = _targets(table["surfaces"], material, base_dir)
+    stimuli = np.array([t.stimulus for t in targets])
+    classes = material.classify(stimuli[1:])
+    initial, initial_table = _initial(_table(table["initial"], "initial"), material, classes)
+    u_start, director = _check_curves(initial)
+    flat = targets[0]
+    targets = (Target(flat.name, flat.surface, flat.stimulus, u_start, director), *targets[1:])
+    solver, solver_table = _solver(_table(table.get("solver", {}), "solver"))
+    normalised = {
+        "material": material_table,
+        "surfaces": surface_tables,
+        "initial": initial_table,
+        "solver": solver_table,
+    }
+    return Spec(material, classes, targets, initial, solver, normalised)
+
+
+def _table(value: Any, where: str) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise FabkitError(f"{where}: expected a table [{where}]")
+    return value
+
+
+def _names(value: Any, where: str) -> tuple[str, ...]:
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise FabkitError(f'{where}: expected a list of names, like ["eps"]')
+    if len(set(value)) != len(value):
+        raise FabkitError(f"{where}: names must be distinct")
+    return tuple(value)
+
+
+def _material(table: Mapping[str, Any]) -> tuple[Material, dict[str, Any]]:
+    check_keys(table, {"features", "stimuli", "lambda1", "lambda2"}, "material")
+    for key in ("features", "stimuli", "lambda1", "lambda2"):
+        if key not in table:
+            raise FabkitError(f"material: missing key '{key}'")
+    features = _names(table["features"], "material.features")
+    stimuli = _names(table["stimuli"], "material.stimuli")
+    if not features:
+        raise FabkitError("material.features: at least one designable feature is needed")
+    if set(features) & set(stimuli):
+        raise FabkitError("material: a name cannot be both a feature and a stimulus")
+    names = features + stimuli
+    lambda1 = parse(table["lambda1"], names, "material.lambda1")
+    lambda2 = parse(table["lambda2"], names, "material.lambda2")
+    normalised = {
+        "features": list(features),
+        "stimuli": list(stimuli),
+        "lambda1": lambda1.text,
+        "lambda2": lambda2.text,
+    }
+    return Material(features, stimuli, lambda1, lambda2), normalised
+
+
+def _vector(value: Any, length: int, where: str, what: str) -> np.ndarray:
+    if not isinstance(value, list) or len(value) != length:
+        raise FabkitError(f"{where}: expected {what}, a list of {length} numbers")
+    return np.array([_constant(v, where) for v in value])
+
+
+def _constant(value: Any, where: str) -> float:
+    """A number given as a TOML number or a constant expression such as "pi/2"."""
+    if isinstance(value, str):
+        expression = parse(value, (), where)
+        return number(float(expression()), where)
+    return number(value, where)
+
+
+def _targets(value: Any, material: Material, base_dir: Path):
+    count = len(material.features) + 2
+    if not isinstance(value, list) or not all(isinstance(v, Mapping) for v in value):
+        raise FabkitError("surfaces: expected [[surfaces]] tables")
+    if len(value) != count:
+        raise FabkitError(
+            f"surfaces: {len(material.features)} feature(s) need exactly {count} surfaces "
+            f"(the flat sheet and {count - 1} targets), got {len(value)}"
+        )
+    targets, tables, seen = [], [], set()
+    for index, table in enumerate(value):
+        target, normalised = _target(index, table, material, base_dir)
+        if target.name in seen:
+            raise FabkitError(f"surfaces[{index}].name: '{target.name}' is used twice")
+        seen.add(target.name)
+        targets.append(target)
+        tables.append(normalised)
+    return tuple(targets), tables
+
+
+def _target(index: int, table: Mapping[str, Any], material: Material, base_dir: Path):
+    where = f"surfaces[{index}]"
+    allowed = {"name", "stimulus", "geometry"} | ({"start", "director"} if index else set())
+    check_keys(table, allowed, where)
+    name = table.get("name", f"surface{index}")
+    if not isinstance(name, str) or not name:
+        raise FabkitError(f"{where}.name: expected a non-empty string")
+    if "stimulus" not in table:
+        raise FabkitError(f"{where}: missing key 'stimulus'")
+    stimulus = _vector(
+        table["stimulus"],
+        len(material.stimuli),
+        f"{where}.stimulus",
+        f"one value per stimulus {list(material.stimuli)}",
+    )
+    geometry = dict(_table(table.get("geometry"), f"{where}.geometry"))
+    surface = build_surface(name, geometry, f"{where}.geometry", base_dir)
+    geometry = _absolute_files(geometry, base_dir)
+    normalised = {"name": name, "stimulus": stimulus.tolist(), "geometry": geometry}
+    if index == 0:
+        if surface.kind != "plane" or surface.bounds != UNBOUNDED:
+            raise FabkitError(f'{where}.geometry: the flat sheet must be kind = "plane"')
+        check_unstretched(material, stimulus, f"{where}.stimulus")
+        return Target(name, surface, tuple(stimulus), np.zeros(2), np.array([1.0, 0.0])), normalised
+    for key in ("start", "director"):
+        if key not in table:
+            raise FabkitError(f"{where}: missing key '{key}' (a 2-vector in chart coordinates)")
+    start = _vector(table["start"], 2, f"{where}.start", "a chart point")
+    direction = _vector(table["director"], 2, f"{where}.director", "chart components")
+    if not surface.contains(start[None])[0]:
+        raise FabkitError(f"{where}.start: {start.tolist()} lies outside the {surface.kind} chart")
+    g = surface.metric(start)
+    length_squared = direction @ g @ direction
+    if not length_squared > 0:
+        raise FabkitError(f"{where}.director: must be a non-zero vector")
+    director = direction / np.sqrt(length_squared)
+    normalised |= {"start": start.tolist(), "director": direction.tolist()}
+    return Target(name, surface, tuple(stimulus), start, director), normalised
+
+
+def _absolute_files(geometry: dict[str, Any], base_dir: Path) -> dict[str, Any]:
+    """Make a data file path absolute so the normalised spec stands on its own."""
+    if isinstance(geometry.get("file"), str):
+        geometry["file"] = str((base_dir / geometry["file"]).resolve())
+    return geometry
+
+
+def _initial(table: Mapping[str, Any], material: Material, classes: tuple[str, ...]):
+    check_keys(table, {"u_curve", "v_curve", "eps", "slope"}, "initial")
+    count = len(material.features)
+    curves = []
+    for key in ("u_curve", "v_curve"):
+        value = table.get(key)
+        if not isinstance(value, list) or len(value) != 2:
+            raise FabkitError(f'initial.{key}: expected two expressions in t, like ["t", "0"]')
+        curves.append(tuple(parse(v, ("t",), f"initial.{key}") for v in value))
+    series = []
+    for key in ("eps", "slope"):
+        value = table.get(key)
+        if not isinstance(value, list) or len(value) != count:
+            raise FabkitError(
+                f"initial.{key}: expected {count} expression(s) in t, one per feature "
+                f"{list(material.features)}"
+            )
+        series.append(tuple(parse(v, ("t",), f"initial.{key}[{i}]") for i, v in enumerate(value)))
+    initial = InitialData(curves[0], curves[1], series[0], series[1])
+    normalised = {
+        "u_curve": [e.text for e in initial.u_curve],
+        "v_curve": [e.text for e in initial.v_curve],
+        "eps": [e.text for e in initial.eps],
+        "slope": [e.text for e in initial.slope],
+    }
+    _check_finite_initial(initial, classes)
+    return initial, normalised
+
+
+def _check_finite_initial(initial: InitialData, classes: tuple[str, ...]) -> None:
+    for i, kind in enumerate(classes):
+        carrier = "u_curve" if kind == ALONG else "v_curve"
+        for label, expression in (("eps", initial.eps[i]), ("slope", initial.slope[i])):
+            if not np.isfinite(expression(0.0)):
+                raise FabkitError(f"initial.{label}[{i}]: not finite at t = 0 on the {carrier}")
+
+
+def _check_curves(initial: InitialData) -> tuple[np.ndarray, np.ndarray]:
+    """The common start point and the flat-sheet director (unit u-curve tangent) at t = 0."""
+    u_point = np.array([c(0.0) for c in initial.u_curve])
+    v_point = np.array([c(0.0) for c in initial.v_curve])
+    u_tangent = np.array([c.diff("t")(0.0) for c in initial.u_curve])
+    v_tangent = np.array([c.diff("t")(0.0) for c in initial.v_curve])
+    if not (np.all(np.isfinite(u_point)) and np.all(np.isfinite(v_point))):
+        raise FabkitError("initial: the u- and v-curves must be finite at t = 0")
+    if np.linalg.norm(u_point - v_point) > 1e-9 * (1 + np.linalg.norm(u_point)):
+        raise FabkitError(
+            f"initial: the u-curve starts at {u_point.tolist()} but the v-curve at "
+            f"{v_point.tolist()}; they must meet at t = 0"
+        )
+    u_speed, v_speed = np.linalg.norm(u_tangent), np.linalg.norm(v_tangent)
+    if not (u_speed > 0 and v_speed > 0):
+        raise FabkitError("initial: the u- and v-curves need non-zero tangents at t = 0")
+    cosine = float(u_tangent @ v_tangent) / (u_speed * v_speed)
+    if abs(cosine) > PERPENDICULAR_TOLERANCE:
+        raise FabkitError(
+            f"initial: the u- and v-curves must be perpendicular at t = 0 (cos = {cosine:.3g})"
+        )
+    cross = u_tangent[0] * v_tangent[1] - u_tangent[1] * v_tangent[0]
+    if cross < 0:
+        raise FabkitError(
+            "initial: the v-curve must leave the start point 90 degrees counter-clockwise from "
+            "the u-curve (reverse the v-curve's parameter)"
+        )
+    return u_point, u_tangent / u_speed
+
+
+def _solver(table: Mapping[str, Any]) -> tuple[SolverSettings, dict[str, Any]]:
+    check_keys(table, {"step", "diagonals", "quadrants", "max_strain"}, "solver")
+    defaults = SolverSettings()
+    step = number(table.get("step", defaults.step), "solver.step", positive=True)
+    diagonals = table.get("diagonals", defaults.diagonals)
+    if isinstance(diagonals, bool) or not isinstance(diagonals, int) or not 1 <= diagonals <= 20000:
+        raise FabkitError("solver.diagonals: expected an integer from 1 to 20000")
+    quadrants = _quadrants(table.get("quadrants", "all"))
+    max_strain = number(
+        table.get("max_strain", defaults.max_strain), "solver.max_strain", positive=True
+    )
+    settings = SolverSettings(step, diagonals, quadrants, max_strain)
+    normalised = {
+        "step": step,
+        "diagonals": diagonals,
+        "quadrants": [list(q) for q in quadrants],
+        "max_strain": max_strain,
+    }
+    return settings, normalised
+
+
+def _quadrants(value: Any) -> tuple[tuple[int, int], ...]:
+    if value == "all":
+        return ALL_QUADRANTS
+    message = 'solver.quadrants: expected "all" or a list like [[1, 1], [-1, 1]]'
+    if not isinstance(value, list) or not value:
+        raise FabkitError(message)
+    quadrants = []
+    for item in value:
+        if (
+            not isinstance(item, list)
+            or len(item) != 2
+            or any(isinstance(s, bool) or s not in (1, -1) for s in item)
+        ):
+            raise FabkitError(message)
+        quadrants.append((int(item[0]), int(item[1])))
+    if len(set(quadrants)) != len(quadrants):
+        raise FabkitError("solver.quadrants: each quadrant may appear once")
+    return tuple(quadrants)
+
+
+def describe_spec(spec: Spec) -> str:
+    """A human summary: features and their class, stimuli, surfaces with K at their starts,
+    and the initial data the problem needs."""
+    material = spec.material
+    lines = [
+        f"material: lambda1 = {material.lambda1.text}, lambda2 = {material.lambda2.text}",
+        f"stimuli: {', '.join(material.stimuli)}",
+        "features:",
+    ]
+    for feature, kind in zip(material.features, spec.classes, strict=True):
+        lines.append(f"  {feature}: acts {kind} the director")
+    lines.append(f"surfaces ({len(spec.targets)}):")
+    for index, target in enumerate(spec.targets):
+        curvature = float(target.surface.curvature(target.start))
+        stimulus = ", ".join(f"{s:g}" for s in target.stimulus)
+        lines.append(
+            f"  [{index}] {target.name}: {target.surface.describe()}, stimulus ({stimulus}), "
+            f"start {np.round(target.start, 6).tolist()}, K = {curvature:.6g} at start"
+        )
+    lines.append("initial data needed:")
+    for feature, kind, eps, slope in zip(
+        material.features, spec.classes, spec.initial.eps, spec.initial.slope, strict=True
+    ):
+        if kind == ALONG:
+            lines.append(f"  {feature} = {eps.text} and q = {slope.text} along the u-curve")
+        else:
+            lines.append(f"  {feature} = {eps.text} and p = {slope.text} along the v-curve")
+    u, v = spec.initial.u_curve, spec.initial.v_curve
+    lines.append(f"  u-curve ({u[0].text}, {u[1].text}), v-curve ({v[0].text}, {v[1].text})")
+    solver = spec.solver
+    lines.append(
+        f"solver: step {solver.step:g}, {solver.diagonals} diagonals, "
+        f"quadrants {[list(q) for q in solver.quadrants]}, max strain {solver.max_strain:g}"
+    )
+    return "\n".join(lines)
