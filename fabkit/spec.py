@@ -64,6 +64,7 @@ class SolverSettings:
     diagonals: int = 200
     quadrants: tuple[tuple[int, int], ...] = ALL_QUADRANTS
     max_strain: float = 3.0
+    extrapolate: bool = True
 
 
 @dataclass(frozen=True)
@@ -330,7 +331,7 @@ def _check_curves(initial: InitialData) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _solver(table: Mapping[str, Any]) -> tuple[SolverSettings, dict[str, Any]]:
-    check_keys(table, {"step", "diagonals", "quadrants", "max_strain"}, "solver")
+    check_keys(table, {"step", "diagonals", "quadrants", "max_strain", "extrapolate"}, "solver")
     defaults = SolverSettings()
     step = number(table.get("step", defaults.step), "solver.step", positive=True)
     diagonals = table.get("diagonals", defaults.diagonals)

@@ -1,0 +1,227 @@
+"""Independent verification of a design: isometry and curvature residuals per surface.
+
+Reads only the design file's arrays and rebuilds the surfaces and the material from
+its embedded spec; it never calls the solver. For every surface j, with r_u, r_v
+central differences of the solved chart map r_j(u, v) (fourth order where two neighbours
+on each side are solved, second order next to the border):
+
+* length residuals: |sqrt(r_u . g r_u) - alpha lambda1| / (alpha lambda1), and the
+  same for r_v against beta lambda2;
+* angle residual: |cos| of the angle between r_u and r_v in the metric g;
+* curvature residual: |K_designed - K_target(r_j)| / K_scale, where K_designed is the
+  Gaussian curvature of the designed metric (alpha lambda1)^2 du^2 + (beta lambda2)^2 dv^2
+  (second central differences) and K_scale the problem's curvature scale: the largest
+  95th percentile of |K_target| over the target surfaces.
+
+Statistics are over interior points (the point and its four neighbours solved) with
+alpha, beta >= 0.2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from fabkit.design.design import Design
+from fabkit.spec import Spec, spec_from_json
+
+MIN_SCALE = 0.2
+"""Points with alpha or beta below this are left out of the statistics."""
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Pass limits: medians and 95th percentiles of the residuals (dimensionless)."""
+
+    isometry_median: float = 1e-3
+    isometry_p95: float = 1e-2
+    curvature_median: float = 1e-2
+
+
+@dataclass(frozen=True)
+class Residual:
+    """Median and 95th percentile of one residual over the checked points."""
+
+    median: float
+    p95: float
+
+
+@dataclass(frozen=True)
+class SurfaceCheck:
+    """Residuals of one surface; ``points`` is the number of points checked."""
+
+    name: str
+    points: int
+    length_u: Residual
+    length_v: Residual
+    angle: Residual
+    curvature: Residual
+
+    @property
+    def isometry(self) -> Residual:
+        """The worst of the three isometry residuals, by median and by p95."""
+        parts = (self.length_u, self.length_v, self.angle)
+        return Residual(max(p.median for p in parts), max(p.p95 for p in parts))
+
+    def passes(self, tolerances: Tolerances) -> bool:
+        return (
+            self.points > 0
+            and self.isometry.median <= tolerances.isometry_median
+            and self.isometry.p95 <= tolerances.isometry_p95
+            and self.curvature.median <= tolerances.curvature_median
+        )
+
+
+@dataclass(frozen=True)
+class CheckReport:
+    surfaces: tuple[SurfaceCheck, ...]
+    tolerances: Tolerances
+
+    @property
+    def passed(self) -> bool:
+        return all(s.passes(self.tolerances) for s in self.surfaces)
+
+    def to_dict(self) -> dict:
+        return {
+            "passed": self.passed,
+            "tolerances": asdict(self.tolerances),
+            "surfaces": [asdict(s) | {"passed": s.passes(self.tolerances)} for s in self.surfaces],
+        }
+
+    def table(self) -> str:
+        """A plain-text table, one line per surface."""
+        lines = [
+            f"{'surface':<12}{'points':>8}  {'length_u':>18}{'length_v':>18}{'angle':>18}"
+            f"{'curvature':>18}  result",
+            f"{'':<12}{'':>8}  {'(median / p95)':>18}",
+        ]
+        for s in self.surfaces:
+            cells = "".join(
+                f"{r.median:>9.2e}/{r.p95:<8.1e}"
+                for r in (s.length_u, s.length_v, s.angle, s.curvature)
+            )
+            verdict = "ok" if s.passes(self.tolerances) else "FAIL"
+            lines.append(f"{s.name:<12}{s.points:>8}  {cells}  {verdict}")
+        return "\n".join(lines)
+
+
+def check_design(
+    design: Design, tolerances: Tolerances = Tolerances(), region: float | None = None
+) -> CheckReport:
+    """Residuals of every surface of ``design``.
+
+    ``region``: only points with |u|, |v| <= region count (None: all interior points).
+    """
+    spec = spec_from_json(design.spec)
+    step = design.step
+    interior = _interior(design, region)
+    eps = np.where(design.valid, design.eps, 0.0)
+    response = spec.material.response(eps, design.stimuli)
+    scale = _curvature_scale(spec, design, interior)
+    checks = []
+    for j, target in enumerate(spec.targets):
+        stretch_u = design.alpha * response.lambda1[j]
+        stretch_v = design.beta * response.lambda2[j]
+        checks.append(
+            _check_surface(
+                target.name,
+                target.surface,
+                design.r[j],
+                stretch_u,
+                stretch_v,
+                step,
+                interior,
+                scale,
+            )
+        )
+    return CheckReport(tuple(checks), tolerances)
+
+
+def _interior(design: Design, region: float | None) -> np.ndarray:
+    valid = design.valid
+    inner = np.zeros_like(valid)
+    inner[1:-1, 1:-1] = (
+        valid[1:-1, 1:-1] & valid[2:, 1:-1] & valid[:-2, 1:-1] & valid[1:-1, 2:] & valid[1:-1, :-2]
+    )
+    with np.errstate(invalid="ignore"):
+        inner &= (design.alpha >= MIN_SCALE) & (design.beta >= MIN_SCALE)
+    if region is not None:
+        u, v = np.meshgrid(design.u, design.v, indexing="ij")
+        inner &= (np.abs(u) <= region + 1e-12) & (np.abs(v) <= region + 1e-12)
+    return inner
+
+
+def _curvature_scale(spec: Spec, design: Design, interior: np.ndarray) -> float:
+    scales = [
+        np.percentile(np.abs(t.surface.curvature(design.r[j][interior])), 95)
+        for j, t in enumerate(spec.targets)
+        if interior.any()
+    ]
+    return float(max(scales, default=1.0)) or 1.0
+
+
+def _shifted(field: np.ndarray, axis: int, shift: int) -> np.ndarray:
+    """field[i + shift] along axis, NaN where that index falls off the grid."""
+    out = np.full_like(field, np.nan)
+    count = field.shape[axis]
+    source = [slice(None)] * field.ndim
+    target = [slice(None)] * field.ndim
+    source[axis] = slice(max(shift, 0), count + min(shift, 0))
+    target[axis] = slice(max(-shift, 0), count + min(-shift, 0))
+    out[tuple(target)] = field[tuple(source)]
+    return out
+
+
+def _central(field: np.ndarray, axis: int, step: float) -> np.ndarray:
+    """First derivative by central differences: fourth order where two neighbours on each
+    side exist, second order where only one does, NaN otherwise."""
+    m2, m1, p1, p2 = (_shifted(field, axis, k) for k in (-2, -1, 1, 2))
+    fourth = (m2 - 8 * m1 + 8 * p1 - p2) / (12 * step)
+    second = (p1 - m1) / (2 * step)
+    return np.where(np.isfinite(fourth), fourth, second)
+
+
+def _second(field: np.ndarray, axis: int, step: float) -> np.ndarray:
+    """Second derivative by central differences, fourth order where possible, else second."""
+    m2, m1, p1, p2 = (_shifted(field, axis, k) for k in (-2, -1, 1, 2))
+    fourth = (-m2 + 16 * m1 - 30 * field + 16 * p1 - p2) / (12 * step**2)
+    second = (p1 - 2 * field + m1) / step**2
+    return np.where(np.isfinite(fourth), fourth, second)
+
+
+def designed_curvature(stretch_u: np.ndarray, stretch_v: np.ndarray, step: float) -> np.ndarray:
+    """K of the metric A^2 du^2 + B^2 dv^2 on the grid: -(1/AB)[(B_u/A)_u + (A_v/B)_v]."""
+    a, b = stretch_u, stretch_v
+    a_v, a_vv = _central(a, 1, step), _second(a, 1, step)
+    b_u, b_uu = _central(b, 0, step), _second(b, 0, step)
+    a_u, b_v = _central(a, 0, step), _central(b, 1, step)
+    return -((b_uu * a - b_u * a_u) / a**2 + (a_vv * b - a_v * b_v) / b**2) / (a * b)
+
+
+def _check_surface(name, surface, r, stretch_u, stretch_v, step, interior, scale) -> SurfaceCheck:
+    with np.errstate(all="ignore"):
+        r_u, r_v = _central(r, 0, step), _central(r, 1, step)
+        points = r[interior]
+        g = surface.metric(points)
+        ru, rv = r_u[interior], r_v[interior]
+        length_u = np.sqrt(np.einsum("...i,...ij,...j->...", ru, g, ru))
+        length_v = np.sqrt(np.einsum("...i,...ij,...j->...", rv, g, rv))
+        cross = np.einsum("...i,...ij,...j->...", ru, g, rv)
+        su, sv = stretch_u[interior], stretch_v[interior]
+        k_designed = designed_curvature(stretch_u, stretch_v, step)[interior]
+        k_target = surface.curvature(points)
+        residuals = (
+            np.abs(length_u - su) / su,
+            np.abs(length_v - sv) / sv,
+            np.abs(cross) / (length_u * length_v),
+            np.abs(k_designed - k_target) / scale,
+        )
+    return SurfaceCheck(name, int(interior.sum()), *(_stats(x) for x in residuals))
+
+
+def _stats(values: np.ndarray) -> Residual:
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return Residual(float("nan"), float("nan"))
+    return Residual(float(np.median(values)), float(np.percentile(values, 95)))
