@@ -2,8 +2,9 @@
 
 Reads only the design file's arrays and rebuilds the surfaces and the material from
 its embedded spec; it never calls the solver. For every surface j, with r_u, r_v
-central differences of the solved chart map r_j(u, v) (fourth order where two neighbours
-on each side are solved, second order next to the border):
+finite differences of the solved chart map r_j(u, v): centred five-point stencils, an
+off-centre five-point window next to the border of the solved region, centred three points
+where nothing else fits:
 
 * length residuals: |sqrt(r_u . g r_u) - alpha lambda1| / (alpha lambda1), and the
   same for r_v against beta lambda2;
@@ -13,8 +14,8 @@ on each side are solved, second order next to the border):
   (second central differences) and K_scale the problem's curvature scale: the largest
   95th percentile of |K_target| over the target surfaces.
 
-Statistics are over interior points (the point and its four neighbours solved) with
-alpha, beta >= 0.2.
+Statistics are over interior points, those whose five-point stencils in u and in v are
+all solved (so every derivative is fourth-order accurate there), with alpha, beta >= 0.2.
 """
 
 from __future__ import annotations
@@ -139,11 +140,12 @@ def check_design(
 
 
 def _interior(design: Design, region: float | None) -> np.ndarray:
+    """Points whose five-point stencils in u and in v are all solved, alpha, beta >= 0.2."""
     valid = design.valid
-    inner = np.zeros_like(valid)
-    inner[1:-1, 1:-1] = (
-        valid[1:-1, 1:-1] & valid[2:, 1:-1] & valid[:-2, 1:-1] & valid[1:-1, 2:] & valid[1:-1, :-2]
-    )
+    inner = valid.copy()
+    for axis in (0, 1):
+        for shift in (-2, -1, 1, 2):
+            inner &= np.isfinite(_shifted(np.where(valid, 1.0, np.nan), axis, shift))
     with np.errstate(invalid="ignore"):
         inner &= (design.alpha >= MIN_SCALE) & (design.beta >= MIN_SCALE)
     if region is not None:
@@ -173,21 +175,39 @@ def _shifted(field: np.ndarray, axis: int, shift: int) -> np.ndarray:
     return out
 
 
+WINDOWS = ((-2, -1, 0, 1, 2), (-1, 0, 1, 2, 3), (-3, -2, -1, 0, 1), (-1, 0, 1))
+"""Stencils tried in turn: centred five points, the two nearest off-centre five-point
+windows (next to the border of the solved region), then centred three points."""
+
+
+def _weights(offsets: tuple[int, ...], order: int) -> np.ndarray:
+    """Finite-difference weights for the ``order``-th derivative on integer ``offsets``."""
+    powers = np.vander(np.array(offsets, dtype=float), increasing=True).T
+    target = np.zeros(len(offsets))
+    target[order] = float(np.prod(np.arange(1, order + 1)))
+    return np.linalg.solve(powers, target)
+
+
+def _derivative(field: np.ndarray, axis: int, step: float, order: int) -> np.ndarray:
+    """``order``-th derivative along ``axis`` from the best stencil whose points are solved.
+
+    Fourth-order accurate (third for second derivatives off-centre) where five points
+    are available, second order with three; NaN where not even three are.
+    """
+    out = np.full(field.shape, np.nan)
+    for offsets in WINDOWS:
+        weights = _weights(offsets, order)
+        total = sum(w * _shifted(field, axis, k) for w, k in zip(weights, offsets, strict=True))
+        out = np.where(np.isnan(out) & np.isfinite(total), total / step**order, out)
+    return out
+
+
 def _central(field: np.ndarray, axis: int, step: float) -> np.ndarray:
-    """First derivative by central differences: fourth order where two neighbours on each
-    side exist, second order where only one does, NaN otherwise."""
-    m2, m1, p1, p2 = (_shifted(field, axis, k) for k in (-2, -1, 1, 2))
-    fourth = (m2 - 8 * m1 + 8 * p1 - p2) / (12 * step)
-    second = (p1 - m1) / (2 * step)
-    return np.where(np.isfinite(fourth), fourth, second)
+    return _derivative(field, axis, step, 1)
 
 
 def _second(field: np.ndarray, axis: int, step: float) -> np.ndarray:
-    """Second derivative by central differences, fourth order where possible, else second."""
-    m2, m1, p1, p2 = (_shifted(field, axis, k) for k in (-2, -1, 1, 2))
-    fourth = (-m2 + 16 * m1 - 30 * field + 16 * p1 - p2) / (12 * step**2)
-    second = (p1 - 2 * field + m1) / step**2
-    return np.where(np.isfinite(fourth), fourth, second)
+    return _derivative(field, axis, step, 2)
 
 
 def designed_curvature(stretch_u: np.ndarray, stretch_v: np.ndarray, step: float) -> np.ndarray:

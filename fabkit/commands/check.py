@@ -1,0 +1,47 @@
+"""``fabkit check design.npz``: isometry and curvature residuals of a design."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from fabkit.design.check import Tolerances, check_design
+from fabkit.design.design import Design
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "check", help="measure how well a design realises each target (exit 1 if over tolerance)"
+    )
+    parser.add_argument("design", help="design file (.npz) written by fabkit solve")
+    parser.add_argument("--json", action="store_true", help="print the report as JSON")
+    defaults = Tolerances()
+    parser.add_argument(
+        "--isometry-median",
+        type=float,
+        default=defaults.isometry_median,
+        help="tolerance on the median isometry residual (default %(default)g)",
+    )
+    parser.add_argument(
+        "--isometry-p95",
+        type=float,
+        default=defaults.isometry_p95,
+        help="tolerance on the 95th percentile (default %(default)g)",
+    )
+    parser.add_argument(
+        "--curvature-median",
+        type=float,
+        default=defaults.curvature_median,
+        help="tolerance on the median curvature residual (default %(default)g)",
+    )
+    parser.add_argument(
+        "--region", type=float, help="check only points with |u|, |v| <= REGION (design units)"
+    )
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    tolerances = Tolerances(args.isometry_median, args.isometry_p95, args.curvature_median)
+    report = check_design(Design.load(args.design), tolerances, region=args.region)
+    print(json.dumps(report.to_dict(), indent=2) if args.json else report.table())
+    return 0 if report.passed else 1

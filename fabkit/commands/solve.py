@@ -1,0 +1,53 @@
+"""``fabkit solve SPEC --out design.npz``: solve the inverse-design problem."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from fabkit.design.check import check_design
+from fabkit.design.report import describe, summary, write_summary
+from fabkit.design.solver import solve
+from fabkit.errors import FabkitError
+from fabkit.progress import ProgressBar
+from fabkit.spec import load_spec
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("solve", help="solve a design spec into design.npz")
+    parser.add_argument("spec", help="spec file (TOML)")
+    parser.add_argument("--out", default="design.npz", help="design file to write (.npz)")
+    parser.add_argument("--step", type=float, help="grid step in u and v (design units)")
+    parser.add_argument("--diagonals", type=int, help="diagonals to march per quadrant")
+    parser.add_argument("--quadrants", type=parse_quadrants, help='"all" or signs like "1,1;-1,1"')
+    parser.set_defaults(func=run)
+
+
+def parse_quadrants(text: str) -> list[list[int]]:
+    if text == "all":
+        return [[1, 1], [-1, 1], [-1, -1], [1, -1]]
+    try:
+        return [[int(s) for s in pair.split(",")] for pair in text.split(";")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected "all" or "1,1;-1,1", got {text!r}') from None
+
+
+def run(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if out.suffix != ".npz":
+        raise FabkitError(f"--out {out}: a design file must end in .npz")
+    spec = load_spec(args.spec).with_solver(
+        step=args.step, diagonals=args.diagonals, quadrants=args.quadrants
+    )
+    bar = ProgressBar("solving")
+    try:
+        solution = solve(spec, progress=bar)
+    finally:
+        bar.close()
+    report = check_design(solution.design)
+    data = summary(solution, report)
+    solution.design.save(out)
+    write_summary(out.with_suffix(".json"), data)
+    print(describe(data, report))
+    print(f"wrote {out} and {out.with_suffix('.json')}")
+    return 0

@@ -1,0 +1,83 @@
+"""The solve summary written beside a design file (``design.json``) and printed on screen."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fabkit.atomic import atomic_path
+from fabkit.design.check import CheckReport
+from fabkit.design.design import Design
+from fabkit.design.solver import Solution
+from fabkit.spec import spec_from_json
+
+
+def realised_areas(design: Design) -> dict[str, float]:
+    """Area of the solved patch on every surface, sum of alpha beta lambda1 lambda2 du dv."""
+    spec = spec_from_json(design.spec)
+    eps = np.where(design.valid, design.eps, 0.0)
+    response = spec.material.response(eps, design.stimuli)
+    cell = design.step**2
+    areas = {}
+    for j, target in enumerate(spec.targets):
+        density = design.alpha * design.beta * response.lambda1[j] * response.lambda2[j]
+        areas[target.name] = float(np.sum(density[design.valid]) * cell)
+    return areas
+
+
+def summary(solution: Solution, check: CheckReport) -> dict[str, Any]:
+    """Solve time, grid, valid points, areas, stops and residuals as plain JSON data."""
+    design = solution.design
+    spec = spec_from_json(design.spec)
+    stops = [
+        {"reason": s.reason, "u": round(s.u, 12), "v": round(s.v, 12), "surface": s.surface}
+        for s in solution.stops
+    ]
+    return {
+        "solve_seconds": round(solution.seconds, 4),
+        "grid": {
+            "step": design.step,
+            "diagonals": spec.solver.diagonals,
+            "quadrants": [list(q) for q in spec.solver.quadrants],
+            "shape": list(design.valid.shape),
+            "extrapolate": spec.solver.extrapolate,
+        },
+        "valid_points": int(design.valid.sum()),
+        "areas": realised_areas(design),
+        "stop_counts": dict(Counter(s.reason for s in solution.stops)),
+        "stops": stops,
+        "check": check.to_dict(),
+    }
+
+
+def write_summary(path: str | Path, data: dict[str, Any]) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+
+
+def describe(data: dict[str, Any], check: CheckReport) -> str:
+    """One screen of text for the terminal."""
+    grid = data["grid"]
+    lines = [
+        f"solved in {data['solve_seconds']:.3f} s: {data['valid_points']} valid points on a "
+        f"{grid['shape'][0]} x {grid['shape'][1]} grid (step {grid['step']:g}, "
+        f"{'Richardson-extrapolated' if grid['extrapolate'] else 'second order'})",
+        "realised area: " + ", ".join(f"{k} {v:.4g}" for k, v in data["areas"].items()),
+    ]
+    if data["stop_counts"]:
+        lines.append("stops:")
+        first = {}
+        for stop in data["stops"]:
+            first.setdefault(stop["reason"], stop)
+        for reason, count in data["stop_counts"].items():
+            stop = first[reason]
+            where = f" on {stop['surface']}" if stop["surface"] else ""
+            lines.append(
+                f"  {count:5d} x {reason}{where} (first at u = {stop['u']:.3g}, v = {stop['v']:.3g})"
+            )
+    lines.append(check.table())
+    return "\n".join(lines)
