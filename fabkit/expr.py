@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import ast
 import math
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -142,7 +143,7 @@ def parse(text: str, names: Sequence[str], where: str = "expression") -> Express
     for name in names:
         if not name.isidentifier() or name in RESERVED:
             raise FabkitError(f"{where}: '{name}' cannot be used as a variable name")
-    if isinstance(text, bool) or isinstance(text, int | float):
+    if isinstance(text, bool | int | float):
         text = repr(float(text))
     if not isinstance(text, str):
         raise FabkitError(f"{where}: expected an expression string, got {type(text).__name__}")
@@ -152,7 +153,9 @@ def parse(text: str, names: Sequence[str], where: str = "expression") -> Express
         raise FabkitError(f"{where}: empty expression")
     source = text.replace("^", "**")
     try:
-        tree = ast.parse(source.strip(), mode="eval")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SyntaxWarning)
+            tree = ast.parse(source.strip(), mode="eval")
     except (SyntaxError, ValueError, RecursionError, MemoryError) as exc:
         raise FabkitError(f"{where}: cannot parse '{text}': {_syntax_reason(exc)}") from None
     symbols = {n: sp.Symbol(n, real=True) for n in names}

@@ -89,7 +89,7 @@ class Material:
 
     @cached_property
     def _compiled(self):
-        """One numpy function of (eps..., Lambda...) returning lambda1, lambda2 and log-derivatives."""
+        """numpy function of (eps..., Lambda...) -> lambda1, lambda2 and their log-derivatives."""
         symbols = self.lambda1.symbols
         eps = symbols[: len(self.features)]
         outputs = []
@@ -134,8 +134,8 @@ def check_unstretched(material: Material, stimulus: Sequence[float], where: str)
     response = material.response(eps, np.asarray([stimulus], dtype=float))
     for label, values in (("lambda1", response.lambda1), ("lambda2", response.lambda2)):
         if not np.allclose(values, 1.0, rtol=0, atol=1e-12):
+            worst = values.flat[np.argmax(abs(values - 1))]
             raise FabkitError(
-                f"{where}: {label} must equal 1 at the flat sheet's stimulus "
-                f"{list(stimulus)} for every eps (it is {values.flat[np.argmax(abs(values - 1))]:.4g} "
-                "somewhere): surfaces[0] is the sheet as made"
+                f"{where}: {label} must equal 1 at the flat sheet's stimulus {list(stimulus)} "
+                f"for every eps (it is {worst:.4g} somewhere): surfaces[0] is the sheet as made"
             )

@@ -76,8 +76,7 @@ def describe(data: dict[str, Any], check: CheckReport) -> str:
         for reason, count in data["stop_counts"].items():
             stop = first[reason]
             where = f" on {stop['surface']}" if stop["surface"] else ""
-            lines.append(
-                f"  {count:5d} x {reason}{where} (first at u = {stop['u']:.3g}, v = {stop['v']:.3g})"
-            )
+            at = f"u = {stop['u']:.3g}, v = {stop['v']:.3g}"
+            lines.append(f"  {count:5d} x {reason}{where} (first at {at})")
     lines.append(check.table())
     return "\n".join(lines)

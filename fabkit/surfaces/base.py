@@ -111,7 +111,7 @@ class SymbolicGeometry:
         ) ** 2
 
     def compile(self):
-        """A numpy function (a, b) -> (g, gamma, K) arrays, built once with common subexpressions."""
+        """numpy function (a, b) -> (g, gamma, K), compiled once with common subexpressions."""
         gamma = self.christoffel()
         outputs = [
             self.metric[0, 0],

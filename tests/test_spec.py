@@ -1,0 +1,162 @@
+"""Spec validation: every refusal is a one-line FabkitError naming the problem."""
+
+from __future__ import annotations
+
+import pytest
+
+from fabkit.errors import FabkitError
+from fabkit.material import ACROSS, ALONG
+from fabkit.spec import build_spec, load_spec
+from tests.conftest import EXAMPLES, ROOT
+
+
+def refuse(table: dict, match: str) -> str:
+    with pytest.raises(FabkitError, match=match) as info:
+        build_spec(table, ROOT)
+    assert "\n" not in str(info.value)
+    return str(info.value)
+
+
+def test_examples_load_and_classify():
+    assert load_spec(EXAMPLES / "two_shapes.toml").classes == (ACROSS,)
+    assert load_spec(EXAMPLES / "three_shapes.toml").classes == (ALONG, ACROSS)
+
+
+def test_unknown_keys(fig1):
+    fig1["material"]["lambda3"] = "1"
+    refuse(fig1, "material: unknown key 'lambda3'")
+
+
+def test_unknown_section(fig1):
+    fig1["extra"] = {}
+    refuse(fig1, "unknown key 'extra'")
+
+
+def test_unknown_geometry_key(fig1):
+    fig1["surfaces"][1]["geometry"]["radious"] = 1
+    refuse(fig1, r"surfaces\[1\].geometry: unknown key 'radious'")
+
+
+def test_unknown_surface_kind(fig1):
+    fig1["surfaces"][2]["geometry"] = {"kind": "torus"}
+    refuse(fig1, "unknown surface kind 'torus'")
+
+
+def test_wrong_number_of_surfaces(fig1):
+    fig1["surfaces"].pop()
+    refuse(fig1, "need exactly 3 surfaces")
+
+
+def test_stimulus_of_wrong_length(fig1):
+    fig1["surfaces"][1]["stimulus"] = [1, 2]
+    refuse(fig1, r"surfaces\[1\].stimulus: expected one value per stimulus")
+
+
+@pytest.mark.parametrize("key", ["start", "director"])
+@pytest.mark.parametrize("value", [[1.0], [1.0, 2.0, 3.0], "x", [1.0, "a"]])
+def test_start_and_director_must_be_two_vectors(fig1, key, value):
+    fig1["surfaces"][1][key] = value
+    refuse(fig1, rf"surfaces\[1\].{key}")
+
+
+def test_curves_must_meet(fig1):
+    fig1["initial"]["v_curve"] = ["1 + 2*(1 - cos(t))", "2*sin(t)"]
+    refuse(fig1, "must meet at t = 0")
+
+
+def test_curves_must_be_perpendicular(fig1):
+    fig1["initial"]["v_curve"] = ["t", "t"]
+    refuse(fig1, "must be perpendicular")
+
+
+def test_v_curve_must_turn_counter_clockwise(fig1):
+    fig1["initial"]["v_curve"] = ["0", "-t"]
+    refuse(fig1, "counter-clockwise")
+
+
+def test_stretch_must_be_one_on_the_flat_sheet(fig1):
+    fig1["surfaces"][0]["stimulus"] = [0.5]
+    refuse(fig1, r"lambda2 must equal 1 at the flat sheet's stimulus")
+
+
+def test_start_outside_chart(fig1):
+    fig1["surfaces"][1]["start"] = [4.0, 0.0]
+    refuse(fig1, "lies outside the sphere chart")
+
+
+def test_feature_acting_both_ways_is_not_hyperbolic(fig1):
+    fig1["material"]["lambda1"] = "exp(L*eps/2)"
+    refuse(fig1, "not hyperbolic")
+
+
+def test_feature_acting_neither_way(fig1):
+    fig1["material"]["lambda2"] = "exp(L)"
+    refuse(fig1, "changes neither")
+
+
+def test_bad_expression_in_spec_names_the_field(fig1):
+    fig1["surfaces"][2]["geometry"]["z"] = "__import__('os')"
+    refuse(fig1, r"surfaces\[2\].geometry.z: calling")
+
+
+def test_initial_series_per_feature(fig1):
+    fig1["initial"]["eps"] = ["1", "2"]
+    refuse(fig1, "initial.eps: expected 1 expression")
+
+
+def test_solver_settings(fig1):
+    fig1["solver"]["quadrants"] = [[1, 2]]
+    refuse(fig1, "solver.quadrants")
+    fig1["solver"]["quadrants"] = "all"
+    fig1["solver"]["step"] = -1
+    refuse(fig1, "solver.step")
+
+
+def test_flat_sheet_must_be_a_plane(fig1):
+    fig1["surfaces"][0]["geometry"] = {"kind": "sphere"}
+    refuse(fig1, 'must be kind = "plane"')
+
+
+def test_round_trip_through_json(fig3):
+    from fabkit.spec import spec_from_json
+
+    spec = build_spec(fig3, ROOT)
+    again = spec_from_json(spec.to_json())
+    assert again.to_json() == spec.to_json()
+    assert again.classes == spec.classes
+
+
+def test_cli_summary(run_cli):
+    code, out, _ = run_cli("spec", EXAMPLES / "two_shapes.toml")
+    assert code == 0
+    assert "eps: acts across the director" in out
+    lines = {line.split(":")[0].strip(): line for line in out.splitlines()}
+    assert "K = 1 at start" in lines["[1] sphere"]
+    assert "K = 1 at start" in lines["[2] bump"]
+    assert "p = 1/2 along the v-curve" in out
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (None, "does not exist"),
+        ("[material\nfeatures = 1", "not valid TOML"),
+        ('[material]\nfeatures = ["eps"]\n', "missing section"),
+        (b"\xff\xfe\x00garbage", "cannot read spec file"),
+    ],
+)
+def test_cli_bad_input_is_one_line_exit_2(run_cli, tmp_path, content, message):
+    path = tmp_path / "spec.toml"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    elif content is not None:
+        path.write_text(content)
+    code, out, err = run_cli("spec", path)
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and message in err and err.startswith("fabkit: error:")
+
+
+def test_version(run_cli):
+    with pytest.raises(SystemExit) as info:
+        run_cli("--version")
+    assert info.value.code == 0
