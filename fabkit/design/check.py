@@ -107,36 +107,56 @@ class CheckReport:
         return "\n".join(lines)
 
 
-def check_design(
-    design: Design, tolerances: Tolerances = Tolerances(), region: float | None = None
-) -> CheckReport:
-    """Residuals of every surface of ``design``.
+RESIDUALS = ("length_u", "length_v", "angle", "curvature")
 
-    ``region``: only points with |u|, |v| <= region count (None: all interior points).
+
+@dataclass(frozen=True)
+class ResidualMaps:
+    """Per-point residuals of one surface on the design grid, NaN off the checked points.
+
+    Each array has the grid's shape (nu, nv); keys as in :data:`RESIDUALS`.
+    """
+
+    name: str
+    maps: dict[str, np.ndarray]
+
+
+def residual_maps(design: Design, region: float | None = None) -> tuple[ResidualMaps, ...]:
+    """Residual maps of every surface of ``design``.
+
+    ``region``: only points with |u|, |v| <= region are checked (None: all interior points).
     """
     spec = spec_from_json(design.spec)
-    step = design.step
     interior = _interior(design, region)
     eps = np.where(design.valid, design.eps, 0.0)
     response = spec.material.response(eps, design.stimuli)
     scale = _curvature_scale(spec, design, interior)
-    checks = []
+    out = []
     for j, target in enumerate(spec.targets):
         stretch_u = design.alpha * response.lambda1[j]
         stretch_v = design.beta * response.lambda2[j]
-        checks.append(
-            _check_surface(
-                target.name,
-                target.surface,
-                design.r[j],
-                stretch_u,
-                stretch_v,
-                step,
-                interior,
-                scale,
-            )
+        values = _surface_residuals(
+            target.surface, design.r[j], stretch_u, stretch_v, design.step, interior, scale
         )
-    return CheckReport(tuple(checks), tolerances)
+        maps = {}
+        for key, value in zip(RESIDUALS, values, strict=True):
+            full = np.full(interior.shape, np.nan)
+            full[interior] = value
+            maps[key] = full
+        out.append(ResidualMaps(target.name, maps))
+    return tuple(out)
+
+
+def check_design(
+    design: Design, tolerances: Tolerances = Tolerances(), region: float | None = None
+) -> CheckReport:
+    """Median and 95th percentile of every residual of every surface of ``design``."""
+    surfaces = []
+    for surface in residual_maps(design, region):
+        points = int(np.isfinite(surface.maps["length_u"]).sum())
+        stats = (_stats(surface.maps[key]) for key in RESIDUALS)
+        surfaces.append(SurfaceCheck(surface.name, points, *stats))
+    return CheckReport(tuple(surfaces), tolerances)
 
 
 def _interior(design: Design, region: float | None) -> np.ndarray:
@@ -219,7 +239,8 @@ def designed_curvature(stretch_u: np.ndarray, stretch_v: np.ndarray, step: float
     return -((b_uu * a - b_u * a_u) / a**2 + (a_vv * b - a_v * b_v) / b**2) / (a * b)
 
 
-def _check_surface(name, surface, r, stretch_u, stretch_v, step, interior, scale) -> SurfaceCheck:
+def _surface_residuals(surface, r, stretch_u, stretch_v, step, interior, scale):
+    """The four residuals at the interior points, as 1D arrays in RESIDUALS order."""
     with np.errstate(all="ignore"):
         r_u, r_v = _central(r, 0, step), _central(r, 1, step)
         points = r[interior]
@@ -231,13 +252,12 @@ def _check_surface(name, surface, r, stretch_u, stretch_v, step, interior, scale
         su, sv = stretch_u[interior], stretch_v[interior]
         k_designed = designed_curvature(stretch_u, stretch_v, step)[interior]
         k_target = surface.curvature(points)
-        residuals = (
+        return (
             np.abs(length_u - su) / su,
             np.abs(length_v - sv) / sv,
             np.abs(cross) / (length_u * length_v),
             np.abs(k_designed - k_target) / scale,
         )
-    return SurfaceCheck(name, int(interior.sum()), *(_stats(x) for x in residuals))
 
 
 def _stats(values: np.ndarray) -> Residual:

@@ -1,0 +1,35 @@
+"""Pictures and the HTML report. ``render_design`` draws everything a design has."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fabkit.design.check import residual_maps
+from fabkit.design.design import Design
+from fabkit.plot import design as pictures
+
+DESIGN_PICTURES = (
+    (
+        "flat_sheet.png",
+        "The flat sheet: director lines coloured by the first feature, "
+        "v-curves grey, domain outline black",
+    ),
+    ("eps.png", "Designable features on the flat sheet and on the material grid"),
+    (
+        "surfaces.png",
+        "Every actuated surface in 3D with the patch's u-curves (red) and "
+        "v-curves (blue) drawn on the target",
+    ),
+    ("residuals.png", "Residual maps of fabkit check on the material grid (log scale)"),
+)
+
+
+def render_design(design: Design, folder: str | Path) -> list[tuple[str, Path]]:
+    """Draw the design pictures into ``folder``; returns (caption, path) pairs."""
+    folder = Path(folder)
+    paths = {name: folder / name for name, _ in DESIGN_PICTURES}
+    pictures.flat_sheet(design, paths["flat_sheet.png"])
+    pictures.eps_maps(design, paths["eps.png"])
+    pictures.actuated_surfaces(design, paths["surfaces.png"])
+    pictures.residual_maps(design, residual_maps(design), paths["residuals.png"])
+    return [(caption, paths[name]) for name, caption in DESIGN_PICTURES]

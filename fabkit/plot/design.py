@@ -1,0 +1,205 @@
+"""Pictures of a design: the flat sheet, eps, every actuated surface, the residuals (PNG)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.colors import LogNorm  # noqa: E402
+from matplotlib.tri import Triangulation  # noqa: E402
+
+from fabkit.atomic import atomic_path  # noqa: E402
+from fabkit.design.check import RESIDUALS, ResidualMaps  # noqa: E402
+from fabkit.design.design import Design  # noqa: E402
+from fabkit.design.patches import grid_triangles  # noqa: E402
+from fabkit.spec import spec_from_json  # noqa: E402
+
+CURVES = 24
+"""About this many u-curves and v-curves are drawn on each picture."""
+
+
+def save(figure: plt.Figure, path: str | Path) -> None:
+    """Write a figure as PNG atomically and close it."""
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+    plt.close(figure)
+
+
+def _stride(design: Design, axis: int) -> int:
+    """Grid stride between drawn curves along ``axis`` (0: u-curves, 1: v-curves)."""
+    spread = np.nonzero(design.valid.any(axis=axis))[0]
+    extent = np.ptp(spread) + 1 if len(spread) else 1
+    return max(1, int(extent // CURVES))
+
+
+def _lines(points: np.ndarray, valid: np.ndarray, axis: int, stride: int) -> list[np.ndarray]:
+    """Polylines of grid lines along ``axis`` (0: u-curves, 1: v-curves), every stride-th."""
+    lines = []
+    count = points.shape[1 - axis]
+    for k in range(0, count, stride):
+        line = points[:, k] if axis == 0 else points[k, :]
+        mask = valid[:, k] if axis == 0 else valid[k, :]
+        for run in _runs(mask):
+            if len(run) > 1:
+                lines.append(line[run])
+    return lines
+
+
+def _runs(mask: np.ndarray) -> list[np.ndarray]:
+    """Index arrays of the consecutive True runs of a 1D mask."""
+    edges = np.diff(np.concatenate([[0], mask.astype(int), [0]]))
+    starts, stops = np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0]
+    return [np.arange(a, b) for a, b in zip(starts, stops, strict=True)]
+
+
+def flat_sheet(design: Design, path: str | Path) -> None:
+    """The flat sheet: director lines (u-curves) coloured by the first feature, v-curves grey."""
+    spec = spec_from_json(design.spec)
+    flat = design.r[0]
+    figure, axes = plt.subplots(figsize=(6.5, 6))
+    for line in _lines(flat, design.valid, 1, _stride(design, 1)):
+        axes.plot(line[:, 0], line[:, 1], color="0.75", lw=0.6, zorder=1)
+    segments, colours = [], []
+    eps = design.eps[0]
+    for k in range(0, flat.shape[1], max(1, _stride(design, 0) // 2)):
+        for run in _runs(design.valid[:, k]):
+            if len(run) > 1:
+                points = flat[run, k]
+                segments.extend(np.stack([points[:-1], points[1:]], 1))
+                colours.extend(0.5 * (eps[run[:-1], k] + eps[run[1:], k]))
+    collection = LineCollection(segments, array=np.array(colours), cmap="viridis", lw=1.4)
+    axes.add_collection(collection)
+    figure.colorbar(collection, ax=axes, label=f"{spec.material.features[0]}")
+    _outline(axes, design)
+    axes.set_aspect("equal")
+    axes.autoscale()
+    axes.set_xlabel("x (design units)")
+    axes.set_ylabel("y (design units)")
+    axes.set_title("flat sheet: director lines (coloured) and v-curves (grey)")
+    save(figure, path)
+
+
+def _outline(axes, design: Design) -> None:
+    """Draw the border of the solved domain on the flat sheet."""
+    points, triangles = grid_triangles(design.valid)
+    if len(triangles) == 0:
+        return
+    edges = np.sort(
+        np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1
+    )
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    border = unique[counts == 1]
+    xy = design.r[0][points[:, 0], points[:, 1]]
+    axes.add_collection(LineCollection(xy[border], colors="black", lw=1.0))
+
+
+def eps_maps(design: Design, path: str | Path) -> None:
+    """Every feature on the flat sheet (left column) and on the (u, v) grid (right column)."""
+    spec = spec_from_json(design.spec)
+    points, triangles = grid_triangles(design.valid)
+    features = spec.material.features
+    figure, axes = plt.subplots(len(features), 2, figsize=(11, 4.6 * len(features)), squeeze=False)
+    xy = design.r[0][points[:, 0], points[:, 1]]
+    extent = [design.u[0], design.u[-1], design.v[0], design.v[-1]]
+    for row, name in enumerate(features):
+        values = design.eps[row]
+        if len(triangles):
+            mesh = Triangulation(xy[:, 0], xy[:, 1], triangles)
+            shading = axes[row, 0].tripcolor(
+                mesh, values[points[:, 0], points[:, 1]], shading="gouraud", cmap="viridis"
+            )
+            figure.colorbar(shading, ax=axes[row, 0], label=name)
+        axes[row, 0].set_aspect("equal")
+        axes[row, 0].set_title(f"{name} on the flat sheet")
+        image = axes[row, 1].imshow(
+            values.T, origin="lower", extent=extent, cmap="viridis", aspect="auto"
+        )
+        figure.colorbar(image, ax=axes[row, 1], label=name)
+        axes[row, 1].set_xlabel("u")
+        axes[row, 1].set_ylabel("v")
+        axes[row, 1].set_title(f"{name} on the material grid")
+        _zoom(axes[row, 1], design)
+    save(figure, path)
+
+
+def _zoom(axes, design: Design) -> None:
+    rows = np.nonzero(design.valid.any(axis=1))[0]
+    cols = np.nonzero(design.valid.any(axis=0))[0]
+    if len(rows):
+        axes.set_xlim(design.u[rows[0]], design.u[rows[-1]])
+        axes.set_ylim(design.v[cols[0]], design.v[cols[-1]])
+
+
+def actuated_surfaces(design: Design, path: str | Path) -> None:
+    """Every target in 3D: the surface near the patch, with the patch's u- and v-curves."""
+    spec = spec_from_json(design.spec)
+    targets = [
+        (j, t)
+        for j, t in enumerate(spec.targets)
+        if j > 0 and t.surface.embed(t.start[None]) is not None
+    ]
+    figure = plt.figure(figsize=(5.5 * max(len(targets), 1), 5.5))
+    for column, (j, target) in enumerate(targets):
+        axes = figure.add_subplot(1, len(targets), column + 1, projection="3d")
+        chart = design.r[j]
+        _surface_backdrop(axes, target.surface, chart[design.valid])
+        for axis, colour in ((0, "tab:red"), (1, "tab:blue")):
+            for line in _lines(chart, design.valid, axis, _stride(design, axis)):
+                xyz = target.surface.embed(line)
+                axes.plot(xyz[:, 0], xyz[:, 1], xyz[:, 2], color=colour, lw=0.8)
+        _equal_3d(axes, target.surface.embed(chart[design.valid]))
+        stimulus = ", ".join(f"{s:g}" for s in target.stimulus)
+        axes.set_title(f"{target.name} (stimulus {stimulus})\nu-curves red, v-curves blue")
+    save(figure, path)
+
+
+def _surface_backdrop(axes, surface, chart_points: np.ndarray) -> None:
+    """The target surface over the patch's chart bounding box, lightly shaded."""
+    if len(chart_points) == 0:
+        return
+    low, high = chart_points.min(axis=0), chart_points.max(axis=0)
+    margin = 0.08 * (high - low + 1e-9)
+    a, b = np.meshgrid(
+        np.linspace(low[0] - margin[0], high[0] + margin[0], 40),
+        np.linspace(low[1] - margin[1], high[1] + margin[1], 40),
+        indexing="ij",
+    )
+    grid = np.stack([a, b], -1)
+    inside = surface.contains(grid)
+    xyz = surface.embed(np.where(inside[..., None], grid, np.nan))
+    axes.plot_surface(xyz[..., 0], xyz[..., 1], xyz[..., 2], color="0.85", alpha=0.35, linewidth=0)
+
+
+def _equal_3d(axes, points: np.ndarray) -> None:
+    if len(points) == 0:
+        return
+    low, high = points.min(axis=0), points.max(axis=0)
+    centre, half = (low + high) / 2, (high - low).max() / 2 + 1e-9
+    for setter, c in zip((axes.set_xlim, axes.set_ylim, axes.set_zlim), centre, strict=True):
+        setter(c - half, c + half)
+    axes.set_box_aspect((1, 1, 1))
+
+
+def residual_maps(design: Design, maps: tuple[ResidualMaps, ...], path: str | Path) -> None:
+    """Residual maps on the (u, v) grid: one row per surface, one column per residual."""
+    figure, axes = plt.subplots(
+        len(maps), len(RESIDUALS), figsize=(4 * len(RESIDUALS), 3.4 * len(maps)), squeeze=False
+    )
+    extent = [design.u[0], design.u[-1], design.v[0], design.v[-1]]
+    norm = LogNorm(vmin=1e-7, vmax=1e-1)
+    for row, surface in enumerate(maps):
+        for column, key in enumerate(RESIDUALS):
+            values = np.clip(surface.maps[key], 1e-7, None)
+            image = axes[row, column].imshow(
+                values.T, origin="lower", extent=extent, norm=norm, cmap="magma", aspect="auto"
+            )
+            axes[row, column].set_title(f"{surface.name}: {key}", fontsize=9)
+            _zoom(axes[row, column], design)
+        figure.colorbar(image, ax=axes[row, :].tolist(), label="residual", shrink=0.8)
+    save(figure, path)

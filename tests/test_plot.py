@@ -1,0 +1,73 @@
+"""Pictures, patch meshes and the HTML report of a solved design."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from fabkit.design.design import Design
+from fabkit.design.patches import grid_triangles, patch_mesh, write_patch_mesh
+from fabkit.design.solver import solve
+from fabkit.errors import FabkitError
+from fabkit.spec import build_spec
+from tests.conftest import ROOT
+
+
+@pytest.fixture(scope="module")
+def fig1_design(tmp_path_factory) -> Design:
+    from tests.conftest import example_table
+
+    table = example_table("two_shapes.toml")
+    table["solver"].update(step=0.1, diagonals=20)
+    path = tmp_path_factory.mktemp("design") / "design.npz"
+    solve(build_spec(table, ROOT)).design.save(path)
+    return Design.load(path)
+
+
+def test_grid_triangles_cover_solved_cells():
+    valid = np.zeros((4, 4), dtype=bool)
+    valid[:3, :3] = True
+    points, triangles = grid_triangles(valid)
+    assert len(points) == 9 and len(triangles) == 8
+    corners = points[triangles]
+    a, b = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+    signed = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    assert np.all(signed > 0)
+
+
+def test_patch_meshes_lie_on_their_targets(fig1_design, tmp_path):
+    vertices, triangles = patch_mesh(fig1_design, 1)
+    assert np.allclose(np.linalg.norm(vertices, axis=1), 1.0)  # the unit sphere
+    vertices, _ = patch_mesh(fig1_design, 2)
+    assert np.allclose(vertices[:, 2], np.exp(-(vertices[:, 0] ** 2 + vertices[:, 1] ** 2 / 4)))
+    for suffix in ("ply", "stl", "glb"):
+        write_patch_mesh(fig1_design, 1, tmp_path / f"sphere.{suffix}")
+        mesh = trimesh.load(tmp_path / f"sphere.{suffix}", force="mesh")
+        assert len(mesh.faces) == len(triangles)
+    with pytest.raises(FabkitError, match="mesh format"):
+        write_patch_mesh(fig1_design, 1, tmp_path / "sphere.xyz")
+
+
+def test_cli_plot_writes_pictures_meshes_and_report(run_cli, fig1_design, tmp_path):
+    design_path = tmp_path / "design.npz"
+    fig1_design.save(design_path)
+    code, out, _ = run_cli("plot", design_path, "--out", tmp_path / "plots")
+    assert code == 0
+    names = {p.name for p in (tmp_path / "plots").iterdir()}
+    expected = {
+        "flat_sheet.png",
+        "eps.png",
+        "surfaces.png",
+        "residuals.png",
+        "report.html",
+        "patch_0_flat.ply",
+        "patch_1_sphere.ply",
+        "patch_2_bump.ply",
+    }
+    assert expected <= names
+    assert not any(n.startswith(".") for n in names)  # no temporary leftovers
+    page = (tmp_path / "plots" / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 4 and "check passed" in page
+    for name in ("flat_sheet.png", "surfaces.png"):
+        assert (tmp_path / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
