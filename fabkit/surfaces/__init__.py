@@ -13,6 +13,7 @@ from typing import Any
 from fabkit.errors import FabkitError
 from fabkit.surfaces.analytic import Graph, Metric, Parametric, Plane, Sphere
 from fabkit.surfaces.base import Surface
+from fabkit.surfaces.data import HeightMap, MeshSurface
 
 KINDS = {
     "plane": Plane,
@@ -20,6 +21,8 @@ KINDS = {
     "graph": Graph,
     "parametric": Parametric,
     "metric": Metric,
+    "heightmap": HeightMap,
+    "mesh": MeshSurface,
 }
 """Geometry kinds by name; each class has ``from_table(name, table, where, base_dir)``."""
 

@@ -1,0 +1,580 @@
+"""Targets from data: height maps and meshes, fitted with a smooth surface.
+
+Two geometry kinds, both height fields z = f(x, y) over the data's footprint:
+
+* ``{ kind = "heightmap", file = "...", extent = [x0, x1, y0, y1], z_scale = 1.0 }`` reads
+  a grid from ``.npy``, ``.npz``, ``.csv`` or a single-channel (16-bit) ``.png``/``.tif``.
+  Row j, column i holds the height at (x0 + i hx, y0 + j hy), so ``extent`` gives the
+  coordinates of the first and last columns and rows; images are stored top row first,
+  so their top row is y1. NaN cells, cells where an ``.npz`` ``mask`` is True, and cells
+  equal to ``nodata`` (raw value) are holes. An ``.npz`` may carry its own ``x`` (nx,)
+  and ``y`` (ny,) node coordinates instead of ``extent``.
+* ``{ kind = "mesh", file = "....stl|obj|ply", axis = "z" }`` reads a triangle mesh with
+  trimesh, refuses it unless it is a height field over the plane normal to ``axis``,
+  and resamples it on a grid: at its own vertices when they form a regular grid,
+  otherwise at its mean vertex spacing. The chart is (x, y) for axis z, (y, z) for
+  axis x and (z, x) for axis y.
+
+Both take an optional ``smoothing`` (chart units; one length or [along chart axis 1,
+along chart axis 2]); without it the smoothing is chosen from the data's noise
+(see :mod:`fabkit.surfaces.fit`). The chart domain is the footprint: grid cells whose
+corners are data and more than ``HOLE_MARGIN`` nodes from any hole; leaving it is a
+solver stop (``contains`` is False).
+"""
+
+from __future__ import annotations
+
+import zipfile
+from collections.abc import Mapping
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from fabkit.errors import FabkitError
+from fabkit.surfaces.analytic import check_keys, number
+from fabkit.surfaces.base import Surface
+from fabkit.surfaces.fit import SurfaceFit, fit_grid
+
+MIN_SIDE = 8
+"""Fewest nodes per side of a height grid."""
+MAX_SIDE = 2048
+"""Most nodes per side of a height grid."""
+MESH_MAX_SIDE = 1024
+"""Most nodes per side when resampling an irregular mesh."""
+MAX_CELL_ASPECT = 4.0
+"""Largest ratio of a grid cell's sides; more usually means a transposed grid or wrong extent."""
+HOLE_MARGIN = 2.0
+"""Nodes this close to a hole (in node spacings) are outside the footprint: the fit is
+less reliable there."""
+K_SAMPLES = 250_000
+"""Most footprint cells at which the K range of the summary is evaluated."""
+IMAGE_MODES = {"I;16", "I;16B", "I;16L", "I", "F", "L"}
+"""Pillow modes of single-channel images (16-bit, 32-bit integer or float, 8-bit)."""
+CHARTS = {"x": (1, 2, 0), "y": (2, 0, 1), "z": (0, 1, 2)}
+"""For each height axis: indices in (x, y, z) of chart coordinate 1, chart coordinate 2, height."""
+GRID_FORMATS = (".npy", ".npz", ".csv", ".png", ".tif", ".tiff")
+MESH_FORMATS = (".stl", ".obj", ".ply")
+
+
+@dataclass(frozen=True)
+class HeightGrid:
+    """Heights z (ny, nx), NaN = hole, with node (i, j) at origin + (i, j) * spacing."""
+
+    z: np.ndarray
+    origin: tuple[float, float]
+    spacing: tuple[float, float]
+
+
+class DataSurface(Surface):
+    """A height field fitted to data; chart = the two coordinates across ``axis``.
+
+    g = I + grad f grad f^T, Gamma^i_jk = f_i f_jk / (1 + |grad f|^2) and
+    K = (f_xx f_yy - f_xy^2) / (1 + |grad f|^2)^2, from the fit's closed-form derivatives.
+    """
+
+    def __init__(self, name: str, source: str, grid: HeightGrid, fit: SurfaceFit, axis: str = "z"):
+        self.name, self.source, self.fit, self.axis = name, source, fit, axis
+        self.chart = tuple("xyz"[i] for i in CHARTS[axis][:2])
+        ny, nx = grid.z.shape
+        (x0, y0), (hx, hy) = grid.origin, grid.spacing
+        self.bounds = ((x0, x0 + (nx - 1) * hx), (y0, y0 + (ny - 1) * hy))
+        self.footprint = footprint_cells(np.isfinite(grid.z))
+        self.curvature_range = self._curvature_range()
+
+    def geometry(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return graph_geometry(self.fit.derivatives(r)[1:])
+
+    def embed(self, r: np.ndarray) -> np.ndarray:
+        r = np.asarray(r, dtype=float)
+        columns = (r[..., 0], r[..., 1], self.fit.derivatives(r)[0])
+        order = np.argsort(CHARTS[self.axis])
+        return np.stack([columns[k] for k in order], axis=-1)
+
+    def contains(self, r: np.ndarray) -> np.ndarray:
+        r = np.asarray(r, dtype=float)
+        inside = super().contains(r)
+        cells = self.footprint
+        (x0, _), (y0, _) = self.bounds
+        (hx, hy) = self.fit.spacing
+        with np.errstate(invalid="ignore"):
+            i = np.clip((r[..., 0] - x0) / hx, 0, cells.shape[1] - 1)
+            j = np.clip((r[..., 1] - y0) / hy, 0, cells.shape[0] - 1)
+        i = np.where(inside, i, 0).astype(np.intp)
+        j = np.where(inside, j, 0).astype(np.intp)
+        return inside & cells[j, i]
+
+    def describe(self) -> str:
+        (x0, x1), (y0, y1) = self.bounds
+        a, b = self.chart
+        ny, nx = self.fit.shape
+        fit = self.fit
+        how = f"chosen from noise {fit.noise:.2g}" if fit.chosen else "set"
+        k_low, k_high = self.curvature_range
+        return (
+            f"{self.kind} {self.source}, {nx} x {ny} grid over {a} [{x0:g}, {x1:g}], "
+            f"{b} [{y0:g}, {y1:g}], footprint {self.footprint.mean():.0%} of it; "
+            f"fit rms {fit.residual:.2g}, smoothing {fit.smoothing[0]:.3g} x "
+            f"{fit.smoothing[1]:.3g} ({how}); K in [{k_low:.3g}, {k_high:.3g}]"
+        )
+
+    def _curvature_range(self) -> tuple[float, float]:
+        """(min, max) of K at the centres of footprint cells (a regular subsample if many)."""
+        rows, columns = np.nonzero(self.footprint)
+        stride = max(1, int(np.ceil(len(rows) / K_SAMPLES)))
+        (x0, _), (y0, _) = self.bounds
+        hx, hy = self.fit.spacing
+        centres = np.stack(
+            [x0 + (columns[::stride] + 0.5) * hx, y0 + (rows[::stride] + 0.5) * hy], axis=-1
+        )
+        curvature = self.curvature(centres)
+        return float(curvature.min()), float(curvature.max())
+
+
+class HeightMap(DataSurface):
+    """``kind = "heightmap"``: a height grid from a file."""
+
+    kind = "heightmap"
+
+    @classmethod
+    def from_table(
+        cls, name: str, table: Mapping[str, Any], where: str, base_dir: Path
+    ) -> HeightMap:
+        check_keys(table, {"kind", "file", "extent", "z_scale", "nodata", "smoothing"}, where)
+        path = data_file(table, where, base_dir, GRID_FORMATS)
+        extent = _extent(table["extent"], f"{where}.extent") if "extent" in table else None
+        z_scale = number(table.get("z_scale", 1.0), f"{where}.z_scale")
+        if z_scale == 0:
+            raise FabkitError(f"{where}.z_scale: must not be zero")
+        nodata = number(table["nodata"], f"{where}.nodata") if "nodata" in table else None
+        smoothing = _smoothing(table, where)
+        grid, fit = _heightmap_fit(
+            str(path), _stamp(path), extent, z_scale, nodata, smoothing, where
+        )
+        return cls(name, path.name, grid, fit)
+
+
+class MeshSurface(DataSurface):
+    """``kind = "mesh"``: a triangle mesh that is a height field over the plane normal to axis."""
+
+    kind = "mesh"
+
+    @classmethod
+    def from_table(
+        cls, name: str, table: Mapping[str, Any], where: str, base_dir: Path
+    ) -> MeshSurface:
+        check_keys(table, {"kind", "file", "axis", "smoothing"}, where)
+        path = data_file(table, where, base_dir, MESH_FORMATS)
+        axis = table.get("axis", "z")
+        if axis not in CHARTS:
+            raise FabkitError(f'{where}.axis: expected "x", "y" or "z", got {axis!r}')
+        smoothing = _smoothing(table, where)
+        grid, fit = _mesh_fit(str(path), _stamp(path), axis, smoothing, where)
+        return cls(name, path.name, grid, fit, axis)
+
+
+def graph_geometry(derivatives: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Metric (..., 2, 2), Christoffel symbols (..., 2, 2, 2) and K (...) of a graph z = f(x, y)
+    from (f_x, f_y, f_xx, f_xy, f_yy) stacked as (5, ...)."""
+    fx, fy, fxx, fxy, fyy = derivatives
+    grad = np.stack([fx, fy], axis=-1)
+    hessian = np.stack([np.stack([fxx, fxy], -1), np.stack([fxy, fyy], -1)], -2)
+    w = 1.0 + fx**2 + fy**2
+    g = np.eye(2) + grad[..., :, None] * grad[..., None, :]
+    gamma = grad[..., :, None, None] * hessian[..., None, :, :] / w[..., None, None, None]
+    return g, gamma, (fxx * fyy - fxy**2) / w**2
+
+
+def footprint_cells(valid: np.ndarray) -> np.ndarray:
+    """(ny - 1, nx - 1) True for grid cells whose four corners are data nodes more than
+    HOLE_MARGIN node spacings from every hole, for valid (ny, nx) data nodes."""
+    trusted = valid if valid.all() else ndimage.distance_transform_edt(valid) > HOLE_MARGIN
+    return trusted[:-1, :-1] & trusted[1:, :-1] & trusted[:-1, 1:] & trusted[1:, 1:]
+
+
+def data_file(
+    table: Mapping[str, Any], where: str, base_dir: Path, formats: tuple[str, ...]
+) -> Path:
+    """The existing, non-empty data file named by ``file``, relative to base_dir."""
+    name = table.get("file")
+    if not isinstance(name, str) or not name:
+        raise FabkitError(f'{where}.file: expected a file name, like file = "face.npy"')
+    path = Path(base_dir) / name
+    if path.suffix.lower() not in formats:
+        raise FabkitError(
+            f"{where}.file: '{name}' has an unsupported format (use {', '.join(formats)})"
+        )
+    if not path.is_file():
+        raise FabkitError(f"{where}.file: '{path}' does not exist")
+    if path.stat().st_size == 0:
+        raise FabkitError(f"{where}.file: '{path}' is empty")
+    return path
+
+
+def _stamp(path: Path) -> tuple[int, int]:
+    """(modification time ns, size): a fitted file is refitted when it changes."""
+    status = path.stat()
+    return status.st_mtime_ns, status.st_size
+
+
+def _smoothing(table: Mapping[str, Any], where: str) -> tuple[float, float] | None:
+    """``smoothing = L`` or ``[L1, L2]`` (chart units, >= 0), or None when absent."""
+    if "smoothing" not in table:
+        return None
+    value = table["smoothing"]
+    values = value if isinstance(value, list) else [value, value]
+    if len(values) != 2:
+        raise FabkitError(f"{where}.smoothing: expected a length or two, like 0.5 or [0.5, 1]")
+    lengths = tuple(number(v, f"{where}.smoothing") for v in values)
+    if min(lengths) < 0:
+        raise FabkitError(f"{where}.smoothing: lengths must be zero or positive")
+    return lengths
+
+
+def _extent(value: Any, where: str) -> tuple[float, float, float, float]:
+    if not isinstance(value, list) or len(value) != 4:
+        raise FabkitError(f"{where}: expected [x0, x1, y0, y1]")
+    x0, x1, y0, y1 = (number(v, where) for v in value)
+    if not (x0 < x1 and y0 < y1):
+        raise FabkitError(f"{where}: expected x0 < x1 and y0 < y1, got {value}")
+    return x0, x1, y0, y1
+
+
+@lru_cache(maxsize=8)
+def _heightmap_fit(
+    path: str,
+    stamp: tuple[int, int],
+    extent: tuple[float, float, float, float] | None,
+    z_scale: float,
+    nodata: float | None,
+    smoothing: tuple[float, float] | None,
+    where: str,
+) -> tuple[HeightGrid, SurfaceFit]:
+    """Read and fit a height map (cached on the file's stamp and the settings)."""
+    values, coordinates = read_grid(Path(path), where)
+    if nodata is not None:
+        values = np.where(values == nodata, np.nan, values)
+    grid = _place(values * z_scale, coordinates, extent, where)
+    return grid, fit_grid(grid.z, grid.origin, grid.spacing, smoothing)
+
+
+@lru_cache(maxsize=8)
+def _mesh_fit(
+    path: str,
+    stamp: tuple[int, int],
+    axis: str,
+    smoothing: tuple[float, float] | None,
+    where: str,
+) -> tuple[HeightGrid, SurfaceFit]:
+    """Read, check, resample and fit a mesh (cached on the file's stamp and the settings)."""
+    triangles = read_mesh(Path(path), where)[..., list(CHARTS[axis])]
+    grid = mesh_grid(triangles, axis, where)
+    return grid, fit_grid(grid.z, grid.origin, grid.spacing, smoothing)
+
+
+def read_grid(path: Path, where: str) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+    """Raw values (ny, nx) as floats (NaN = hole) and the file's own node coordinates
+    (x (nx,), y (ny,)) if it has them."""
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        values, coordinates = _read_npy(path, where), None
+    elif suffix == ".npz":
+        values, coordinates = _read_npz(path, where)
+    elif suffix == ".csv":
+        values, coordinates = _read_csv(path, where), None
+    else:
+        values, coordinates = _read_image(path, where), None
+    return _check_values(values, path, where), coordinates
+
+
+def _read_npy(path: Path, where: str) -> np.ndarray:
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise FabkitError(
+            f"{where}.file: '{path.name}' is not a valid .npy array ({exc})"
+        ) from None
+
+
+def _read_npz(path: Path, where: str) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+    """Heights from key ``z`` (or the only array), holes from ``mask``, coordinates ``x``, ``y``."""
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            arrays = {key: archive[key] for key in archive.files}
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise FabkitError(
+            f"{where}.file: '{path.name}' is not a valid .npz archive ({exc})"
+        ) from None
+    if "z" not in arrays and len(arrays) != 1:
+        raise FabkitError(
+            f"{where}.file: '{path.name}' needs an array named 'z' (has {sorted(arrays)})"
+        )
+    values = _numeric(arrays.get("z", next(iter(arrays.values()))), path, where)
+    if "mask" in arrays:
+        mask = np.asarray(arrays["mask"], dtype=bool)
+        if mask.shape != values.shape:
+            raise FabkitError(f"{where}.file: 'mask' in '{path.name}' has another shape than 'z'")
+        values = np.where(mask, np.nan, values)
+    if ("x" in arrays) != ("y" in arrays):
+        raise FabkitError(f"{where}.file: '{path.name}' must hold both 'x' and 'y', or neither")
+    if "x" not in arrays:
+        return values, None
+    return values, (np.ravel(arrays["x"]).astype(float), np.ravel(arrays["y"]).astype(float))
+
+
+def _read_csv(path: Path, where: str) -> np.ndarray:
+    try:
+        return np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
+    except (ValueError, UnicodeDecodeError) as exc:
+        reason = str(exc).splitlines()[0]
+        raise FabkitError(
+            f"{where}.file: '{path.name}' is not a grid of numbers ({reason}); write holes as nan"
+        ) from None
+
+
+def _read_image(path: Path, where: str) -> np.ndarray:
+    """Single-channel image as an array, flipped so that row 0 is the bottom (y0)."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as image:
+            image.load()
+            mode, values = image.mode, np.array(image)
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
+        raise FabkitError(f"{where}.file: '{path.name}' is not a readable image ({exc})") from None
+    if mode not in IMAGE_MODES:
+        raise FabkitError(
+            f"{where}.file: '{path.name}' is a {mode} image; save heights as a single-channel "
+            "(grayscale) 16-bit image"
+        )
+    return values[::-1]
+
+
+def _numeric(array: np.ndarray, path: Path, where: str) -> np.ndarray:
+    if array.dtype.kind not in "biuf":
+        raise FabkitError(f"{where}.file: '{path.name}' holds {array.dtype} values, not numbers")
+    return array
+
+
+def _check_values(values: np.ndarray, path: Path, where: str) -> np.ndarray:
+    """Float heights (ny, nx): 2D, numeric, no infinities, some finite, sides within limits."""
+    values = _numeric(np.asarray(values), path, where).astype(float)
+    if values.ndim != 2:
+        raise FabkitError(
+            f"{where}.file: '{path.name}' holds a {values.ndim}D array; a height grid is 2D"
+        )
+    if np.isinf(values).any():
+        raise FabkitError(f"{where}.file: '{path.name}' contains infinite heights")
+    if not np.isfinite(values).any():
+        raise FabkitError(f"{where}.file: '{path.name}' has no finite heights")
+    _check_shape(values.shape, path.name, where)
+    return values
+
+
+def _check_shape(shape: tuple[int, int], name: str, where: str) -> None:
+    if min(shape) < MIN_SIDE or max(shape) > MAX_SIDE:
+        raise FabkitError(
+            f"{where}.file: '{name}' is a {shape[0]} x {shape[1]} grid; "
+            f"need {MIN_SIDE} to {MAX_SIDE} nodes per side"
+        )
+
+
+def _place(
+    z: np.ndarray,
+    coordinates: tuple[np.ndarray, np.ndarray] | None,
+    extent: tuple[float, float, float, float] | None,
+    where: str,
+) -> HeightGrid:
+    """The grid of heights z (ny, nx) over the extent or the file's coordinates, checked."""
+    ny, nx = z.shape
+    if coordinates is None and extent is None:
+        raise FabkitError(f"{where}: missing key 'extent' = [x0, x1, y0, y1]")
+    if coordinates is not None:
+        own = _coordinate_extent(coordinates, (ny, nx), where)
+        if extent is not None and not np.allclose(own, extent, rtol=0, atol=1e-6 * _span(own)):
+            raise FabkitError(
+                f"{where}.extent: {list(extent)} does not match the file's coordinates "
+                f"{[round(v, 6) for v in own]}"
+            )
+        extent = own
+    x0, x1, y0, y1 = extent
+    spacing = ((x1 - x0) / (nx - 1), (y1 - y0) / (ny - 1))
+    aspect = spacing[0] / spacing[1]
+    if not 1 / MAX_CELL_ASPECT <= aspect <= MAX_CELL_ASPECT:
+        raise FabkitError(
+            f"{where}.extent: {[x0, x1, y0, y1]} gives {spacing[0]:.3g} x {spacing[1]:.3g} "
+            f"cells for a grid of {ny} rows x {nx} columns; cells more than "
+            f"{MAX_CELL_ASPECT:g} times longer one way mean a wrong extent or a transposed grid"
+        )
+    return HeightGrid(z, (x0, y0), spacing)
+
+
+def _span(extent: tuple[float, ...]) -> float:
+    return max(extent[1] - extent[0], extent[3] - extent[2])
+
+
+def _coordinate_extent(
+    coordinates: tuple[np.ndarray, np.ndarray], shape: tuple[int, int], where: str
+) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1) from evenly spaced increasing node coordinates x (nx,), y (ny,)."""
+    x, y = coordinates
+    if (len(y), len(x)) != shape:
+        raise FabkitError(
+            f"{where}.file: 'x' and 'y' have {len(x)} and {len(y)} values for a grid of "
+            f"{shape[0]} rows x {shape[1]} columns"
+        )
+    for label, values in (("x", x), ("y", y)):
+        steps = np.diff(values)
+        if (
+            not (np.all(np.isfinite(values)) and steps.min() > 0)
+            or np.ptp(steps) > 1e-6 * steps.mean()
+        ):
+            raise FabkitError(f"{where}.file: '{label}' must be evenly spaced and increasing")
+    return float(x[0]), float(x[-1]), float(y[0]), float(y[-1])
+
+
+def read_mesh(path: Path, where: str) -> np.ndarray:
+    """The mesh's triangles as vertex coordinates (T, 3, 3), checked finite and non-empty."""
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    # trimesh's loaders raise many exception types on corrupt input (struct, index, key,
+    # value and unicode errors among them); all of them mean the same to the user.
+    except Exception as exc:  # noqa: BLE001
+        raise FabkitError(
+            f"{where}.file: '{path.name}' is not a readable mesh ({type(exc).__name__}: {exc})"
+        ) from None
+    faces = getattr(mesh, "faces", None)
+    if faces is None or len(faces) == 0:
+        raise FabkitError(f"{where}.file: '{path.name}' contains no triangles")
+    triangles = np.asarray(mesh.vertices, dtype=float)[np.asarray(faces)]
+    if not np.all(np.isfinite(triangles)):
+        raise FabkitError(f"{where}.file: '{path.name}' has non-finite vertex coordinates")
+    return triangles
+
+
+def mesh_grid(triangles: np.ndarray, axis: str, where: str) -> HeightGrid:
+    """Resample triangles (T, 3, 3) = (chart 1, chart 2, height) per vertex on a grid.
+
+    Refuses meshes that are not height fields: faces facing both ways across the chart
+    plane (folds, overhangs, closed solids) or chart points covered twice at different heights.
+    """
+    plane = triangles[..., :2]
+    edges = plane[:, 1:] - plane[:, :1]
+    doubled_area = edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]
+    orientation = np.sign(doubled_area.sum())
+    flipped = int(np.sum(doubled_area * orientation < -1e-9 * np.abs(doubled_area).max()))
+    if flipped:
+        raise FabkitError(
+            f"{where}.file: the mesh is not a height field over {axis}: {flipped} of "
+            f"{len(triangles)} faces face the other way (folds, overhangs or a closed solid); "
+            f"export only the surface seen from the {axis} axis"
+        )
+    upright = np.abs(doubled_area) > 1e-12 * np.abs(doubled_area).max()
+    origin, spacing, shape = _mesh_nodes(plane.reshape(-1, 2), np.abs(doubled_area).sum() / 2)
+    z = _rasterise(triangles[upright], origin, spacing, shape, axis, where)
+    if not np.isfinite(z).any():
+        raise FabkitError(f"{where}.file: the mesh covers no grid node")
+    return HeightGrid(z, origin, spacing)
+
+
+def _mesh_nodes(
+    points: np.ndarray, area: float
+) -> tuple[tuple[float, float], tuple[float, float], tuple[int, int]]:
+    """Grid (origin, spacing, (ny, nx)) for chart points (m, 2) of a mesh of chart area ``area``:
+    the vertices' own lattice if they form one, else the mean vertex spacing over their bounds."""
+    lattice = [_lattice(points[:, k]) for k in (0, 1)]
+    if all(item is not None for item in lattice):
+        (x0, hx, nx), (y0, hy, ny) = lattice
+        return (x0, y0), (hx, hy), (ny, nx)
+    low, high = points.min(0), points.max(0)
+    step = max(np.sqrt(area / len(np.unique(points, axis=0))), np.max(high - low) / MESH_MAX_SIDE)
+    counts = np.maximum(np.floor((high - low) / step).astype(int) + 1, MIN_SIDE)
+    spacing = (high - low) / (counts - 1)
+    return (low[0], low[1]), (spacing[0], spacing[1]), (counts[1], counts[0])
+
+
+def _lattice(values: np.ndarray) -> tuple[float, float, int] | None:
+    """(first, step, count) if values (m,) take evenly spaced distinct levels (up to float32
+    rounding), as the vertices of a meshed height grid do; else None."""
+    levels = np.unique(values)
+    scale = max(float(np.ptp(levels)), float(np.abs(levels).max()), 1e-300)
+    starts = np.concatenate([[True], np.diff(levels) > 1e-5 * scale])
+    groups = np.split(levels, np.flatnonzero(starts)[1:])
+    if not MIN_SIDE <= len(groups) <= MAX_SIDE:
+        return None
+    centres = np.array([group.mean() for group in groups])
+    steps = np.diff(centres)
+    if np.ptp(steps) > 1e-3 * steps.mean():
+        return None
+    return float(centres[0]), float(steps.mean()), len(centres)
+
+
+def _rasterise(
+    triangles: np.ndarray,
+    origin: tuple[float, float],
+    spacing: tuple[float, float],
+    shape: tuple[int, int],
+    axis: str,
+    where: str,
+) -> np.ndarray:
+    """Heights (ny, nx) of triangles (T, 3, 3) at grid nodes by linear interpolation in each
+    triangle; NaN where no triangle covers a node. Refuses nodes covered at two heights."""
+    node, height = _node_hits(triangles, origin, spacing, shape)
+    size = shape[0] * shape[1]
+    low, high = np.full(size, np.inf), np.full(size, -np.inf)
+    np.minimum.at(low, node, height)
+    np.maximum.at(high, node, height)
+    heights = triangles[..., 2]
+    tolerance = 1e-5 * max(float(np.ptp(heights)), max(spacing))
+    twice = np.flatnonzero(high - low > tolerance)
+    if twice.size:
+        j, i = np.unravel_index(twice[0], shape)
+        a, b = origin[0] + i * spacing[0], origin[1] + j * spacing[1]
+        raise FabkitError(
+            f"{where}.file: the mesh is not a height field over {axis}: the point "
+            f"({a:.4g}, {b:.4g}) lies under it at heights {low[twice[0]]:.4g} and "
+            f"{high[twice[0]]:.4g} (overlapping sheets)"
+        )
+    counts = np.bincount(node, minlength=size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = np.bincount(node, weights=height, minlength=size) / counts
+    return z.reshape(shape)
+
+
+def _node_hits(
+    triangles: np.ndarray,
+    origin: tuple[float, float],
+    spacing: tuple[float, float],
+    shape: tuple[int, int],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every (flat node index, interpolated height) pair with the node inside a
+    triangle (within rounding), vectorised over the nodes of each triangle's bounding box."""
+    ny, nx = shape
+    scale = np.asarray(spacing)
+    local = (triangles[..., :2] - np.asarray(origin)) / scale
+    first = np.clip(np.ceil(local.min(1) - 1e-6), 0, [nx - 1, ny - 1]).astype(np.intp)
+    last = np.clip(np.floor(local.max(1) + 1e-6), -1, [nx - 1, ny - 1]).astype(np.intp)
+    width = np.maximum(last - first + 1, 0)
+    counts = width[:, 0] * width[:, 1]
+    triangle = np.repeat(np.arange(len(triangles)), counts)
+    offset = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    i = first[triangle, 0] + offset % width[triangle, 0]
+    j = first[triangle, 1] + offset // width[triangle, 0]
+    corner = local[triangle, 0]
+    u = local[triangle, 1] - corner
+    v = local[triangle, 2] - corner
+    p = np.stack([i, j], axis=-1) - corner
+    determinant = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    s = (p[:, 0] * v[:, 1] - p[:, 1] * v[:, 0]) / determinant
+    t = (u[:, 0] * p[:, 1] - u[:, 1] * p[:, 0]) / determinant
+    inside = (s >= -1e-6) & (t >= -1e-6) & (s + t <= 1 + 1e-6)
+    heights = triangles[triangle, :, 2]
+    height = (
+        heights[:, 0] + s * (heights[:, 1] - heights[:, 0]) + t * (heights[:, 2] - heights[:, 0])
+    )
+    return (j * nx + i)[inside], height[inside]
