@@ -112,14 +112,15 @@ def solve(spec: Spec, progress: Callable[[int, int], None] | None = None) -> Sol
     coarse, stops = _march(spec, settings.step, settings.diagonals, report, 0)
     if settings.extrapolate:
         fine, stops = _march(
-            spec, settings.step / 2, 2 * settings.diagonals, report, settings.diagonals
+            spec, settings.step / 2, 2 * settings.diagonals, report, settings.diagonals, every=2
         )
         coarse = _extrapolate(spec, coarse, fine)
     return Solution(coarse, stops, time.perf_counter() - started)
 
 
-def _march(spec: Spec, step: float, diagonals: int, report, offset: int):
-    """March every quadrant out to ``diagonals`` diagonals of width ``step``."""
+def _march(spec: Spec, step: float, diagonals: int, report, offset: int, every: int = 1):
+    """March every quadrant out to ``diagonals`` diagonals of width ``step``; the design
+    keeps every ``every``-th grid line."""
     problem = _problem(spec, step, diagonals)
     u_data, v_data = _curve_data(problem)
     origin = _origin(problem, u_data, v_data)
@@ -132,18 +133,16 @@ def _march(spec: Spec, step: float, diagonals: int, report, offset: int):
         report(offset + d + 1)
         if d >= 1 and not grid.valid_diagonal(d + 1)[:, 1:-1].any():
             break  # beyond, only the bare initial curves could go on: no area of design
-    return grid.assemble(), grid.stops()
+    return grid.assemble(every), grid.stops()
 
 
 def _extrapolate(spec: Spec, coarse: Design, fine: Design) -> Design:
     """Richardson combination of a march at step h and one at h/2, on the coarse grid."""
-    every_other = (slice(None, None, 2), slice(None, None, 2))
-    valid = coarse.valid & fine.valid[every_other]
+    valid = coarse.valid & fine.valid
 
     def combine(c: np.ndarray, f: np.ndarray, grid_axes: int) -> np.ndarray:
-        index = (slice(None),) * grid_axes + every_other
         mask = valid.reshape((1,) * grid_axes + valid.shape + (1,) * (c.ndim - grid_axes - 2))
-        return np.where(mask, (4 * f[index] - c) / 3, np.nan)
+        return np.where(mask, (4 * f - c) / 3, np.nan)
 
     r = combine(coarse.r, fine.r, 1)
     n = combine(coarse.n, fine.n, 1)
@@ -702,13 +701,19 @@ class _Grid:
             stops.append(Stop(REASONS[code], u, v, surface))
         return tuple(sorted(stops, key=lambda s: (abs(s.u) + abs(s.v), s.u, s.v)))
 
-    def assemble(self) -> Design:
-        """All quadrants on one (2D+1)^2 grid; values on shared axes are averaged."""
+    def assemble(self, every: int = 1) -> Design:
+        """All quadrants on one grid of step ``every`` x h; shared axes are averaged.
+
+        ``every = 2`` keeps every other grid line (the fine march of the Richardson step
+        is only needed on the coarse grid).
+        """
         problem = self.problem
-        size = problem.diagonals
+        size = problem.diagonals // every
         full = 2 * size + 1
-        axis = problem.step * np.arange(-size, size + 1)
-        quadrants, rows, cols, diagonals = self._points(1)
+        axis = every * problem.step * np.arange(-size, size + 1)
+        quadrants, rows, cols, _ = self._points(1)
+        keep = (rows % every == 0) & (cols % every == 0)
+        quadrants, rows, cols = quadrants[keep], rows[keep] // every, cols[keep] // every
         g_rows = size + (problem.sign_u[quadrants, 0] * rows).astype(int)
         g_cols = size + (problem.sign_v[quadrants, 0] * cols).astype(int)
         counts = np.zeros((full, full))
@@ -717,6 +722,7 @@ class _Grid:
         mean = {}
         for key in self.diagonals[0][0]:
             values = np.concatenate([state[key][valid_d] for state, valid_d, _ in self.diagonals])
+            values = values[keep]
             sums = np.zeros((full, full) + values.shape[1:])
             np.add.at(sums, (g_rows, g_cols), values)
             out = np.full_like(sums, np.nan)
