@@ -50,6 +50,8 @@ MAX_CELL_ASPECT = 4.0
 HOLE_MARGIN = 2.0
 """Nodes this close to a hole (in node spacings) are outside the footprint: the fit is
 less reliable there."""
+QUADRATIC_NEIGHBOURS = 16
+"""Vertices in each local quadratic fit when resampling an irregular mesh."""
 K_SAMPLES = 250_000
 """Most footprint cells at which the K range of the summary is evaluated."""
 IMAGE_MODES = {"I;16", "I;16B", "I;16L", "I", "F", "L"}
@@ -270,8 +272,8 @@ def _mesh_fit(
     where: str,
 ) -> tuple[HeightGrid, SurfaceFit]:
     """Read, check, resample and fit a mesh (cached on the file's stamp and the settings)."""
-    triangles = read_mesh(Path(path), where)[..., list(CHARTS[axis])]
-    grid = mesh_grid(triangles, axis, where)
+    vertices, faces = read_mesh(Path(path), where)
+    grid = mesh_grid(vertices[:, list(CHARTS[axis])], faces, axis, where)
     return grid, fit_grid(grid.z, grid.origin, grid.spacing, smoothing)
 
 
@@ -436,8 +438,9 @@ def _coordinate_extent(
     return float(x[0]), float(x[-1]), float(y[0]), float(y[-1])
 
 
-def read_mesh(path: Path, where: str) -> np.ndarray:
-    """The mesh's triangles as vertex coordinates (T, 3, 3), checked finite and non-empty."""
+def read_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh's vertices (V, 3) and triangles (T, 3) as vertex indices, checked finite and
+    non-empty."""
     import trimesh
 
     try:
@@ -451,18 +454,22 @@ def read_mesh(path: Path, where: str) -> np.ndarray:
     faces = getattr(mesh, "faces", None)
     if faces is None or len(faces) == 0:
         raise FabkitError(f"{where}.file: '{path.name}' contains no triangles")
-    triangles = np.asarray(mesh.vertices, dtype=float)[np.asarray(faces)]
-    if not np.all(np.isfinite(triangles)):
+    vertices = np.asarray(mesh.vertices, dtype=float)
+    if not np.all(np.isfinite(vertices)):
         raise FabkitError(f"{where}.file: '{path.name}' has non-finite vertex coordinates")
-    return triangles
+    return vertices, np.asarray(faces)
 
 
-def mesh_grid(triangles: np.ndarray, axis: str, where: str) -> HeightGrid:
-    """Resample triangles (T, 3, 3) = (chart 1, chart 2, height) per vertex on a grid.
+def mesh_grid(vertices: np.ndarray, faces: np.ndarray, axis: str, where: str) -> HeightGrid:
+    """Resample a mesh on a grid: vertices (V, 3) = (chart 1, chart 2, height), faces (T, 3).
 
     Refuses meshes that are not height fields: faces facing both ways across the chart
-    plane (folds, overhangs, closed solids) or chart points covered twice at different heights.
+    plane (folds, overhangs, closed solids) or chart points covered twice at different
+    heights. Vertices on a regular lattice give the grid and its heights directly;
+    otherwise grid nodes covered by the mesh take local quadratic fits of the nearest
+    vertices (so the fit sees the smooth surface, not the kinks of the triangles).
     """
+    triangles = vertices[faces]
     plane = triangles[..., :2]
     edges = plane[:, 1:] - plane[:, :1]
     doubled_area = edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]
@@ -475,27 +482,61 @@ def mesh_grid(triangles: np.ndarray, axis: str, where: str) -> HeightGrid:
             f"export only the surface seen from the {axis} axis"
         )
     upright = np.abs(doubled_area) > 1e-12 * np.abs(doubled_area).max()
-    origin, spacing, shape = _mesh_nodes(plane.reshape(-1, 2), np.abs(doubled_area).sum() / 2)
+    area = np.abs(doubled_area).sum() / 2
+    origin, spacing, shape, on_lattice = _mesh_nodes(vertices[:, :2], area)
     z = _rasterise(triangles[upright], origin, spacing, shape, axis, where)
     if not np.isfinite(z).any():
         raise FabkitError(f"{where}.file: the mesh covers no grid node")
+    if not on_lattice:
+        z = _local_quadratics(vertices, z, origin, spacing)
     return HeightGrid(z, origin, spacing)
 
 
 def _mesh_nodes(
     points: np.ndarray, area: float
-) -> tuple[tuple[float, float], tuple[float, float], tuple[int, int]]:
-    """Grid (origin, spacing, (ny, nx)) for chart points (m, 2) of a mesh of chart area ``area``:
-    the vertices' own lattice if they form one, else the mean vertex spacing over their bounds."""
+) -> tuple[tuple[float, float], tuple[float, float], tuple[int, int], bool]:
+    """Grid (origin, spacing, (ny, nx), on the vertices' lattice) for a mesh's chart points
+    (V, 2) covering chart area ``area``: the vertices' own lattice if they form one, else
+    the mean vertex spacing over their bounds (at most MESH_MAX_SIDE nodes a side)."""
     lattice = [_lattice(points[:, k]) for k in (0, 1)]
     if all(item is not None for item in lattice):
         (x0, hx, nx), (y0, hy, ny) = lattice
-        return (x0, y0), (hx, hy), (ny, nx)
+        return (x0, y0), (hx, hy), (ny, nx), True
     low, high = points.min(0), points.max(0)
-    step = max(np.sqrt(area / len(np.unique(points, axis=0))), np.max(high - low) / MESH_MAX_SIDE)
+    step = max(np.sqrt(area / len(points)), np.max(high - low) / (MESH_MAX_SIDE - 1))
     counts = np.maximum(np.floor((high - low) / step).astype(int) + 1, MIN_SIDE)
     spacing = (high - low) / (counts - 1)
-    return (low[0], low[1]), (spacing[0], spacing[1]), (counts[1], counts[0])
+    return (low[0], low[1]), (spacing[0], spacing[1]), (counts[1], counts[0]), False
+
+
+def _local_quadratics(
+    vertices: np.ndarray,
+    z: np.ndarray,
+    origin: tuple[float, float],
+    spacing: tuple[float, float],
+) -> np.ndarray:
+    """z (ny, nx) with every finite node replaced by the value at the node of the weighted
+    least-squares quadratic through its nearest vertices (V, 3).
+
+    Weights (1 - (d / R)^2)^2 fall to zero at the distance R of the
+    (QUADRATIC_NEIGHBOURS + 1)-th nearest vertex, so the values vary smoothly from node to node.
+    """
+    from scipy.spatial import cKDTree
+
+    rows, columns = np.nonzero(np.isfinite(z))
+    nodes = np.stack([origin[0] + columns * spacing[0], origin[1] + rows * spacing[1]], -1)
+    count = min(QUADRATIC_NEIGHBOURS + 1, len(vertices))
+    distance, nearest = cKDTree(vertices[:, :2]).query(nodes, k=count)
+    weight = np.clip(1 - (distance / distance[:, -1:]) ** 2, 0, None) ** 2
+    offsets = (vertices[nearest, :2] - nodes[:, None, :]) / np.asarray(spacing)
+    dx, dy = offsets[..., 0], offsets[..., 1]
+    design = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], axis=-1)
+    normal = np.einsum("mk,mka,mkb->mab", weight, design, design)
+    moments = np.einsum("mk,mka,mk->ma", weight, design, vertices[nearest, 2])
+    ridge = 1e-9 * np.trace(normal, axis1=1, axis2=2)[:, None, None] * np.eye(6)
+    fitted = z.copy()
+    fitted[rows, columns] = np.linalg.solve(normal + ridge, moments[..., None])[:, 0, 0]
+    return fitted
 
 
 def _lattice(values: np.ndarray) -> tuple[float, float, int] | None:
