@@ -446,14 +446,16 @@ def read_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
     try:
         mesh = trimesh.load(path, force="mesh")
     # trimesh's loaders raise many exception types on corrupt input (struct, index, key,
-    # value and unicode errors among them); all of them mean the same to the user.
-    except Exception as exc:  # noqa: BLE001
+    # value and unicode errors among them; an ImportError when it tries to guess the text
+    # encoding of binary garbage); all of them mean the same to the user.
+    except Exception:  # noqa: BLE001
         raise FabkitError(
-            f"{where}.file: '{path.name}' is not a readable mesh ({type(exc).__name__}: {exc})"
+            f"{where}.file: '{path.name}' is not a readable mesh (corrupt, truncated or not "
+            f"really {path.suffix.lower()})"
         ) from None
     faces = getattr(mesh, "faces", None)
     if faces is None or len(faces) == 0:
-        raise FabkitError(f"{where}.file: '{path.name}' contains no triangles")
+        raise FabkitError(f"{where}.file: '{path.name}' contains no triangles (empty or corrupt)")
     vertices = np.asarray(mesh.vertices, dtype=float)
     if not np.all(np.isfinite(vertices)):
         raise FabkitError(f"{where}.file: '{path.name}' has non-finite vertex coordinates")
@@ -473,7 +475,7 @@ def mesh_grid(vertices: np.ndarray, faces: np.ndarray, axis: str, where: str) ->
     plane = triangles[..., :2]
     edges = plane[:, 1:] - plane[:, :1]
     doubled_area = edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]
-    orientation = np.sign(doubled_area.sum())
+    orientation = 1.0 if doubled_area.sum() >= 0 else -1.0
     flipped = int(np.sum(doubled_area * orientation < -1e-9 * np.abs(doubled_area).max()))
     if flipped:
         raise FabkitError(
@@ -577,8 +579,8 @@ def _rasterise(
         j, i = np.unravel_index(twice[0], shape)
         a, b = origin[0] + i * spacing[0], origin[1] + j * spacing[1]
         raise FabkitError(
-            f"{where}.file: the mesh is not a height field over {axis}: the point "
-            f"({a:.4g}, {b:.4g}) lies under it at heights {low[twice[0]]:.4g} and "
+            f"{where}.file: the mesh is not a height field over {axis}: it covers the point "
+            f"({a:.4g}, {b:.4g}) twice, at heights {low[twice[0]]:.4g} and "
             f"{high[twice[0]]:.4g} (overlapping sheets)"
         )
     counts = np.bincount(node, minlength=size)
