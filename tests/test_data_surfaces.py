@@ -551,7 +551,7 @@ def stl_files(tmp_path_factory):
 
 @pytest.mark.parametrize("kind", ["heightmap", "mesh"])
 def test_fig1_design_against_data_bump(stl_files, kind, fig1):
-    fig1["solver"].update(step=0.1, diagonals=40)
+    fig1["solver"].update(step=0.05, diagonals=40)
     exact = solved_check(copy.deepcopy(fig1))
     geometry = {
         "kind": kind,
