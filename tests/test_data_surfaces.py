@@ -359,6 +359,12 @@ REFUSALS = [
         "not a grid of numbers",
     ),
     (
+        "holes everywhere",
+        write_array("h.npy", np.where(np.indices((20, 20)).sum(0) % 4 == 0, np.nan, GRID)),
+        {"file": "h.npy", "extent": BUMP[1]},
+        "too many holes",
+    ),
+    (
         "3d array",
         write_array("t.npy", np.zeros((20, 20, 3))),
         {"file": "t.npy", "extent": [0, 1, 0, 1]},

@@ -260,7 +260,7 @@ def _heightmap_fit(
     if nodata is not None:
         values = np.where(values == nodata, np.nan, values)
     grid = _place(values * z_scale, coordinates, extent, where)
-    return grid, fit_grid(grid.z, grid.origin, grid.spacing, smoothing)
+    return grid, _fit(grid, smoothing, where)
 
 
 @lru_cache(maxsize=8)
@@ -274,7 +274,17 @@ def _mesh_fit(
     """Read, check, resample and fit a mesh (cached on the file's stamp and the settings)."""
     vertices, faces = read_mesh(Path(path), where)
     grid = mesh_grid(vertices[:, list(CHARTS[axis])], faces, axis, where)
-    return grid, fit_grid(grid.z, grid.origin, grid.spacing, smoothing)
+    return grid, _fit(grid, smoothing, where)
+
+
+def _fit(grid: HeightGrid, smoothing: tuple[float, float] | None, where: str) -> SurfaceFit:
+    """The fit of a grid that has a footprint left."""
+    if not footprint_cells(np.isfinite(grid.z)).any():
+        raise FabkitError(
+            f"{where}.file: no grid cell has data at its four corners away from holes "
+            "(too many holes)"
+        )
+    return fit_grid(grid.z, grid.origin, grid.spacing, smoothing)
 
 
 def read_grid(path: Path, where: str) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:

@@ -20,16 +20,16 @@ derivatives in closed form anywhere in the grid, vectorised over points.
 
 Choosing the smoothing (unless the user sets it):
 
-1. the noise variance ``s2`` of the heights comes from generalised
-   cross-validation (GCV) over one isotropic smoothing length;
+1. the noise level of the heights: a robust spread of their third differences
+   (:func:`noise_level`);
 2. each axis' smoothing length then minimises an unbiased estimate of the mean
    squared error of the fitted Hessian (``f_xx``, ``f_xy``, ``f_yy``), which is what
    the Gaussian curvature and Christoffel symbols are made of, by coordinate
-   descent over a logarithmic ladder of lengths.
+   descent over a logarithmic ladder of lengths. With holes this is done on the
+   largest hole-free rectangle of the grid.
 
-Holes are filled by expectation-maximisation: start from the nearest data value,
-then replace hole values by the fit until they settle, which converges to the
-fit that ignores the holes.
+Holes are filled by the fit that ignores them (the fixed point of
+expectation-maximisation), solved by conjugate gradients from a smooth first guess.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ MAD_TO_SIGMA = 1.4826
 FILL_ROUNDS = 25
 """Most conjugate-gradient iterations that fill holes."""
 FILL_TOLERANCE = 0.05
-"""Holes are settled when no hole value near data moves by more than this times the noise."""
+"""Hole filling stops when the residual's RMS per hole node is below this times the noise."""
 NOISE_FLOOR = 1e-6
 """Noise below this fraction of the height range counts as this, for settling holes."""
 FILL_BAND = 8
@@ -71,8 +71,8 @@ class SurfaceFit:
     ``origin`` = (x0, y0) and ``spacing`` = (hx, hy) in chart units.
     ``smoothing`` = (lx, ly) smoothing lengths in chart units; ``chosen`` is True when
     they were chosen from the data. ``noise`` is the estimated standard deviation of
-    the data about the fit and ``residual`` the RMS of (fit - data) over valid nodes,
-    both in height units.
+    the noise in the data (:func:`noise_level`) and ``residual`` the RMS of
+    (fit - data) over valid nodes, both in height units.
     """
 
     origin: tuple[float, float]
