@@ -594,3 +594,22 @@ def test_three_shapes_with_the_face_passes_check(geometry):
     assert report.passed, report.table()
     face = next(s for s in report.surfaces if s.name == "face")
     assert face.points > 1000
+
+
+def test_a_hole_in_the_data_stops_the_design(stl_files, fig3, tmp_path):
+    """Marching into a hole of the wavy height map is a chart stop on that surface, and no
+    solved point of the design lands in the hole."""
+    extent = WAVY[1]
+    z = np.load(stl_files / "wavy.npy")
+    x = np.linspace(extent[0], extent[1], N)
+    y = np.linspace(extent[2], extent[3], N)
+    hole = (np.abs(x[None, :] - 1.0) < 1.0) & (np.abs(y[:, None] - 3.5) < 1.0)
+    np.save(tmp_path / "holed.npy", np.where(hole, np.nan, z))
+    geometry = {"kind": "heightmap", "file": str(tmp_path / "holed.npy"), "extent": extent}
+    fig3["surfaces"][3]["geometry"] = geometry
+    fig3["solver"].update(step=0.1, diagonals=40)
+    solution = solve(build_spec(fig3, EXAMPLES))
+    stops = [s for s in solution.stops if s.reason == "target point left its chart"]
+    assert any(s.surface == "wavy" for s in stops)
+    points = solution.design.r[3][solution.design.valid]
+    assert not np.any((np.abs(points[:, 0] - 1.0) < 1.0) & (np.abs(points[:, 1] - 3.5) < 1.0))
