@@ -39,7 +39,7 @@ from dataclasses import dataclass
 from functools import cached_property, lru_cache
 
 import numpy as np
-from scipy import ndimage, sparse
+from scipy import linalg, ndimage, sparse
 from scipy.sparse import linalg as sparse_linalg
 
 LADDER = 60
@@ -178,21 +178,37 @@ class _Axis:
 @lru_cache(maxsize=8)
 def _penalty_modes(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues (n,) and orthonormal eigenvectors (n, n) of the n-node third-difference
-    penalty D^T D (cached: the solver builds many surfaces of the same size)."""
-    differences = np.diff(np.eye(n), 3, axis=0)
-    return np.linalg.eigh(differences.T @ differences)
+    penalty D^T D, a symmetric band matrix with 3 off-diagonals (cached: the solver builds
+    many surfaces of the same size)."""
+    differences = _third_differences(n)
+    penalty = (differences.T @ differences).todia()
+    return linalg.eig_banded(_band(penalty, 0, 3))
 
 
 @lru_cache(maxsize=8)
 def _spline_modes(n: int) -> np.ndarray:
     """(n + 2, n): uniform cubic B-spline coefficients (not-a-knot ends) interpolating each
     penalty mode at the n nodes."""
-    system = np.zeros((n + 2, n + 2))
     rows = np.arange(1, n + 1)
+    system = sparse.lil_matrix((n + 2, n + 2))
     system[rows, rows - 1], system[rows, rows], system[rows, rows + 1] = 1 / 6, 4 / 6, 1 / 6
     system[0, :4] = [1, -3, 3, -1]
-    system[-1, -4:] = [-1, 3, -3, 1]
-    return np.linalg.solve(system, np.eye(n + 2)[:, 1:-1] @ _penalty_modes(n)[1])
+    system[n + 1, n - 2 :] = [-1, 3, -3, 1]
+    rhs = np.zeros((n + 2, n))
+    rhs[1:-1] = _penalty_modes(n)[1]
+    return linalg.solve_banded((3, 3), _band(system, 3, 3), rhs)
+
+
+def _band(matrix: sparse.spmatrix, lower: int, upper: int) -> np.ndarray:
+    """LAPACK band storage (upper + lower + 1, n) of a square sparse matrix:
+    band[upper + i - j, j] = matrix[i, j]."""
+    n = matrix.shape[0]
+    band = np.zeros((upper + lower + 1, n))
+    for offset in range(-lower, upper + 1):
+        diagonal = matrix.diagonal(offset)
+        columns = slice(offset, n) if offset >= 0 else slice(0, n + offset)
+        band[upper - offset, columns] = diagonal
+    return band
 
 
 def fit_grid(
