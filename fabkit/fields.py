@@ -1,0 +1,568 @@
+"""Fields on the flat sheet, in millimetres: the director angle theta, eps, and the outline.
+
+A :class:`FlatField` is what the toolpath stage needs from a design: the domain outline
+(a shapely polygon, mm), the director angle ``theta(x, y)`` (radians, defined mod pi,
+defined on the whole plane so that line generation may look a little past the outline)
+and, if the design has one, the designable feature ``eps(x, y)``.
+
+It comes from one of three sources:
+
+* :func:`field_from_design` -- a solved ``design.npz``. The solved map ``r[0](u, v)`` sends
+  the material grid to the flat sheet; the outline is the union of the images of the valid
+  grid cells, and theta and eps are interpolated *along the grid*: a point is located in
+  the image of a grid triangle and interpolated barycentrically from its three corners
+  (never across the domain). Where the image overlaps itself, the preimage nearest to the
+  design origin (smallest ``|u| + |v|``) wins.
+* :func:`field_from_expression` -- ``theta(x, y)`` as a safe expression on a named shape
+  (``disc:10``, ``square:20``, ...), for standard patterns without a solve.
+* :func:`field_from_grid` -- a theta grid and mask (and optional eps grid) in mm.
+
+Director angles are interpolated as the tensor ``(cos 2 theta, sin 2 theta)`` so that the
+head-tail symmetry of the director is respected.
+"""
+
+from __future__ import annotations
+
+import ast
+import tomllib
+import zipfile
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import contourpy
+import numpy as np
+import shapely
+import shapely.affinity
+from scipy.interpolate import RegularGridInterpolator
+from scipy.spatial import cKDTree
+
+from fabkit.errors import FabkitError
+from fabkit.expr import parse
+from fabkit.surfaces.analytic import check_keys, number
+
+PlaneFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""A vectorised function of x and y (mm, broadcast arrays) returning an array of their shape."""
+
+EXPRESSION_NAMES = ("x", "y", "r", "phi")
+"""Names allowed in director and eps expressions: x, y (mm), r = hypot(x, y) (mm) and
+phi = arctan2(y, x) (radians). ``arctan2(a, b)`` may also be called with two arguments."""
+
+DESIGN_KEYS = ("u", "v", "valid", "eps", "r", "n")
+
+
+@dataclass(frozen=True, eq=False)
+class FlatField:
+    """A director field (and optional eps) on the flat sheet; lengths in mm, angles in rad.
+
+    ``theta_fn(x, y)`` and ``eps_fn(x, y)`` take broadcast arrays of mm coordinates and return
+    arrays of their shape; theta is defined mod pi. ``eps_fn`` is None when there is no eps.
+    """
+
+    outline: shapely.Polygon | shapely.MultiPolygon
+    theta_fn: PlaneFunction
+    eps_fn: PlaneFunction | None
+    source: str
+
+    def theta(self, points: np.ndarray) -> np.ndarray:
+        """Director angle (n,) in (-pi/2, pi/2] at (n, 2) points; finite everywhere."""
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        angles = np.asarray(self.theta_fn(points[:, 0], points[:, 1]), dtype=float)
+        angles = np.where(np.isfinite(angles), angles, 0.0)
+        return np.pi / 2 - np.mod(np.pi / 2 - angles, np.pi)
+
+    def director(self, points: np.ndarray) -> np.ndarray:
+        """Unit director (n, 2) at (n, 2) points (sign arbitrary)."""
+        angles = self.theta(points)
+        return np.column_stack([np.cos(angles), np.sin(angles)])
+
+    def eps(self, points: np.ndarray) -> np.ndarray:
+        """eps (n,) at (n, 2) points; a FabkitError if the field has none."""
+        if self.eps_fn is None:
+            raise FabkitError(f"{self.source}: has no eps field to encode")
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        return np.asarray(self.eps_fn(points[:, 0], points[:, 1]), dtype=float)
+
+    @property
+    def has_eps(self) -> bool:
+        return self.eps_fn is not None
+
+    def clipped(self, clip: shapely.Geometry) -> FlatField:
+        """The same field on the outline intersected with ``clip`` (mm)."""
+        outline = _polygonal(shapely.intersection(self.outline, clip))
+        if outline.is_empty:
+            raise FabkitError(f"{self.source}: the clip outline does not overlap the domain")
+        return replace(self, outline=outline)
+
+
+# --------------------------------------------------------------------------- expressions
+
+
+def planar_expression(text: Any, where: str) -> PlaneFunction:
+    """Parse a safe expression in x, y, r, phi (see :data:`EXPRESSION_NAMES`).
+
+    ``arctan2(a, b)`` calls are parsed argument by argument with the same whitelist parser
+    and evaluated with :func:`numpy.arctan2`; nothing is ever ``eval``-ed.
+    """
+    if not isinstance(text, str | int | float) or isinstance(text, bool):
+        raise FabkitError(f"{where}: expected an expression string, got {text!r}")
+    text = str(text)
+    try:
+        tree = ast.parse(text.replace("^", "**").strip(), mode="eval")
+    except (SyntaxError, ValueError, RecursionError, MemoryError):
+        tree = None  # the whitelist parser reports the syntax error
+    calls: list[tuple[PlaneFunction, PlaneFunction]] = []
+    if tree is not None:
+        tree = _Arctan2Lifter(calls, where).visit(tree)
+        text = ast.unparse(tree)
+    names = EXPRESSION_NAMES + tuple(f"atan2_{k}" for k in range(len(calls)))
+    expression = parse(text, names, where)
+
+    def evaluate(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+        lifted = [np.arctan2(a(x, y), b(x, y)) for a, b in calls]
+        return expression(x, y, np.hypot(x, y), np.arctan2(y, x), *lifted)
+
+    return evaluate
+
+
+class _Arctan2Lifter(ast.NodeTransformer):
+    """Replace each two-argument ``arctan2(a, b)`` by a fresh name ``atan2_k``."""
+
+    def __init__(self, calls: list[tuple[PlaneFunction, PlaneFunction]], where: str):
+        self.calls, self.where = calls, where
+
+    def visit_Call(self, node: ast.Call) -> ast.AST:
+        if isinstance(node.func, ast.Name) and node.func.id == "arctan2":
+            if len(node.args) != 2 or node.keywords:
+                raise FabkitError(f"{self.where}: arctan2 takes exactly two arguments (y, x)")
+            first, second = (
+                planar_expression(ast.unparse(a), f"{self.where} (arctan2 argument)")
+                for a in node.args
+            )
+            self.calls.append((first, second))
+            return ast.Name(id=f"atan2_{len(self.calls) - 1}", ctx=ast.Load())
+        return self.generic_visit(node)
+
+
+def parse_shape(text: Any, where: str = "shape") -> shapely.Polygon:
+    """A named outline centred on the origin, in mm.
+
+    ``disc:R`` (radius R), ``annulus:R1,R2``, ``square:S`` (side S), ``rect:W,H``,
+    ``ellipse:A,B`` (semi-axes).
+    """
+    if not isinstance(text, str) or ":" not in text:
+        raise FabkitError(f"{where}: expected e.g. 'disc:10' or 'square:20', got {text!r}")
+    kind, _, arguments = text.partition(":")
+    try:
+        values = [float(v) for v in arguments.split(",")]
+    except ValueError:
+        raise FabkitError(f"{where}: '{arguments}' is not a list of numbers") from None
+    counts = {"disc": 1, "square": 1, "annulus": 2, "rect": 2, "ellipse": 2}
+    if kind not in counts:
+        raise FabkitError(f"{where}: unknown shape '{kind}' (use {', '.join(counts)})")
+    if len(values) != counts[kind] or not all(np.isfinite(v) and v > 0 for v in values):
+        raise FabkitError(f"{where}: '{kind}' needs {counts[kind]} positive number(s)")
+    if kind == "disc":
+        return shapely.Point(0, 0).buffer(values[0], quad_segs=128)
+    if kind == "square":
+        return shapely.box(-values[0] / 2, -values[0] / 2, values[0] / 2, values[0] / 2)
+    if kind == "rect":
+        return shapely.box(-values[0] / 2, -values[1] / 2, values[0] / 2, values[1] / 2)
+    if kind == "ellipse":
+        circle = shapely.Point(0, 0).buffer(1.0, quad_segs=128)
+        return shapely.affinity.scale(circle, values[0], values[1], origin=(0, 0))
+    inner, outer = sorted(values)
+    if inner == outer:
+        raise FabkitError(f"{where}: the annulus radii must differ")
+    disc = shapely.Point(0, 0).buffer(outer, quad_segs=128)
+    return disc.difference(shapely.Point(0, 0).buffer(inner, quad_segs=128))
+
+
+def field_from_expression(
+    theta: str, outline: shapely.Geometry, eps: str | float | None = None, where: str = "director"
+) -> FlatField:
+    """A director field ``theta(x, y)`` (radians) on ``outline`` (mm), optional eps(x, y)."""
+    theta_fn = planar_expression(theta, f"{where}.theta")
+    eps_fn = None if eps is None else planar_expression(eps, f"{where}.eps")
+    outline = _polygonal(outline)
+    if outline.is_empty or outline.area <= 0:
+        raise FabkitError(f"{where}: the outline is empty")
+    return FlatField(outline, theta_fn, eps_fn, f"theta = {theta}")
+
+
+# --------------------------------------------------------------------------- grids
+
+
+def field_from_grid(
+    theta: np.ndarray,
+    mask: np.ndarray,
+    pixel_mm: float,
+    origin: tuple[float, float] = (0.0, 0.0),
+    eps: np.ndarray | None = None,
+    source: str = "theta grid",
+) -> FlatField:
+    """A director field from an (nx, ny) theta grid (radians) and boolean mask.
+
+    Node ``(i, j)`` sits at ``origin + pixel_mm * (i, j)`` (mm). The outline is the mask's
+    0.5 contour; theta (as a tensor) and eps are interpolated bilinearly, and extended by
+    the nearest masked node outside the mask.
+    """
+    theta = np.asarray(theta, dtype=float)
+    mask = np.asarray(mask, dtype=bool)
+    if theta.ndim != 2 or mask.shape != theta.shape or min(theta.shape) < 2:
+        raise FabkitError(f"{source}: theta and mask must be 2-D arrays of one shape (>= 2 x 2)")
+    if eps is not None and np.shape(eps) != theta.shape:
+        raise FabkitError(f"{source}: eps must have the shape of theta {theta.shape}")
+    mask = mask & np.isfinite(theta)
+    if not mask.any():
+        raise FabkitError(f"{source}: the mask selects no point")
+    pixel_mm = number(pixel_mm, f"{source}: pixel_mm", positive=True)
+    xs = origin[0] + pixel_mm * np.arange(theta.shape[0])
+    ys = origin[1] + pixel_mm * np.arange(theta.shape[1])
+    filled = _fill_nearest(mask, np.cos(2 * theta), np.sin(2 * theta))
+    cos2, sin2 = (RegularGridInterpolator((xs, ys), f, bounds_error=False) for f in filled[:2])
+    theta_fn = _tensor_angle(cos2, sin2, xs, ys)
+    eps_fn = None
+    if eps is not None:
+        (eps_filled,) = _fill_nearest(mask, np.asarray(eps, dtype=float))
+        eps_fn = _clamped(RegularGridInterpolator((xs, ys), eps_filled), xs, ys)
+    outline = _mask_outline(mask.astype(float), xs, ys)
+    if outline.is_empty:
+        raise FabkitError(f"{source}: the mask has no area (needs 2 x 2 neighbouring points)")
+    return FlatField(outline, theta_fn, eps_fn, source)
+
+
+def _fill_nearest(mask: np.ndarray, *grids: np.ndarray) -> list[np.ndarray]:
+    """Each grid with its unmasked nodes set to the value at the nearest masked node."""
+    inside = np.argwhere(mask)
+    _, nearest = cKDTree(inside).query(np.argwhere(np.ones_like(mask)))
+    source = inside[nearest]
+    return [g[source[:, 0], source[:, 1]].reshape(mask.shape) for g in grids]
+
+
+def _clamped(interpolator: RegularGridInterpolator, xs: np.ndarray, ys: np.ndarray):
+    def evaluate(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+        points = np.stack([np.clip(x, xs[0], xs[-1]), np.clip(y, ys[0], ys[-1])], axis=-1)
+        return interpolator(points)
+
+    return evaluate
+
+
+def _tensor_angle(cos2, sin2, xs: np.ndarray, ys: np.ndarray) -> PlaneFunction:
+    cos2, sin2 = _clamped(cos2, xs, ys), _clamped(sin2, xs, ys)
+
+    def evaluate(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return 0.5 * np.arctan2(sin2(x, y), cos2(x, y))
+
+    return evaluate
+
+
+def _mask_outline(values: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> shapely.Geometry:
+    padded = np.pad(values, 1)
+    step_x, step_y = xs[1] - xs[0], ys[1] - ys[0]
+    px = np.concatenate([[xs[0] - step_x], xs, [xs[-1] + step_x]])
+    py = np.concatenate([[ys[0] - step_y], ys, [ys[-1] + step_y]])
+    generator = contourpy.contour_generator(px, py, padded.T, fill_type="OuterOffset")
+    polygons, offsets = generator.filled(0.5, 2.0)
+    shells = []
+    for points, offset in zip(polygons, offsets, strict=True):
+        rings = [points[a:b] for a, b in zip(offset[:-1], offset[1:], strict=True)]
+        shells.append(shapely.Polygon(rings[0], rings[1:]))
+    return _polygonal(shapely.union_all(shells))
+
+
+# --------------------------------------------------------------------------- designs
+
+
+def field_from_design(
+    path: str | Path,
+    size_mm: float | None = None,
+    mm_per_unit: float | None = None,
+    feature: int = 0,
+) -> FlatField:
+    """The flat-sheet field of a solved ``design.npz``, scaled to millimetres.
+
+    Give exactly one of ``size_mm`` (the longest side of the outline's bounding box, mm) and
+    ``mm_per_unit`` (mm per design unit). ``feature`` picks the eps feature to carry.
+    """
+    if (size_mm is None) == (mm_per_unit is None):
+        raise FabkitError("design: give the size (--size MM, longest side) or --scale MM_PER_UNIT")
+    arrays = _load_design(Path(path))
+    if not 0 <= feature < arrays["eps"].shape[0]:
+        raise FabkitError(f"{path}: no eps feature {feature} (it has {arrays['eps'].shape[0]})")
+    mesh = _DesignMesh.build(arrays, feature, 1.0, str(path))
+    outline = mesh.outline()
+    if size_mm is not None:
+        low_x, low_y, high_x, high_y = outline.bounds
+        mm_per_unit = number(size_mm, "--size", positive=True) / max(high_x - low_x, high_y - low_y)
+    scale = number(mm_per_unit, "--scale", positive=True)
+    mesh = _DesignMesh.build(arrays, feature, scale, str(path))
+    outline = shapely.affinity.scale(outline, scale, scale, origin=(0, 0))
+    return FlatField(outline, mesh.theta, mesh.eps, f"{path}")
+
+
+def _load_design(path: Path) -> dict[str, np.ndarray]:
+    if not path.is_file():
+        raise FabkitError(f"design file '{path}' does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in DESIGN_KEYS if k not in data.files]
+            if missing:
+                raise FabkitError(f"{path}: not a fabkit design file (no '{missing[0]}' array)")
+            arrays = {k: np.asarray(data[k]) for k in DESIGN_KEYS}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise FabkitError(f"{path}: cannot read design file ({exc})") from None
+    nu, nv = len(arrays["u"]), len(arrays["v"])
+    shapes = {
+        "valid": (arrays["valid"].shape, (nu, nv)),
+        "r": (arrays["r"].shape[1:], (nu, nv, 2)),
+        "n": (arrays["n"].shape[1:], (nu, nv, 2)),
+        "eps": (arrays["eps"].shape[1:], (nu, nv)),
+    }
+    for key, (actual, expected) in shapes.items():
+        if actual != expected or (key != "valid" and len(arrays[key]) == 0):
+            raise FabkitError(f"{path}: '{key}' has shape {arrays[key].shape}, expected {expected}")
+    return arrays
+
+
+@dataclass(frozen=True, eq=False)
+class _DesignMesh:
+    """The valid grid cells of a design, mapped to the flat sheet and split in triangles.
+
+    ``points`` (V, 2) flat-sheet positions of valid grid nodes; ``triangles`` (T, 3) node
+    indices, ordered by distance of the cell from the design origin (smallest |u|+|v| first);
+    ``cos2``, ``sin2``, ``eps_values`` (V,) per-node values.
+    """
+
+    points: np.ndarray
+    triangles: np.ndarray
+    cos2: np.ndarray
+    sin2: np.ndarray
+    eps_values: np.ndarray
+    where: str
+    locator: TriangleLocator
+    nodes: cKDTree
+
+    @classmethod
+    def build(
+        cls, arrays: Mapping[str, np.ndarray], feature: int, scale: float, where: str
+    ) -> _DesignMesh:
+        """The mesh of ``arrays`` (a design file's contents) with positions times ``scale``."""
+        valid = arrays["valid"].astype(bool)
+        r0, n0, eps = arrays["r"][0], arrays["n"][0], arrays["eps"][feature]
+        valid &= np.isfinite(r0).all(axis=-1) & np.isfinite(n0).all(axis=-1) & np.isfinite(eps)
+        cells = valid[:-1, :-1] & valid[1:, :-1] & valid[1:, 1:] & valid[:-1, 1:]
+        if not cells.any():
+            raise FabkitError(f"{where}: the design has no valid grid cell")
+        ci, cj = np.nonzero(cells)
+        order = np.argsort(
+            np.abs(arrays["u"][ci] + arrays["u"][ci + 1])
+            + np.abs(arrays["v"][cj] + arrays["v"][cj + 1]),
+            kind="stable",
+        )
+        ci, cj = ci[order], cj[order]
+        node = np.full(valid.shape, -1)
+        node[valid] = np.arange(valid.sum())
+        a, b, c, d = node[ci, cj], node[ci + 1, cj], node[ci + 1, cj + 1], node[ci, cj + 1]
+        triangles = np.stack([np.column_stack([a, b, c]), np.column_stack([a, c, d])], axis=1)
+        angle = np.arctan2(n0[valid][:, 1], n0[valid][:, 0])
+        points = r0[valid].astype(float) * scale
+        triangles = triangles.reshape(-1, 3)
+        return cls(
+            points=points,
+            triangles=triangles,
+            cos2=np.cos(2 * angle),
+            sin2=np.sin(2 * angle),
+            eps_values=eps[valid].astype(float),
+            where=where,
+            locator=TriangleLocator(points, triangles),
+            nodes=cKDTree(points),
+        )
+
+    def outline(self) -> shapely.Geometry:
+        """Union of the images of the grid cells (mm)."""
+        quads = self.points[
+            np.column_stack([self.triangles[0::2, :], self.triangles[1::2, 2]])
+        ]  # (C, 4, 2): corners a, b, c, d of each cell
+        cells = shapely.polygons(quads)
+        cells = cells[shapely.area(cells) > 0]
+        coverage = shapely.coverage_union_all(cells)
+        if abs(coverage.area - float(shapely.area(cells).sum())) <= 1e-9 * coverage.area:
+            outline = coverage  # the image does not overlap itself: a cheap exact union
+        else:
+            outline = shapely.union_all(shapely.make_valid(cells))
+        outline = _polygonal(outline)
+        if outline.is_empty:
+            raise FabkitError(f"{self.where}: the design's flat-sheet image has no area")
+        return outline
+
+    def theta(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        cos2, sin2 = self._interpolate(x, y, self.cos2, self.sin2)
+        return 0.5 * np.arctan2(sin2, cos2)
+
+    def eps(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return self._interpolate(x, y, self.eps_values)[0]
+
+    def _interpolate(self, x: np.ndarray, y: np.ndarray, *values: np.ndarray) -> list[np.ndarray]:
+        """Barycentric interpolation in the containing image triangle; nearest node outside."""
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+        points = np.column_stack([x.ravel(), y.ravel()])
+        triangle, weights = self.locator.locate(points)
+        found = triangle >= 0
+        corners = self.triangles[triangle[found]]
+        results = []
+        _, nearest = self.nodes.query(points[~found])
+        for v in values:
+            out = np.empty(len(points))
+            out[found] = (v[corners] * weights[found]).sum(axis=1)
+            out[~found] = v[nearest]
+            results.append(out.reshape(x.shape))
+        return results
+
+
+class TriangleLocator:
+    """Find the first triangle (lowest index) of a planar mesh containing each query point.
+
+    Triangles are binned into a uniform grid of buckets about twice the median triangle
+    size; a query tests only the triangles of its bucket, vectorised over all points.
+    """
+
+    def __init__(self, points: np.ndarray, triangles: np.ndarray):
+        self.points, self.triangles = points, triangles
+        corners = points[triangles]  # (T, 3, 2)
+        low, high = corners.min(axis=1), corners.max(axis=1)
+        size = float(np.median(np.max(high - low, axis=1))) * 2 or 1.0
+        self.origin, self.size = low.min(axis=0), size
+        self.shape = np.floor((high.max(axis=0) - self.origin) / size).astype(int) + 1
+        i0, j0 = self._bucket(low).T
+        i1, j1 = self._bucket(high).T
+        counts = (i1 - i0 + 1) * (j1 - j0 + 1)
+        owner = np.repeat(np.arange(len(triangles)), counts)
+        local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        width = (i1 - i0 + 1)[owner]
+        bucket = (i0[owner] + local % width) * self.shape[1] + j0[owner] + local // width
+        order = np.lexsort((owner, bucket))
+        self.members = owner[order]
+        self.starts = np.searchsorted(bucket[order], np.arange(self.shape.prod() + 1))
+
+    def _bucket(self, points: np.ndarray) -> np.ndarray:
+        cells = np.floor((points - self.origin) / self.size).astype(int)
+        return np.clip(cells, 0, self.shape - 1)
+
+    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n,) triangle index (-1 if none) and (n, 3) barycentric weights."""
+        points = np.asarray(points, dtype=float)
+        cells = np.floor((points - self.origin) / self.size).astype(int)
+        inside = ((cells >= 0) & (cells < self.shape)).all(axis=1)
+        bucket = np.where(inside, cells[:, 0] * self.shape[1] + cells[:, 1], 0)
+        counts = np.where(inside, self.starts[bucket + 1] - self.starts[bucket], 0)
+        query = np.repeat(np.arange(len(points)), counts)
+        offset = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        candidate = self.members[self.starts[bucket[query]] + offset]
+        weights = _barycentric(points[query], self.points[self.triangles[candidate]])
+        hit = (weights >= -1e-9).all(axis=1)
+        found = np.full(len(points), len(self.triangles))
+        np.minimum.at(found, query[hit], candidate[hit])
+        triangle = np.where(found < len(self.triangles), found, -1)
+        result = np.zeros((len(points), 3))
+        chosen = hit & (candidate == found[query])
+        result[query[chosen]] = weights[chosen]
+        return triangle, result
+
+
+def _barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(n, 3) barycentric coordinates of (n, 2) points in (n, 3, 2) triangles."""
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    v0, v1, v2 = b - a, c - a, points - a
+    det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+    det = np.where(np.abs(det) > 1e-300, det, np.nan)
+    l1 = (v2[:, 0] * v1[:, 1] - v2[:, 1] * v1[:, 0]) / det
+    l2 = (v0[:, 0] * v2[:, 1] - v0[:, 1] * v2[:, 0]) / det
+    weights = np.column_stack([1 - l1 - l2, l1, l2])
+    return np.where(np.isfinite(weights), weights, -1.0)
+
+
+# --------------------------------------------------------------------------- files
+
+
+def load_director_file(path: str | Path) -> FlatField:
+    """A director field from a TOML file (see ``docs/toolpath.md``)::
+
+    [director]
+    theta = "phi + pi/2"      # radians; names x, y, r, phi; arctan2(a, b) allowed
+    shape = "disc:10"         # or outline = [[x, y], ...] (mm)
+    eps = "0.3"               # optional
+    # or, instead of theta/eps: grid = "theta.npz" with theta, mask, pixel_mm (, eps)
+    """
+    path = Path(path)
+    try:
+        table = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FabkitError(f"director file '{path}' does not exist") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise FabkitError(f"{path}: cannot read director file ({exc})") from None
+    check_keys(table, {"director"}, str(path))
+    director = table.get("director")
+    if not isinstance(director, Mapping):
+        raise FabkitError(f"{path}: missing table [director]")
+    where = f"{path}: director"
+    check_keys(director, {"theta", "shape", "outline", "eps", "grid"}, where)
+    if "grid" in director:
+        return _grid_file(path.parent / str(director["grid"]), where)
+    if "theta" not in director:
+        raise FabkitError(f"{where}: give theta (an expression) or grid (an .npz file)")
+    if ("shape" in director) == ("outline" in director):
+        raise FabkitError(f"{where}: give exactly one of shape and outline")
+    if "shape" in director:
+        outline = parse_shape(director["shape"], f"{where}.shape")
+    else:
+        outline = _outline_points(director["outline"], f"{where}.outline")
+    field = field_from_expression(director["theta"], outline, director.get("eps"), where)
+    return replace(field, source=f"{path}")
+
+
+def _outline_points(value: Any, where: str) -> shapely.Polygon:
+    try:
+        points = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        points = np.zeros((0,))
+    if points.ndim != 2 or points.shape[1] != 2 or len(points) < 3 or not np.isfinite(points).all():
+        raise FabkitError(f"{where}: expected a list of at least 3 [x, y] points (mm)")
+    polygon = shapely.Polygon(points)
+    if not polygon.is_valid:
+        polygon = _polygonal(shapely.make_valid(polygon))
+    return polygon
+
+
+def _grid_file(path: Path, where: str) -> FlatField:
+    if not path.is_file():
+        raise FabkitError(f"{where}.grid: file '{path}' does not exist")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in ("theta", "mask", "pixel_mm") if k not in data.files]
+            if missing:
+                raise FabkitError(f"{where}.grid: '{path}' has no '{missing[0]}' array")
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise FabkitError(f"{where}.grid: cannot read '{path}' ({exc})") from None
+    origin = tuple(np.asarray(arrays.get("origin", (0.0, 0.0)), dtype=float).reshape(2))
+    return field_from_grid(
+        arrays["theta"],
+        arrays["mask"],
+        float(arrays["pixel_mm"]),
+        origin,
+        arrays.get("eps"),
+        str(path),
+    )
+
+
+def _polygonal(geometry: shapely.Geometry) -> shapely.Polygon | shapely.MultiPolygon:
+    """The polygonal part of a geometry (drops points and lines from intersections)."""
+    parts = [g for g in shapely.get_parts(geometry) if isinstance(g, shapely.Polygon)]
+    parts = [p for p in parts if p.area > 0]
+    if not parts:
+        return shapely.Polygon()
+    return parts[0] if len(parts) == 1 else shapely.MultiPolygon(parts)

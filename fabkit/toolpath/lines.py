@@ -1,0 +1,305 @@
+"""Print lines that follow the director: stripe lines, clipped, trimmed and extended.
+
+:func:`print_lines` turns a :class:`~fabkit.fields.FlatField` into polylines (mm) that are
+evenly spaced (``spacing``, normally the road width w), follow the director, and fill the
+outline:
+
+1. the stripe pattern (:mod:`fabkit.toolpath.stripes`) gives evenly spaced lines whose
+   ends sit where the field diverges and a new line must start;
+2. lines are resampled to w/4 and clipped to the outline shrunk by ``end_inset * w``
+   (default w/2, so a road's round end touches the outline and nothing is printed outside);
+3. lines are *stopped where they come closer than* ``close * w`` to another line: of two
+   lines too close, the shorter one is cut (a line also may not run back onto itself), and
+   line ends that turn more than ``end_angle`` off the director are cut;
+4. line ends are *extended along the director* (RK2, all ends at once) into the gaps that
+   open ahead of them, while they stay ``close * w`` away from every other line and inside
+   the outline;
+5. lines shorter than ``min_length * w`` are dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+from scipy.spatial import cKDTree
+
+from fabkit.fields import FlatField
+from fabkit.toolpath.stripes import (
+    Spacing,
+    StripePattern,
+    StripeSettings,
+    solve_stripes,
+    stripe_lines,
+)
+
+PIN_MARGIN = 0.05
+"""Lines along the outline are pinned this much (in w) further in than line ends are clipped,
+so that clipping never catches them."""
+
+
+@dataclass(frozen=True)
+class LineSettings:
+    """How lines are trimmed and extended (lengths as multiples of the road width w).
+
+    ``close``: lines stop where closer than ``close * w`` to another line. ``end_angle_deg``:
+    line ends turning more than this off the director are cut. ``extend``: longest
+    extension of a line end, in w. ``end_inset``: line ends stay this far inside the
+    outline. ``min_length``: shorter lines are dropped. ``sample``: vertex spacing.
+    """
+
+    close: float = 0.75
+    end_angle_deg: float = 25.0
+    extend: float = 4.0
+    end_inset: float = 0.5
+    min_length: float = 1.0
+    sample: float = 0.25
+    stripes: StripeSettings = field(default_factory=StripeSettings)
+
+
+def print_lines(
+    flat: FlatField,
+    road_width: float,
+    spacing: Spacing | None = None,
+    settings: LineSettings = LineSettings(),
+    phases: tuple[float, ...] = (0.0,),
+) -> list[list[np.ndarray]]:
+    """Print lines (lists of (n, 2) polylines, mm) of ``flat``, one list per stripe phase.
+
+    ``spacing`` (mm, constant or a function of points) defaults to ``road_width``; a phase
+    of pi gives the lines halfway between those of phase 0 (staggered layers).
+    """
+    spacing = road_width if spacing is None else spacing
+    pin_offset = (settings.end_inset + PIN_MARGIN) * road_width
+    pattern = solve_stripes(flat, spacing, pin_offset, settings.stripes)
+    return [lines_from_pattern(pattern, flat, road_width, settings, phase) for phase in phases]
+
+
+def lines_from_pattern(
+    pattern: StripePattern,
+    flat: FlatField,
+    road_width: float,
+    settings: LineSettings,
+    phase: float = 0.0,
+) -> list[np.ndarray]:
+    """Steps 2 to 5 of the module docstring for the stripe lines of ``pattern``."""
+    w = road_width
+    step = settings.sample * w
+    raw = stripe_lines(pattern, flat.outline, settings.stripes.subdivisions, phase)
+    inner = flat.outline.buffer(-settings.end_inset * w)
+    if inner.is_empty:
+        return []
+    lines = [resample(line, step) for line in clip_lines(raw, inner)]
+    lines = [line for line in lines if len(line) >= 2]
+    lines = trim_lines(lines, flat, settings.close * w, np.radians(settings.end_angle_deg), step)
+    lines = extend_lines(lines, flat, inner, settings.close * w, settings.extend * w, step)
+    return [line for line in lines if polyline_length(line) >= settings.min_length * w]
+
+
+def polyline_length(line: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(line, axis=0), axis=1).sum())
+
+
+def is_closed(line: np.ndarray) -> bool:
+    return len(line) > 3 and bool(np.all(line[0] == line[-1]))
+
+
+def resample(line: np.ndarray, step: float) -> np.ndarray:
+    """The polyline with vertices evenly spaced at about ``step`` (mm), ends kept."""
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))])
+    if arc[-1] <= 0:
+        return line[:1]
+    count = max(int(np.ceil(arc[-1] / step)), 1) + 1
+    samples = np.linspace(0.0, arc[-1], count)
+    return np.column_stack(
+        [np.interp(samples, arc, line[:, 0]), np.interp(samples, arc, line[:, 1])]
+    )
+
+
+def clip_lines(lines: list[np.ndarray], region: shapely.Geometry) -> list[np.ndarray]:
+    """The parts of ``lines`` inside ``region`` (vectorised shapely intersection)."""
+    if not lines:
+        return []
+    geometries = shapely.linestrings(
+        np.concatenate(lines), indices=np.repeat(np.arange(len(lines)), [len(x) for x in lines])
+    )
+    shapely.prepare(region)
+    inside = shapely.contains(region, geometries)
+    pieces = [line for line, keep in zip(lines, inside, strict=True) if keep]
+    crossing = geometries[~inside & shapely.intersects(region, geometries)]
+    parts = shapely.get_parts(shapely.intersection(crossing, region))
+    parts = parts[shapely.get_type_id(parts) == shapely.GeometryType.LINESTRING]
+    coordinates, index = shapely.get_coordinates(parts, return_index=True)
+    if len(coordinates):
+        pieces.extend(np.split(coordinates, np.flatnonzero(np.diff(index)) + 1))
+    return pieces
+
+
+def trim_lines(
+    lines: list[np.ndarray], flat: FlatField, distance: float, max_angle: float, step: float
+) -> list[np.ndarray]:
+    """Cut lines where closer than ``distance`` (mm) to another line; the shorter one yields.
+
+    A line also yields to its own far part (more than 3 ``distance`` away along it), and its
+    ends are cut back while they turn more than ``max_angle`` (rad) off the director.
+    """
+    if not lines:
+        return []
+    counts = np.array([len(x) for x in lines])
+    owner = np.repeat(np.arange(len(lines)), counts)
+    position = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    points = np.concatenate(lines)
+    closed = np.array([is_closed(x) for x in lines])
+    rank = np.argsort(np.argsort(counts, kind="stable"), kind="stable")  # longer wins
+    neighbours = min(32, len(points))
+    gap, other = cKDTree(points).query(points, k=neighbours, distance_upper_bound=distance)
+    found = np.isfinite(gap)
+    other = np.where(found, other, 0)
+    mine, theirs = owner[:, None], owner[other]
+    yields = (rank[mine] < rank[theirs]) | ((rank[mine] == rank[theirs]) & (mine < theirs))
+    along = np.abs(position[other] - position[:, None]) * step
+    length = counts[owner][:, None] * step
+    along = np.where(closed[owner][:, None], np.minimum(along, length - along), along)
+    own_far = (mine == theirs) & (along > 3 * distance) & (position[:, None] > position[other])
+    too_close = (found & (((mine != theirs) & yields) | own_far)).any(axis=1)
+    bad_angle = _angle_error(lines, flat) > max_angle
+    result = []
+    for index, line in enumerate(lines):
+        start, stop = np.cumsum(counts)[index] - counts[index], np.cumsum(counts)[index]
+        cut = too_close[start:stop].copy()
+        if not closed[index]:
+            cut |= _end_runs(bad_angle[start:stop])
+        result.extend(_kept_runs(line, cut, bool(closed[index])))
+    return result
+
+
+def _angle_error(lines: list[np.ndarray], flat: FlatField) -> np.ndarray:
+    """Per vertex, the larger |angle| (rad) between its two segments and the director."""
+    errors = []
+    for line in lines:
+        segment = np.diff(line, axis=0)
+        middle = line[:-1] + 0.5 * segment
+        error = np.abs(_wrap(np.arctan2(segment[:, 1], segment[:, 0]) - flat.theta(middle)))
+        errors.append(
+            np.maximum(np.concatenate([error[:1], error]), np.concatenate([error, error[-1:]]))
+        )
+    return np.concatenate(errors)
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Angle difference of two directors, in (-pi/2, pi/2]."""
+    return np.pi / 2 - np.mod(np.pi / 2 - angle, np.pi)
+
+
+def _end_runs(flag: np.ndarray) -> np.ndarray:
+    """Only the runs of ``flag`` touching either end of the array."""
+    out = np.zeros_like(flag)
+    head = np.argmin(flag) if not flag.all() else len(flag)
+    tail = np.argmin(flag[::-1]) if not flag.all() else len(flag)
+    out[:head] = True
+    out[len(flag) - tail :] = True
+    return out
+
+
+def _kept_runs(line: np.ndarray, cut: np.ndarray, closed: bool) -> list[np.ndarray]:
+    """The runs of vertices not cut (at least 2 vertices); a closed line stays closed if
+    nothing is cut, else is opened at a cut vertex."""
+    if closed:
+        if not cut.any():
+            return [line]
+        shift = int(np.argmax(cut))
+        line = np.vstack([line[shift:-1], line[: shift + 1]])
+        cut = np.concatenate([cut[shift:-1], cut[: shift + 1]])
+    edges = np.flatnonzero(np.diff(np.concatenate([[1], cut.astype(int), [1]])))
+    return [line[a:b] for a, b in zip(edges[::2], edges[1::2], strict=True) if b - a >= 2]
+
+
+def extend_lines(
+    lines: list[np.ndarray],
+    flat: FlatField,
+    region: shapely.Geometry,
+    distance: float,
+    max_length: float,
+    step: float,
+) -> list[np.ndarray]:
+    """Grow open line ends along the director while they stay ``distance`` (mm) from other
+    lines (and from each other's growth) and inside ``region``; at most ``max_length``."""
+    open_lines = [i for i, line in enumerate(lines) if not is_closed(line)]
+    if not open_lines:
+        return lines
+    counts = np.array([len(x) for x in lines])
+    owner = np.repeat(np.arange(len(lines)), counts)
+    tree = cKDTree(np.concatenate(lines))
+    heads, directions, line_of, at_end = [], [], [], []
+    for i in open_lines:
+        for end, (tip, before) in enumerate(
+            ((lines[i][0], lines[i][1]), (lines[i][-1], lines[i][-2]))
+        ):
+            heads.append(tip)
+            directions.append(tip - before)
+            line_of.append(i)
+            at_end.append(end)
+    head = np.array(heads)
+    direction = np.array(directions)
+    direction /= np.maximum(np.linalg.norm(direction, axis=1), 1e-12)[:, None]
+    line_of = np.array(line_of)
+    active = np.ones(len(head), bool)
+    grown: list[list[np.ndarray]] = [[] for _ in range(len(head))]
+    grown_points, grown_owner = np.zeros((0, 2)), np.zeros(0, int)
+    shapely.prepare(region)
+    for _ in range(int(max_length / step)):
+        moving = np.flatnonzero(active)
+        if len(moving) == 0:
+            break
+        first = _aligned(flat.director(head[moving]), direction[moving])
+        second = _aligned(flat.director(head[moving] + 0.5 * step * first), first)
+        target = head[moving] + step * second
+        blocked = ~shapely.contains_xy(region, target[:, 0], target[:, 1])
+        blocked |= (second * direction[moving]).sum(axis=1) < np.cos(np.radians(30))
+        blocked |= _near_others(tree, owner, target, line_of[moving], distance)
+        if len(grown_points):
+            blocked |= _near_others(cKDTree(grown_points), grown_owner, target, moving, distance)
+        blocked |= _near_each_other(target, distance)
+        go = moving[~blocked]
+        for index, point in zip(go, target[~blocked], strict=True):
+            grown[index].append(point)
+        head[go], direction[go] = target[~blocked], second[~blocked]
+        grown_points = np.vstack([grown_points, target[~blocked]])
+        grown_owner = np.concatenate([grown_owner, go])
+        active[moving[blocked]] = False
+    result = list(lines)
+    for k, i in enumerate(line_of):
+        if not grown[k]:
+            continue
+        extra = np.array(grown[k])
+        line = result[i]
+        result[i] = np.vstack([extra[::-1], line]) if at_end[k] == 0 else np.vstack([line, extra])
+    return result
+
+
+def _aligned(vectors: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``vectors`` with their sign flipped where they point against ``reference``."""
+    flip = (vectors * reference).sum(axis=1) < 0
+    return np.where(flip[:, None], -vectors, vectors)
+
+
+def _near_others(
+    tree: cKDTree, owner: np.ndarray, points: np.ndarray, mine: np.ndarray, distance: float
+) -> np.ndarray:
+    """Whether each point is within ``distance`` of a tree point owned by someone else."""
+    neighbours = min(16, tree.n)
+    gap, index = tree.query(points, k=neighbours, distance_upper_bound=distance)
+    found = np.isfinite(gap)
+    index = np.where(found, index, 0)
+    return (found & (owner[index] != mine[:, None])).any(axis=1)
+
+
+def _near_each_other(points: np.ndarray, distance: float) -> np.ndarray:
+    """Whether each point is within ``distance`` of another of ``points``."""
+    if len(points) < 2:
+        return np.zeros(len(points), bool)
+    pairs = cKDTree(points).query_pairs(distance, output_type="ndarray")
+    near = np.zeros(len(points), bool)
+    near[pairs.ravel()] = True
+    return near

@@ -1,0 +1,593 @@
+"""Evenly spaced lines along a director field, as the level lines of a stripe phase.
+
+Greedy streamline placement cannot fill a diverging field (a radial disc, the splay side of
+a +1/2 defect) both without gaps and without overlaps: neighbouring streamlines spread
+apart, and a new line fits only once the gap is a whole line wide. Here the lines are the
+zero-phase lines of a complex field ``psi = |psi| exp(i phi)`` on a grid, whose phase
+gradient wants to be ``2 pi / s`` times the unit normal ``m`` of the director (s = line
+spacing, mm). Where that is impossible (the normal field has curl), the phase has
+vortices: isolated points where exactly one line ends -- the "new lines started where
+gaps open" -- and the lines around them bend slightly to stay evenly spaced. This is the
+stripe-pattern method of Knoeppel, Crane, Pinkall and Schroeder (ACM TOG 34(4), 2015),
+solved here as a Ginzburg-Landau energy on a regular grid:
+
+    E(psi) = sum over grid edges ab of |psi_b' - exp(i omega_ab) psi_a|^2
+             + kappa sum over nodes (|psi|^2 - 1)^2
+             + sum over boundary nodes beta |psi - psi_boundary|^2
+
+``omega_ab`` is the phase the stripe should gain along the edge; ``psi_b'`` is
+``conj(psi_b)`` where the director's normal flips between a and b (half-integer defects
+make the normal field non-orientable; the lines, level sets of a conjugation-invariant
+set, do not care). The last term pins the phase where the outline runs along the
+director, so that the outermost line lies half a road width inside it.
+
+The initial guess places vortices where the normal field's curl asks for them (the
+curl-free part is integrated exactly by a Poisson solve), so a few hundred L-BFGS steps
+suffice. Lines are extracted by marching squares on a finer grid inside each coarse cell,
+where psi is interpolated by blending the plane waves of the cell's four corners.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+import scipy.sparse as sp
+import shapely
+from scipy.sparse.csgraph import connected_components, depth_first_order
+
+from fabkit.fields import FlatField
+
+Spacing = float | Callable[[np.ndarray], np.ndarray]
+"""Line spacing in mm: a constant, or a function of (n, 2) points (mm) giving (n,) spacings."""
+
+
+@dataclass(frozen=True)
+class StripeSettings:
+    """Numerical settings of the stripe solve (dimensionless, relative to the line spacing).
+
+    ``grid_ratio``: coarse grid step / spacing. ``subdivisions``: fine cells per coarse cell
+    edge for line extraction. ``core``: vortex core size / spacing. ``iterations``: L-BFGS
+    steps. ``pin``: weight of the boundary-parallel pinning. ``seed``: random seed for the
+    initial phase jitter (the result is deterministic for a given seed).
+    """
+
+    grid_ratio: float = 1.0
+    subdivisions: int = 5
+    core: float = 0.5
+    iterations: int = 300
+    pin: float = 1.0
+    pin_angle_deg: float = 25.0
+    seed: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class StripePattern:
+    """A solved stripe field on a regular grid.
+
+    Node ``(i, j)`` is at ``(x0 + i h, y0 + j h)`` (mm). ``normal`` (nx, ny, 2) is the
+    oriented unit normal of the director, ``wavenumber`` (nx, ny) is 2 pi / spacing (rad/mm)
+    and ``psi`` (nx, ny) the complex field (own orientation at each node).
+    """
+
+    x0: float
+    y0: float
+    h: float
+    normal: np.ndarray
+    wavenumber: np.ndarray
+    psi: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.psi.shape
+
+
+def solve_stripes(
+    field: FlatField,
+    spacing: Spacing,
+    pin_offset: float,
+    settings: StripeSettings = StripeSettings(),
+) -> StripePattern:
+    """Solve the stripe field of ``field`` for lines ``spacing`` apart (mm).
+
+    Where the outline runs along the director, the outermost line is pinned ``pin_offset``
+    (mm) inside it.
+    """
+    nominal = _nominal_spacing(spacing, field)
+    h = settings.grid_ratio * nominal
+    low_x, low_y, high_x, high_y = field.outline.bounds
+    margin = 2 * h
+    nx = int(np.ceil((high_x - low_x + 2 * margin) / h)) + 1
+    ny = int(np.ceil((high_y - low_y + 2 * margin) / h)) + 1
+    x0, y0 = low_x - margin, low_y - margin
+    xs, ys = x0 + h * np.arange(nx), y0 + h * np.arange(ny)
+    nodes = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1)  # (nx, ny, 2)
+    flat_nodes = nodes.reshape(-1, 2)
+    normal = _oriented_normal(field.theta(flat_nodes).reshape(nx, ny))
+    wavenumber = 2 * np.pi / _spacing_at(spacing, flat_nodes).reshape(nx, ny)
+    edges = _Edges.build(normal, wavenumber, h)
+    phase = _initial_phase(edges, nx, ny, settings.seed)
+    active = _active_nodes(field.outline, nodes, 2 * h)
+    pins = _boundary_pins(
+        field, flat_nodes, normal.reshape(-1, 2), wavenumber.ravel(), pin_offset, settings
+    )
+    psi = _minimise(edges, phase.ravel(), active.ravel(), pins, wavenumber.ravel(), h, settings)
+    return StripePattern(x0, y0, h, normal, wavenumber, psi.reshape(nx, ny))
+
+
+def _nominal_spacing(spacing: Spacing, field: FlatField) -> float:
+    if callable(spacing):
+        point = shapely.get_coordinates(field.outline.representative_point())
+        return float(spacing(point)[0])
+    return float(spacing)
+
+
+def _spacing_at(spacing: Spacing, points: np.ndarray) -> np.ndarray:
+    if callable(spacing):
+        return np.asarray(spacing(points), dtype=float)
+    return np.full(len(points), float(spacing))
+
+
+def _oriented_normal(theta: np.ndarray) -> np.ndarray:
+    """Unit normal (nx, ny, 2) of the director, oriented consistently along a comb tree.
+
+    Angles are unwrapped from mod pi to mod 2 pi down column 0 and then along every row,
+    so tree edges never flip; only non-orientable fields leave flipped (cut) edges.
+    """
+
+    def wrapped(d: np.ndarray) -> np.ndarray:
+        return (d + np.pi / 2) % np.pi - np.pi / 2
+
+    column = theta[0, 0] + np.concatenate([[0.0], np.cumsum(wrapped(np.diff(theta[0])))])
+    rows = np.cumsum(wrapped(np.diff(theta, axis=0)), axis=0)
+    unwrapped = column[None, :] + np.concatenate([np.zeros((1, theta.shape[1])), rows])
+    return np.stack([-np.sin(unwrapped), np.cos(unwrapped)], axis=-1)
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """Grid edges: horizontal (i, j)-(i+1, j) first, then vertical (i, j)-(i, j+1).
+
+    ``a``, ``b`` flat node indices; ``sign`` -1 where the normal flips; ``omega`` the phase
+    the stripe gains from a to b (rad), in a's orientation.
+    """
+
+    a: np.ndarray
+    b: np.ndarray
+    sign: np.ndarray
+    omega: np.ndarray
+    n_horizontal: int
+
+    @classmethod
+    def build(cls, normal: np.ndarray, wavenumber: np.ndarray, h: float) -> _Edges:
+        nx, ny = wavenumber.shape
+        index = np.arange(nx * ny).reshape(nx, ny)
+        a = np.concatenate([index[:-1, :].ravel(), index[:, :-1].ravel()])
+        b = np.concatenate([index[1:, :].ravel(), index[:, 1:].ravel()])
+        m = normal.reshape(-1, 2)
+        sign = np.where((m[a] * m[b]).sum(axis=1) < 0, -1.0, 1.0)
+        n_horizontal = (nx - 1) * ny
+        along = np.zeros((len(a), 2))
+        along[:n_horizontal, 0] = h
+        along[n_horizontal:, 1] = h
+        k = wavenumber.ravel()
+        mean = 0.5 * (k[a, None] * m[a] + k[b, None] * sign[:, None] * m[b])
+        return cls(a, b, sign, (mean * along).sum(axis=1), n_horizontal)
+
+
+def _initial_phase(edges: _Edges, nx: int, ny: int, seed: int) -> np.ndarray:
+    """A phase (nx, ny) whose vortices sit where the curl of the normal field asks for them.
+
+    The flux of omega through each cell (in turns) is rounded to integer vortex charges by
+    error diffusion along a serpentine; a Poisson solve (sine transform, zero outside the
+    grid) corrects omega to exactly those charges with the least change; the corrected
+    edge phases are then summed along the comb tree (column 0, then rows).
+    """
+    horizontal = edges.omega[: edges.n_horizontal].reshape(nx - 1, ny)
+    vertical = edges.omega[edges.n_horizontal :].reshape(nx, ny - 1)
+    flipped = (edges.sign < 0).astype(float)
+    cut_h = flipped[: edges.n_horizontal].reshape(nx - 1, ny)
+    cut_v = flipped[edges.n_horizontal :].reshape(nx, ny - 1)
+    cut = (cut_h[:, :-1] + cut_h[:, 1:] + cut_v[:-1, :] + cut_v[1:, :]) > 0
+    flux = (horizontal[:, :-1] + vertical[1:, :] - horizontal[:, 1:] - vertical[:-1, :]) / (
+        2 * np.pi
+    )
+    flux = np.where(cut, 0.0, flux)
+    jitter = np.random.default_rng(seed).uniform(-0.5, 0.5)
+    charges = _serpentine_round(flux, jitter)
+    chi = _poisson_dirichlet(2 * np.pi * (flux - charges))
+    padded = np.pad(chi, 1)  # zero outside the cell grid
+    horizontal = horizontal + padded[1:-1, 1:] - padded[1:-1, :-1]
+    vertical = vertical + padded[:-1, 1:-1] - padded[1:, 1:-1]
+    column = np.concatenate([[0.0], np.cumsum(vertical[0])])
+    rows = np.concatenate([np.zeros((1, ny)), np.cumsum(horizontal, axis=0)])
+    return column[None, :] + rows
+
+
+def _serpentine_round(values: np.ndarray, jitter: float) -> np.ndarray:
+    """Integers with the running sums of ``values`` along a serpentine, rounded."""
+    snake = values.copy()
+    snake[:, 1::2] = snake[::-1, 1::2]
+    order = snake.T.ravel()
+    running = np.floor(np.cumsum(order) + 0.5 + jitter)
+    rounded = np.diff(np.concatenate([[np.floor(0.5 + jitter)], running]))
+    result = rounded.reshape(values.shape[1], values.shape[0]).T.copy()
+    result[:, 1::2] = result[::-1, 1::2]
+    return result
+
+
+def _poisson_dirichlet(rhs: np.ndarray) -> np.ndarray:
+    """Solve the 5-point Laplacian of chi = rhs with chi = 0 outside the grid (sine transform)."""
+    n1, n2 = rhs.shape
+    k1 = 2 * np.sin(np.pi * np.arange(1, n1 + 1) / (2 * (n1 + 1)))
+    k2 = 2 * np.sin(np.pi * np.arange(1, n2 + 1) / (2 * (n2 + 1)))
+    spectrum = scipy.fft.dstn(rhs, type=1, norm="ortho")
+    spectrum /= -(k1[:, None] ** 2 + k2[None, :] ** 2)
+    return scipy.fft.idstn(spectrum, type=1, norm="ortho")
+
+
+def _active_nodes(outline: shapely.Geometry, nodes: np.ndarray, reach: float) -> np.ndarray:
+    """Nodes within ``reach`` (mm) of the outline (nx, ny) bool."""
+    region = outline.buffer(reach)
+    shapely.prepare(region)
+    return shapely.contains_xy(region, nodes[..., 0], nodes[..., 1])
+
+
+@dataclass(frozen=True)
+class _Pins:
+    """Pinned nodes: flat indices, weights, and target values (complex, own orientation)."""
+
+    index: np.ndarray
+    weight: np.ndarray
+    target: np.ndarray
+
+
+def _boundary_pins(
+    field: FlatField,
+    nodes: np.ndarray,
+    normal: np.ndarray,
+    wavenumber: np.ndarray,
+    pin_offset: float,
+    settings: StripeSettings,
+) -> _Pins:
+    """Targets that put a line ``pin_offset`` (mm) inside the outline where it runs along n."""
+    boundary = field.outline.boundary
+    spacing = 2 * np.pi / wavenumber
+    distance = shapely.distance(boundary, shapely.points(nodes))
+    near = np.flatnonzero(distance <= spacing)
+    if len(near) == 0:
+        return _Pins(near, np.zeros(0), np.zeros(0, complex))
+    points = nodes[near]
+    foot = shapely.get_coordinates(shapely.shortest_line(shapely.points(points), boundary))[1::2]
+    offset = points - foot
+    length = np.linalg.norm(offset, axis=1)
+    keep = length > 1e-9
+    inside = shapely.contains_xy(field.outline, points[:, 0], points[:, 1])
+    inward = np.where(inside[:, None], offset, -offset) / np.where(keep, length, 1.0)[:, None]
+    tangent = np.column_stack([-inward[:, 1], inward[:, 0]])
+    along = np.abs((field.director(points) * tangent).sum(axis=1))
+    threshold = np.cos(np.radians(settings.pin_angle_deg)) ** 2
+    weight = np.clip((along**2 - threshold) / (1 - threshold), 0.0, 1.0) * keep
+    line_point = foot + pin_offset * inward
+    phase = wavenumber[near] * ((points - line_point) * normal[near]).sum(axis=1)
+    chosen = weight > 0
+    return _Pins(near[chosen], weight[chosen], np.exp(1j * phase[chosen]))
+
+
+def _minimise(
+    edges: _Edges,
+    phase: np.ndarray,
+    active: np.ndarray,
+    pins: _Pins,
+    wavenumber: np.ndarray,
+    h: float,
+    settings: StripeSettings,
+) -> np.ndarray:
+    """Minimise the Ginzburg-Landau energy over the active nodes; psi (all nodes, complex)."""
+    nodes = np.flatnonzero(active)
+    local = np.full(len(active), -1)
+    local[nodes] = np.arange(len(nodes))
+    keep = active[edges.a] & active[edges.b]
+    a, b = local[edges.a[keep]], local[edges.b[keep]]
+    sign, omega = edges.sign[keep], edges.omega[keep]
+    n, e = len(nodes), len(a)
+    rows = np.arange(e)
+    cos, sin = np.cos(omega), np.sin(omega)
+    # residual of an edge, real and imaginary parts, in unknowns [re psi, im psi]:
+    #   re: p_b - cos p_a + sin q_a ;  im: sign q_b - sin p_a - cos q_a
+    difference = sp.csr_matrix(
+        (
+            np.concatenate([np.ones(e), -cos, sin, sign, -sin, -cos]),
+            (
+                np.concatenate([rows, rows, rows, rows + e, rows + e, rows + e]),
+                np.concatenate([b, a, a + n, b + n, a, a + n]),
+            ),
+        ),
+        shape=(2 * e, 2 * n),
+    )
+    stiffness = (difference.T @ difference).tocsr()
+    core = settings.core * 2 * np.pi / wavenumber[nodes]
+    kappa = h * h / (2 * core**2)
+    pinned = local[pins.index]
+    on = pinned >= 0
+    pin_index, pin_weight = pinned[on], settings.pin * pins.weight[on]
+    target = np.zeros(2 * n)
+    target[pin_index], target[pin_index + n] = pins.target[on].real, pins.target[on].imag
+    pin_weights = np.zeros(2 * n)
+    pin_weights[pin_index] = pin_weights[pin_index + n] = pin_weight
+    psi0 = np.exp(1j * phase[nodes])
+    if len(pin_index):  # rotate the global phase to agree with the pins
+        overlap = np.sum(pin_weight * pins.target[on] * np.conj(psi0[pin_index]))
+        psi0 = psi0 * np.exp(1j * np.angle(overlap))
+    x = np.concatenate([psi0.real, psi0.imag])
+
+    def energy(x: np.ndarray) -> tuple[float, np.ndarray]:
+        ax = stiffness @ x
+        modulus = x[:n] ** 2 + x[n:] ** 2 - 1
+        off = x - target
+        value = _dot(x, ax) + _dot(kappa * modulus, modulus) + _dot(pin_weights * off, off)
+        gradient = 2 * ax + 2 * pin_weights * off
+        gradient[:n] += 4 * kappa * modulus * x[:n]
+        gradient[n:] += 4 * kappa * modulus * x[n:]
+        return value, gradient
+
+    x = lbfgs(energy, x, settings.iterations)
+    psi = np.zeros(len(active), complex)
+    psi[nodes] = x[:n] + 1j * x[n:]
+    return psi
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    """A dot product without BLAS (BLAS threads are slow on small vectors on busy machines)."""
+    return float(np.einsum("i,i->", a, b))
+
+
+def lbfgs(
+    function: Callable[[np.ndarray], tuple[float, np.ndarray]],
+    x: np.ndarray,
+    iterations: int,
+    memory: int = 8,
+) -> np.ndarray:
+    """Minimise ``function`` (value, gradient) from ``x`` by L-BFGS with backtracking."""
+    value, gradient = function(x)
+    steps: list[tuple[np.ndarray, np.ndarray, float]] = []
+    for _ in range(iterations):
+        direction = -gradient.copy()
+        alphas = []
+        for s, y, rho in reversed(steps):
+            alpha = rho * _dot(s, direction)
+            direction -= alpha * y
+            alphas.append(alpha)
+        if steps:
+            s, y, _ = steps[-1]
+            direction *= _dot(s, y) / _dot(y, y)
+        else:
+            direction *= 1e-3 / max(np.sqrt(_dot(direction, direction) / len(x)), 1e-300)
+        for (s, y, rho), alpha in zip(steps, reversed(alphas), strict=True):
+            direction += s * (alpha - rho * _dot(y, direction))
+        slope = _dot(gradient, direction)
+        if slope >= 0:
+            direction, slope, steps = -gradient, -_dot(gradient, gradient), []
+        if slope == 0:
+            break
+        step = 1.0
+        while True:
+            trial = x + step * direction
+            trial_value, trial_gradient = function(trial)
+            if trial_value <= value + 1e-4 * step * slope or step < 1e-10:
+                break
+            step *= 0.5
+        s, y = trial - x, trial_gradient - gradient
+        curvature = _dot(s, y)
+        if curvature > 1e-300:
+            steps.append((s, y, 1.0 / curvature))
+            steps = steps[-memory:]
+        x, value, gradient = trial, trial_value, trial_gradient
+    return x
+
+
+# --------------------------------------------------------------------------- extraction
+
+# Marching squares: fine-cell corners 00, 10, 11, 01 (bits 1, 2, 4, 8 when Im psi > 0);
+# edges 0 bottom (00-10), 1 right (10-11), 2 top (01-11), 3 left (00-01).
+_FIRST = np.array(
+    [[-1, -1], [0, 3], [0, 1], [3, 1], [1, 2], [0, 1], [0, 2], [3, 2]]
+    + [[2, 3], [0, 2], [0, 3], [1, 2], [3, 1], [0, 1], [0, 3], [-1, -1]]
+)
+_SECOND = np.full((16, 2), -1)
+_SECOND[5], _SECOND[10] = [2, 3], [1, 2]
+_SADDLE_OTHER = {5: ([0, 3], [1, 2]), 10: ([0, 1], [2, 3])}
+"""Saddles 5 and 10 pair the edges as in _FIRST/_SECOND when the centre is positive, and
+as listed here when it is negative."""
+
+
+def stripe_lines(
+    pattern: StripePattern,
+    region: shapely.Geometry,
+    subdivisions: int = 5,
+    phase: float = 0.0,
+) -> list[np.ndarray]:
+    """The lines of ``pattern`` (zero phase, shifted by ``phase`` rad) near ``region``.
+
+    Returns polylines (n, 2) in mm; closed loops repeat their first point at the end.
+    """
+    k = int(subdivisions)
+    cells = _cells_near(pattern, region)
+    values = _fine_values(pattern, cells, k, phase)  # (C, k+1, k+1) complex
+    ids, points, real = _crossings(values, cells, pattern.shape, k)
+    first, second = _segments(values.imag, ids, points, real)
+    scale = pattern.h / k
+    lines = _chains(first, second, ids, points)
+    return [
+        np.column_stack([pattern.x0 + scale * p[:, 0], pattern.y0 + scale * p[:, 1]]) for p in lines
+    ]
+
+
+def _cells_near(pattern: StripePattern, region: shapely.Geometry) -> np.ndarray:
+    nx, ny = pattern.shape
+    ci, cj = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), indexing="ij")
+    centre_x = pattern.x0 + (ci + 0.5) * pattern.h
+    centre_y = pattern.y0 + (cj + 0.5) * pattern.h
+    reach = region.buffer(pattern.h)
+    shapely.prepare(reach)
+    psi = pattern.psi
+    solved = (psi[:-1, :-1] != 0) & (psi[1:, :-1] != 0) & (psi[1:, 1:] != 0) & (psi[:-1, 1:] != 0)
+    near = shapely.contains_xy(reach, centre_x, centre_y) & solved
+    return np.column_stack([ci[near], cj[near]])
+
+
+def _fine_values(pattern: StripePattern, cells: np.ndarray, k: int, phase: float) -> np.ndarray:
+    """psi on the (k+1) x (k+1) fine nodes of each cell, in the cell's own orientation.
+
+    Each corner predicts a plane wave exp(i wavenumber normal . (p - corner)); predictions
+    are blended with bilinear weights. Corners whose normal opposes corner 00's are
+    conjugated (and their normal flipped) first.
+    """
+    h = pattern.h
+    t = np.arange(k + 1) / k
+    ci, cj = cells[:, 0], cells[:, 1]
+    reference = pattern.normal[ci, cj]
+    psi = pattern.psi * np.exp(-1j * phase)
+    values = np.zeros((len(cells), k + 1, k + 1), complex)
+    for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        m = pattern.normal[ci + di, cj + dj]
+        flip = (m * reference).sum(axis=1) < 0
+        m = np.where(flip[:, None], -m, m)
+        corner = np.where(flip, np.conj(psi[ci + di, cj + dj]), psi[ci + di, cj + dj])
+        kx = pattern.wavenumber[ci + di, cj + dj] * m[:, 0] * h
+        ky = pattern.wavenumber[ci + di, cj + dj] * m[:, 1] * h
+        wave_x = np.exp(1j * kx[:, None] * (t[None, :] - di))  # (C, k+1)
+        wave_y = np.exp(1j * ky[:, None] * (t[None, :] - dj))
+        weight_x = t if di else 1 - t
+        weight_y = t if dj else 1 - t
+        values += (corner[:, None, None] * (wave_x * weight_x)[:, :, None]) * (wave_y * weight_y)[
+            :, None, :
+        ]
+    return values
+
+
+def _crossings(
+    values: np.ndarray, cells: np.ndarray, shape: tuple[int, int], k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Zero crossings of Im psi on the four edges of every fine cell.
+
+    Returns (C, k, k, 4) global fine-edge ids (-1 where no crossing), (C, k, k, 4, 2)
+    positions in fine units, and (C, k, k, 4) Re psi at the crossing.
+    """
+    nj = (shape[1] - 1) * k + 1
+    u = np.arange(k)
+    big_i = cells[:, 0, None, None] * k + u[None, :, None]  # (C, k, 1)
+    big_j = cells[:, 1, None, None] * k + u[None, None, :]  # (C, 1, k)
+    corners = {
+        "00": (slice(None, -1), slice(None, -1)),
+        "10": (slice(1, None), slice(None, -1)),
+        "11": (slice(1, None), slice(1, None)),
+        "01": (slice(None, -1), slice(1, None)),
+    }
+    values_at = {c: values[:, s[0], s[1]] for c, s in corners.items()}
+    fv = {c: v.imag for c, v in values_at.items()}
+    gv = {c: v.real for c, v in values_at.items()}
+    # edge: (start corner, end corner, global id, start offset (di, dj), direction (0 x, 1 y))
+    specification = (
+        ("00", "10", 2 * (big_i * nj + big_j), (0, 0), 0),
+        ("10", "11", 2 * ((big_i + 1) * nj + big_j) + 1, (1, 0), 1),
+        ("01", "11", 2 * (big_i * nj + big_j + 1), (0, 1), 0),
+        ("00", "01", 2 * (big_i * nj + big_j) + 1, (0, 0), 1),
+    )
+    shape_out = fv["00"].shape
+    ids = np.full((*shape_out, 4), -1, dtype=np.int64)
+    points = np.zeros((*shape_out, 4, 2))
+    real = np.zeros((*shape_out, 4))
+    for edge, (start, end, identity, (di, dj), direction) in enumerate(specification):
+        f0, f1 = fv[start], fv[end]
+        crossing = (f0 > 0) != (f1 > 0)
+        t = _crossing_fraction(values_at[start], values_at[end], crossing)
+        ids[..., edge] = np.where(crossing, np.broadcast_to(identity, shape_out), -1)
+        px = np.broadcast_to(big_i + di, shape_out) + (t if direction == 0 else 0)
+        py = np.broadcast_to(big_j + dj, shape_out) + (t if direction == 1 else 0)
+        points[..., edge, 0], points[..., edge, 1] = px, py
+        real[..., edge] = gv[start] + t * (gv[end] - gv[start])
+    return ids, points, real
+
+
+def _crossing_fraction(z0: np.ndarray, z1: np.ndarray, crossing: np.ndarray) -> np.ndarray:
+    """Where along an edge Im psi vanishes, by interpolating the phase (exact for a plane
+    wave) for zero-phase crossings and Im psi linearly for the others (which are dropped)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        linear = z0.imag / (z0.imag - z1.imag)
+        start = np.angle(z0)
+        turn = np.angle(z1 * np.conj(z0))
+        by_phase = -start / turn
+    zero_phase = (z0.real + linear * (z1.real - z0.real)) > 0
+    t = np.where(zero_phase & (np.abs(by_phase - 0.5) <= 0.5), by_phase, linear)
+    return np.where(crossing & np.isfinite(t), t, 0.0)
+
+
+def _segments(
+    imag: np.ndarray, ids: np.ndarray, points: np.ndarray, real: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Marching-squares segments as pairs of flat crossing indices, kept where Re psi > 0."""
+    f00, f10 = imag[:, :-1, :-1], imag[:, 1:, :-1]
+    f11, f01 = imag[:, 1:, 1:], imag[:, :-1, 1:]
+    case = (f00 > 0) * 1 + (f10 > 0) * 2 + (f11 > 0) * 4 + (f01 > 0) * 8
+    centre_negative = (f00 + f10 + f11 + f01) <= 0
+    first, second = _FIRST[case], _SECOND[case]
+    for saddle, (pair_one, pair_two) in _SADDLE_OTHER.items():
+        swap = (case == saddle) & centre_negative
+        first[swap], second[swap] = pair_one, pair_two
+    flat_cell = np.arange(case.size).reshape(case.shape) * 4
+    pairs = []
+    for table in (first, second):
+        present = table[..., 0] >= 0
+        pairs.append(
+            np.column_stack(
+                [flat_cell[present] + table[present, 0], flat_cell[present] + table[present, 1]]
+            )
+        )
+    pairs = np.concatenate(pairs)
+    flat_real = real.reshape(-1)
+    positive = (flat_real[pairs[:, 0]] > 0) & (flat_real[pairs[:, 1]] > 0)
+    pairs = pairs[positive]
+    return pairs[:, 0], pairs[:, 1]
+
+
+def _chains(
+    first: np.ndarray, second: np.ndarray, ids: np.ndarray, points: np.ndarray
+) -> list[np.ndarray]:
+    """Join segments that share a fine edge into polylines (fine units)."""
+    if len(first) == 0:
+        return []
+    flat_ids = ids.reshape(-1)
+    flat_points = points.reshape(-1, 2)
+    ends = np.concatenate([flat_ids[first], flat_ids[second]])
+    node_of = np.unique(ends, return_inverse=True)[1]
+    n = node_of.max() + 1
+    a, b = node_of[: len(first)], node_of[len(first) :]
+    position = np.zeros((n, 2))
+    position[a], position[b] = flat_points[first], flat_points[second]
+    keep = a != b
+    a, b = a[keep], b[keep]
+    degree = np.bincount(np.concatenate([a, b]), minlength=n)
+    graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)).tocsr()
+    count, label = connected_components(graph, directed=False)
+    key = np.where(degree == 1, 0, n) + np.arange(n)
+    start_key = np.full(count, 2 * n)
+    np.minimum.at(start_key, label, key)
+    starts = start_key % n
+    open_component = start_key < n
+    rows = np.concatenate([a, starts, np.full(count, n)])
+    cols = np.concatenate([b, np.full(count, n), starts])
+    full = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n + 1, n + 1)).tocsr()
+    order, predecessor = depth_first_order(full, n, directed=False, return_predecessors=True)
+    order = order[1:]
+    breaks = np.flatnonzero(predecessor[order][1:] != order[:-1]) + 1
+    lines = []
+    for chain in np.split(order, breaks):
+        if len(chain) < 2:
+            continue
+        line = position[chain]
+        closed = not open_component[label[chain[0]]] and len(chain) > 2
+        lines.append(np.vstack([line, line[:1]]) if closed else line)
+    return lines
