@@ -267,13 +267,14 @@ class _Paths:
         if not any(m.kind == PRINT for _, m in moves):
             raise FabkitError("the toolpath has no print moves: nothing to write")
         counts = np.array([len(m.xyz) for _, m in moves])
-        low, high = toolpath.bounds()
-        shift = placement_offset(low, high, machine, offset)
         fields = {
             name: np.concatenate([getattr(m, name) for _, m in moves])
             for name in ("xyz", "width", "speed", "flow", "value")
         }
-        fields["xyz"] = fields["xyz"] + shift
+        shift = placement_offset(
+            fields["xyz"].min(axis=0), fields["xyz"].max(axis=0), machine, offset
+        )
+        fields["xyz"] += shift
         start = np.concatenate([[0], np.cumsum(counts)])
         printing = np.array([m.kind == PRINT for _, m in moves])
         layer = np.array([i for i, _ in moves])

@@ -88,20 +88,13 @@ def _render_chunk(
     present: np.ndarray,
     words: Sequence[Word],
 ) -> bytes:
-    n = len(prefix_ids)
-    numbers = [_digits(values[:, k], present[:, k], word) for k, word in enumerate(words)]
-    width = (
-        table.shape[1]
-        + 1
-        + sum(
-            len(w.lead) + 1 + 3 * len(num[0]) + (w.decimals + 1 if w.decimals else 0)
-            for w, num in zip(words, numbers, strict=True)
-        )
-    )
-    canvas = _Canvas(n, width)
+    shown = [k for k in range(len(words)) if present[:, k].any()]
+    numbers = [_Number.of(values[:, k], present[:, k], words[k]) for k in shown]
+    width = table.shape[1] + 1 + sum(number.width for number in numbers)
+    canvas = _Canvas(len(prefix_ids), width)
     canvas.put(table[prefix_ids], used[prefix_ids], table.shape[1])
-    for word, (int_part, frac, is_present, negative) in zip(words, numbers, strict=True):
-        _put_number(canvas, word, int_part, frac, is_present, negative)
+    for number in numbers:
+        number.put(canvas)
     canvas.put(ord("\n"), True, 1)
     return canvas.text()
 
@@ -117,63 +110,82 @@ def _prefix_table(prefixes: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     return table, used
 
 
-def _digits(
-    values: np.ndarray, present: np.ndarray, word: Word
-) -> tuple[list[np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
-    """Split a column into 3-digit groups of the integer part (most significant first),
-    the fraction as an integer of ``decimals`` digits, and the sign."""
-    shown = np.where(present, values, 0.0)
-    if not np.isfinite(shown).all():
-        raise FabkitError(f"a{word.lead} word has a non-finite value")
-    scale = 10**word.decimals
-    scaled = np.rint(np.abs(shown) * scale).astype(np.int64)
-    whole, frac = np.divmod(scaled, scale)
-    groups = max(1, -(-len(str(int(whole.max()))) // 3))
-    int_part = [whole // 1000**g % 1000 for g in range(groups - 1, -1, -1)]
-    return int_part, frac, present, present & (shown < 0) & (scaled > 0)
+@dataclass(frozen=True)
+class _Number:
+    """One word column split for the digit tables: 3-digit groups of the integer part
+    (most significant first) and the fraction as an integer, both as table rows where
+    the row past the end stands for "not written"."""
+
+    word: Word
+    present: np.ndarray
+    negative: np.ndarray
+    groups: list[np.ndarray]
+    frac: np.ndarray
+
+    @classmethod
+    def of(cls, values: np.ndarray, present: np.ndarray, word: Word) -> _Number:
+        shown = np.where(present, values, 0.0)
+        if not np.isfinite(shown).all():
+            raise FabkitError(f"a{word.lead} word has a non-finite value")
+        scale = 10**word.decimals
+        scaled = np.rint(np.abs(shown) * scale).astype(np.int64)
+        whole, frac = np.divmod(scaled, scale)
+        count = max(1, -(-len(str(int(whole.max()))) // 3))
+        groups = [whole // 1000**g % 1000 for g in range(count - 1, -1, -1)]
+        absent = ~present
+        started = np.zeros(len(values), dtype=bool)
+        for g, group in enumerate(groups):
+            last = g == count - 1
+            # table rows: 0..999 significant digits only, 1000..1999 all three digits
+            group += np.where(started, 1000, 0)
+            if not last:
+                started |= group > 0
+            group[absent] = _ABSENT_GROUP
+        frac[absent] = scale
+        return cls(word, present, present & (shown < 0) & (scaled > 0), groups, frac)
+
+    @property
+    def width(self) -> int:
+        fraction = self.word.decimals + 1 if self.word.decimals else 0
+        return len(self.word.lead) + 1 + 3 * len(self.groups) + fraction
+
+    def put(self, canvas: _Canvas) -> None:
+        lead = np.frombuffer(self.word.lead.encode("ascii"), dtype=np.uint8)
+        canvas.put(lead, self.present[:, None], len(lead))
+        canvas.put(ord("-"), self.negative[:, None], 1)
+        for g, group in enumerate(self.groups):
+            digits, keep = _group_tables(g == len(self.groups) - 1)
+            canvas.put(digits[group], keep[group], 3)
+        if self.word.decimals:
+            digits, keep = _fraction_tables(self.word.decimals)
+            canvas.put(ord("."), keep[self.frac, :1], 1)
+            canvas.put(digits[self.frac], keep[self.frac], self.word.decimals)
 
 
-def _put_number(
-    canvas: _Canvas,
-    word: Word,
-    int_part: list[np.ndarray],
-    frac: np.ndarray,
-    present: np.ndarray,
-    negative: np.ndarray,
-) -> None:
-    lead = np.frombuffer(word.lead.encode("ascii"), dtype=np.uint8)
-    column = present[:, None]
-    canvas.put(lead, column, len(lead))
-    canvas.put(ord("-"), negative[:, None], 1)
-    started = np.zeros(len(present), dtype=bool)
-    for g, group in enumerate(int_part):
-        digits, significant = _group_tables()
-        last = g == len(int_part) - 1
-        keep = started[:, None] | significant[group]
-        if last:
-            keep[:, 2] = True
-        canvas.put(digits[group], column & keep, 3)
-        started |= group > 0
-    if word.decimals:
-        has_frac = present & (frac > 0)
-        canvas.put(ord("."), has_frac[:, None], 1)
-        digits, kept = _fraction_tables(word.decimals)
-        canvas.put(digits[frac], has_frac[:, None] & kept[frac], word.decimals)
+_ABSENT_GROUP = 2000
 
 
 @cache
-def _group_tables() -> tuple[np.ndarray, np.ndarray]:
-    """For 0..999: its three digit characters, and which are significant (no leading 0)."""
+def _group_tables(last: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Rows 0..999: the three digits of the value and which are significant (no leading
+    zeros; the units digit of the last group always); rows 1000..1999: the same digits,
+    all kept (a more significant group was non-zero); row 2000: nothing kept."""
     values = np.arange(1000)
     powers = np.array([100, 10, 1])
     digits = (values[:, None] // powers % 10 + _ZERO).astype(np.uint8)
-    return digits, values[:, None] >= powers
+    significant = values[:, None] >= powers
+    if last:
+        significant[:, 2] = True
+    keep = np.vstack([significant, np.ones((1000, 3), bool), np.zeros((1, 3), bool)])
+    return np.vstack([digits, digits, digits[:1]]), keep
 
 
 @cache
 def _fraction_tables(decimals: int) -> tuple[np.ndarray, np.ndarray]:
-    """For 0..10**decimals - 1: its digit characters, and which survive trailing-0 trimming."""
+    """Rows 0..10**decimals - 1: the fraction's digits and which survive trailing-zero
+    trimming (column 0 doubles as "write the dot"); the last row: nothing kept."""
     values = np.arange(10**decimals)
     powers = 10 ** np.arange(decimals - 1, -1, -1)
     digits = (values[:, None] // powers % 10 + _ZERO).astype(np.uint8)
-    return digits, values[:, None] % (powers * 10) > 0
+    keep = values[:, None] % (powers * 10) > 0
+    return np.vstack([digits, digits[:1]]), np.vstack([keep, np.zeros((1, decimals), bool)])

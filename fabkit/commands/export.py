@@ -1,0 +1,100 @@
+"""``fabkit export INPUT --machine NAME --format gcode|dxf|laser -o OUT``."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from fabkit.writers.export import FORMATS, ExportOptions, export
+from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
+from fabkit.writers.laser import IMAGE_FORMATS, RELATIONS
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "export",
+        help="write G-code, DXF or laser-writer patterns for a machine",
+        description="Write a toolpath or design as a machine file; everything is checked "
+        "against the machine profile before anything is written (see docs/export.md).",
+    )
+    parser.add_argument("input", help="toolpath (.npz/.json), design.npz or director .toml")
+    parser.add_argument("--machine", required=True, help="profile name or .toml path")
+    parser.add_argument("--format", required=True, choices=FORMATS)
+    parser.add_argument("-o", "--out", required=True, help="output file (laser: a directory)")
+    parser.add_argument(
+        "--offset",
+        type=_numbers,
+        help="X,Y[,Z]: sheet origin on the machine (mm); default: centred on the bed",
+    )
+    design = parser.add_argument_group("design input")
+    design.add_argument("--size", type=float, help="longest side of the flat sheet (mm)")
+    design.add_argument("--scale", type=float, help="mm per design unit")
+    design.add_argument("--feature", type=int, default=0, help="eps feature (default 0)")
+    gcode = parser.add_argument_group("gcode")
+    gcode.add_argument("--e-mode", choices=E_MODES, help="default: the profile's start G-code")
+    gcode.add_argument("--e-units", choices=E_UNITS, help="default: filament (hyrel: volume)")
+    gcode.add_argument("--filament-diameter", type=float, help="mm (default 1.75)")
+    gcode.add_argument("--pulses-per-mm3", type=float, help="pulse extruder calibration")
+    gcode.add_argument(
+        "--min-travel",
+        type=float,
+        default=GcodeOptions.retract_min_travel_mm,
+        help="shorter travels neither lift nor retract (mm, default %(default)g)",
+    )
+    dxf = parser.add_argument_group("dxf")
+    dxf.add_argument("--geometry", type=Path, help="GeoJSON with outline/channels/inlet layers")
+    dxf.add_argument("--inlet-radius", type=float, default=0.5, help="mm (default %(default)g)")
+    laser = parser.add_argument_group("laser")
+    laser.add_argument("--pixel", type=float, help="pixel pitch (mm); default from the profile")
+    laser.add_argument("--bins", type=int, help="director angle bins (default 18)")
+    laser.add_argument("--dose-levels", type=int, help="dose levels (default 4)")
+    laser.add_argument("--dose", type=float, help="constant dose (mJ/cm^2)")
+    laser.add_argument("--relation", choices=RELATIONS, help="director vs polarisation")
+    laser.add_argument("--polarisation", type=float, help="input polarisation angle (deg)")
+    laser.add_argument("--intensity", type=float, help="mW/cm^2, for exposure times")
+    laser.add_argument("--scan-speed", type=float, help="mm/s (scanning writers)")
+    laser.add_argument("--max-power", type=float, help="mW (scanning writers)")
+    laser.add_argument("--image-format", choices=IMAGE_FORMATS, help="png (default) or tiff")
+    parser.set_defaults(func=run)
+
+
+def _numbers(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y or X,Y,Z in mm, got {text!r}") from None
+    if len(values) not in (2, 3):
+        raise argparse.ArgumentTypeError(f"expected X,Y or X,Y,Z in mm, got {text!r}")
+    return values
+
+
+def run(args: argparse.Namespace) -> int:
+    options = ExportOptions(
+        offset_mm=args.offset,
+        size_mm=args.size,
+        mm_per_unit=args.scale,
+        feature=args.feature,
+        gcode=GcodeOptions(
+            e_mode=args.e_mode,
+            e_units=args.e_units,
+            filament_diameter_mm=args.filament_diameter,
+            pulses_per_mm3=args.pulses_per_mm3,
+            retract_min_travel_mm=args.min_travel,
+        ),
+        geometry=args.geometry,
+        inlet_radius_mm=args.inlet_radius,
+        pixel_mm=args.pixel,
+        laser={
+            "bins": args.bins,
+            "dose_levels": args.dose_levels,
+            "dose": args.dose,
+            "relation": args.relation,
+            "input_polarisation_deg": args.polarisation,
+            "intensity_mw_cm2": args.intensity,
+            "scan_speed_mm_s": args.scan_speed,
+            "max_power_mw": args.max_power,
+            "image_format": args.image_format,
+        },
+    )
+    print(export(args.input, args.machine, args.format, args.out, options))
+    return 0

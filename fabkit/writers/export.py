@@ -1,0 +1,197 @@
+"""``fabkit export``: one input file, one machine, one format, one output.
+
+Inputs, recognised by content: a toolpath (``.npz``/``.json`` written by
+:func:`fabkit.toolpath.save_toolpath`), a design (``design.npz`` from ``fabkit solve``) or a
+director file (``.toml``, see :func:`fabkit.fields.load_director_file`).
+
+======== ============================================ ===================================
+format   from a toolpath                              from a design / director file
+======== ============================================ ===================================
+gcode    the toolpath                                 refused: make a toolpath first
+dxf      PATHS, TRAVEL (+ ``geometry`` layers)        OUTLINE of the flat sheet (+ geometry)
+laser    refused: needs a director field              angle/dose maps, masks, manifest, scan
+======== ============================================ ===================================
+
+``geometry`` is an optional GeoJSON file (a FeatureCollection, sheet frame, mm) whose
+features carry ``"layer": "outline" | "channels" | "inlet"`` in their properties.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+import shapely.geometry
+
+from fabkit.errors import FabkitError
+from fabkit.machines import load_machine
+from fabkit.toolpath.model import Toolpath, load_toolpath
+from fabkit.writers.common import profile_setting
+from fabkit.writers.dxf import DEFAULT_INLET_RADIUS_MM, write_dxf
+from fabkit.writers.gcode import GcodeOptions, write_gcode
+from fabkit.writers.laser import LaserSettings, sample_field, write_laser
+
+FORMATS = ("gcode", "dxf", "laser")
+GEOMETRY_LAYERS = ("outline", "channels", "inlet")
+
+
+@dataclass(frozen=True)
+class ExportOptions:
+    """Everything ``fabkit export`` may be told; None = the writer's default.
+
+    ``size_mm`` / ``mm_per_unit`` scale a design (give one); ``pixel_mm`` is the laser
+    pixel pitch (default: the profile's ``laser.pixel_pitch_mm``, else its road width).
+    """
+
+    offset_mm: tuple[float, ...] | None = None
+    size_mm: float | None = None
+    mm_per_unit: float | None = None
+    feature: int = 0
+    gcode: GcodeOptions = field(default_factory=GcodeOptions)
+    geometry: Path | None = None
+    inlet_radius_mm: float = DEFAULT_INLET_RADIUS_MM
+    pixel_mm: float | None = None
+    laser: dict[str, Any] = field(default_factory=dict)
+
+
+def export(
+    source: str | Path,
+    machine_name: str,
+    fmt: str,
+    out: str | Path,
+    options: ExportOptions | None = None,
+) -> str:
+    """Write ``out`` in format ``fmt`` for the machine; returns a one-paragraph summary."""
+    options = options or ExportOptions()
+    if fmt not in FORMATS:
+        raise FabkitError(f"format '{fmt}' is not one of {', '.join(FORMATS)}")
+    machine = load_machine(machine_name)
+    kind, loaded = read_input(Path(source))
+    if fmt == "gcode":
+        return _gcode(kind, loaded, machine, Path(out), options)
+    if fmt == "dxf":
+        return _dxf(kind, loaded, machine, Path(out), options)
+    return _laser(kind, loaded, machine, Path(out), options)
+
+
+def read_input(path: Path) -> tuple[str, Any]:
+    """("toolpath", Toolpath), ("design", path) or ("director", path)."""
+    if not path.is_file():
+        raise FabkitError(f"input file '{path}' does not exist")
+    if path.suffix == ".toml":
+        return "director", path
+    if path.suffix == ".json":
+        return "toolpath", load_toolpath(path)
+    if path.suffix != ".npz":
+        raise FabkitError(f"input '{path}': expected a toolpath or design .npz, or a .toml")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            names = set(data.files)
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise FabkitError(f"{path}: cannot read ({exc})") from None
+    if "format" in names:
+        return "toolpath", load_toolpath(path)
+    if {"valid", "r", "n", "eps"} <= names:
+        return "design", path
+    raise FabkitError(f"{path}: neither a fabkit toolpath nor a design file")
+
+
+def _field(kind: str, path: Path, options: ExportOptions) -> Any:
+    from fabkit.fields import field_from_design, load_director_file
+
+    if kind == "director":
+        return load_director_file(path)
+    if options.size_mm is None and options.mm_per_unit is None:
+        raise FabkitError(
+            "a design is in design units: give its size (--size MM, longest side) "
+            "or --scale MM_PER_UNIT"
+        )
+    return field_from_design(path, options.size_mm, options.mm_per_unit, options.feature)
+
+
+def _gcode(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions) -> str:
+    if kind != "toolpath":
+        raise FabkitError(
+            "G-code is written from a toolpath: make one from the design first "
+            "(fabkit toolpath), then export the toolpath"
+        )
+    gcode = replace(options.gcode, offset_mm=options.offset_mm)
+    s = write_gcode(loaded, machine, out, gcode)
+    return (
+        f"wrote {out}: {s.lines} lines ({s.motion_lines} moves), print path "
+        f"{s.print_length_mm:.1f} mm, travel {s.travel_length_mm:.1f} mm, volume "
+        f"{s.volume_mm3:.2f} mm^3, estimated {s.duration_s / 60:.1f} min; E {s.e_mode} "
+        f"({s.e_units}); offset {_xyz(s.offset_mm)} mm on {machine.name}"
+    )
+
+
+def _dxf(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions) -> str:
+    layers = load_geometry(options.geometry) if options.geometry else {}
+    toolpath: Toolpath | None = None
+    if kind == "toolpath":
+        toolpath = loaded
+    elif "outline" not in layers:
+        layers["outline"] = _field(kind, loaded, options).outline
+    s = write_dxf(
+        out,
+        toolpath,
+        machine=machine,
+        offset_mm=options.offset_mm,
+        inlet_radius_mm=options.inlet_radius_mm,
+        **layers,
+    )
+    counts = ", ".join(f"{name} {n}" for name, n in s.entities.items() if n)
+    return f"wrote {out}: {counts} entities; offset {_xyz(s.offset_mm)} mm on {machine.name}"
+
+
+def _laser(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions) -> str:
+    if kind == "toolpath":
+        raise FabkitError(
+            "laser patterns are written from a director field: export the design.npz "
+            "(or a director .toml), not a toolpath"
+        )
+    pixel = options.pixel_mm or profile_setting(
+        machine, "laser.pixel_pitch_mm", machine.process.road_width_mm
+    )
+    grid = sample_field(_field(kind, loaded, options), pixel)
+    settings = LaserSettings.for_machine(machine, **options.laser)
+    s = write_laser(grid, out, machine, settings, options.offset_mm)
+    scan = f", {s.scan_lines} scan lines" if s.scan_lines else ""
+    return (
+        f"wrote {out}/: {s.domain_pixels} domain pixels at {pixel:g} mm in {s.exposures} "
+        f"exposure masks{scan}; binning error max {s.max_binning_error_deg:.2f} deg, rms "
+        f"{s.rms_binning_error_deg:.2f} deg; origin {_xyz(s.origin_mm)} mm on {machine.name}"
+    )
+
+
+def load_geometry(path: Path) -> dict[str, shapely.Geometry]:
+    """The outline/channels/inlet layers of a GeoJSON FeatureCollection (mm)."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+        features = data["features"] if data.get("type") == "FeatureCollection" else None
+    except (OSError, ValueError, AttributeError, KeyError) as exc:
+        raise FabkitError(f"geometry file '{path}': not GeoJSON ({exc})") from None
+    if not isinstance(features, list):
+        raise FabkitError(f"geometry file '{path}': expected a GeoJSON FeatureCollection")
+    parts: dict[str, list[shapely.Geometry]] = {}
+    for k, feature in enumerate(features):
+        layer = (feature.get("properties") or {}).get("layer")
+        if layer not in GEOMETRY_LAYERS:
+            raise FabkitError(
+                f"geometry file '{path}': feature {k} has layer {layer!r}, "
+                f"expected one of {', '.join(GEOMETRY_LAYERS)}"
+            )
+        try:
+            parts.setdefault(layer, []).append(shapely.geometry.shape(feature["geometry"]))
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise FabkitError(f"geometry file '{path}': feature {k}: {exc}") from None
+    return {layer: shapely.GeometryCollection(items) for layer, items in parts.items()}
+
+
+def _xyz(values: tuple[float, ...]) -> str:
+    return ",".join(f"{v:.2f}" for v in values)
