@@ -1,0 +1,134 @@
+"""One toolpath job, as the command line states it: inputs, process, layers, outputs.
+
+:func:`run_job` loads the inputs (design files, director TOML files, or a director
+expression on a named shape), reads the process settings (machine profile, ``--process``
+file, overrides), plans the toolpath, and writes into the output folder:
+
+* ``toolpath.npz`` (and ``toolpath.json`` on request): the :class:`Toolpath`;
+* ``quality.json``: the quality of every layer, the settings and any warnings;
+* ``preview.png`` and ``preview.svg``.
+
+Every file is written atomically (no half-written output on failure).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from fabkit.atomic import atomic_path
+from fabkit.errors import FabkitError
+from fabkit.fields import (
+    FlatField,
+    field_from_design,
+    field_from_expression,
+    load_director_file,
+    parse_shape,
+)
+from fabkit.toolpath.model import save_toolpath
+from fabkit.toolpath.plan import Plan, PlanSettings, plan_toolpath
+from fabkit.toolpath.preview import save_preview
+from fabkit.toolpath.process import Process, load_process, machine_process
+
+
+@dataclass(frozen=True)
+class ToolpathJob:
+    """What to make (see ``fabkit toolpath --help``); lengths in mm."""
+
+    inputs: tuple[str, ...] = ()
+    director: str | None = None
+    shape: str | None = None
+    eps: str | None = None
+    size_mm: float | None = None
+    mm_per_unit: float | None = None
+    feature: int = 0
+    clip: str | None = None
+    machine: str | None = None
+    process_file: str | None = None
+    road_width_mm: float | None = None
+    layer_height_mm: float | None = None
+    layers: int = 1
+    pattern: str = "same"
+    encode: bool = True
+    clip_eps: bool = False
+    out: str = "toolpath"
+    json: bool = False
+
+
+@dataclass(frozen=True)
+class JobResult:
+    """The plan and the files written."""
+
+    plan: Plan
+    files: tuple[Path, ...]
+
+
+def run_job(job: ToolpathJob) -> JobResult:
+    """Load, plan and write everything for ``job``."""
+    fields = load_fields(job)
+    process = job_process(job)
+    settings = PlanSettings(layers=job.layers, pattern=job.pattern, encode=job.encode)
+    plan = plan_toolpath(fields, process, settings)
+    out = Path(job.out)
+    files = [out / "toolpath.npz", out / "quality.json", out / "preview.png", out / "preview.svg"]
+    save_toolpath(plan.toolpath, files[0])
+    _save_quality(plan, process, files[1])
+    save_preview(plan.toolpath, [f.outline for f in fields], files[2:4])
+    if job.json:
+        files.append(out / "toolpath.json")
+        save_toolpath(plan.toolpath, files[-1])
+    return JobResult(plan, tuple(files))
+
+
+def load_fields(job: ToolpathJob) -> list[FlatField]:
+    """The flat-sheet fields of the job's inputs, in order (bottom layer first)."""
+    fields = [_load_input(path, job) for path in job.inputs]
+    if job.director is not None:
+        if job.shape is None:
+            raise FabkitError("--director needs --shape (e.g. --shape disc:10)")
+        fields.append(
+            field_from_expression(job.director, parse_shape(job.shape, "--shape"), job.eps)
+        )
+    elif job.shape is not None or job.eps is not None:
+        raise FabkitError("--shape and --eps go with --director")
+    if not fields:
+        raise FabkitError("give a design.npz or director .toml input, or --director with --shape")
+    if job.clip is not None:
+        clip = parse_shape(job.clip, "--clip")
+        fields = [f.clipped(clip) for f in fields]
+    return fields
+
+
+def _load_input(path: str, job: ToolpathJob) -> FlatField:
+    suffix = Path(path).suffix
+    if suffix == ".npz":
+        return field_from_design(path, job.size_mm, job.mm_per_unit, job.feature)
+    if suffix == ".toml":
+        return load_director_file(path)
+    raise FabkitError(f"input '{path}': expected a design .npz or a director .toml file")
+
+
+def job_process(job: ToolpathJob) -> Process:
+    """The machine's (or default) process, replaced by --process, then the overrides."""
+    process = load_process(job.process_file) if job.process_file else machine_process(job.machine)
+    process = process.with_overrides(
+        road_width_mm=job.road_width_mm, layer_height_mm=job.layer_height_mm
+    )
+    if job.clip_eps and process.calibration is not None:
+        process = replace(process, calibration=replace(process.calibration, clip=True))
+    return process
+
+
+def _save_quality(plan: Plan, process: Process, path: Path) -> None:
+    report = {
+        "layers": [q.to_dict() for q in plan.quality],
+        "road_width_mm": process.road_width_mm,
+        "layer_height_mm": process.layer_height_mm,
+        "process": process.source,
+        "parameter": plan.toolpath.parameter,
+        "sources": plan.toolpath.meta.get("sources", []),
+        "warnings": list(plan.warnings),
+    }
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(report, indent=2), encoding="utf-8")

@@ -1,0 +1,115 @@
+"""Preview images of a toolpath: PNG and SVG, one panel per layer (at most four).
+
+Print moves are drawn to scale at 60 % of their road width (so that neighbouring lines stay
+distinguishable and gaps show), coloured by the encoded parameter (``Move.value``; one
+colour when nothing is encoded), over the domain outline in grey; travels are thin dark
+lines.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import shapely
+from matplotlib.cm import ScalarMappable
+from matplotlib.collections import LineCollection
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+from matplotlib.patches import PathPatch
+from matplotlib.path import Path as MplPath
+
+from fabkit.atomic import atomic_path
+from fabkit.toolpath.model import PRINT, Toolpath
+
+PANEL_INCHES = 6.0
+ROAD_SCALE = 0.6
+MAX_PANELS = 4
+LABELS = {
+    "print_speed_mm_s": "print speed (mm/s)",
+    "extrusion_multiplier": "extrusion multiplier",
+    "temperature_c": "temperature (°C)",
+    "line_spacing_mm": "line spacing (mm)",
+}
+
+
+def save_preview(
+    toolpath: Toolpath,
+    outlines: list[shapely.Geometry],
+    paths: list[str | Path],
+    dpi: int = 200,
+) -> None:
+    """Draw ``toolpath`` over the per-layer ``outlines`` (mm) and save to each of ``paths``
+    (the suffix picks the format: .png, .svg, .pdf)."""
+    shown = _shown_layers(len(toolpath.layers))
+    figure = Figure(figsize=(PANEL_INCHES * len(shown), PANEL_INCHES))
+    axes = figure.subplots(1, len(shown), squeeze=False)
+    values = np.concatenate([m.value[1:] for _, m in toolpath.moves() if m.kind == PRINT])
+    finite = values[np.isfinite(values)]
+    norm = Normalize(*(finite.min(), finite.max())) if len(finite) else None
+    if norm is not None and norm.vmin == norm.vmax:
+        norm = Normalize(norm.vmin - 1, norm.vmax + 1)
+    low, high = toolpath.bounds()
+    extent = float(max(high[0] - low[0], high[1] - low[1], 1e-9)) * 1.04
+    for ax, index in zip(axes[0], shown, strict=True):
+        _draw_layer(ax, toolpath, index, outlines[index % len(outlines)], norm, extent)
+        ax.set_xlim(0.5 * (low[0] + high[0]) - extent / 2, 0.5 * (low[0] + high[0]) + extent / 2)
+        ax.set_ylim(0.5 * (low[1] + high[1]) - extent / 2, 0.5 * (low[1] + high[1]) + extent / 2)
+    if norm is not None:
+        mappable = ScalarMappable(norm=norm, cmap="viridis")
+        figure.colorbar(
+            mappable,
+            ax=axes[0].tolist(),
+            shrink=0.8,
+            label=LABELS.get(toolpath.parameter, toolpath.parameter),
+        )
+    for path in paths:
+        with atomic_path(path) as tmp:
+            figure.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip("."))
+
+
+def _shown_layers(count: int) -> list[int]:
+    if count <= MAX_PANELS:
+        return list(range(count))
+    return sorted({0, 1, count - 2, count - 1})
+
+
+def _draw_layer(ax, toolpath: Toolpath, index: int, outline, norm, extent: float) -> None:
+    layer = toolpath.layers[index]
+    ax.set_aspect("equal")
+    ax.set_title(f"layer {index + 1}  z = {layer.z_mm:g} mm")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    for polygon in shapely.get_parts(outline):
+        ax.add_patch(PathPatch(_polygon_path(polygon), facecolor="0.88", edgecolor="0.5", lw=0.5))
+    points_per_mm = PANEL_INCHES * 0.75 * 72 / extent  # axes span about 3/4 of the panel
+    prints = [m for m in layer.moves if m.kind == PRINT]
+    segments = np.concatenate([_segments(m.xyz) for m in prints])
+    widths = np.concatenate([m.width[1:] for m in prints]) * points_per_mm * ROAD_SCALE
+    values = np.concatenate([m.value[1:] for m in prints])
+    roads = LineCollection(segments, linewidths=widths, capstyle="round", joinstyle="round")
+    if norm is not None and np.isfinite(values).any():
+        roads.set_array(values)
+        roads.set_cmap("viridis")
+        roads.set_norm(norm)
+    else:
+        roads.set_color("tab:blue")
+    ax.add_collection(roads)
+    travels = [m.xyz[:, :2] for m in layer.moves if m.kind != PRINT]
+    if travels:
+        ax.add_collection(LineCollection(travels, linewidths=0.3, colors="0.15", alpha=0.7))
+
+
+def _segments(xyz: np.ndarray) -> np.ndarray:
+    return np.stack([xyz[:-1, :2], xyz[1:, :2]], axis=1)
+
+
+def _polygon_path(polygon: shapely.Polygon) -> MplPath:
+    rings = [np.asarray(polygon.exterior.coords)] + [
+        np.asarray(r.coords) for r in polygon.interiors
+    ]
+    vertices = np.concatenate(rings)
+    codes = np.concatenate(
+        [[MplPath.MOVETO] + [MplPath.LINETO] * (len(r) - 2) + [MplPath.CLOSEPOLY] for r in rings]
+    )
+    return MplPath(vertices, codes)
