@@ -29,6 +29,7 @@ import shapely
 import shapely.geometry
 
 from fabkit.errors import FabkitError
+from fabkit.fields import FlatField, field_from_design, load_director_file
 from fabkit.machines import load_machine
 from fabkit.toolpath.model import Toolpath, load_toolpath
 from fabkit.writers.common import profile_setting
@@ -101,9 +102,7 @@ def read_input(path: Path) -> tuple[str, Any]:
     raise FabkitError(f"{path}: neither a fabkit toolpath nor a design file")
 
 
-def _field(kind: str, path: Path, options: ExportOptions) -> Any:
-    from fabkit.fields import field_from_design, load_director_file
-
+def _field(kind: str, path: Path, options: ExportOptions) -> FlatField:
     if kind == "director":
         return load_director_file(path)
     if options.size_mm is None and options.mm_per_unit is None:

@@ -1,0 +1,187 @@
+"""``fabkit export``: every format for the Fig. 1 example and a baromorph from the command
+line, and one-line errors (exit 2, nothing written) for bad requests."""
+
+from __future__ import annotations
+
+import json
+
+import ezdxf
+import pytest
+import shapely
+
+from fabkit.machines import load_machine
+from fabkit.toolpath import save_toolpath
+from tests.test_writers_common import (
+    baromorph,
+    baromorph_toolpath,
+    fig1_design_path,
+    fig1_toolpath,
+    model_volume,
+    replay,
+)
+
+
+@pytest.fixture
+def toolpaths(tmp_path):
+    fig1 = tmp_path / "fig1.npz"
+    save_toolpath(fig1_toolpath(load_machine("marlin_generic")), fig1)
+    plate = tmp_path / "baromorph.json"
+    save_toolpath(baromorph_toolpath(load_machine("grbl_diw")), plate)
+    return fig1, plate
+
+
+def test_gcode_for_both_examples(run_cli, tmp_path, toolpaths):
+    fig1, plate = toolpaths
+    code, out, err = run_cli(
+        "export",
+        fig1,
+        "--machine",
+        "marlin_generic",
+        "--format",
+        "gcode",
+        "-o",
+        tmp_path / "fig1.gcode",
+        "--e-mode",
+        "relative",
+    )
+    assert code == 0 and err == "" and "wrote" in out and "E relative (filament)" in out
+    run = replay((tmp_path / "fig1.gcode").read_text())
+    volume = run.e_step.sum() * 3.141592653589793 * 1.75**2 / 4
+    assert volume == pytest.approx(
+        model_volume(fig1_toolpath(load_machine("marlin_generic"))), rel=5e-3
+    )
+    code, out, _ = run_cli(
+        "export",
+        plate,
+        "--machine",
+        "grbl_diw",
+        "--format",
+        "gcode",
+        "-o",
+        tmp_path / "plate.gcode",
+        "--offset",
+        "150,150",
+    )
+    assert code == 0 and "offset 150.00,150.00,0.00 mm" in out
+    assert "M8" in (tmp_path / "plate.gcode").read_text().splitlines()
+
+
+def test_dxf_for_both_examples(run_cli, tmp_path, toolpaths):
+    fig1, plate = toolpaths
+    code, out, _ = run_cli(
+        "export",
+        fig1_design_path(),
+        "--machine",
+        "laser_cutter",
+        "--format",
+        "dxf",
+        "-o",
+        tmp_path / "sheet.dxf",
+        "--size",
+        "40",
+    )
+    assert code == 0 and "OUTLINE 1" in out
+    doc = ezdxf.readfile(tmp_path / "sheet.dxf")
+    (outline,) = doc.modelspace().query("LWPOLYLINE[layer=='OUTLINE']")
+    x0, y0, x1, y1 = shapely.Polygon(outline.get_points("xy")).bounds
+    assert max(x1 - x0, y1 - y0) == pytest.approx(40.0)
+
+    shapes = baromorph()
+    geometry = tmp_path / "plate.geojson"
+    features = [
+        {
+            "type": "Feature",
+            "properties": {"layer": layer},
+            "geometry": shapely.geometry.mapping(getattr(shapes, layer)),
+        }
+        for layer in ("outline", "channels", "inlet")
+    ]
+    geometry.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    code, out, _ = run_cli(
+        "export",
+        plate,
+        "--machine",
+        "laser_cutter",
+        "--format",
+        "dxf",
+        "-o",
+        tmp_path / "plate.dxf",
+        "--geometry",
+        geometry,
+    )
+    assert code == 0
+    doc = ezdxf.readfile(tmp_path / "plate.dxf")
+    assert len(doc.audit().errors) == 0
+    counts = {
+        layer: len(doc.modelspace().query(f"*[layer=='{layer}']"))
+        for layer in ("PATHS", "TRAVEL", "CHANNELS", "OUTLINE", "INLET")
+    }
+    assert counts == {"PATHS": 4, "TRAVEL": 2, "CHANNELS": 1, "OUTLINE": 1, "INLET": 1}
+
+
+def test_laser_for_both_examples(run_cli, tmp_path):
+    code, out, _ = run_cli(
+        "export",
+        fig1_design_path(),
+        "--machine",
+        "dmd_photoalign",
+        "--format",
+        "laser",
+        "-o",
+        tmp_path / "fig1",
+        "--size",
+        "5",
+        "--pixel",
+        "0.025",
+        "--bins",
+        "12",
+    )
+    assert code == 0 and "binning error max" in out
+    manifest = json.loads((tmp_path / "fig1" / "manifest.json").read_text())
+    assert manifest["bins"] == 12 and manifest["pixel_pitch_mm"] == 0.025
+    director = tmp_path / "plate.toml"
+    director.write_text('[director]\ntheta = "phi + pi/2"\nshape = "disc:20"\n')
+    code, out, _ = run_cli(
+        "export",
+        director,
+        "--machine",
+        "dmd_photoalign",
+        "--format",
+        "laser",
+        "-o",
+        tmp_path / "plate",
+        "--pixel",
+        "0.5",
+        "--relation",
+        "parallel",
+        "--dose",
+        "800",
+    )
+    assert code == 0
+    manifest = json.loads((tmp_path / "plate" / "manifest.json").read_text())
+    assert manifest["director_relation"] == "parallel"
+    assert {e["dose_mj_cm2"] for e in manifest["exposures"]} == {800.0}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["DESIGN", "--format", "gcode"], "G-code is written from a toolpath"),
+        (["FIG1", "--format", "laser"], "laser patterns are written from a director field"),
+        (["DESIGN", "--format", "laser"], "give its size"),
+        (["FIG1", "--format", "gcode", "--machine", "no_such_machine"], "unknown machine"),
+        (["FIG1", "--format", "gcode", "--offset", "215,215"], "outside the envelope"),
+        (["MISSING", "--format", "gcode"], "does not exist"),
+        (["FIG1", "--format", "dxf", "--geometry", "MISSING"], "not GeoJSON"),
+    ],
+)
+def test_bad_requests_are_one_line_errors(run_cli, tmp_path, toolpaths, args, message):
+    names = {"DESIGN": fig1_design_path(), "FIG1": toolpaths[0], "MISSING": tmp_path / "x.npz"}
+    args = [str(names.get(a, a)) for a in args]
+    if "--machine" not in args:
+        args += ["--machine", "marlin_generic"]
+    out = tmp_path / "out.file"
+    code, stdout, err = run_cli("export", *args, "-o", out)
+    assert code == 2 and stdout == ""
+    assert err.startswith("fabkit: error: ") and message in err and err.count("\n") == 1
+    assert not out.exists()
