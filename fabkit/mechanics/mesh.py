@@ -1,0 +1,123 @@
+"""Triangle meshes of the flat sheet: the design's (u, v) grid, discs, topology, mesh files.
+
+Flat-sheet points are (V, 2) arrays in design units; triangles (F, 3) vertex indices,
+counter-clockwise on the flat sheet (so the initial normal is +z). The hinge topology
+(interior edges with their two opposite vertices) is what the bending energy needs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import Delaunay
+
+from fabkit.atomic import atomic_path
+from fabkit.design.design import Design
+from fabkit.design.patches import MESH_FORMATS, grid_triangles
+from fabkit.errors import FabkitError
+
+
+@dataclass(frozen=True)
+class DesignMesh:
+    """The solved flat domain of a design as a triangle mesh.
+
+    ``points`` (V, 2) flat-sheet positions r[0]; ``triangles`` (F, 3) counter-clockwise;
+    ``grid`` (V, 2) int, the (i, j) grid index of every vertex, so vertex k sits at
+    material coordinates (u[i], v[j]) and corresponds to r_s[i, j] on every surface s.
+    """
+
+    points: np.ndarray
+    triangles: np.ndarray
+    grid: np.ndarray
+
+
+@dataclass(frozen=True)
+class Topology:
+    """Edge structure of a triangle mesh.
+
+    ``hinges`` (H, 4): interior edges as (p, q, a, b) with p -> q a counter-clockwise edge
+    of face A = (p, q, a) and q -> p one of face B = (q, p, b).
+    ``face_hinges`` (F, 3): the hinge on the edge opposite vertex i of each face, -1 on
+    the boundary. ``flaps`` (F, 3): the vertex across that edge, -1 on the boundary.
+    """
+
+    hinges: np.ndarray
+    face_hinges: np.ndarray
+    flaps: np.ndarray
+
+
+def design_mesh(design: Design) -> DesignMesh:
+    """Triangulate every solved grid cell of ``design`` (two triangles per cell)."""
+    grid, triangles = grid_triangles(design.valid)
+    if len(triangles) == 0:
+        raise FabkitError("the design has no solved grid cell to simulate")
+    points = design.r[0][grid[:, 0], grid[:, 1]]
+    return DesignMesh(points, counter_clockwise(points, triangles), grid)
+
+
+def disc_mesh(radius: float, rings: int) -> tuple[np.ndarray, np.ndarray]:
+    """A disc of ``radius`` meshed by ``rings`` concentric rings of 6 k points (k = 1..rings).
+
+    Returns points (V, 2) with the centre as vertex 0, and about 6 rings^2 triangles.
+    """
+    points = [np.zeros((1, 2))]
+    for ring in range(1, rings + 1):
+        angle = (np.arange(6 * ring) + 0.5 * (ring % 2)) * 2 * np.pi / (6 * ring)
+        points.append(radius * ring / rings * np.stack([np.cos(angle), np.sin(angle)], -1))
+    points = np.concatenate(points)
+    return points, counter_clockwise(points, Delaunay(points).simplices)
+
+
+def counter_clockwise(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """``triangles`` with each row reordered to be counter-clockwise on the flat sheet."""
+    triangles = np.array(triangles, dtype=np.int64)
+    a, b, c = (points[triangles[:, k]] for k in range(3))
+    signed = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
+    flip = signed < 0
+    triangles[flip] = triangles[flip][:, [0, 2, 1]]
+    return triangles
+
+
+def topology(triangles: np.ndarray) -> Topology:
+    """Hinges, face-to-hinge map and flap vertices of a consistently oriented mesh.
+
+    Raises :class:`FabkitError` for a non-manifold edge (shared by three or more faces)
+    or inconsistent orientation.
+    """
+    faces = len(triangles)
+    # Edge i of a face is opposite vertex i: it runs from vertex i+1 to vertex i+2.
+    start = triangles[:, [1, 2, 0]].ravel()
+    end = triangles[:, [2, 0, 1]].ravel()
+    low, high = np.minimum(start, end), np.maximum(start, end)
+    order = np.lexsort((high, low))
+    same = (low[order][1:] == low[order][:-1]) & (high[order][1:] == high[order][:-1])
+    first, second = order[:-1][same], order[1:][same]
+    if np.any(np.bincount(np.concatenate([first, second]), minlength=3 * faces) > 1):
+        raise FabkitError("mesh: an edge is shared by more than two triangles")
+    if np.any(start[first] == start[second]):
+        raise FabkitError("mesh: triangles are not consistently oriented")
+    face_a = np.where(start[first] < end[first], first, second)
+    face_b = np.where(start[first] < end[first], second, first)
+    opposite = triangles.ravel()
+    hinges = np.stack([start[face_a], end[face_a], opposite[face_a], opposite[face_b]], -1)
+    face_hinges = np.full(3 * faces, -1)
+    flaps = np.full(3 * faces, -1)
+    count = np.arange(len(hinges))
+    face_hinges[face_a], face_hinges[face_b] = count, count
+    flaps[face_a], flaps[face_b] = opposite[face_b], opposite[face_a]
+    return Topology(hinges, face_hinges.reshape(faces, 3), flaps.reshape(faces, 3))
+
+
+def save_mesh(path: str | Path, positions: np.ndarray, triangles: np.ndarray) -> None:
+    """Write a 3D mesh as PLY, STL, GLB or OBJ (chosen by the suffix), atomically."""
+    import trimesh
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in MESH_FORMATS:
+        raise FabkitError(f"{path}: mesh format must be one of {', '.join(MESH_FORMATS)}")
+    mesh = trimesh.Trimesh(positions, triangles, process=False)
+    with atomic_path(path) as tmp:
+        mesh.export(tmp, file_type=suffix.lstrip("."))

@@ -1,0 +1,307 @@
+"""Forward simulation: the sheet's equilibrium shape for given reference metrics.
+
+:func:`simulate` takes a flat mesh and per-face reference metrics (one or more layers),
+ramps the metrics linearly from the flat sheet's (identity) to the target in a few
+steps, and at every step minimises the :class:`~fabkit.mechanics.shell.Shell` energy by
+projected Newton: the positive semi-definite Hessian model, one sparse LU factorisation
+per iteration (SuperLU, minimum-degree ordering), a small diagonal shift for the rigid
+motions, and a backtracking (Armijo) line search. The flat state is a symmetric
+stationary point, so the start is seeded with a small dome (or saddle) out of plane.
+
+:func:`simulate_design` builds all of that from a design file at one of its stimuli.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sparse
+import scipy.sparse.linalg as splinalg
+
+from fabkit.design.design import Design
+from fabkit.errors import FabkitError
+from fabkit.mechanics.mesh import DesignMesh, design_mesh
+from fabkit.mechanics.metric import metric_from_director, metric_from_lengths, vertex_edge_lengths
+from fabkit.mechanics.shell import Sheet, Shell, build_shell
+from fabkit.spec import spec_from_json
+
+SEEDS = ("dome", "saddle")
+ARMIJO = 1e-4
+"""Sufficient-decrease constant of the line search."""
+SHIFT = 1e-10
+"""Diagonal shift of the Newton matrix, relative to its mean diagonal (rigid motions)."""
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Solver settings.
+
+    ``steps``: ramp steps from the flat metric to the target; ``tolerance``: converged
+    when a full Newton step moves no vertex more than this times the mean edge length;
+    ``ramp_tolerance``: the same for the intermediate ramp steps; ``max_iterations``:
+    Newton iterations per ramp step; ``seed``: "dome" or "saddle" initial perturbation,
+    ``seed_height``: its height relative to the sheet's radius.
+    """
+
+    steps: int = 4
+    tolerance: float = 1e-6
+    ramp_tolerance: float = 1e-3
+    max_iterations: int = 100
+    seed: str = "dome"
+    seed_height: float = 0.05
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """Result of :func:`simulate`.
+
+    ``positions`` (V, 3) equilibrium vertices; ``energy`` the final energy (Young's
+    modulus x length^3); ``iterations`` Newton iterations over all ramp steps;
+    ``converged`` whether the last step met the tolerance; ``seconds`` wall time.
+    """
+
+    positions: np.ndarray
+    energy: float
+    iterations: int
+    converged: bool
+    seconds: float
+
+
+def simulate(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    metrics: np.ndarray,
+    thickness: float,
+    poisson: float = 0.5,
+    settings: Settings = Settings(),
+    initial: np.ndarray | None = None,
+    start_metrics: np.ndarray | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Simulation:
+    """Equilibrium of a sheet with reference metrics ``metrics``.
+
+    ``points`` (V, 2) flat sheet (design units); ``triangles`` (F, 3); ``metrics``
+    (F, 2, 2) one layer or (L, F, 2, 2) equal layers bottom to top, in flat-sheet
+    coordinates; ``thickness`` H (design units). The ramp starts from ``start_metrics``
+    (default identity: the sheet as made) at ``initial`` positions (V, 3) (default: the
+    flat sheet plus the seed); pass the previous state and its metrics to follow a
+    stimulus path. ``progress(done, total)`` is called after each ramp step.
+    """
+    started = time.perf_counter()
+    if settings.seed not in SEEDS:
+        raise FabkitError(f"seed: expected one of {', '.join(SEEDS)}, got {settings.seed!r}")
+    if settings.steps < 1:
+        raise FabkitError("steps: at least one ramp step is needed")
+    sheet = Sheet.build(points, triangles)
+    target = np.asarray(metrics, dtype=float)
+    target = target[None] if target.ndim == 3 else target
+    start = np.broadcast_to(np.eye(2), target.shape) if start_metrics is None else start_metrics
+    x = seeded(sheet.points, settings) if initial is None else np.array(initial, dtype=float)
+    scale = sheet.edge_length()
+    total, converged, shell = 0, False, None
+    for step in range(1, settings.steps + 1):
+        fraction = step / settings.steps
+        shell = build_shell(sheet, (1 - fraction) * start + fraction * target, thickness, poisson)
+        last = step == settings.steps
+        tolerance = settings.tolerance if last else settings.ramp_tolerance
+        x, iterations, converged = minimise(shell, x, tolerance * scale, settings.max_iterations)
+        total += iterations
+        if progress is not None:
+            progress(step, settings.steps)
+    elapsed = time.perf_counter() - started
+    return Simulation(x, shell.energy(x), total, converged, elapsed)
+
+
+def seeded(points: np.ndarray, settings: Settings) -> np.ndarray:
+    """The flat sheet (V, 3) lifted by a small dome or saddle about its centroid."""
+    offset = points - points.mean(0)
+    radius = np.max(np.linalg.norm(offset, axis=1))
+    rho2 = (offset**2).sum(1) / radius**2
+    if settings.seed == "dome":
+        height = -rho2
+    else:
+        height = (offset[:, 0] ** 2 - offset[:, 1] ** 2) / radius**2
+    return np.concatenate([points, (settings.seed_height * radius * height)[:, None]], 1)
+
+
+def minimise(
+    shell: Shell, x: np.ndarray, step_tolerance: float, max_iterations: int
+) -> tuple[np.ndarray, int, bool]:
+    """Projected Newton with line search from x (V, 3).
+
+    Stops when a full step moves no vertex more than ``step_tolerance`` (design units);
+    returns the positions, the iterations used and whether that happened.
+    """
+    energy, solver = shell.energy(x), NewtonSystem()
+    for iteration in range(1, max_iterations + 1):
+        gradient = shell.gradient(x).ravel()
+        direction = solver.direction(shell.hessian(x, projected=True), gradient, x)
+        slope = float(gradient @ direction)
+        if slope >= 0:  # no descent left at round-off level
+            return x, iteration, True
+        move = direction.reshape(-1, 3)
+        length, trial = 1.0, shell.energy(x + move)
+        while trial > energy + ARMIJO * length * slope and length > 1e-8:
+            length *= 0.5
+            trial = shell.energy(x + length * move)
+        if trial > energy:
+            return x, iteration, bool(_largest(move) <= step_tolerance)
+        x, energy = x + length * move, trial
+        if length == 1.0 and _largest(move) <= step_tolerance:
+            return x, iteration, True
+    return x, max_iterations, False
+
+
+class NewtonSystem:
+    """Solves (H + mu I) d = -g for successive Newton matrices H (semi-definite).
+
+    Rigid motions carry no energy (H is singular along them), so the system is solved
+    orthogonally to the six rigid modes at the current positions. A sparse LU
+    factorisation (SuperLU, minimum degree on H + H^T) is the expensive part and is
+    reused: each system is solved by conjugate gradients preconditioned with the last
+    factorisation, refactorised only when that needs more than ``CG_ITERATIONS``
+    iterations. ``factorisations`` counts them.
+    """
+
+    CG_ITERATIONS = 12
+    CG_TOLERANCE = 1e-4
+
+    def __init__(self) -> None:
+        self.factor = None
+        self.factorisations = 0
+
+    def direction(
+        self, hessian: sparse.csr_matrix, gradient: np.ndarray, x: np.ndarray
+    ) -> np.ndarray:
+        """Newton direction (3V,) for Hessian (3V, 3V) and gradient (3V,) at x (V, 3)."""
+        diagonal = hessian.diagonal()
+        shift = SHIFT * max(float(np.mean(diagonal)), np.finfo(float).tiny)
+        matrix = (hessian + sparse.diags(np.full(len(diagonal), shift))).tocsc()
+        modes = rigid_modes(x)
+
+        def project(vector: np.ndarray) -> np.ndarray:
+            return vector - modes @ (modes.T @ vector)
+
+        right = -project(gradient)
+        if self.factor is not None:
+            shape = matrix.shape
+            operator = splinalg.LinearOperator(shape, lambda v: project(matrix @ project(v)))
+            precondition = splinalg.LinearOperator(
+                shape, lambda v: project(self.factor.solve(project(v)))
+            )
+            solution, info = splinalg.cg(
+                operator,
+                right,
+                rtol=self.CG_TOLERANCE,
+                maxiter=self.CG_ITERATIONS,
+                M=precondition,
+            )
+            if info == 0:
+                return project(solution)
+        self.factor = splinalg.splu(
+            matrix,
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+        self.factorisations += 1
+        return project(self.factor.solve(right))
+
+
+def rigid_modes(x: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (3V, 6) of the infinitesimal rigid motions of points x (V, 3)."""
+    centred = x - x.mean(0)
+    modes = []
+    for axis in np.eye(3):
+        modes.append(np.broadcast_to(axis, x.shape).ravel())
+        modes.append(np.cross(axis, centred).ravel())
+    return np.linalg.qr(np.stack(modes, 1))[0]
+
+
+def _largest(move: np.ndarray) -> float:
+    return float(np.max(np.linalg.norm(move, axis=1)))
+
+
+@dataclass(frozen=True)
+class DesignSimulation:
+    """A design simulated at one stimulus.
+
+    ``surface``: index of the surface whose stimulus was applied; ``mesh`` the flat
+    domain; ``metrics`` (F, 2, 2) reference metrics; ``thickness`` (design units);
+    ``result`` the :class:`Simulation`.
+    """
+
+    surface: int
+    name: str
+    mesh: DesignMesh
+    metrics: np.ndarray
+    thickness: float
+    result: Simulation
+
+
+def surface_index(design: Design, stimulus: str) -> int:
+    """The surface selected by name or index (``"1"``, ``"sphere"``)."""
+    spec = spec_from_json(design.spec)
+    names = [t.name for t in spec.targets]
+    if stimulus in names:
+        return names.index(stimulus)
+    if stimulus.lstrip("-").isdigit() and 0 <= int(stimulus) < len(names):
+        return int(stimulus)
+    raise FabkitError(
+        f"--stimulus {stimulus}: expected a surface name ({', '.join(names)}) "
+        f"or an index 0..{len(names) - 1}"
+    )
+
+
+def design_metrics(design: Design, mesh: DesignMesh, surface: int) -> np.ndarray:
+    """Per-face reference metric (F, 2, 2) at surface ``surface``'s stimulus.
+
+    lambda1, lambda2 from the material at every vertex's eps, along the flat-sheet
+    director n[0], give a metric at every vertex; each edge's reference length is the
+    trapezoidal rule along it and each face's metric fits its three edge lengths.
+    """
+    spec = spec_from_json(design.spec)
+    i, j = mesh.grid[:, 0], mesh.grid[:, 1]
+    response = spec.material.response(design.eps[:, i, j], design.stimuli[surface : surface + 1])
+    vertex = metric_from_director(design.n[0][i, j], response.lambda1[0], response.lambda2[0])
+    lengths = vertex_edge_lengths(mesh.points, mesh.triangles, vertex)
+    return metric_from_lengths(mesh.points, mesh.triangles, lengths)
+
+
+def simulate_design(
+    design: Design,
+    surface: int,
+    thickness: float | None = None,
+    poisson: float = 0.5,
+    settings: Settings = Settings(),
+    progress: Callable[[int, int], None] | None = None,
+) -> DesignSimulation:
+    """Simulate ``design``'s flat domain under surface ``surface``'s stimulus.
+
+    ``thickness`` defaults to 1 % of the flat domain's diameter (design units).
+    """
+    spec = spec_from_json(design.spec)
+    mesh = design_mesh(design)
+    if thickness is None:
+        thickness = 0.01 * diameter(mesh.points)
+    metrics = design_metrics(design, mesh, surface)
+    result = simulate(
+        mesh.points, mesh.triangles, metrics, thickness, poisson, settings, progress=progress
+    )
+    name = spec.targets[surface].name
+    return DesignSimulation(surface, name, mesh, metrics, thickness, result)
+
+
+def diameter(points: np.ndarray) -> float:
+    """Largest distance between two of the points (n, d) (any units)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        hull = points[ConvexHull(points, qhull_options="QJ").vertices]
+    except (QhullError, ValueError):
+        hull = points
+    differences = hull[:, None, :] - hull[None, :, :]
+    return float(np.sqrt(np.max(np.einsum("ijk,ijk->ij", differences, differences))))
