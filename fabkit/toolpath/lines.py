@@ -152,17 +152,17 @@ def trim_lines(
     points = np.concatenate(lines)
     closed = np.array([is_closed(x) for x in lines])
     rank = np.argsort(np.argsort(counts, kind="stable"), kind="stable")  # longer wins
-    neighbours = min(32, len(points))
-    gap, other = cKDTree(points).query(points, k=neighbours, distance_upper_bound=distance)
-    found = np.isfinite(gap)
-    other = np.where(found, other, 0)
-    mine, theirs = owner[:, None], owner[other]
-    yields = (rank[mine] < rank[theirs]) | ((rank[mine] == rank[theirs]) & (mine < theirs))
-    along = np.abs(position[other] - position[:, None]) * step
-    length = counts[owner][:, None] * step
-    along = np.where(closed[owner][:, None], np.minimum(along, length - along), along)
-    own_far = (mine == theirs) & (along > 3 * distance) & (position[:, None] > position[other])
-    too_close = (found & (((mine != theirs) & yields) | own_far)).any(axis=1)
+    first, second = cKDTree(points).query_pairs(distance, output_type="ndarray").T
+    mine, theirs = owner[first], owner[second]
+    first_yields = (rank[mine] < rank[theirs]) | ((rank[mine] == rank[theirs]) & (mine < theirs))
+    along = np.abs(position[second] - position[first]) * step
+    length = counts[mine] * step
+    along = np.where(closed[mine], np.minimum(along, length - along), along)
+    own_far = (mine == theirs) & (along > 3 * distance)
+    too_close = np.zeros(len(points), bool)
+    too_close[first[(mine != theirs) & first_yields]] = True
+    too_close[second[(mine != theirs) & ~first_yields]] = True
+    too_close[np.maximum(first, second)[own_far]] = True  # the later part of the same line
     bad_angle = _angle_error(lines, flat) > max_angle
     result = []
     for index, line in enumerate(lines):

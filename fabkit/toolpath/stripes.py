@@ -57,7 +57,7 @@ class StripeSettings:
     grid_ratio: float = 1.0
     subdivisions: int = 5
     core: float = 0.5
-    iterations: int = 300
+    iterations: int = 150
     pin: float = 1.0
     pin_angle_deg: float = 25.0
     seed: int = 0
@@ -416,10 +416,10 @@ def stripe_lines(
     k = int(subdivisions)
     cells = _cells_near(pattern, region)
     values = _fine_values(pattern, cells, k, phase)  # (C, k+1, k+1) complex
-    ids, points, real = _crossings(values, cells, pattern.shape, k)
-    first, second = _segments(values.imag, ids, points, real)
+    crossings = _Crossings.find(values, cells, pattern.shape, k)
+    first, second = _segments(values.imag, crossings)
     scale = pattern.h / k
-    lines = _chains(first, second, ids, points)
+    lines = _chains(first, second, crossings.ids, crossings.points)
     return [
         np.column_stack([pattern.x0 + scale * p[:, 0], pattern.y0 + scale * p[:, 1]]) for p in lines
     ]
@@ -468,89 +468,106 @@ def _fine_values(pattern: StripePattern, cells: np.ndarray, k: int, phase: float
     return values
 
 
-def _crossings(
-    values: np.ndarray, cells: np.ndarray, shape: tuple[int, int], k: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Zero crossings of Im psi on the four edges of every fine cell.
+@dataclass(frozen=True)
+class _Crossings:
+    """Zero crossings of Im psi on the fine edges, in compressed form.
 
-    Returns (C, k, k, 4) global fine-edge ids (-1 where no crossing), (C, k, k, 4, 2)
-    positions in fine units, and (C, k, k, 4) Re psi at the crossing.
+    ``horizontal`` (C, k, k+1) and ``vertical`` (C, k+1, k) hold the index of the crossing on
+    each fine edge of each cell, or -1; ``ids`` the global fine-edge id of each crossing
+    (shared by the cells on either side), ``points`` its position in fine units and
+    ``real`` Re psi there.
     """
-    nj = (shape[1] - 1) * k + 1
-    u = np.arange(k)
-    big_i = cells[:, 0, None, None] * k + u[None, :, None]  # (C, k, 1)
-    big_j = cells[:, 1, None, None] * k + u[None, None, :]  # (C, 1, k)
-    corners = {
-        "00": (slice(None, -1), slice(None, -1)),
-        "10": (slice(1, None), slice(None, -1)),
-        "11": (slice(1, None), slice(1, None)),
-        "01": (slice(None, -1), slice(1, None)),
-    }
-    values_at = {c: values[:, s[0], s[1]] for c, s in corners.items()}
-    fv = {c: v.imag for c, v in values_at.items()}
-    gv = {c: v.real for c, v in values_at.items()}
-    # edge: (start corner, end corner, global id, start offset (di, dj), direction (0 x, 1 y))
-    specification = (
-        ("00", "10", 2 * (big_i * nj + big_j), (0, 0), 0),
-        ("10", "11", 2 * ((big_i + 1) * nj + big_j) + 1, (1, 0), 1),
-        ("01", "11", 2 * (big_i * nj + big_j + 1), (0, 1), 0),
-        ("00", "01", 2 * (big_i * nj + big_j) + 1, (0, 0), 1),
-    )
-    shape_out = fv["00"].shape
-    ids = np.full((*shape_out, 4), -1, dtype=np.int64)
-    points = np.zeros((*shape_out, 4, 2))
-    real = np.zeros((*shape_out, 4))
-    for edge, (start, end, identity, (di, dj), direction) in enumerate(specification):
-        f0, f1 = fv[start], fv[end]
-        crossing = (f0 > 0) != (f1 > 0)
-        t = _crossing_fraction(values_at[start], values_at[end], crossing)
-        ids[..., edge] = np.where(crossing, np.broadcast_to(identity, shape_out), -1)
-        px = np.broadcast_to(big_i + di, shape_out) + (t if direction == 0 else 0)
-        py = np.broadcast_to(big_j + dj, shape_out) + (t if direction == 1 else 0)
-        points[..., edge, 0], points[..., edge, 1] = px, py
-        real[..., edge] = gv[start] + t * (gv[end] - gv[start])
-    return ids, points, real
+
+    horizontal: np.ndarray
+    vertical: np.ndarray
+    ids: np.ndarray
+    points: np.ndarray
+    real: np.ndarray
+
+    @classmethod
+    def find(
+        cls, values: np.ndarray, cells: np.ndarray, shape: tuple[int, int], k: int
+    ) -> _Crossings:
+        nj = (shape[1] - 1) * k + 1
+        positive = values.imag > 0
+        found = []
+        for axis in (1, 2):  # edges along fine x (axis 1), then along fine y (axis 2)
+            low = [slice(None)] * 3
+            high = [slice(None)] * 3
+            low[axis], high[axis] = slice(None, -1), slice(1, None)
+            change = positive[tuple(low)] != positive[tuple(high)]
+            cell, u, v = np.nonzero(change)
+            step = (1, 0) if axis == 1 else (0, 1)
+            z0 = values[cell, u, v]
+            z1 = values[cell, u + step[0], v + step[1]]
+            t = _crossing_fraction(z0, z1)
+            big_u = cells[cell, 0] * k + u
+            big_v = cells[cell, 1] * k + v
+            index = np.full(change.shape, -1, np.int64)
+            found.append(
+                (
+                    index,
+                    (cell, u, v),
+                    2 * (big_u * nj + big_v) + (axis - 1),
+                    np.column_stack([big_u + t * step[0], big_v + t * step[1]]),
+                    z0.real + t * (z1.real - z0.real),
+                )
+            )
+        offset = 0
+        for index, where, ids, _, _ in found:
+            index[where] = offset + np.arange(len(ids))
+            offset += len(ids)
+        return cls(
+            horizontal=found[0][0],
+            vertical=found[1][0],
+            ids=np.concatenate([found[0][2], found[1][2]]),
+            points=np.concatenate([found[0][3], found[1][3]]),
+            real=np.concatenate([found[0][4], found[1][4]]),
+        )
 
 
-def _crossing_fraction(z0: np.ndarray, z1: np.ndarray, crossing: np.ndarray) -> np.ndarray:
-    """Where along an edge Im psi vanishes, by interpolating the phase (exact for a plane
-    wave) for zero-phase crossings and Im psi linearly for the others (which are dropped)."""
+def _crossing_fraction(z0: np.ndarray, z1: np.ndarray) -> np.ndarray:
+    """Where along an edge Im psi vanishes: by interpolating the phase (exact for a plane
+    wave) for zero-phase crossings, Im psi linearly for the others (which are dropped)."""
     with np.errstate(divide="ignore", invalid="ignore"):
         linear = z0.imag / (z0.imag - z1.imag)
-        start = np.angle(z0)
-        turn = np.angle(z1 * np.conj(z0))
-        by_phase = -start / turn
+        by_phase = -np.angle(z0) / np.angle(z1 * np.conj(z0))
     zero_phase = (z0.real + linear * (z1.real - z0.real)) > 0
     t = np.where(zero_phase & (np.abs(by_phase - 0.5) <= 0.5), by_phase, linear)
-    return np.where(crossing & np.isfinite(t), t, 0.0)
+    return np.where(np.isfinite(t), t, 0.5)
 
 
-def _segments(
-    imag: np.ndarray, ids: np.ndarray, points: np.ndarray, real: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Marching-squares segments as pairs of flat crossing indices, kept where Re psi > 0."""
+def _segments(imag: np.ndarray, crossings: _Crossings) -> tuple[np.ndarray, np.ndarray]:
+    """Marching-squares segments as pairs of crossing indices, kept where Re psi > 0."""
     f00, f10 = imag[:, :-1, :-1], imag[:, 1:, :-1]
     f11, f01 = imag[:, 1:, 1:], imag[:, :-1, 1:]
     case = (f00 > 0) * 1 + (f10 > 0) * 2 + (f11 > 0) * 4 + (f01 > 0) * 8
-    centre_negative = (f00 + f10 + f11 + f01) <= 0
+    cell, u, v = np.nonzero((case != 0) & (case != 15))
+    case = case[cell, u, v]
+    centre_negative = (f00 + f10 + f11 + f01)[cell, u, v] <= 0
+    # crossing index on edges 0 bottom, 1 right, 2 top, 3 left of each active fine cell
+    edge = np.column_stack(
+        [
+            crossings.horizontal[cell, u, v],
+            crossings.vertical[cell, u + 1, v],
+            crossings.horizontal[cell, u, v + 1],
+            crossings.vertical[cell, u, v],
+        ]
+    )
     first, second = _FIRST[case], _SECOND[case]
     for saddle, (pair_one, pair_two) in _SADDLE_OTHER.items():
         swap = (case == saddle) & centre_negative
         first[swap], second[swap] = pair_one, pair_two
-    flat_cell = np.arange(case.size).reshape(case.shape) * 4
-    pairs = []
-    for table in (first, second):
-        present = table[..., 0] >= 0
-        pairs.append(
-            np.column_stack(
-                [flat_cell[present] + table[present, 0], flat_cell[present] + table[present, 1]]
-            )
-        )
+    rows = np.arange(len(case))
+    pairs = [np.column_stack([edge[rows, first[:, 0]], edge[rows, first[:, 1]]])]
+    two = second[:, 0] >= 0
+    pairs.append(
+        np.column_stack([edge[rows[two], second[two, 0]], edge[rows[two], second[two, 1]]])
+    )
     pairs = np.concatenate(pairs)
-    flat_real = real.reshape(-1)
-    positive = (flat_real[pairs[:, 0]] > 0) & (flat_real[pairs[:, 1]] > 0)
-    pairs = pairs[positive]
-    return pairs[:, 0], pairs[:, 1]
+    pairs = pairs[(pairs >= 0).all(axis=1)]
+    positive = (crossings.real[pairs[:, 0]] > 0) & (crossings.real[pairs[:, 1]] > 0)
+    return pairs[positive, 0], pairs[positive, 1]
 
 
 def _chains(
@@ -559,14 +576,12 @@ def _chains(
     """Join segments that share a fine edge into polylines (fine units)."""
     if len(first) == 0:
         return []
-    flat_ids = ids.reshape(-1)
-    flat_points = points.reshape(-1, 2)
-    ends = np.concatenate([flat_ids[first], flat_ids[second]])
+    ends = np.concatenate([ids[first], ids[second]])
     node_of = np.unique(ends, return_inverse=True)[1]
     n = node_of.max() + 1
     a, b = node_of[: len(first)], node_of[len(first) :]
     position = np.zeros((n, 2))
-    position[a], position[b] = flat_points[first], flat_points[second]
+    position[a], position[b] = points[first], points[second]
     keep = a != b
     a, b = a[keep], b[keep]
     degree = np.bincount(np.concatenate([a, b]), minlength=n)
