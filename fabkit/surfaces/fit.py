@@ -169,6 +169,10 @@ class _Axis:
         lengths = np.asarray(lengths, dtype=float)[..., None]
         return 1.0 / (1.0 + (lengths**2 * self.frequency) ** 3)
 
+    def smoother(self, length: float) -> np.ndarray:
+        """(n, n) symmetric matrix that smooths values along this axis with the given length."""
+        return (self.modes * self.filter(length)) @ self.modes.T
+
     def ladder(self) -> np.ndarray:
         """Candidate smoothing lengths (chart units): 0.3 to 50 spacings, at most a quarter span."""
         longest = max(0.3, min(50.0, (self.n - 1) / 4)) * self.h
@@ -245,16 +249,8 @@ def _gained_spectrum(
     values: np.ndarray, axes: tuple[_Axis, _Axis], lengths: tuple[float, float]
 ) -> np.ndarray:
     """Spectrum (ny, nx) of grid values (ny, nx) times the smoother's gain for lengths (lx, ly)."""
-    x_axis, y_axis = axes
-    gain = y_axis.filter(lengths[1])[:, None] * x_axis.filter(lengths[0])[None, :]
-    return (y_axis.modes.T @ values @ x_axis.modes) * gain
-
-
-def _smooth(
-    values: np.ndarray, axes: tuple[_Axis, _Axis], lengths: tuple[float, float]
-) -> np.ndarray:
-    """The smoothed grid values (ny, nx) of grid values (ny, nx)."""
-    return axes[1].modes @ _gained_spectrum(values, axes, lengths) @ axes[0].modes.T
+    gain = axes[1].filter(lengths[1])[:, None] * axes[0].filter(lengths[0])[None, :]
+    return (axes[1].modes.T @ values @ axes[0].modes) * gain
 
 
 def _choose_lengths(
@@ -314,17 +310,24 @@ def _fill_holes(
     The hole values h solve (I - S_hh) h = S_hv z_v, S the smoother: the fixed point of
     expectation-maximisation, found by conjugate gradients. The first guess extends
     the smoothed data into the holes by least third differences (no noise amplification).
+    The smoother is separable, S = S_y (x) S_x, so S_hh only needs the rows and columns
+    of S_y and S_x that the holes span.
     """
     holes = ~valid
     data = np.where(valid, z, 0.0)
+    along_y, along_x = axes[1].smoother(lengths[1]), axes[0].smoother(lengths[0])
+    rows, columns = (np.flatnonzero(holes.any(axis)) for axis in (1, 0))
+    local = holes[np.ix_(rows, columns)]
+    box_y, box_x = along_y[np.ix_(rows, rows)], along_x[np.ix_(columns, columns)]
 
     def smooth_holes(values: np.ndarray) -> np.ndarray:
-        grid = np.zeros(z.shape)
-        grid[holes] = values
-        return _smooth(grid, axes, lengths)[holes]
+        block = np.zeros(local.shape)
+        block[local] = values
+        return (box_y @ block @ box_x)[local]
 
-    guess = _extend(_smooth(_fill_nearest(z, valid), axes, lengths), valid)[holes]
-    rhs = _smooth(data, axes, lengths)[holes]
+    smoothed = along_y @ _fill_nearest(z, valid) @ along_x
+    guess = _extend(smoothed, valid)[holes]
+    rhs = (along_y @ data @ along_x)[holes]
     settled = FILL_TOLERANCE * max(noise, NOISE_FLOOR * float(np.ptp(z[valid])))
     filled = data.copy()
     filled[holes] = _conjugate_gradients(
@@ -359,9 +362,25 @@ def _conjugate_gradients(
 
 def _extend(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """values (ny, nx) with hole nodes within FILL_BAND of data replaced by the values that
-    minimise the squared third differences along x and y (valid nodes held fixed)."""
+    minimise the squared third differences along x and y (valid nodes held fixed).
+
+    Only the bounding box of those nodes, widened by the 3-node reach of a third
+    difference, takes part."""
     distance = ndimage.distance_transform_edt(~valid)
-    unknown = ((distance > 0) & (distance <= FILL_BAND)).ravel()
+    unknown = (distance > 0) & (distance <= FILL_BAND)
+    rows, columns = (np.flatnonzero(unknown.any(axis)) for axis in (1, 0))
+    box = (
+        slice(max(rows[0] - 3, 0), rows[-1] + 4),
+        slice(max(columns[0] - 3, 0), columns[-1] + 4),
+    )
+    extended = values.copy()
+    extended[box] = _least_third_differences(values[box], unknown[box])
+    return extended
+
+
+def _least_third_differences(values: np.ndarray, unknown: np.ndarray) -> np.ndarray:
+    """values (ny, nx) with the unknown nodes set to minimise the sum of squared third
+    differences along both axes, the other nodes held fixed."""
     ny, nx = values.shape
     differences = sparse.vstack(
         [
@@ -369,11 +388,11 @@ def _extend(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
             sparse.kron(_third_differences(ny), sparse.eye(nx)),
         ]
     ).tocsc()
-    flat = values.ravel().copy()
-    free, fixed = differences[:, unknown], differences[:, ~unknown]
+    flat, free_nodes = values.ravel().copy(), unknown.ravel()
+    free, fixed = differences[:, free_nodes], differences[:, ~free_nodes]
     system = (free.T @ free + FILL_ANCHOR * sparse.eye(free.shape[1])).tocsc()
-    rhs = FILL_ANCHOR * flat[unknown] - free.T @ (fixed @ flat[~unknown])
-    flat[unknown] = sparse_linalg.spsolve(system, rhs)
+    rhs = FILL_ANCHOR * flat[free_nodes] - free.T @ (fixed @ flat[~free_nodes])
+    flat[free_nodes] = sparse_linalg.spsolve(system, rhs)
     return flat.reshape(values.shape)
 
 
