@@ -179,7 +179,7 @@ class _Axis:
         return np.geomspace(0.3 * self.h, longest, LADDER)
 
 
-@lru_cache(maxsize=8)
+@lru_cache(maxsize=4)
 def _penalty_modes(n: int) -> tuple[np.ndarray, np.ndarray]:
     """Eigenvalues (n,) and orthonormal eigenvectors (n, n) of the n-node third-difference
     penalty D^T D, a symmetric band matrix with 3 off-diagonals (cached: the solver builds
@@ -189,7 +189,7 @@ def _penalty_modes(n: int) -> tuple[np.ndarray, np.ndarray]:
     return linalg.eig_banded(_band(penalty, 0, 3))
 
 
-@lru_cache(maxsize=8)
+@lru_cache(maxsize=4)
 def _spline_modes(n: int) -> np.ndarray:
     """(n + 2, n): uniform cubic B-spline coefficients (not-a-knot ends) interpolating each
     penalty mode at the n nodes."""
