@@ -1,13 +1,16 @@
-"""``fabkit export INPUT --machine NAME --format gcode|dxf|laser -o OUT``."""
+"""``fabkit export INPUT --machine NAME --format gcode|dxf|laser -o OUT``.
+
+The writers (ezdxf, PIL, the director fields) are imported when the command runs, so that
+building the parser stays cheap for every other command.
+"""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from fabkit.writers.export import FORMATS, ExportOptions, export
+from fabkit.writers.common import FORMATS, IMAGE_FORMATS, RELATIONS
 from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
-from fabkit.writers.laser import IMAGE_FORMATS, RELATIONS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -69,6 +72,8 @@ def _numbers(text: str) -> tuple[float, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fabkit.writers.export import ExportOptions, export
+
     options = ExportOptions(
         offset_mm=args.offset,
         size_mm=args.size,

@@ -15,6 +15,13 @@ import numpy as np
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile
 
+FORMATS = ("gcode", "dxf", "laser")
+"""Output formats of ``fabkit export``."""
+RELATIONS = ("perpendicular", "parallel")
+"""How a photoalignment material's director lies relative to the light's polarisation."""
+IMAGE_FORMATS = ("png", "tiff")
+"""Image formats of the laser-writer maps and masks."""
+
 
 def placement_offset(
     low: np.ndarray,

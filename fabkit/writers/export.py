@@ -32,12 +32,11 @@ from fabkit.errors import FabkitError
 from fabkit.fields import FlatField, field_from_design, load_director_file
 from fabkit.machines import load_machine
 from fabkit.toolpath.model import Toolpath, load_toolpath
-from fabkit.writers.common import profile_setting
+from fabkit.writers.common import FORMATS, profile_setting
 from fabkit.writers.dxf import DEFAULT_INLET_RADIUS_MM, write_dxf
 from fabkit.writers.gcode import GcodeOptions, write_gcode
 from fabkit.writers.laser import LaserSettings, sample_field, write_laser
 
-FORMATS = ("gcode", "dxf", "laser")
 GEOMETRY_LAYERS = ("outline", "channels", "inlet")
 
 

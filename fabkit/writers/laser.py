@@ -54,13 +54,17 @@ from PIL import Image
 import fabkit
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile
-from fabkit.writers.common import check_inside, placement_offset, profile_setting
+from fabkit.writers.common import (
+    IMAGE_FORMATS,
+    RELATIONS,
+    check_inside,
+    placement_offset,
+    profile_setting,
+)
 from fabkit.writers.lines import Word, render
 
 MANIFEST_FORMAT = "fabkit-laser-manifest/1"
 SIDECAR_FORMAT = "fabkit-angle-map/1"
-RELATIONS = ("perpendicular", "parallel")
-IMAGE_FORMATS = ("png", "tiff")
 DEFAULT_BINS = 18
 """Angle bins (10 degrees each, binning error <= 5 degrees)."""
 DEFAULT_DOSE_MJ_CM2 = 1000.0

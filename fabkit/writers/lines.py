@@ -92,7 +92,7 @@ def _render_chunk(
     numbers = [_Number.of(values[:, k], present[:, k], words[k]) for k in shown]
     width = table.shape[1] + 1 + sum(number.width for number in numbers)
     canvas = _Canvas(len(prefix_ids), width)
-    canvas.put(table[prefix_ids], used[prefix_ids], table.shape[1])
+    canvas.put(_rows(table, prefix_ids), _rows(used, prefix_ids), table.shape[1])
     for number in numbers:
         number.put(canvas)
     canvas.put(ord("\n"), True, 1)
@@ -155,14 +155,20 @@ class _Number:
         canvas.put(ord("-"), self.negative[:, None], 1)
         for g, group in enumerate(self.groups):
             digits, keep = _group_tables(g == len(self.groups) - 1)
-            canvas.put(digits[group], keep[group], 3)
+            canvas.put(_rows(digits, group), _rows(keep, group), 3)
         if self.word.decimals:
             digits, keep = _fraction_tables(self.word.decimals)
-            canvas.put(ord("."), keep[self.frac, :1], 1)
-            canvas.put(digits[self.frac], keep[self.frac], self.word.decimals)
+            kept = _rows(keep, self.frac)
+            canvas.put(ord("."), kept[:, :1], 1)
+            canvas.put(_rows(digits, self.frac), kept, self.word.decimals)
 
 
 _ABSENT_GROUP = 2000
+
+
+def _rows(table: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``table[index]`` (np.take is several times faster than fancy indexing here)."""
+    return np.take(table, index, axis=0)
 
 
 @cache
