@@ -11,7 +11,7 @@ from fabkit.design.patches import grid_triangles, patch_mesh, write_patch_mesh
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.spec import build_spec
-from tests.conftest import ROOT
+from tests.conftest import EXAMPLES
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +21,7 @@ def fig1_design(tmp_path_factory) -> Design:
     table = example_table("two_shapes.toml")
     table["solver"].update(step=0.1, diagonals=20)
     path = tmp_path_factory.mktemp("design") / "design.npz"
-    solve(build_spec(table, ROOT)).design.save(path)
+    solve(build_spec(table, EXAMPLES)).design.save(path)
     return Design.load(path)
 
 

@@ -12,12 +12,12 @@ from fabkit.design.design import Design
 from fabkit.design.solver import REASONS, solve
 from fabkit.errors import FabkitError
 from fabkit.spec import build_spec
-from tests.conftest import EXAMPLES, ROOT
+from tests.conftest import EXAMPLES
 
 
 def solved(table: dict, **solver):
     table["solver"].update(solver)
-    return solve(build_spec(table, ROOT))
+    return solve(build_spec(table, EXAMPLES))
 
 
 def reasons(solution) -> set[str]:

@@ -7,12 +7,12 @@ import pytest
 from fabkit.errors import FabkitError
 from fabkit.material import ACROSS, ALONG
 from fabkit.spec import build_spec, load_spec
-from tests.conftest import EXAMPLES, ROOT
+from tests.conftest import EXAMPLES
 
 
 def refuse(table: dict, match: str) -> str:
     with pytest.raises(FabkitError, match=match) as info:
-        build_spec(table, ROOT)
+        build_spec(table, EXAMPLES)
     assert "\n" not in str(info.value)
     return str(info.value)
 
@@ -120,7 +120,7 @@ def test_flat_sheet_must_be_a_plane(fig1):
 def test_round_trip_through_json(fig3):
     from fabkit.spec import spec_from_json
 
-    spec = build_spec(fig3, ROOT)
+    spec = build_spec(fig3, EXAMPLES)
     again = spec_from_json(spec.to_json())
     assert again.to_json() == spec.to_json()
     assert again.classes == spec.classes

@@ -10,7 +10,7 @@ import sympy as sp
 
 from fabkit.errors import FabkitError
 from fabkit.expr import Expression, parse
-from fabkit.surfaces.base import UNBOUNDED, Bounds, Surface, SymbolicGeometry
+from fabkit.surfaces.base import UNBOUNDED, Bounds, Surface, SymbolicGeometry, graph_geometry
 
 
 def check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
@@ -141,16 +141,13 @@ class Graph(Surface):
         r = np.asarray(r, dtype=float)
         shape = r.shape[:-1]
         with np.errstate(all="ignore"):
-            fx, fy, fxx, fxy, fyy = (
-                np.broadcast_to(np.asarray(d, dtype=float), shape)
-                for d in self._derivatives(r[..., 0], r[..., 1])
+            derivatives = np.stack(
+                [
+                    np.broadcast_to(np.asarray(d, dtype=float), shape)
+                    for d in self._derivatives(r[..., 0], r[..., 1])
+                ]
             )
-        grad = np.stack([fx, fy], axis=-1)
-        hessian = np.stack([np.stack([fxx, fxy], -1), np.stack([fxy, fyy], -1)], -2)
-        w = 1.0 + fx**2 + fy**2
-        g = np.eye(2) + grad[..., :, None] * grad[..., None, :]
-        gamma = grad[..., :, None, None] * hessian[..., None, :, :] / w[..., None, None, None]
-        return g, gamma, (fxx * fyy - fxy**2) / w**2
+            return graph_geometry(derivatives)
 
     def embed(self, r):
         r = np.asarray(r, dtype=float)

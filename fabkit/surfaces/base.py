@@ -144,3 +144,15 @@ def _packer(function):
         return g, np.stack([first, second], -3), np.array(k, dtype=float)
 
     return geometry
+
+
+def graph_geometry(derivatives: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Metric (..., 2, 2), Christoffel symbols (..., 2, 2, 2) and K (...) of a graph z = f(x, y)
+    from (f_x, f_y, f_xx, f_xy, f_yy) stacked as (5, ...)."""
+    fx, fy, fxx, fxy, fyy = derivatives
+    grad = np.stack([fx, fy], axis=-1)
+    hessian = np.stack([np.stack([fxx, fxy], -1), np.stack([fxy, fyy], -1)], -2)
+    w = 1.0 + fx**2 + fy**2
+    g = np.eye(2) + grad[..., :, None] * grad[..., None, :]
+    gamma = grad[..., :, None, None] * hessian[..., None, :, :] / w[..., None, None, None]
+    return g, gamma, (fxx * fyy - fxy**2) / w**2

@@ -36,7 +36,7 @@ from scipy import ndimage
 
 from fabkit.errors import FabkitError
 from fabkit.surfaces.analytic import check_keys, number
-from fabkit.surfaces.base import Surface
+from fabkit.surfaces.base import Surface, graph_geometry
 from fabkit.surfaces.fit import SurfaceFit, fit_grid
 
 MIN_SIDE = 8
@@ -176,18 +176,6 @@ class MeshSurface(DataSurface):
         smoothing = _smoothing(table, where)
         grid, fit = _mesh_fit(str(path), _stamp(path), axis, smoothing, where)
         return cls(name, path.name, grid, fit, axis)
-
-
-def graph_geometry(derivatives: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Metric (..., 2, 2), Christoffel symbols (..., 2, 2, 2) and K (...) of a graph z = f(x, y)
-    from (f_x, f_y, f_xx, f_xy, f_yy) stacked as (5, ...)."""
-    fx, fy, fxx, fxy, fyy = derivatives
-    grad = np.stack([fx, fy], axis=-1)
-    hessian = np.stack([np.stack([fxx, fxy], -1), np.stack([fxy, fyy], -1)], -2)
-    w = 1.0 + fx**2 + fy**2
-    g = np.eye(2) + grad[..., :, None] * grad[..., None, :]
-    gamma = grad[..., :, None, None] * hessian[..., None, :, :] / w[..., None, None, None]
-    return g, gamma, (fxx * fyy - fxy**2) / w**2
 
 
 def footprint_cells(valid: np.ndarray) -> np.ndarray:
