@@ -5,8 +5,8 @@ executes nothing) and every node is checked against a whitelist:
 
 * numbers, the declared variable names, ``pi`` and ``e``;
 * ``+ - * / ** ^`` (``^`` means power), unary minus and plus, parentheses;
-* calls of ``exp log sqrt sin cos tan arcsin arccos arctan sinh cosh tanh abs``
-  with exactly one positional argument.
+* calls of ``exp log sqrt sin cos tan arcsin arccos arctan sinh cosh tanh abs`` with
+  one positional argument, and ``arctan2(y, x)`` with two.
 
 Anything else (attribute access, subscripts, other calls, lambdas, strings,
 comprehensions, comparisons, ...) is refused with a :class:`FabkitError` naming
@@ -46,7 +46,10 @@ FUNCTIONS: dict[str, Callable[[sp.Expr], sp.Expr]] = {
     "cosh": sp.cosh,
     "tanh": sp.tanh,
     "abs": sp.Abs,
+    "arctan2": sp.atan2,
 }
+ARITY = {"arctan2": 2}
+"""Functions taking other than one argument (arctan2(y, x): the angle of (x, y))."""
 CONSTANTS: dict[str, sp.Expr] = {"pi": sp.pi, "e": sp.E}
 RESERVED = frozenset(FUNCTIONS) | frozenset(CONSTANTS)
 
@@ -254,6 +257,7 @@ class _Builder:
         if not isinstance(node.func, ast.Name) or node.func.id not in FUNCTIONS:
             callee = node.func.id if isinstance(node.func, ast.Name) else "an expression"
             raise self.refuse(f"calling '{callee}'")
-        if node.keywords or len(node.args) != 1:
-            raise self.refuse(f"'{node.func.id}' with other than one argument")
-        return FUNCTIONS[node.func.id](self.build(node.args[0]))
+        arity = ARITY.get(node.func.id, 1)
+        if node.keywords or len(node.args) != arity:
+            raise self.refuse(f"'{node.func.id}' with other than {arity} argument(s)")
+        return FUNCTIONS[node.func.id](*(self.build(a) for a in node.args))

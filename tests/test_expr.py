@@ -24,6 +24,13 @@ def test_values_and_symbolic_derivatives():
     )
 
 
+def test_arctan2_takes_two_arguments():
+    angle = parse("arctan2(y, x)", ("x", "y"))
+    assert np.allclose(angle(np.array([-1.0, 0.0]), np.array([0.0, 1.0])), [np.pi, np.pi / 2])
+    with pytest.raises(FabkitError, match="other than 2"):
+        parse("arctan2(y)", ("x", "y"))
+
+
 def test_constant_broadcasts_to_input_shape():
     assert parse("1/2", ("t",))(np.zeros((3, 2))).shape == (3, 2)
 
@@ -42,7 +49,7 @@ def test_constant_broadcasts_to_input_shape():
         ("x if x else 1", "if"),
         ("x < 1", "comparison"),
         ("y + 1", "name 'y'"),
-        ("sin(x, x)", "one argument"),
+        ("sin(x, x)", "other than 1 argument"),
         ("9**9**9", "power too large"),
         ("x // 2", "'//'"),
         ("exp", "without an argument"),
