@@ -158,13 +158,14 @@ def replay(text: str, flow_on: str = "", flow_off: str = "") -> Replay:
     position = np.full(3, np.nan)
     e, feed, absolute_e, flowing = 0.0, math.nan, True, False
     rows, comments, commands = [], [], []
+    source = text.splitlines()
     for line in parse_gcode_lines(text, include_comments=True):
         name = line.command_str
         if line.command[0] == ";":
             comments.append(line.comment)
             continue
         commands.append(name)
-        text_line = text.splitlines()[line.line_index].split(";")[0].strip()
+        text_line = source[line.line_index].split(";")[0].strip()
         if flow_on and text_line == flow_on:
             flowing = True
         elif flow_off and text_line == flow_off:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+from types import SimpleNamespace
 
 import ezdxf
 import numpy as np
@@ -15,7 +16,7 @@ import shapely
 from fabkit.errors import FabkitError
 from fabkit.machines import load_machine
 from fabkit.toolpath import PRINT, TRAVEL, Layer, Move, Toolpath
-from fabkit.writers.dxf import LAYERS, dxf_document, write_dxf
+from fabkit.writers.dxf import LAYERS, dxf_document, layout_layers, write_dxf
 from tests.test_writers_common import baromorph, baromorph_toolpath, fig1_toolpath
 
 
@@ -135,3 +136,16 @@ def test_librecad_opens_and_prints_the_drawing(tmp_path):
     output = result.stdout + result.stderr
     assert result.returncode == 0 and "ERROR" not in output, output
     assert pdf.read_bytes().startswith(b"%PDF") and pdf.stat().st_size > 5000
+
+
+def test_channel_layout_gives_the_three_sheet_layers():
+    plate = baromorph()
+    manifold = shapely.Point(0, 0).buffer(19.0).difference(shapely.Point(0, 0).buffer(18.0))
+    layout = SimpleNamespace(
+        outline=plate.outline, network=plate.channels.union(manifold), inlet=(2.0, 0.0)
+    )
+    doc, summary = dxf_document(**layout_layers(layout))
+    assert summary.entities["OUTLINE"] == 1 and summary.entities["INLET"] == 1
+    rings = 1 + len(layout.network.interiors)
+    assert summary.entities["CHANNELS"] == rings
+    assert all(e.closed for e in _by_layer(doc)["CHANNELS"])

@@ -6,11 +6,12 @@ from __future__ import annotations
 import json
 
 import ezdxf
+import numpy as np
 import pytest
 import shapely
 
 from fabkit.machines import load_machine
-from fabkit.toolpath import save_toolpath
+from fabkit.toolpath import load_toolpath, save_toolpath
 from tests.test_writers_common import (
     baromorph,
     baromorph_toolpath,
@@ -185,3 +186,53 @@ def test_bad_requests_are_one_line_errors(run_cli, tmp_path, toolpaths, args, me
     assert code == 2 and stdout == ""
     assert err.startswith("fabkit: error: ") and message in err and err.count("\n") == 1
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("source", "machine"),
+    [
+        (["DESIGN", "--size", "20", "--clip-eps", "--layers", "2"], "marlin_generic"),
+        (["--director", "phi + pi/2", "--shape", "disc:10"], "grbl_diw"),
+    ],
+)
+def test_fabkit_toolpath_output_exports_to_gcode_and_dxf(run_cli, tmp_path, source, machine):
+    """The real pipeline: ``fabkit toolpath`` (Fig. 1, and a disc with the director along
+    baromorph-like circular channels), then ``fabkit export``."""
+    args = [str(fig1_design_path()) if a == "DESIGN" else a for a in source]
+    code, _, err = run_cli("toolpath", *args, "--machine", machine, "--out", tmp_path / "tp")
+    assert code == 0, err
+    toolpath_file = tmp_path / "tp" / "toolpath.npz"
+    code, _, err = run_cli(
+        "export",
+        toolpath_file,
+        "--machine",
+        machine,
+        "--format",
+        "gcode",
+        "-o",
+        tmp_path / "job.gcode",
+    )
+    assert code == 0, err
+    profile = load_machine(machine)
+    flow_on = profile.gcode.flow_on_gcode.strip()
+    run = replay((tmp_path / "job.gcode").read_text(), flow_on, profile.gcode.flow_off_gcode)
+    for k, axis in enumerate("xyz"):
+        lo, hi = profile.envelope.axis(axis)
+        column = run.position[:, k][~np.isnan(run.position[:, k])]
+        assert lo <= column.min() and column.max() <= hi
+    toolpath = load_toolpath(toolpath_file)
+    length = np.nan_to_num(np.linalg.norm(run.step, axis=1))
+    if flow_on:
+        laid = length[run.flowing & (run.code == "G1")].sum()
+        assert laid == pytest.approx(toolpath.print_length_mm, rel=5e-3)
+    else:
+        volume = run.e_step.sum() * np.pi * 1.75**2 / 4
+        assert volume == pytest.approx(model_volume(toolpath), rel=5e-3)
+    code, _, err = run_cli(
+        "export", toolpath_file, "--machine", machine, "--format", "dxf", "-o", tmp_path / "job.dxf"
+    )
+    assert code == 0, err
+    doc = ezdxf.readfile(tmp_path / "job.dxf")
+    assert len(doc.audit().errors) == 0
+    prints = sum(1 for _, m in toolpath.moves() if m.kind == "print")
+    assert len(doc.modelspace().query("*[layer=='PATHS']")) == prints

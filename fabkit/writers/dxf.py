@@ -13,7 +13,8 @@ INLET     3      inlets: a CIRCLE of ``inlet_radius_mm`` per point, or closed po
 ========= ====== =============================================================
 
 Channels, outline and inlet are plain shapely geometry (polygons, multipolygons, rings,
-lines, points, or lists of them), in the sheet frame like the toolpath. A polygon gives
+lines, points, or lists of them), in the sheet frame like the toolpath;
+:func:`layout_layers` takes them from a baromorph channel layout. A polygon gives
 one closed polyline per ring (holes included). A print move whose height varies (not
 planar) is written as a 3-D POLYLINE instead. With a machine, everything is placed as
 the G-code would be (centred on the bed unless an offset is given) and checked against
@@ -132,6 +133,20 @@ def dxf_document(
     if auditor.has_errors:
         raise FabkitError(f"DXF audit found {len(auditor.errors)} error(s): {auditor.errors[0]}")
     return doc, DxfSummary(counts, tuple(shift.tolist()))
+
+
+def layout_layers(layout: Any) -> dict[str, shapely.Geometry]:
+    """The ``outline``, ``channels`` and ``inlet`` layers of a baromorph channel layout.
+
+    ``layout`` is anything with ``outline`` (polygon), ``network`` (the union of channels,
+    manifold and inlet channel: what a cutter cuts) and ``inlet`` ((x, y) or a point), as
+    :class:`fabkit.toolpath.baromorph.ChannelLayout` has; pass the result to
+    :func:`write_dxf` as keyword arguments.
+    """
+    inlet = layout.inlet
+    if not isinstance(inlet, shapely.Geometry):
+        inlet = shapely.Point(*inlet)
+    return {"outline": layout.outline, "channels": layout.network, "inlet": inlet}
 
 
 def _parts(geometry: Geometry, name: str) -> list[shapely.Geometry]:
