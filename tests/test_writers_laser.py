@@ -206,6 +206,8 @@ def test_refusals_leave_nothing_behind(tmp_path):
     calibrated = LaserSettings(dose=DoseCalibration((0.0, 0.2), (100.0, 200.0)))
     with pytest.raises(FabkitError, match="outside the dose calibration range"):
         write_laser(big, tmp_path / "out", machine, calibrated)
+    with pytest.raises(FabkitError, match="laser patterns need a laser_writer profile"):
+        write_laser(big, tmp_path / "out", load_machine("marlin_generic"))
     taken = tmp_path / "taken"
     taken.mkdir()
     (taken / "notes.txt").write_text("mine")

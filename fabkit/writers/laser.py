@@ -23,7 +23,7 @@ b. For DMD/SLM exposure: theta is binned into N bins centred on k * pi / N (so t
    the pixel pitch and field size. Whether the director lies parallel or perpendicular
    to the polarisation is a material parameter (:attr:`LaserSettings.relation`); the
    half-wave plate turns the fixed input polarisation p0 to 2 a - p0 for fast axis a.
-c. For scanning writers (a machine that takes G-code): ``scan.gcode``, raster lines
+c. For scanning writers (a laser_writer profile that takes G-code): ``scan.gcode``, raster lines
    along x in serpentine order, one ``G1`` per run of one exposure, with the wave-plate
    fast axis as ``A`` (degrees) and the laser power as ``S`` (mW) from
    P = dose * spot width * speed; ``G0`` moves (beam off) rotate the plate.
@@ -387,6 +387,11 @@ def write_laser(
     offset_mm: tuple[float, ...] | None = None,
 ) -> LaserSummary:
     """Write the angle map, masks, manifest, preview (and scan lines) into ``out_dir``."""
+    if machine.kind != "laser_writer":
+        raise FabkitError(
+            f"machine {machine.name} is a {machine.kind}; laser patterns need a laser_writer "
+            "profile (e.g. dmd_photoalign)"
+        )
     settings = settings or LaserSettings.for_machine(machine)
     out_dir = Path(out_dir)
     low = np.array(grid.origin_mm)
@@ -564,10 +569,12 @@ def _scan_text(
     values[1::2, 3] = power
     values[1::2, 4] = speed * 60.0
     check_inside(values[:, :2], machine, "laser scan")
-    if machine.process.travel_speed_mm_s > machine.limits.travel_mm_s:
+    limits = machine.limits
+    travel_limit = min(limits.travel_mm_s, limits.x_mm_s, limits.y_mm_s)
+    if machine.process.travel_speed_mm_s > travel_limit:
         raise FabkitError(
             f"travel speed {machine.process.travel_speed_mm_s:g} mm/s of {machine.name} is "
-            f"above its limit {machine.limits.travel_mm_s:g} mm/s"
+            f"above its travel and axis limits ({travel_limit:g} mm/s)"
         )
     prefix = np.tile([0, 1], n)
     body = render(prefix, ("G0", "G1"), values, np.isfinite(values), _SCAN_WORDS)
