@@ -5,64 +5,65 @@ from __future__ import annotations
 import argparse
 import sys
 
-from fabkit.toolpath.job import ToolpathJob, run_job
+from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.plan import PATTERNS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "toolpath",
-        help="print lines along the director of a design or director field (see docs/toolpath.md)",
+        help="print lines along the director of a design or director field (docs/toolpath.md)",
         description="Evenly spaced print lines along the director, ordered, layered and "
         "encoded; writes toolpath.npz, quality.json and preview.png/svg into --out.",
     )
-    parser.add_argument(
-        "inputs",
-        nargs="*",
-        metavar="INPUT",
-        help="design.npz or director .toml; several inputs stack (bottom layer first)",
-    )
-    source = parser.add_argument_group("director field without a design")
-    source.add_argument(
-        "--director", metavar="EXPR", help='theta(x, y) in rad, e.g. "arctan2(y, x)"'
-    )
-    source.add_argument(
-        "--shape",
-        metavar="SHAPE",
-        help="disc:R, square:S, rect:W,H, annulus:R1,R2, ellipse:A,B (mm)",
-    )
-    source.add_argument("--eps", metavar="EXPR", help='eps(x, y) to encode, e.g. "0.2 + 0.01*r"')
-    scale = parser.add_argument_group("design scale").add_mutually_exclusive_group()
-    scale.add_argument("--size", type=float, metavar="MM", help="longest side of the sheet, mm")
-    scale.add_argument("--scale", type=float, metavar="MM_PER_UNIT", help="mm per design unit")
-    parser.add_argument(
-        "--feature", type=int, default=0, help="eps feature of the design to encode (default 0)"
-    )
-    parser.add_argument("--clip", metavar="SHAPE", help="clip every outline by this shape (mm)")
+    _field_arguments(parser, "design.npz or director .toml; several stack (bottom layer first)")
     process = parser.add_argument_group("process")
     process.add_argument(
         "--machine", metavar="NAME|FILE", help="machine profile (default: marlin_diw_pneumatic)"
     )
-    process.add_argument(
-        "--process", metavar="FILE", help="TOML whose [process] replaces the machine's"
-    )
-    process.add_argument("--road-width", type=float, metavar="MM", help="override the road width w")
-    process.add_argument(
-        "--layer-height", type=float, metavar="MM", help="override the layer height"
-    )
+    process.add_argument("--process", metavar="FILE", help="TOML whose [process] replaces it")
+    process.add_argument("--road-width", type=float, metavar="MM", help="override road width w")
+    process.add_argument("--layer-height", type=float, metavar="MM", help="override layer height")
     process.add_argument("--no-encode", action="store_true", help="do not encode eps")
-    process.add_argument(
-        "--clip-eps", action="store_true", help="clip eps to the calibration table"
-    )
+    process.add_argument("--clip-eps", action="store_true", help="clip eps to the calibration")
     parser.add_argument("--layers", type=int, default=1, help="number of layers (default 1)")
     parser.add_argument("--pattern", choices=PATTERNS, default="same", help="layer pattern")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--json", action="store_true", help="also write toolpath.json")
     parser.set_defaults(func=run)
 
+    channels = subparsers.add_parser(
+        "channels",
+        help="baromorph channels along the director, and their casting mould (STL)",
+        description="Channels along the director with widths from eps, a manifold to one "
+        "inlet, walls of at least min_wall_mm; writes channels.json, mould.stl and "
+        "channels.png/svg into --out.",
+    )
+    _field_arguments(channels, "design.npz or director .toml (one)")
+    channels.add_argument(
+        "--baromorph", required=True, metavar="FILE", help="TOML with a [baromorph] table"
+    )
+    channels.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    channels.set_defaults(func=run_channels)
 
-def run(args: argparse.Namespace) -> int:
-    job = ToolpathJob(
+
+def _field_arguments(parser: argparse.ArgumentParser, inputs_help: str) -> None:
+    parser.add_argument("inputs", nargs="*", metavar="INPUT", help=inputs_help)
+    source = parser.add_argument_group("director field without a design")
+    source.add_argument("--director", metavar="EXPR", help='theta(x, y), rad: "arctan2(y, x)"')
+    source.add_argument(
+        "--shape", metavar="SHAPE", help="disc:R, square:S, rect:W,H, annulus:R1,R2, ellipse:A,B"
+    )
+    source.add_argument("--eps", metavar="EXPR", help='eps(x, y), e.g. "0.2 + 0.01*r"')
+    scale = parser.add_argument_group("design scale").add_mutually_exclusive_group()
+    scale.add_argument("--size", type=float, metavar="MM", help="longest side of the sheet, mm")
+    scale.add_argument("--scale", type=float, metavar="MM_PER_UNIT", help="mm per design unit")
+    parser.add_argument("--feature", type=int, default=0, help="eps feature of a design (0)")
+    parser.add_argument("--clip", metavar="SHAPE", help="clip every outline by this shape (mm)")
+
+
+def _fields(args: argparse.Namespace, **extra) -> ToolpathJob:
+    return ToolpathJob(
         inputs=tuple(args.inputs),
         director=args.director,
         shape=args.shape,
@@ -71,6 +72,21 @@ def run(args: argparse.Namespace) -> int:
         mm_per_unit=args.scale,
         feature=args.feature,
         clip=args.clip,
+        **extra,
+    )
+
+
+def run_channels(args: argparse.Namespace) -> int:
+    result = run_channel_job(ChannelJob(_fields(args), args.baromorph, args.out))
+    print(result.report.summary())
+    for path in result.files:
+        print(f"wrote {path}")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    job = _fields(
+        args,
         machine=args.machine,
         process_file=args.process,
         road_width_mm=args.road_width,

@@ -8,14 +8,20 @@ file, overrides), plans the toolpath, and writes into the output folder:
 * ``quality.json``: the quality of every layer, the settings and any warnings;
 * ``preview.png`` and ``preview.svg``.
 
+:func:`run_channel_job` does the same for baromorph channels: ``channels.json`` (closed
+polygons, widths, eps, the checks), ``mould.stl`` and ``channels.png``/``channels.svg``.
+
 Every file is written atomically (no half-written output on failure).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+
+import numpy as np
+import shapely
 
 from fabkit.atomic import atomic_path
 from fabkit.errors import FabkitError
@@ -26,9 +32,17 @@ from fabkit.fields import (
     load_director_file,
     parse_shape,
 )
+from fabkit.toolpath.baromorph import (
+    ChannelLayout,
+    ChannelReport,
+    check_channels,
+    layout_channels,
+    load_baromorph,
+)
 from fabkit.toolpath.model import save_toolpath
+from fabkit.toolpath.mould import POLARITY, mould_mesh, save_mould
 from fabkit.toolpath.plan import Plan, PlanSettings, plan_toolpath
-from fabkit.toolpath.preview import save_preview
+from fabkit.toolpath.preview import save_channel_preview, save_preview
 from fabkit.toolpath.process import Process, load_process, machine_process
 
 
@@ -132,3 +146,69 @@ def _save_quality(plan: Plan, process: Process, path: Path) -> None:
     }
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(report, indent=2), encoding="utf-8")
+
+
+@dataclass(frozen=True)
+class ChannelJob:
+    """Baromorph channels for one input (the field options as in :class:`ToolpathJob`)."""
+
+    fields: ToolpathJob
+    baromorph: str
+    out: str = "channels"
+
+
+@dataclass(frozen=True)
+class ChannelResult:
+    """The layout, its checks, and the files written."""
+
+    layout: ChannelLayout
+    report: ChannelReport
+    files: tuple[Path, ...]
+
+
+def run_channel_job(job: ChannelJob) -> ChannelResult:
+    """Lay out, check and write baromorph channels and their mould."""
+    fields = load_fields(job.fields)
+    if len(fields) != 1:
+        raise FabkitError("channels: give exactly one input field")
+    settings = load_baromorph(job.baromorph)
+    layout = layout_channels(fields[0], settings)
+    report = check_channels(layout, settings)
+    out = Path(job.out)
+    files = (out / "channels.json", out / "mould.stl", out / "channels.png", out / "channels.svg")
+    with atomic_path(files[0]) as tmp:
+        tmp.write_text(json.dumps(_channels_json(layout, report)), encoding="utf-8")
+    save_mould(mould_mesh(layout, settings), files[1])
+    save_channel_preview(layout, list(files[2:]))
+    return ChannelResult(layout, report, files)
+
+
+def _channels_json(layout: ChannelLayout, report: ChannelReport) -> dict:
+    def rings(geometry) -> list[dict]:
+        return [
+            {
+                "exterior": np.asarray(polygon.exterior.coords).tolist(),
+                "holes": [np.asarray(r.coords).tolist() for r in polygon.interiors],
+            }
+            for polygon in shapely.get_parts(geometry)
+        ]
+
+    return {
+        "units": "mm",
+        "polarity": POLARITY,
+        "report": asdict(report),
+        "inlet": list(layout.inlet),
+        "network": rings(layout.network),
+        "manifold": rings(layout.manifold),
+        "channels": [
+            {
+                "polygon": rings(channel),
+                "centreline": line.tolist(),
+                "width_mm": width.tolist(),
+                "eps": eps.tolist(),
+            }
+            for channel, line, width, eps in zip(
+                layout.channels, layout.centrelines, layout.widths, layout.eps, strict=True
+            )
+        ],
+    }

@@ -117,6 +117,21 @@ def resample(line: np.ndarray, step: float) -> np.ndarray:
     )
 
 
+def smooth(line: np.ndarray, passes: int) -> np.ndarray:
+    """``passes`` rounds of (1/4, 1/2, 1/4) averaging of the vertices; open ends stay put,
+    closed loops are smoothed all round."""
+    line = line.copy()
+    closed = is_closed(line)
+    for _ in range(passes):
+        if closed:
+            ring = line[:-1]
+            ring = 0.5 * ring + 0.25 * (np.roll(ring, 1, axis=0) + np.roll(ring, -1, axis=0))
+            line = np.vstack([ring, ring[:1]])
+        elif len(line) > 2:
+            line[1:-1] = 0.5 * line[1:-1] + 0.25 * (line[:-2] + line[2:])
+    return line
+
+
 def clip_lines(lines: list[np.ndarray], region: shapely.Geometry) -> list[np.ndarray]:
     """The parts of ``lines`` inside ``region`` (vectorised shapely intersection)."""
     if not lines:

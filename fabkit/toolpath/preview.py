@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 import shapely
 from matplotlib.cm import ScalarMappable
@@ -113,3 +114,34 @@ def _polygon_path(polygon: shapely.Polygon) -> MplPath:
         [[MplPath.MOVETO] + [MplPath.LINETO] * (len(r) - 2) + [MplPath.CLOSEPOLY] for r in rings]
     )
     return MplPath(vertices, codes)
+
+
+def save_channel_preview(layout, paths: list[str | Path], dpi: int = 200) -> None:
+    """Draw a baromorph :class:`~fabkit.toolpath.baromorph.ChannelLayout`: the sheet in
+    grey, channels coloured by their mean width, the manifold dark, the inlet as a dot."""
+    figure = Figure(figsize=(PANEL_INCHES + 1.5, PANEL_INCHES))
+    ax = figure.subplots()
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title("baromorph channels (walls grey)")
+    for polygon in shapely.get_parts(layout.outline):
+        ax.add_patch(PathPatch(_polygon_path(polygon), facecolor="0.85", edgecolor="0.4", lw=0.5))
+    for polygon in shapely.get_parts(layout.manifold):
+        ax.add_patch(PathPatch(_polygon_path(polygon), facecolor="0.25", edgecolor="none"))
+    means = np.array([float(np.mean(w)) for w in layout.widths]) if layout.widths else np.zeros(1)
+    norm = Normalize(means.min(), means.max() if means.max() > means.min() else means.min() + 1)
+    cmap = matplotlib.colormaps["viridis"]
+    for channel, mean in zip(layout.channels, means, strict=False):
+        for polygon in shapely.get_parts(channel):
+            ax.add_patch(PathPatch(_polygon_path(polygon), facecolor=cmap(norm(mean)), lw=0))
+    ax.plot(*layout.inlet, "o", color="tab:red", label="inlet")
+    ax.legend(loc="upper right")
+    low_x, low_y, high_x, high_y = shapely.union_all([layout.outline, layout.network]).bounds
+    margin = 0.03 * max(high_x - low_x, high_y - low_y)
+    ax.set_xlim(low_x - margin, high_x + margin)
+    ax.set_ylim(low_y - margin, high_y + margin)
+    figure.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, label="channel width (mm)")
+    for path in paths:
+        with atomic_path(path) as tmp:
+            figure.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip("."))

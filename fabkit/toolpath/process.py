@@ -42,6 +42,8 @@ DEFAULT_MACHINE = "marlin_diw_pneumatic"
 printer; see ``machines/marlin_diw_pneumatic.toml``)."""
 
 PROCESS_KEYS = ("road_width_mm", "layer_height_mm", "print_speed_mm_s", "travel_speed_mm_s")
+PARAMETERS = (*CALIBRATION_PARAMETERS, "channel_width_mm")
+"""Calibrated parameters: the print ones, and the channel width of baromorphs."""
 
 
 @dataclass(frozen=True)
@@ -55,10 +57,9 @@ class Calibration:
 
     def __post_init__(self) -> None:
         where = "[process.calibration]"
-        if self.parameter not in CALIBRATION_PARAMETERS:
+        if self.parameter not in PARAMETERS:
             raise FabkitError(
-                f"{where} parameter '{self.parameter}' is not one of "
-                f"{', '.join(CALIBRATION_PARAMETERS)}"
+                f"{where} parameter '{self.parameter}' is not one of {', '.join(PARAMETERS)}"
             )
         eps, value = np.asarray(self.eps, float), np.asarray(self.value, float)
         if len(eps) < 2 or len(eps) != len(value):
@@ -186,8 +187,11 @@ def _calibration(table: Any) -> Calibration:
     clip = table.get("clip", False)
     if not isinstance(clip, bool):
         raise FabkitError(f"{where} clip must be true or false")
-    if not isinstance(table["parameter"], str):
-        raise FabkitError(f"{where} parameter must be a string")
+    if table["parameter"] not in CALIBRATION_PARAMETERS:
+        raise FabkitError(
+            f"{where} parameter {table['parameter']!r} is not one of "
+            f"{', '.join(CALIBRATION_PARAMETERS)}"
+        )
     return Calibration(
         table["parameter"],
         _numbers(table["eps"], f"{where} eps"),
