@@ -156,12 +156,17 @@ def sample_field(field: FieldLike, pixel_mm: float) -> DirectorGrid:
         raise FabkitError(f"pixel pitch {pixel_mm} mm leaves no pixel inside the outline")
     points = np.column_stack([xx[mask], yy[mask]])
     theta = np.full(mask.shape, np.nan)
-    theta[mask] = field.theta(points)
+    theta[mask] = _in_chunks(field.theta, points)
     eps = None
     if field.has_eps:
         eps = np.full(mask.shape, np.nan)
-        eps[mask] = field.eps(points)
+        eps[mask] = _in_chunks(field.eps, points)
     return DirectorGrid(theta, mask, eps, pixel_mm, (x0, y0))
+
+
+def _in_chunks(function: Any, points: np.ndarray, size: int = 1 << 15) -> np.ndarray:
+    """``function(points)`` evaluated on slices of ``size`` points (bounded memory)."""
+    return np.concatenate([function(points[a : a + size]) for a in range(0, len(points), size)])
 
 
 @dataclass(frozen=True)
