@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial import Delaunay
 
 from fabkit.atomic import atomic_path
@@ -48,9 +49,21 @@ class Topology:
     flaps: np.ndarray
 
 
-def design_mesh(design: Design) -> DesignMesh:
-    """Triangulate every solved grid cell of ``design`` (two triangles per cell)."""
-    grid, triangles = grid_triangles(design.valid)
+def design_mesh(design: Design, trim: int = 0) -> DesignMesh:
+    """Triangulate every solved grid cell of ``design`` (two triangles per cell).
+
+    With ``trim`` = k > 1, only cells inside a solved block of k x k cells are kept
+    (a morphological opening): it cuts away spikes fewer than k cells across, which a
+    mesh cannot resolve (a one-cell ribbon bends freely whatever its metric).
+    """
+    valid = design.valid
+    if trim > 1:
+        cells = valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:] & valid[1:, 1:]
+        cells = ndimage.binary_opening(cells, structure=np.ones((trim, trim), dtype=bool))
+        valid = np.zeros_like(valid)
+        for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
+            valid[di : di + cells.shape[0], dj : dj + cells.shape[1]] |= cells
+    grid, triangles = grid_triangles(valid)
     if len(triangles) == 0:
         raise FabkitError("the design has no solved grid cell to simulate")
     points = design.r[0][grid[:, 0], grid[:, 1]]

@@ -7,9 +7,11 @@ that of a polyhedral surface and its angle defects converge to the integrated Ga
 curvature. (Sampling the metric at each face's centroid instead does not converge near
 a director defect: a cone's integrated curvature stays 29 % off at any resolution.)
 
-Each edge's reference length is the length of the flat segment in the continuous
-metric: Gauss-Legendre quadrature of sqrt(e^T a(p) e) when a(p) is a function, the
-trapezoidal rule when a is known at the vertices only.
+Each edge's reference length is the length of the segment in the continuous metric:
+Gauss-Legendre quadrature of sqrt(e^T a(p) e) along the flat segment when a(p) is a
+function; for a design, the trapezoidal rule along the straight segment between grid
+points in material coordinates (u, v), where the designed metric is diagonal and smooth
+(the flat sheet's cells can be far from square there).
 """
 
 from __future__ import annotations
@@ -63,16 +65,24 @@ def edge_lengths(
     return 0.5 * speed @ weights
 
 
-def vertex_edge_lengths(
-    points: np.ndarray, triangles: np.ndarray, vertex_metrics: np.ndarray
+def grid_edge_lengths(
+    triangles: np.ndarray,
+    grid: np.ndarray,
+    step: float,
+    stretch_u: np.ndarray,
+    stretch_v: np.ndarray,
 ) -> np.ndarray:
-    """Reference lengths (F, 3) from metrics known at the vertices (V, 2, 2) (trapezoid)."""
-    _, vectors = face_edges(points, triangles)
-    ends = (triangles[:, [1, 2, 0]], triangles[:, [2, 0, 1]])
-    speeds = [
-        np.sqrt(np.einsum("fei,feij,fej->fe", vectors, vertex_metrics[e], vectors)) for e in ends
-    ]
-    return 0.5 * (speeds[0] + speeds[1])
+    """Reference lengths (F, 3) of edges between material grid points (trapezoidal rule).
+
+    The metric is diagonal in material coordinates, ds^2 = stretch_u^2 du^2 +
+    stretch_v^2 dv^2 (for a design: stretch_u = alpha lambda1, stretch_v = beta lambda2);
+    ``grid`` (V, 2) int grid indices of the vertices, ``step`` the grid step,
+    ``stretch_u``, ``stretch_v`` (V,) the vertices' values.
+    """
+    start, end = triangles[:, [1, 2, 0]], triangles[:, [2, 0, 1]]
+    du, dv = np.moveaxis(step * (grid[end] - grid[start]), -1, 0)
+    speed = [np.sqrt((du * stretch_u[k]) ** 2 + (dv * stretch_v[k]) ** 2) for k in (start, end)]
+    return 0.5 * (speed[0] + speed[1])
 
 
 def metric_from_lengths(

@@ -24,7 +24,7 @@ import scipy.sparse.linalg as splinalg
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.mechanics.mesh import DesignMesh, design_mesh
-from fabkit.mechanics.metric import metric_from_director, metric_from_lengths, vertex_edge_lengths
+from fabkit.mechanics.metric import grid_edge_lengths, metric_from_lengths
 from fabkit.mechanics.shell import Sheet, Shell, build_shell
 from fabkit.spec import spec_from_json
 
@@ -46,7 +46,7 @@ class Settings:
     ``seed_height``: its height relative to the sheet's radius.
     """
 
-    steps: int = 4
+    steps: int = 2
     tolerance: float = 1e-6
     ramp_tolerance: float = 1e-3
     max_iterations: int = 100
@@ -259,15 +259,17 @@ def surface_index(design: Design, stimulus: str) -> int:
 def design_metrics(design: Design, mesh: DesignMesh, surface: int) -> np.ndarray:
     """Per-face reference metric (F, 2, 2) at surface ``surface``'s stimulus.
 
-    lambda1, lambda2 from the material at every vertex's eps, along the flat-sheet
-    director n[0], give a metric at every vertex; each edge's reference length is the
-    trapezoidal rule along it and each face's metric fits its three edge lengths.
+    The designed metric is (alpha lambda1)^2 du^2 + (beta lambda2)^2 dv^2, lambda1 along
+    the flat-sheet director (the u-curves) and lambda2 across it, from the material at
+    every vertex's eps. Edge lengths follow by the trapezoidal rule in (u, v); each face's
+    metric in flat-sheet coordinates fits its three edge lengths.
     """
     spec = spec_from_json(design.spec)
     i, j = mesh.grid[:, 0], mesh.grid[:, 1]
     response = spec.material.response(design.eps[:, i, j], design.stimuli[surface : surface + 1])
-    vertex = metric_from_director(design.n[0][i, j], response.lambda1[0], response.lambda2[0])
-    lengths = vertex_edge_lengths(mesh.points, mesh.triangles, vertex)
+    stretch_u = design.alpha[i, j] * response.lambda1[0]
+    stretch_v = design.beta[i, j] * response.lambda2[0]
+    lengths = grid_edge_lengths(mesh.triangles, mesh.grid, design.step, stretch_u, stretch_v)
     return metric_from_lengths(mesh.points, mesh.triangles, lengths)
 
 
@@ -277,14 +279,16 @@ def simulate_design(
     thickness: float | None = None,
     poisson: float = 0.5,
     settings: Settings = Settings(),
+    trim: int = 0,
     progress: Callable[[int, int], None] | None = None,
 ) -> DesignSimulation:
     """Simulate ``design``'s flat domain under surface ``surface``'s stimulus.
 
-    ``thickness`` defaults to 1 % of the flat domain's diameter (design units).
+    ``thickness`` defaults to 1 % of the flat domain's diameter (design units); ``trim``
+    as in :func:`~fabkit.mechanics.mesh.design_mesh`.
     """
     spec = spec_from_json(design.spec)
-    mesh = design_mesh(design)
+    mesh = design_mesh(design, trim)
     if thickness is None:
         thickness = 0.01 * diameter(mesh.points)
     metrics = design_metrics(design, mesh, surface)
