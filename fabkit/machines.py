@@ -1,0 +1,497 @@
+"""Machine profiles: what a printer, dispenser, light writer or cutter can do, as plain data.
+
+A profile is a TOML file in the repository's ``machines/`` folder (documented key by key
+in ``docs/machines.md``). :func:`load_machine` reads one into a frozen
+:class:`MachineProfile`; every problem (unknown or missing key, wrong type, negative
+limit, unknown machine) is a :class:`~fabkit.errors.FabkitError` whose one-line message
+names the file and the key.
+
+Units: millimetres, seconds, mm/s, degrees Celsius. G-code feeds (``F``) are mm/min and
+are only ever produced by the template placeholders that say so (``*_feed_mm_min``).
+"""
+
+from __future__ import annotations
+
+import math
+import string
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fabkit.errors import FabkitError
+
+MACHINES_DIR = Path(__file__).resolve().parent.parent / "machines"
+"""The shipped profiles (the repository's ``machines/`` folder)."""
+
+KINDS = ("extrusion_printer", "pneumatic_diw", "laser_writer", "cutter_plotter")
+FLAVOURS = ("marlin", "klipper", "reprap", "grbl", "hyrel", "none")
+PROTOCOLS = ("marlin", "grbl")
+CALIBRATION_PARAMETERS = (
+    "print_speed_mm_s",
+    "extrusion_multiplier",
+    "temperature_c",
+    "line_spacing_mm",
+)
+"""Process parameters an eps calibration may map to (same names as the toolpath's)."""
+
+GCODE_KEYS = ("start_gcode", "end_gcode", "flow_on_gcode", "flow_off_gcode", "safe_stop_gcode")
+PLACEHOLDERS = (
+    "nozzle_c",
+    "bed_c",
+    "travel_lift_mm",
+    "travel_feed_mm_min",
+    "print_feed_mm_min",
+    "z_feed_mm_min",
+    "retract_mm",
+    "retract_feed_mm_min",
+)
+"""Names a G-code template may use as ``{name}``."""
+
+
+@dataclass(frozen=True)
+class Envelope:
+    """Soft limits of the work volume in machine coordinates (mm), each ``(min, max)``."""
+
+    x_mm: tuple[float, float]
+    y_mm: tuple[float, float]
+    z_mm: tuple[float, float]
+
+    def axis(self, axis: str) -> tuple[float, float]:
+        """The ``(min, max)`` of ``axis`` ("x", "y" or "z"), mm."""
+        return getattr(self, f"{axis}_mm")
+
+    def size_text(self) -> str:
+        """Like ``220x220x250 mm``."""
+        spans = (hi - lo for lo, hi in (self.x_mm, self.y_mm, self.z_mm))
+        return "x".join(_num(span) for span in spans) + " mm"
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Maximum speeds, mm/s: per axis, and for travel and printing moves."""
+
+    x_mm_s: float
+    y_mm_s: float
+    z_mm_s: float
+    e_mm_s: float
+    travel_mm_s: float
+    print_mm_s: float
+
+    def axis_mm_s(self, axis: str) -> float:
+        """The limit of ``axis`` ("x", "y", "z" or "e"), mm/s."""
+        return getattr(self, f"{axis}_mm_s")
+
+
+@dataclass(frozen=True)
+class Tool:
+    """The nozzle (or beam / blade) and the moves around printing, mm and mm/s."""
+
+    nozzle_diameter_mm: float
+    travel_lift_mm: float
+    retract_mm: float
+    retract_speed_mm_s: float
+
+
+@dataclass(frozen=True)
+class Temperatures:
+    """Default and maximum set points, degrees C (0 = no heater)."""
+
+    nozzle_c: float
+    bed_c: float
+    nozzle_max_c: float
+    bed_max_c: float
+
+
+@dataclass(frozen=True)
+class GcodeTemplates:
+    """G-code snippets (newline-separated lines, ``{placeholder}`` fields, see PLACEHOLDERS).
+
+    ``flow_on_gcode`` / ``flow_off_gcode`` start and stop the material (valve, dispenser,
+    beam); empty when the flow follows the E axis. ``safe_stop_gcode`` is sent on abort.
+    """
+
+    start_gcode: str
+    end_gcode: str
+    flow_on_gcode: str
+    flow_off_gcode: str
+    safe_stop_gcode: str
+
+
+@dataclass(frozen=True)
+class SerialSettings:
+    """How to talk to the controller: baud rate, protocol and its buffer sizes.
+
+    ``rx_buffer_bytes`` is the firmware's serial receive buffer (Marlin and GRBL: 128;
+    one byte of the ring stays empty, so 127 are usable); ``planner_depth`` is the number
+    of moves the planner holds, which also caps the lines the sender keeps in flight.
+    """
+
+    baud: int
+    protocol: str
+    rx_buffer_bytes: int
+    planner_depth: int
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Measured eps (programmed strain) against one process parameter, eps increasing."""
+
+    parameter: str
+    eps: tuple[float, ...]
+    value: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class ProcessProfile:
+    """Default process settings the toolpath reads (mm, mm/s), and the eps calibration."""
+
+    road_width_mm: float
+    layer_height_mm: float
+    print_speed_mm_s: float
+    travel_speed_mm_s: float
+    calibration: Calibration | None
+
+    def value_for_eps(self, eps: float) -> float:
+        """The calibrated parameter value giving strain ``eps`` (linear interpolation)."""
+        table = self.calibration
+        if table is None:
+            raise FabkitError("this process has no [process.calibration] table")
+        if not table.eps[0] <= eps <= table.eps[-1]:
+            raise FabkitError(
+                f"eps={eps:g} is outside the calibrated range "
+                f"[{table.eps[0]:g}, {table.eps[-1]:g}] of [process.calibration]"
+            )
+        return float(np.interp(eps, table.eps, table.value))
+
+
+@dataclass(frozen=True)
+class MachineProfile:
+    """One machine: what it is, where it can go, how fast, and how to talk to it.
+
+    ``gcode`` and ``serial`` are None exactly when ``flavour == "none"`` (a machine that
+    takes no G-code, e.g. a projector-based writer driven by images).
+    """
+
+    name: str
+    kind: str
+    flavour: str
+    description: str
+    envelope: Envelope
+    limits: Limits
+    tool: Tool
+    temperature: Temperatures
+    gcode: GcodeTemplates | None
+    serial: SerialSettings | None
+    process: ProcessProfile
+    path: Path
+
+    def placeholders(self) -> dict[str, str]:
+        """Values of the template placeholders for this machine, formatted for G-code."""
+        values = {
+            "nozzle_c": self.temperature.nozzle_c,
+            "bed_c": self.temperature.bed_c,
+            "travel_lift_mm": self.tool.travel_lift_mm,
+            "travel_feed_mm_min": self.process.travel_speed_mm_s * 60.0,
+            "print_feed_mm_min": self.process.print_speed_mm_s * 60.0,
+            "z_feed_mm_min": self.limits.z_mm_s * 60.0,
+            "retract_mm": self.tool.retract_mm,
+            "retract_feed_mm_min": self.tool.retract_speed_mm_s * 60.0,
+        }
+        return {key: _num(value) for key, value in values.items()}
+
+    def render(self, key: str) -> list[str]:
+        """The G-code lines of template ``key`` (one of GCODE_KEYS), placeholders filled in."""
+        if self.gcode is None:
+            raise FabkitError(f"machine {self.name} has flavour none and takes no G-code")
+        text = getattr(self.gcode, key).format_map(self.placeholders())
+        return [line.strip() for line in text.splitlines() if line.strip()]
+
+
+def load_machine(name_or_path: str | Path) -> MachineProfile:
+    """Load a profile by name (from ``machines/``) or from a ``.toml`` path."""
+    path = _resolve(str(name_or_path))
+    try:
+        with path.open("rb") as handle:
+            data = tomllib.load(handle)
+    except tomllib.TOMLDecodeError as exc:
+        raise FabkitError(f"{_display(path)}: not valid TOML ({exc})") from None
+    except OSError as exc:
+        raise FabkitError(f"{_display(path)}: cannot read ({exc.strerror})") from None
+    return _parse(data, path)
+
+
+def list_machines() -> list[MachineProfile]:
+    """Every shipped profile, sorted by name."""
+    return [load_machine(path) for path in sorted(_machines_dir().glob("*.toml"))]
+
+
+def machine_table(profiles: list[MachineProfile]) -> str:
+    """A plain-text table: name, kind, flavour, envelope, protocol (one row per machine)."""
+    header = ("NAME", "KIND", "FLAVOUR", "ENVELOPE", "PROTOCOL")
+    rows = [header] + [
+        (
+            p.name,
+            p.kind,
+            p.flavour,
+            p.envelope.size_text(),
+            p.serial.protocol if p.serial else "-",
+        )
+        for p in profiles
+    ]
+    widths = [max(len(row[i]) for row in rows) for i in range(len(header))]
+    lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)) for row in rows]
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def _machines_dir() -> Path:
+    if not MACHINES_DIR.is_dir():
+        raise FabkitError(
+            f"the machine profiles folder {MACHINES_DIR} is missing; install fabkit from a "
+            "source checkout (pip install -e .) or pass a profile path"
+        )
+    return MACHINES_DIR
+
+
+def _resolve(name_or_path: str) -> Path:
+    looks_like_path = name_or_path.endswith(".toml") or "/" in name_or_path or "\\" in name_or_path
+    if looks_like_path:
+        path = Path(name_or_path)
+        if not path.is_file():
+            raise FabkitError(f"machine profile {name_or_path} does not exist")
+        return path
+    path = _machines_dir() / f"{name_or_path}.toml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in _machines_dir().glob("*.toml")))
+        raise FabkitError(f"unknown machine '{name_or_path}'; known machines: {known}")
+    return path
+
+
+def _display(path: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(MACHINES_DIR.parent))
+    except ValueError:
+        return str(path)
+
+
+def _num(value: float) -> str:
+    """A number as G-code likes it: no exponent, no trailing zeros (``9000``, ``0.4``)."""
+    return f"{value:.4f}".rstrip("0").rstrip(".")
+
+
+class _Table:
+    """Typed access to one TOML table; every error names the file, table and key."""
+
+    def __init__(self, data: Any, where: str, path: Path) -> None:
+        self.where = where
+        self.path = path
+        if not isinstance(data, Mapping):
+            self.fail(f"{where} must be a table")
+        self.data = dict(data)
+        self.seen: set[str] = set()
+
+    def fail(self, message: str) -> None:
+        raise FabkitError(f"{_display(self.path)}: {message}")
+
+    def _raw(self, key: str) -> Any:
+        self.seen.add(key)
+        if key not in self.data:
+            self.fail(f"{self._name(key)} is missing")
+        return self.data[key]
+
+    def _name(self, key: str) -> str:
+        return f"{self.where} {key}" if self.where else key
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def text(self, key: str, choices: tuple[str, ...] | None = None) -> str:
+        value = self._raw(key)
+        if not isinstance(value, str):
+            self.fail(f"{self._name(key)} must be a string, got {_type(value)}")
+        if choices is not None and value not in choices:
+            self.fail(f"{self._name(key)} = '{value}' is not one of {', '.join(choices)}")
+        return value
+
+    def number(self, key: str, *, positive: bool = False) -> float:
+        value = self._raw(key)
+        return self._check_number(key, value, positive)
+
+    def _check_number(self, key: str, value: Any, positive: bool) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            self.fail(f"{self._name(key)} must be a number, got {_type(value)}")
+        if not math.isfinite(value):
+            self.fail(f"{self._name(key)} must be finite, got {value}")
+        if positive and value <= 0:
+            self.fail(f"{self._name(key)} must be > 0, got {value}")
+        if value < 0:
+            self.fail(f"{self._name(key)} must not be negative, got {value}")
+        return float(value)
+
+    def integer(self, key: str) -> int:
+        value = self._raw(key)
+        if isinstance(value, bool) or not isinstance(value, int):
+            self.fail(f"{self._name(key)} must be an integer, got {_type(value)}")
+        if value <= 0:
+            self.fail(f"{self._name(key)} must be > 0, got {value}")
+        return value
+
+    def numbers(self, key: str) -> tuple[float, ...]:
+        value = self._raw(key)
+        if not isinstance(value, list):
+            self.fail(f"{self._name(key)} must be an array of numbers, got {_type(value)}")
+        out = []
+        for item in value:
+            if isinstance(item, bool) or not isinstance(item, int | float):
+                self.fail(f"{self._name(key)} must hold numbers only, got {_type(item)}")
+            if not math.isfinite(item):
+                self.fail(f"{self._name(key)} must hold finite numbers, got {item}")
+            out.append(float(item))
+        return tuple(out)
+
+    def span(self, key: str) -> tuple[float, float]:
+        value = self.numbers(key)
+        if len(value) != 2 or not value[0] < value[1]:
+            self.fail(f"{self._name(key)} must be [min, max] with min < max, got {list(value)}")
+        return value[0], value[1]
+
+    def table(self, key: str) -> _Table:
+        return _Table(self._raw(key), f"[{self._qualified(key)}]", self.path)
+
+    def _qualified(self, key: str) -> str:
+        return f"{self.where.strip('[]')}.{key}" if self.where else key
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.data) - self.seen)
+        if unknown:
+            where = f" in {self.where}" if self.where else ""
+            self.fail(f"unknown key '{unknown[0]}'{where}")
+
+
+def _type(value: Any) -> str:
+    return {str: "a string", bool: "a boolean", list: "an array", dict: "a table"}.get(
+        type(value), type(value).__name__
+    )
+
+
+def _parse(data: dict[str, Any], path: Path) -> MachineProfile:
+    top = _Table(data, "", path)
+    flavour = top.text("flavour", FLAVOURS)
+    streamable = flavour != "none"
+    profile = MachineProfile(
+        name=top.text("name"),
+        kind=top.text("kind", KINDS),
+        flavour=flavour,
+        description=top.text("description"),
+        envelope=_envelope(top.table("envelope")),
+        limits=_limits(top.table("limits")),
+        tool=_tool(top.table("tool")),
+        temperature=_temperatures(top.table("temperature")),
+        gcode=_gcode(top.table("gcode")) if streamable else None,
+        serial=_serial(top.table("serial")) if streamable else None,
+        process=_process(top.table("process")),
+        path=path,
+    )
+    for key in ("gcode", "serial"):
+        if not streamable and top.has(key):
+            top.fail(f"[{key}] must be absent for flavour none (the machine takes no G-code)")
+    top.finish()
+    if profile.gcode is not None:
+        _check_placeholders(profile.gcode, path)
+    return profile
+
+
+def _envelope(t: _Table) -> Envelope:
+    out = Envelope(x_mm=t.span("x_mm"), y_mm=t.span("y_mm"), z_mm=t.span("z_mm"))
+    t.finish()
+    return out
+
+
+def _limits(t: _Table) -> Limits:
+    out = Limits(
+        **{key: t.number(key, positive=True) for key in Limits.__dataclass_fields__},
+    )
+    t.finish()
+    return out
+
+
+def _tool(t: _Table) -> Tool:
+    out = Tool(
+        nozzle_diameter_mm=t.number("nozzle_diameter_mm", positive=True),
+        travel_lift_mm=t.number("travel_lift_mm"),
+        retract_mm=t.number("retract_mm"),
+        retract_speed_mm_s=t.number("retract_speed_mm_s"),
+    )
+    t.finish()
+    return out
+
+
+def _temperatures(t: _Table) -> Temperatures:
+    out = Temperatures(**{key: t.number(key) for key in Temperatures.__dataclass_fields__})
+    t.finish()
+    for key, limit in (("nozzle_c", "nozzle_max_c"), ("bed_c", "bed_max_c")):
+        if getattr(out, key) > getattr(out, limit):
+            t.fail(f"[temperature] {key} = {getattr(out, key):g} exceeds {limit}")
+    return out
+
+
+def _gcode(t: _Table) -> GcodeTemplates:
+    out = GcodeTemplates(**{key: t.text(key) for key in GCODE_KEYS})
+    t.finish()
+    return out
+
+
+def _serial(t: _Table) -> SerialSettings:
+    out = SerialSettings(
+        baud=t.integer("baud"),
+        protocol=t.text("protocol", PROTOCOLS),
+        rx_buffer_bytes=t.integer("rx_buffer_bytes"),
+        planner_depth=t.integer("planner_depth"),
+    )
+    t.finish()
+    if out.rx_buffer_bytes < 32:
+        t.fail(f"[serial] rx_buffer_bytes must be >= 32, got {out.rx_buffer_bytes}")
+    return out
+
+
+def _process(t: _Table) -> ProcessProfile:
+    values = {
+        key: t.number(key, positive=True)
+        for key in ("road_width_mm", "layer_height_mm", "print_speed_mm_s", "travel_speed_mm_s")
+    }
+    calibration = _calibration(t.table("calibration")) if t.has("calibration") else None
+    t.finish()
+    return ProcessProfile(**values, calibration=calibration)
+
+
+def _calibration(t: _Table) -> Calibration:
+    out = Calibration(
+        parameter=t.text("parameter", CALIBRATION_PARAMETERS),
+        eps=t.numbers("eps"),
+        value=t.numbers("value"),
+    )
+    t.finish()
+    if len(out.eps) < 2 or len(out.eps) != len(out.value):
+        t.fail("[process.calibration] eps and value must have the same length, at least 2")
+    if any(b <= a for a, b in zip(out.eps, out.eps[1:], strict=False)):
+        t.fail("[process.calibration] eps must be strictly increasing")
+    if any(v <= 0 for v in out.value):
+        t.fail("[process.calibration] value must hold positive numbers only")
+    return out
+
+
+def _check_placeholders(gcode: GcodeTemplates, path: Path) -> None:
+    for key in GCODE_KEYS:
+        try:
+            fields = [name for _, name, _, _ in string.Formatter().parse(getattr(gcode, key))]
+        except ValueError as exc:
+            raise FabkitError(f"{_display(path)}: [gcode] {key}: {exc}") from None
+        for name in fields:
+            if name is not None and name not in PLACEHOLDERS:
+                raise FabkitError(
+                    f"{_display(path)}: [gcode] {key} uses unknown placeholder {{{name}}}; "
+                    f"known: {', '.join(PLACEHOLDERS)}"
+                )
