@@ -1,0 +1,60 @@
+"""``fabkit simulate design.npz --stimulus NAME|INDEX``: the sheet's shape at a stimulus."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from fabkit.design.design import Design
+from fabkit.mechanics.compare import compare
+from fabkit.mechanics.mesh import save_mesh
+from fabkit.mechanics.simulate import SEEDS, Settings, simulate_design, surface_index
+from fabkit.progress import ProgressBar
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "simulate", help="simulate the designed sheet at a stimulus and compare with its target"
+    )
+    parser.add_argument("design", help="design file (.npz) written by fabkit solve")
+    parser.add_argument(
+        "--stimulus", required=True, help="surface name or index whose stimulus to apply"
+    )
+    parser.add_argument(
+        "--thickness", type=float, help="sheet thickness (design units; default 1 %% of its size)"
+    )
+    parser.add_argument("--poisson", type=float, default=0.5, help="Poisson ratio (default 0.5)")
+    defaults = Settings()
+    parser.add_argument(
+        "--steps", type=int, default=defaults.steps, help="ramp steps (default %(default)s)"
+    )
+    parser.add_argument(
+        "--seed", choices=SEEDS, default=defaults.seed, help="initial out-of-plane perturbation"
+    )
+    parser.add_argument(
+        "--trim", type=int, default=0, help="drop regions fewer than TRIM grid cells across"
+    )
+    parser.add_argument("--out", type=Path, help="mesh of the result (.ply, .stl, .glb, .obj)")
+    parser.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    design = Design.load(args.design)
+    surface = surface_index(design, args.stimulus)
+    settings = Settings(steps=args.steps, seed=args.seed)
+    bar = ProgressBar("simulating")
+    try:
+        simulation = simulate_design(
+            design, surface, args.thickness, args.poisson, settings, args.trim, progress=bar
+        )
+    finally:
+        bar.close()
+    report = compare(design, simulation)
+    if args.out is not None:
+        save_mesh(args.out, simulation.result.positions, simulation.mesh.triangles)
+    print(json.dumps(report.to_dict(), indent=2) if args.json else report.table())
+    if args.out is not None and not args.json:
+        print(f"wrote {args.out}")
+    return 0
