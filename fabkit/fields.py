@@ -35,6 +35,7 @@ import contourpy
 import numpy as np
 import shapely
 import shapely.affinity
+import shapely.errors
 from scipy.interpolate import RegularGridInterpolator
 from scipy.spatial import cKDTree
 
@@ -389,10 +390,12 @@ class _DesignMesh:
         ]  # (C, 4, 2): corners a, b, c, d of each cell
         cells = shapely.polygons(quads)
         cells = cells[shapely.area(cells) > 0]
-        coverage = shapely.coverage_union_all(cells)
-        if abs(coverage.area - float(shapely.area(cells).sum())) <= 1e-9 * coverage.area:
-            outline = coverage  # the image does not overlap itself: a cheap exact union
-        else:
+        try:  # cheap and exact when the image does not overlap itself
+            outline = shapely.coverage_union_all(cells)
+            overlaps = abs(outline.area - float(shapely.area(cells).sum())) > 1e-9 * outline.area
+        except shapely.errors.GEOSException:
+            overlaps = True
+        if overlaps:
             outline = shapely.union_all(shapely.make_valid(cells))
         outline = _polygonal(outline)
         if outline.is_empty:

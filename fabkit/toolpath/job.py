@@ -125,7 +125,9 @@ def _load_input(path: str, job: ToolpathJob) -> FlatField:
 
 def job_process(job: ToolpathJob) -> Process:
     """The machine's (or default) process, replaced by --process, then the overrides."""
-    process = load_process(job.process_file) if job.process_file else machine_process(job.machine)
+    process = machine_process(job.machine)  # a bad --machine is reported even with --process
+    if job.process_file:
+        process = load_process(job.process_file)
     process = process.with_overrides(
         road_width_mm=job.road_width_mm, layer_height_mm=job.layer_height_mm
     )

@@ -59,7 +59,7 @@ class StripeSettings:
     core: float = 0.5
     iterations: int = 150
     pin: float = 1.0
-    pin_angle_deg: float = 25.0
+    pin_angle_deg: float = 10.0
     seed: int = 0
 
 

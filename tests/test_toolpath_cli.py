@@ -1,0 +1,83 @@
+"""``fabkit toolpath`` and ``fabkit channels`` end to end, and their one-line errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from fabkit.cli import main
+from fabkit.toolpath import load_toolpath
+from tests.test_fields import write_design
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "directors"
+PROCESS = EXAMPLES / "process_lce.toml"
+
+
+def test_director_expression_to_toolpath(tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(
+        ["toolpath", "--director", "arctan2(y, x)", "--shape", "disc:4", "--road-width", "0.25"]
+        + ["--out", str(out), "--json"]
+    )
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith("layer 1: empty")
+    names = {"toolpath.npz", "toolpath.json", "quality.json", "preview.png", "preview.svg"}
+    assert names <= {p.name for p in out.iterdir()}
+    report = json.loads((out / "quality.json").read_text())
+    assert report["layers"][0]["empty_fraction"] < 0.1  # a small disc: R = 16 w
+    toolpath = load_toolpath(out / "toolpath.npz")
+    assert len(toolpath.layers) == 1 and toolpath.parameter == ""
+    assert toolpath.layers[0].moves[0].width[0] == 0.25
+
+
+def test_design_with_encoding_and_a_bilayer(tmp_path, capsys):
+    design = write_design(tmp_path / "design.npz", eps=lambda u, v: 0.5 + 0.2 * u)
+    out = tmp_path / "out"
+    arguments = [str(design), str(EXAMPLES / "azimuthal.toml"), "--size", "20", "--layers", "4"]
+    code = main(["toolpath", *arguments, "--process", str(PROCESS), "--out", str(out)])
+    assert code == 0
+    toolpath = load_toolpath(out / "toolpath.npz")
+    assert [layer.z_mm for layer in toolpath.layers] == pytest.approx([0.2, 0.4, 0.6, 0.8])
+    assert toolpath.parameter == "print_speed_mm_s"
+    speeds = [m.speed for m in toolpath.layers[0].moves if m.kind == "print"]
+    assert min(s.min() for s in speeds) >= 2.0 and max(s.max() for s in speeds) <= 16.0
+    assert len(json.loads((out / "quality.json").read_text())["layers"]) == 4
+    assert "layer 4" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        (["--director", "phi", "--shape", "disc:3", "--eps", "5"], "outside the calibrated"),
+        (["--director", "phi", "--shape", "disc:3", "--machine", "nope"], "nope"),
+        (["--director", "phi", "--shape", "blob:3"], "unknown shape"),
+        (["--director", "phi"], "--director needs --shape"),
+        (["--director", "import os", "--shape", "disc:3"], "cannot parse"),
+        (["--director", "phi", "--shape", "disc:3", "--layers", "0"], "--layers"),
+        (["--director", "phi", "--shape", "disc:3", "--process", "missing.toml"], "missing"),
+    ],
+)
+def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, arguments, message):
+    out = tmp_path / "out"
+    process = [] if "--process" in arguments else ["--process", str(PROCESS)]
+    code = main(["toolpath", *arguments, *process, "--out", str(out)])
+    error = capsys.readouterr().err.strip()
+    assert code == 2
+    assert error.startswith("fabkit: error:") and message in error and "\n" not in error
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_channels_command(tmp_path, capsys):
+    out = tmp_path / "channels"
+    code = main(
+        ["channels", "--director", "0.3", "--shape", "disc:30", "--eps", "0.5 + 0.5*x/30"]
+        + ["--baromorph", str(EXAMPLES / "baromorph.toml"), "--out", str(out)]
+    )
+    assert code == 0
+    assert "connected True" in capsys.readouterr().out
+    report = json.loads((out / "channels.json").read_text())
+    assert report["report"]["valid"] and report["polarity"].startswith("mould = negative")
+    assert {"mould.stl", "channels.png", "channels.svg"} <= {p.name for p in out.iterdir()}
