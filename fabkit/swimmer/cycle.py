@@ -38,6 +38,13 @@ from fabkit.swimmer.stokes import disc_points
 SAME_BRANCH = 1e-3
 """Largest vertex distance / radius between two equilibria at one stimulus taken as one shape."""
 
+UNSTRETCHED = 1e-12
+"""Largest metric entry difference from the identity of an unactuated layer."""
+MM3_TO_M3 = 1e-9
+"""Energies come in Young's modulus x mm^3; times Pa and this, in J."""
+KEY_DIGITS = 9
+"""Stimuli equal to this many decimals are one stimulus (legs walked back meet again)."""
+
 Progress = Callable[[int, int], None]
 
 
@@ -158,25 +165,28 @@ def equilibria(
     """Follow the path ``stimuli`` (M + 1, k) with the forward simulator (see module)."""
     started = time.perf_counter()
     flat = np.column_stack([sheet.points, np.zeros(len(sheet.points))])
-    thickness = spec.thickness
     settings = Settings()
     state, metrics = flat, None
     seen: dict[bytes, int] = {}
     positions, energies, converged, closure = [], [], [], 0.0
     for index, stimulus in enumerate(stimuli):
         target = sheet.metrics(spec.layers, stimulus)
-        result = simulate(
-            sheet.points,
-            sheet.triangles,
-            target,
-            thickness,
-            spec.mechanics.poisson,
-            settings,
-            initial=state,
-            start_metrics=metrics,
-        )
-        shape, energy = result.positions, result.energy * spec.mechanics.young * 1e-9
-        key = np.asarray(stimulus, dtype=float).tobytes()
+        if np.allclose(target, np.eye(2), rtol=0.0, atol=UNSTRETCHED):
+            shape, energy, done = flat, 0.0, True  # the sheet as made: stress-free and flat
+        else:
+            result = simulate(
+                sheet.points,
+                sheet.triangles,
+                target,
+                spec.thickness,
+                spec.mechanics.poisson,
+                settings,
+                initial=state,
+                start_metrics=metrics,
+            )
+            shape, done = result.positions, result.converged
+            energy = result.energy * spec.mechanics.young * MM3_TO_M3
+        key = np.round(np.asarray(stimulus, dtype=float), KEY_DIGITS).tobytes()
         if key in seen:
             before = positions[seen[key]]
             gap = _shape_distance(shape, before) / spec.radius
@@ -186,7 +196,7 @@ def equilibria(
         seen.setdefault(key, index)
         positions.append(shape)
         energies.append(energy)
-        converged.append(result.converged)
+        converged.append(done)
         state, metrics = shape, target
         if progress is not None:
             progress(index + 1, len(stimuli))
@@ -209,8 +219,8 @@ class Stroke:
     """One walk along the stimulus path: shapes, Stokeslet points and the net motion.
 
     ``path`` the stations; ``sheet`` the flat disc; ``shapes`` the equilibria;
-    ``trajectory`` the swimmer's poses (mm, rad); ``epsilon`` the regularisation (mm);
-    ``seconds`` the hydrodynamics' wall time.
+    ``trajectory`` the swimmer's poses (mm, rad) over the Stokeslet points;
+    ``epsilon`` the regularisation (mm); ``seconds`` the hydrodynamics' wall time.
     """
 
     spec: SwimmerSpec
@@ -231,6 +241,26 @@ class Stroke:
         """Net rotation vector (3,) in rad."""
         return self.trajectory.rotation
 
+    def refined(self, stokes_rings: int, stride: int = 1) -> Stroke:
+        """The same shapes with another Stokeslet point set and every ``stride``-th station.
+
+        ``stride`` must divide the stations per leg (corners are kept). No simulation is
+        repeated: this is how the hydrodynamic convergence is measured.
+        """
+        if self.spec.stations % stride:
+            raise FabkitError(f"stride {stride} does not divide {self.spec.stations} stations")
+        keep = slice(None, None, stride)
+        path = Path(self.path.stimuli[keep], self.path.parameter[keep])
+        shapes = Shapes(
+            self.shapes.positions[keep],
+            self.shapes.energies[keep],
+            self.shapes.converged[keep],
+            self.shapes.closure,
+            self.shapes.seconds,
+        )
+        sheet = Sheet.build(self.spec.radius, self.spec.mechanics.rings, stokes_rings)
+        return flow(self.spec, path, sheet, shapes)
+
 
 def run_stroke(
     spec: SwimmerSpec,
@@ -241,9 +271,20 @@ def run_stroke(
     path = stations(spec.path, spec.stations)
     sheet = Sheet.build(spec.radius, spec.mechanics.rings, spec.hydrodynamics.rings)
     shapes = equilibria(spec, sheet, path.stimuli, shapes_progress)
+    return flow(spec, path, sheet, shapes, flow_progress)
+
+
+def flow(
+    spec: SwimmerSpec,
+    path: Path,
+    sheet: Sheet,
+    shapes: Shapes,
+    progress: Progress | None = None,
+) -> Stroke:
+    """The net motion over ``shapes`` with ``sheet``'s Stokeslet points."""
     started = time.perf_counter()
     hydro = spec.hydrodynamics
     epsilon = hydro.epsilon_ratio * spec.radius * np.sqrt(np.pi / len(sheet.stokes))
     points = [sheet.carry(p) for p in shapes.positions]
-    trajectory = swim(points, epsilon, hydro.viscosity, flow_progress)
+    trajectory = swim(points, epsilon, hydro.viscosity, progress)
     return Stroke(spec, path, sheet, shapes, trajectory, epsilon, time.perf_counter() - started)

@@ -1,0 +1,76 @@
+"""``fabkit swimmer SPEC --out DIR``: shapes along the cycle, net motion, plots, machine file."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from fabkit.atomic import atomic_path
+from fabkit.progress import ProgressBar
+from fabkit.swimmer.cycle import run_stroke
+from fabkit.swimmer.fabricate import fabricate
+from fabkit.swimmer.report import (
+    describe,
+    plot_cycle,
+    plot_energy,
+    plot_position,
+    save_stroke,
+    summary,
+)
+from fabkit.swimmer.spec import load_swimmer
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "swimmer",
+        help="simulate the bilayer swimmer's cycle, its motion per cycle, and make it",
+        description="Equilibrium shapes along the stimulus path, the force- and torque-free "
+        "motion in Stokes flow (regularised Stokeslets), plots, the work bound per stage, "
+        "and both layers' toolpath and G-code (docs/swimmer.md).",
+    )
+    parser.add_argument("spec", help="swimmer spec (TOML), e.g. examples/swimmer.toml")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    parser.add_argument("--stations", type=int, help="shapes per leg (overrides the spec)")
+    parser.add_argument(
+        "--no-convergence",
+        action="store_true",
+        help="skip the re-solves with half the stations and fewer Stokeslet points",
+    )
+    parser.add_argument("--no-fabricate", action="store_true", help="skip toolpath and G-code")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    spec = load_swimmer(args.spec)
+    if args.stations is not None:
+        spec = spec.with_path(spec.path, args.stations)
+    out = Path(args.out)
+    bars = ProgressBar("shapes"), ProgressBar("flow")
+    try:
+        stroke = run_stroke(spec, *bars)
+    finally:
+        for bar in bars:
+            bar.close()
+    convergence = {}
+    if not args.no_convergence:
+        rings = spec.hydrodynamics.rings
+        coarse = max(2, round(rings / 1.5))
+        convergence[f"Stokeslet rings {coarse}"] = stroke.refined(coarse)
+        if spec.stations % 2 == 0:
+            convergence[f"{spec.stations // 2} stations per leg"] = stroke.refined(rings, 2)
+    data = summary(stroke, convergence)
+    with atomic_path(out / "summary.json") as tmp:
+        tmp.write_text(json.dumps(data, indent=2), encoding="utf-8")
+    save_stroke(stroke, out / "stroke.npz")
+    plot_cycle(stroke, out / "cycle.png")
+    plot_position(stroke, out / "position.png")
+    plot_energy(stroke, out / "energy.png")
+    print(describe(data))
+    names = ["summary.json", "stroke.npz", "cycle.png", "position.png", "energy.png"]
+    if not args.no_fabricate:
+        made = fabricate(spec, out)
+        print("\n".join(made.lines))
+        names += [path.name for path in made.files]
+    print(f"wrote {', '.join(names)} in {out}")
+    return 0

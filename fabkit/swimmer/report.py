@@ -1,0 +1,246 @@
+"""What a swimmer run reports: figures per cycle, energy bounds per stage, plots, files.
+
+* :func:`summary`: displacement per cycle (disc radii and mm), sideways drift, rotation,
+  the same with half the stations and with a coarser Stokeslet point set (convergence),
+  solver flags, closure, timing, and the work bound at every corner of the path;
+* :func:`energy_bounds`: the frustrated energy of the bilayer held flat at every
+  station (:mod:`fabkit.mechanics.energy`, per layer, summed), small-strain and
+  neo-Hookean;
+* :func:`plot_cycle`, :func:`plot_position`, :func:`plot_energy`: PNG figures (Agg);
+* :func:`save_stroke`: the shapes and poses as ``stroke.npz``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fabkit.atomic import atomic_path
+from fabkit.mechanics.energy import DENSITIES
+from fabkit.swimmer.cycle import Stroke
+from fabkit.swimmer.motion import align
+
+MM3_PA_TO_MJ = 1e-6
+"""Pa x mm^3 in mJ."""
+
+
+def energy_bounds(stroke: Stroke) -> dict[str, np.ndarray]:
+    """Work bound (mJ) at every station (M + 1,) per density name.
+
+    Each layer (thickness H / L, flat area pi R^2) held flat stores
+    h A0 lambda1 lambda2 W(lambda1, lambda2); the layers' energies add.
+    """
+    spec = stroke.spec
+    area = np.pi * spec.radius**2
+    layer_thickness = spec.thickness / len(spec.layers)
+    bounds = {}
+    for name, density in DENSITIES.items():
+        total = np.zeros(len(stroke.path.stimuli))
+        for layer in spec.layers:
+            stretches = np.array([layer.stretches(s) for s in stroke.path.stimuli])
+            l1, l2 = stretches[:, 0], stretches[:, 1]
+            w = density(l1, l2, spec.mechanics.young, spec.mechanics.poisson)
+            total += layer_thickness * area * l1 * l2 * w
+        bounds[name] = total * MM3_PA_TO_MJ
+    return bounds
+
+
+def summary(stroke: Stroke, convergence: dict[str, Stroke]) -> dict[str, Any]:
+    """The numbers of a run as a JSON-ready dict (see module docstring).
+
+    ``convergence`` maps a label (e.g. "half stations") to the same stroke re-solved
+    with other discretisation settings (:meth:`Stroke.refined`).
+    """
+    spec = stroke.spec
+    displacement = stroke.displacement
+    corners = np.isclose(stroke.path.parameter, np.round(stroke.path.parameter))
+    bounds = energy_bounds(stroke)
+    return {
+        "displacement_per_cycle_radii": float(displacement[2]),
+        "displacement_per_cycle_mm": float(displacement[2] * spec.radius),
+        "sideways_drift_radii": float(np.hypot(displacement[0], displacement[1])),
+        "rotation_rad": float(np.linalg.norm(stroke.rotation)),
+        "convergence": {
+            label: {
+                "displacement_per_cycle_radii": float(other.displacement[2]),
+                "stokes_points": len(other.sheet.stokes),
+                "stations": len(other.path.stimuli),
+            }
+            for label, other in convergence.items()
+        },
+        "path": spec.path.tolist(),
+        "stations": len(stroke.path.stimuli),
+        "stokes_points": len(stroke.sheet.stokes),
+        "epsilon_mm": stroke.epsilon,
+        "mesh_vertices": len(stroke.sheet.points),
+        "converged": [bool(c) for c in stroke.shapes.converged],
+        "closure_radii": stroke.shapes.closure,
+        "seconds": {"shapes": stroke.shapes.seconds, "hydrodynamics": stroke.seconds},
+        "work_bound_mJ_at_corners": {
+            name: values[corners].tolist() for name, values in bounds.items()
+        },
+        "elastic_energy_mJ": (stroke.shapes.energies * 1e3).tolist(),
+    }
+
+
+def describe(data: dict[str, Any]) -> str:
+    """A few lines for the terminal."""
+    lines = [
+        f"displacement per cycle: {data['displacement_per_cycle_radii']:+.5g} R "
+        f"({data['displacement_per_cycle_mm']:+.4g} mm) along the axis (+ = towards the top layer)",
+        f"sideways drift {data['sideways_drift_radii']:.2g} R, "
+        f"rotation {data['rotation_rad']:.2g} rad",
+    ]
+    for label, item in data["convergence"].items():
+        lines.append(
+            f"  {label:28} {item['displacement_per_cycle_radii']:+.5g} R "
+            f"({item['stations']} shapes, {item['stokes_points']} Stokeslet points)"
+        )
+    failed = data["converged"].count(False)
+    if failed:
+        lines.append(f"warning: {failed} of {len(data['converged'])} shapes did not converge")
+    if data["closure_radii"] > 1e-3:
+        lines.append(
+            f"warning: a stimulus met twice gave shapes {data['closure_radii']:.2g} R apart "
+            "(the sheet changed branch: hysteresis)"
+        )
+    seconds = data["seconds"]
+    lines.append(
+        f"time: shapes {seconds['shapes']:.1f} s, hydrodynamics {seconds['hydrodynamics']:.1f} s"
+    )
+    return "\n".join(lines)
+
+
+def save_stroke(stroke: Stroke, path: Path) -> None:
+    """Stations, mesh, vertex positions, Stokeslet points and poses as ``.npz`` (mm, rad)."""
+    trajectory = stroke.trajectory
+    with atomic_path(path) as tmp:
+        np.savez_compressed(
+            tmp,
+            stimuli=stroke.path.stimuli,
+            parameter=stroke.path.parameter,
+            flat_points=stroke.sheet.points,
+            triangles=stroke.sheet.triangles,
+            positions=stroke.shapes.positions,
+            stokes_flat=stroke.sheet.stokes,
+            stokes_shapes=trajectory.shapes,
+            rotations=trajectory.rotations,
+            translations=trajectory.positions,
+            twists=trajectory.twists,
+        )
+
+
+def _pyplot():
+    """matplotlib.pyplot on the Agg backend (files only, no display)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(figure, path: Path) -> None:
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, dpi=110)
+    _pyplot().close(figure)
+
+
+def _plane(stimuli: np.ndarray) -> np.ndarray:
+    """The first two stimulus components (n, 2) (zeros when there is one)."""
+    if stimuli.shape[1] >= 2:
+        return stimuli[:, :2]
+    return np.column_stack([stimuli[:, 0], np.zeros(len(stimuli))])
+
+
+def plot_cycle(stroke: Stroke, path: Path) -> None:
+    """The path in stimulus space with the equilibrium shape at corners and mid-legs."""
+    plt = _pyplot()
+    spec = stroke.spec
+    plane = _plane(stroke.path.stimuli)
+    figure = plt.figure(figsize=(9, 8))
+    axes = figure.add_axes((0.3, 0.3, 0.4, 0.4))
+    axes.plot(plane[:, 0], plane[:, 1], "o-", color="0.3", markersize=3)
+    for start, end in zip(plane[:-1], plane[1:], strict=True):
+        axes.annotate("", end, start, arrowprops={"arrowstyle": "->", "color": "C0"})
+    names = (*spec.stimuli, "")[:2]
+    axes.set_xlabel(names[0] or "stimulus")
+    axes.set_ylabel(names[1] or "(one stimulus)")
+    axes.set_title("stimulus path and shapes")
+    low, high = plane.min(axis=0), plane.max(axis=0)
+    pad = 0.15 * np.maximum(high - low, 1e-9)
+    axes.set_xlim(low[0] - pad[0], high[0] + pad[0])
+    axes.set_ylim(low[1] - pad[1], high[1] + pad[1])
+    reference = stroke.shapes.positions[0]
+    parameter = stroke.path.parameter
+    legs = int(round(parameter[-1]))
+    chosen = sorted(
+        {int(np.argmin(np.abs(parameter - t))) for t in np.arange(0, legs + 0.5, 0.5)}
+        - {len(parameter) - 1}
+    )
+    center = plane.mean(axis=0)
+    for index in chosen:
+        where = axes.transData.transform(plane[index])
+        outward = plane[index] - center
+        outward = outward / (np.linalg.norm(outward) or 1.0)
+        x, y = figure.transFigure.inverted().transform(where) + 0.3 * outward * [1, 1]
+        inset = figure.add_axes((x - 0.1, y - 0.1, 0.2, 0.2), projection="3d")
+        shape = align(stroke.shapes.positions[index], reference)
+        inset.plot_trisurf(*shape.T, triangles=stroke.sheet.triangles, cmap="viridis", linewidth=0)
+        limit = spec.radius
+        inset.set(xlim=(-limit, limit), ylim=(-limit, limit), zlim=(-limit, limit))
+        inset.set_box_aspect((1, 1, 1))
+        inset.set_axis_off()
+        inset.view_init(elev=20, azim=-60)
+        label = ", ".join(f"{v:g}" for v in np.round(stroke.path.stimuli[index], 3))
+        inset.set_title(f"({label})", fontsize=8, pad=-4)
+    _save(figure, path)
+
+
+def plot_position(stroke: Stroke, path: Path) -> None:
+    """Centroid position along the axis (and sideways) over the cycle, in disc radii."""
+    plt = _pyplot()
+    parameter = stroke.path.parameter
+    position = stroke.trajectory.positions / stroke.spec.radius
+    figure, axes = plt.subplots(figsize=(7, 4), layout="constrained")
+    axes.plot(parameter, position[:, 2], "o-", label="z (axis)", markersize=3)
+    axes.plot(parameter, position[:, 0], "--", label="x", linewidth=0.8)
+    axes.plot(parameter, position[:, 1], ":", label="y", linewidth=0.8)
+    for corner, stimulus in zip(parameter, stroke.path.stimuli, strict=True):
+        if np.isclose(corner, round(corner)):
+            axes.axvline(corner, color="0.8", zorder=0)
+            label = ",".join(f"{v:g}" for v in stimulus)
+            axes.text(
+                corner,
+                1.01,
+                f"({label})",
+                ha="center",
+                fontsize=8,
+                transform=axes.get_xaxis_transform(),
+            )
+    axes.set_xlabel("path coordinate (legs)")
+    axes.set_ylabel("centroid position / R")
+    net = stroke.displacement[2]
+    axes.set_title(f"net displacement per cycle {net:+.4g} R", pad=16)
+    axes.legend()
+    _save(figure, path)
+
+
+def plot_energy(stroke: Stroke, path: Path) -> None:
+    """Work bound (held flat) along the path per stage, and the equilibria's elastic energy."""
+    plt = _pyplot()
+    parameter = stroke.path.parameter
+    figure, axes = plt.subplots(figsize=(7, 4), layout="constrained")
+    for (name, values), style in zip(energy_bounds(stroke).items(), ("-", "--"), strict=True):
+        for leg in range(int(round(parameter[-1]))):
+            part = (parameter >= leg - 1e-9) & (parameter <= leg + 1 + 1e-9)
+            label = f"bound, {name.replace('_', '-')}" if leg == 0 else None
+            axes.plot(parameter[part], values[part], style, color=f"C{leg}", label=label)
+    axes.plot(parameter, stroke.shapes.energies * 1e3, "k.", label="equilibrium elastic energy")
+    axes.set_xlabel("path coordinate (stage)")
+    axes.set_ylabel("energy  [mJ]")
+    axes.set_title("work bound per stage (sheet held flat)")
+    axes.legend(fontsize=8)
+    _save(figure, path)
