@@ -162,8 +162,10 @@ class NewtonSystem:
     orthogonally to the six rigid modes at the current positions. A sparse LU
     factorisation (SuperLU, minimum degree on H + H^T) is the expensive part and is
     reused: each system is solved by conjugate gradients preconditioned with the last
-    factorisation, refactorised only when that needs more than ``CG_ITERATIONS``
-    iterations. ``factorisations`` counts them.
+    factorisation, refactorised when that needs more than ``CG_ITERATIONS`` iterations.
+    After a failed attempt the next attempts are skipped, twice as many after each
+    further failure (a sheet that is still buckling changes too fast for reuse).
+    ``factorisations`` counts the factorisations.
     """
 
     CG_ITERATIONS = 12
@@ -172,6 +174,8 @@ class NewtonSystem:
     def __init__(self) -> None:
         self.factor = None
         self.factorisations = 0
+        self.backoff = 1
+        self.wait = 0
 
     def direction(
         self, hessian: sparse.csr_matrix, gradient: np.ndarray, x: np.ndarray
@@ -186,7 +190,8 @@ class NewtonSystem:
             return vector - modes @ (modes.T @ vector)
 
         right = -project(gradient)
-        if self.factor is not None:
+        self.wait -= 1
+        if self.factor is not None and self.wait < 0:
             shape = matrix.shape
             operator = splinalg.LinearOperator(shape, lambda v: project(matrix @ project(v)))
             precondition = splinalg.LinearOperator(
@@ -200,7 +205,9 @@ class NewtonSystem:
                 M=precondition,
             )
             if info == 0:
+                self.backoff = 1
                 return project(solution)
+            self.wait, self.backoff = self.backoff, 2 * self.backoff
         self.factor = splinalg.splu(
             matrix,
             permc_spec="MMD_AT_PLUS_A",

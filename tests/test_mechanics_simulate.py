@@ -1,0 +1,137 @@
+"""Forward simulation against analytic shapes: cone, anticone, spherical cap, and Fig. 1."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import Delaunay
+
+from fabkit.design.solver import solve
+from fabkit.errors import FabkitError
+from fabkit.mechanics.compare import align, compare, integrated_curvature
+from fabkit.mechanics.mesh import design_mesh, disc_mesh
+from fabkit.mechanics.metric import edge_lengths, metric_from_director, metric_from_lengths
+from fabkit.mechanics.simulate import Settings, simulate, simulate_design, surface_index
+from fabkit.spec import build_spec
+from tests.conftest import ROOT
+
+ALONG, ACROSS = 0.8, 0.8**-0.5
+"""A nematic elastomer's contraction along the director and expansion across it."""
+
+
+def director_metrics(points, triangles, field):
+    """Edge-length metrics of a director field(p) with stretches ALONG, ACROSS."""
+
+    def metric(p):
+        shape = p.shape[:-1]
+        return metric_from_director(field(p), np.full(shape, ALONG), np.full(shape, ACROSS))
+
+    return metric_from_lengths(points, triangles, edge_lengths(points, triangles, metric))
+
+
+def azimuthal(p):
+    return np.stack([-p[..., 1], p[..., 0]], -1)
+
+
+def radial(p):
+    return p
+
+
+def test_azimuthal_director_makes_a_cone():
+    points, triangles = disc_mesh(1.0, 20)  # 2400 triangles
+    metrics = director_metrics(points, triangles, azimuthal)
+    result = simulate(points, triangles, metrics, thickness=1e-3, settings=Settings(steps=1))
+    exact = 2 * np.pi * (1 - ALONG / ACROSS)
+    assert result.converged
+    assert integrated_curvature(result.positions, triangles) == pytest.approx(exact, rel=0.01)
+
+
+def test_radial_director_makes_an_anticone():
+    points, triangles = disc_mesh(1.0, 10)  # 600 triangles
+    metrics = director_metrics(points, triangles, radial)
+    settings = Settings(seed="saddle", max_iterations=300)
+    result = simulate(points, triangles, metrics, thickness=1e-3, settings=settings)
+    excess = 2 * np.pi * (ACROSS / ALONG - 1)
+    assert result.converged
+    assert integrated_curvature(result.positions, triangles) == pytest.approx(-excess, rel=0.01)
+
+
+def test_isotropic_stereographic_metric_makes_a_spherical_cap():
+    """a = (2 / (1 + r^2))^2 I on the disc r <= 0.7 is a cap of the unit sphere."""
+    points, triangles = disc_mesh(1.0, 10)
+    points = 0.7 * points
+
+    def metric(p):
+        scale = 2 / (1 + np.sum(p**2, -1))
+        return scale[..., None, None] ** 2 * np.eye(2)
+
+    metrics = metric_from_lengths(points, triangles, edge_lengths(points, triangles, metric))
+    result = simulate(points, triangles, metrics, thickness=0.01)
+    r2 = np.sum(points**2, 1)[:, None]
+    cap = np.concatenate([2 * points / (1 + r2), (1 - r2) / (1 + r2)], 1)
+    alignment = align(result.positions, cap)
+    assert alignment.max <= 0.02  # pointwise distance / R bounds the Hausdorff distance
+
+
+def test_bilayer_curls_with_timoshenko_curvature_towards_its_contracting_top():
+    """Top layer contracting along x by 1 %, bottom unchanged, equal thicknesses, nu = 0:
+    a cylinder of curvature 1.5 |strain| / h about y, bending towards the top layer."""
+    grid = np.linspace(-1, 1, 15)
+    points = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
+    triangles = Delaunay(points).simplices
+    faces, thickness, stretch = len(triangles), 0.02, 0.99
+    top = metric_from_director(
+        np.tile([1.0, 0.0], (faces, 1)), np.full(faces, stretch), np.ones(faces)
+    )
+    bottom = np.broadcast_to(np.eye(2), (faces, 2, 2))
+    result = simulate(points, triangles, np.stack([bottom, top]), thickness, poisson=0.0)
+    assert result.converged
+    middle = np.abs(points[:, 1]) < 1e-9  # the row y = 0, a circular arc after rolling
+    centre, radius = fit_circle(result.positions[middle])
+    expected = 0.75 * (1 - stretch**2) / thickness
+    assert 1 / radius == pytest.approx(expected, rel=0.05)
+    corners = result.positions[triangles]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    towards_centre = centre - corners.mean(1)
+    assert np.all(np.einsum("fi,fi->f", normals, towards_centre) > 0)
+    assert abs(integrated_curvature(result.positions, triangles)) < 0.01
+
+
+def fit_circle(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre (3,) and radius of the circle through nearly coplanar points (n, 3)."""
+    mean = points.mean(0)
+    _, _, axes = np.linalg.svd(points - mean)
+    plane = (points - mean) @ axes[:2].T
+    system = np.concatenate([2 * plane, np.ones((len(plane), 1))], 1)
+    (a, b, c), *_ = np.linalg.lstsq(system, np.sum(plane**2, 1), rcond=None)
+    return mean + a * axes[0] + b * axes[1], float(np.sqrt(c + a * a + b * b))
+
+
+@pytest.fixture(scope="module")
+def fig1_design():
+    from tests.conftest import example_table
+
+    table = example_table("two_shapes.toml")
+    table["solver"].update(diagonals=60)
+    return solve(build_spec(table, ROOT)).design
+
+
+def test_fig1_sphere_is_reproduced(fig1_design):
+    surface = surface_index(fig1_design, "sphere")
+    simulation = simulate_design(fig1_design, surface, trim=5)
+    report = compare(fig1_design, simulation)
+    assert report.converged
+    assert report.rms <= 0.03, report.table()
+    assert report.strain_median <= 5e-3
+
+
+def test_unknown_stimulus_is_a_one_line_error(fig1_design):
+    with pytest.raises(FabkitError, match="expected a surface name"):
+        surface_index(fig1_design, "cube")
+
+
+def test_design_mesh_carries_material_coordinates(fig1_design):
+    mesh = design_mesh(fig1_design)
+    flat = fig1_design.r[0][mesh.grid[:, 0], mesh.grid[:, 1]]
+    assert np.array_equal(flat, mesh.points)
+    assert len(design_mesh(fig1_design, trim=5).triangles) < len(mesh.triangles)
