@@ -7,6 +7,8 @@ import json
 from pathlib import Path
 
 from fabkit.design.design import Design
+from fabkit.design.patches import MESH_FORMATS
+from fabkit.errors import FabkitError
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.simulate import SEEDS, Settings, simulate_design, surface_index
@@ -41,6 +43,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.out is not None and args.out.suffix.lower() not in MESH_FORMATS:
+        raise FabkitError(f"--out {args.out}: mesh format must be one of {', '.join(MESH_FORMATS)}")
     design = Design.load(args.design)
     surface = surface_index(design, args.stimulus)
     settings = Settings(steps=args.steps, seed=args.seed)
