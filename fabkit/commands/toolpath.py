@@ -26,6 +26,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     process.add_argument("--layer-height", type=float, metavar="MM", help="override layer height")
     process.add_argument("--no-encode", action="store_true", help="do not encode eps")
     process.add_argument("--clip-eps", action="store_true", help="clip eps to the calibration")
+    parser.add_argument(
+        "--end-inset",
+        type=float,
+        default=0.45,
+        metavar="FRACTION",
+        help="line ends stop this fraction of w inside the outline (default 0.45; 0.5: "
+        "roads strictly inside)",
+    )
     parser.add_argument("--layers", type=int, default=1, help="number of layers (default 1)")
     parser.add_argument("--pattern", choices=PATTERNS, default="same", help="layer pattern")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -95,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
         pattern=args.pattern,
         encode=not args.no_encode,
         clip_eps=args.clip_eps,
+        end_inset=args.end_inset,
         out=args.out,
         json=args.json,
     )

@@ -39,6 +39,7 @@ from fabkit.toolpath.baromorph import (
     layout_channels,
     load_baromorph,
 )
+from fabkit.toolpath.lines import LineSettings
 from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.mould import POLARITY, mould_mesh, save_mould
 from fabkit.toolpath.plan import Plan, PlanSettings, plan_toolpath
@@ -66,6 +67,7 @@ class ToolpathJob:
     pattern: str = "same"
     encode: bool = True
     clip_eps: bool = False
+    end_inset: float = LineSettings().end_inset
     out: str = "toolpath"
     json: bool = False
 
@@ -82,7 +84,12 @@ def run_job(job: ToolpathJob) -> JobResult:
     """Load, plan and write everything for ``job``."""
     fields = load_fields(job)
     process = job_process(job)
-    settings = PlanSettings(layers=job.layers, pattern=job.pattern, encode=job.encode)
+    settings = PlanSettings(
+        layers=job.layers,
+        pattern=job.pattern,
+        encode=job.encode,
+        lines=LineSettings(end_inset=job.end_inset),
+    )
     plan = plan_toolpath(fields, process, settings)
     out = Path(job.out)
     files = [out / "toolpath.npz", out / "quality.json", out / "preview.png", out / "preview.svg"]

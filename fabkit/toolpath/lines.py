@@ -7,14 +7,22 @@ outline:
 1. the stripe pattern (:mod:`fabkit.toolpath.stripes`) gives evenly spaced lines whose
    ends sit where the field diverges and a new line must start;
 2. lines are resampled to w/4 and clipped to the outline shrunk by ``end_inset * w``
-   (default w/2, so a road's round end touches the outline and nothing is printed outside);
+   (default 0.45 w: a road's round end reaches at most 0.05 w past the outline, which
+   halves the unfilled corners between neighbouring road ends; 0.5 keeps every road
+   strictly inside);
 3. lines are *stopped where they come closer than* ``close * w`` to another line: of two
    lines too close, the shorter one is cut (a line also may not run back onto itself), and
    line ends that turn more than ``end_angle`` off the director are cut;
 4. line ends are *extended along the director* (RK2, all ends at once) into the gaps that
    open ahead of them, while they stay ``close * w`` away from every other line and inside
    the outline;
-5. lines shorter than ``min_length * w`` are dropped.
+5. *new lines are started where gaps remain* (``gap_rounds`` times): seeds wherever a
+   point of the shrunk outline is ``close * w`` from every line (one per 2 ``close * w``
+   cell, the farthest), grown both ways along the director like the line ends of step 4;
+6. *edge lines*: where the outline runs along the director (within ``edge_angle``) and the
+   strip along it is still uncovered (``edge_close * w`` from every line, i.e. a sliver at
+   least w/2 wide), a line follows the shrunk outline itself;
+7. lines shorter than ``min_length * w`` are dropped.
 """
 
 from __future__ import annotations
@@ -47,14 +55,20 @@ class LineSettings:
     line ends turning more than this off the director are cut. ``extend``: longest
     extension of a line end, in w. ``end_inset``: line ends stay this far inside the
     outline. ``min_length``: shorter lines are dropped. ``sample``: vertex spacing.
+    ``gap_rounds``: rounds of starting new lines in the gaps left. ``edge_close`` and
+    ``edge_angle_deg``: edge lines (step 6) need this clearance, and an outline within this
+    angle of the director.
     """
 
     close: float = 0.75
     end_angle_deg: float = 25.0
     extend: float = 4.0
-    end_inset: float = 0.5
+    end_inset: float = 0.45
     min_length: float = 1.0
     sample: float = 0.25
+    gap_rounds: int = 2
+    edge_close: float = 0.5
+    edge_angle_deg: float = 15.0
     stripes: StripeSettings = field(default_factory=StripeSettings)
 
 
@@ -94,6 +108,9 @@ def lines_from_pattern(
     lines = [line for line in lines if len(line) >= 2]
     lines = trim_lines(lines, flat, settings.close * w, np.radians(settings.end_angle_deg), step)
     lines = extend_lines(lines, flat, inner, settings.close * w, settings.extend * w, step)
+    for _ in range(settings.gap_rounds):
+        lines = fill_gaps(lines, flat, inner, settings.close * w, step, settings.min_length * w)
+    lines += boundary_lines(lines, flat, inner, settings, w)
     return [line for line in lines if polyline_length(line) >= settings.min_length * w]
 
 
@@ -291,6 +308,80 @@ def extend_lines(
         line = result[i]
         result[i] = np.vstack([extra[::-1], line]) if at_end[k] == 0 else np.vstack([line, extra])
     return result
+
+
+def fill_gaps(
+    lines: list[np.ndarray],
+    flat: FlatField,
+    region: shapely.Geometry,
+    distance: float,
+    step: float,
+    min_length: float,
+) -> list[np.ndarray]:
+    """Start new lines in ``region`` wherever a point is ``distance`` (mm) from every line."""
+    low_x, low_y, high_x, high_y = region.bounds
+    spacing = 0.75 * distance
+    xs = np.arange(low_x + spacing / 2, high_x, spacing)
+    ys = np.arange(low_y + spacing / 2, high_y, spacing)
+    grid = np.stack(np.meshgrid(xs, ys, indexing="ij"), axis=-1).reshape(-1, 2)
+    shapely.prepare(region)
+    grid = grid[shapely.contains_xy(region, grid[:, 0], grid[:, 1])]
+    if lines:  # only points farther than ``distance`` matter: bounded queries are quick
+        tree = cKDTree(np.concatenate(lines))
+        grid = grid[~np.isfinite(tree.query(grid, distance_upper_bound=distance)[0])]
+        clearance = tree.query(grid)[0]
+    else:
+        clearance = np.ones(len(grid))
+    if len(grid) == 0:
+        return lines
+    cell = np.floor((grid - [low_x, low_y]) / (2 * distance)).astype(np.int64)
+    key = cell[:, 0] * (cell[:, 1].max() + 1) + cell[:, 1]
+    order = np.lexsort((-clearance, key))
+    first = order[np.concatenate([[True], np.diff(key[order]) != 0])]
+    seeds = grid[first]
+    direction = flat.director(seeds) * (0.5 * step)
+    starts = [np.vstack([p - d, p + d]) for p, d in zip(seeds, direction, strict=True)]
+    longest = 2 * float(np.hypot(high_x - low_x, high_y - low_y))
+    grown = extend_lines(lines + starts, flat, region, distance, longest, step)
+    new = [line for line in grown[len(lines) :] if polyline_length(line) >= min_length]
+    if not new:
+        return lines
+    angle = np.radians(90.0)  # the stripe lines' ends were cut already; only resolve clashes
+    return trim_lines(lines + new, flat, distance, angle, step)
+
+
+def boundary_lines(
+    lines: list[np.ndarray],
+    flat: FlatField,
+    region: shapely.Geometry,
+    settings: LineSettings,
+    road_width: float,
+) -> list[np.ndarray]:
+    """Pieces of ``region``'s boundary that run along the director through uncovered strips."""
+    step = settings.sample * road_width
+    rings = [resample(np.asarray(ring.coords), step) for ring in _rings(region)]
+    rings = [ring for ring in rings if len(ring) > 3]
+    if not rings or not lines:
+        return []
+    tree = cKDTree(np.concatenate(lines))
+    found = []
+    for ring in rings:
+        tangent = np.roll(ring[:-1], -1, axis=0) - np.roll(ring[:-1], 1, axis=0)
+        tangent /= np.maximum(np.linalg.norm(tangent, axis=1), 1e-12)[:, None]
+        along = np.abs((flat.director(ring[:-1]) * tangent).sum(axis=1))
+        clear = tree.query(ring[:-1])[0] >= settings.edge_close * road_width
+        keep = (along >= np.cos(np.radians(settings.edge_angle_deg))) & clear
+        closed = np.vstack([ring[:-1], ring[:1]])
+        found.extend(_kept_runs(closed, ~np.append(keep, keep[0]), True))
+    return [line for line in found if polyline_length(line) >= settings.min_length * road_width]
+
+
+def _rings(region: shapely.Geometry) -> list[shapely.LinearRing]:
+    rings = []
+    for polygon in shapely.get_parts(region):
+        rings.append(polygon.exterior)
+        rings.extend(polygon.interiors)
+    return rings
 
 
 def _aligned(vectors: np.ndarray, reference: np.ndarray) -> np.ndarray:

@@ -349,11 +349,18 @@ def lbfgs(
     x: np.ndarray,
     iterations: int,
     memory: int = 8,
+    tolerance: float = 1e-10,
 ) -> np.ndarray:
-    """Minimise ``function`` (value, gradient) from ``x`` by L-BFGS with backtracking."""
+    """Minimise ``function`` (value, gradient) from ``x`` by L-BFGS with backtracking.
+
+    Stops after ``iterations`` steps, when the RMS gradient falls below ``tolerance``, or
+    when a line search makes no progress (at a minimum to working precision).
+    """
     value, gradient = function(x)
     steps: list[tuple[np.ndarray, np.ndarray, float]] = []
     for _ in range(iterations):
+        if np.sqrt(_dot(gradient, gradient) / len(x)) < tolerance:
+            break
         direction = -gradient.copy()
         alphas = []
         for s, y, rho in reversed(steps):
@@ -370,15 +377,15 @@ def lbfgs(
         slope = _dot(gradient, direction)
         if slope >= 0:
             direction, slope, steps = -gradient, -_dot(gradient, gradient), []
-        if slope == 0:
-            break
         step = 1.0
         while True:
             trial = x + step * direction
             trial_value, trial_gradient = function(trial)
-            if trial_value <= value + 1e-4 * step * slope or step < 1e-10:
+            if trial_value <= value + 1e-4 * step * slope:
                 break
             step *= 0.5
+            if step < 1e-8:
+                return x
         s, y = trial - x, trial_gradient - gradient
         curvature = _dot(s, y)
         if curvature > 1e-300:
