@@ -1,0 +1,65 @@
+"""``fabkit run SPEC --out DIR``: solve, check, draw, plan, export (and send) in one go."""
+
+from __future__ import annotations
+
+import argparse
+
+from fabkit.pipeline import DEFAULT_MACHINE, DEFAULT_SIZE_MM, FORMAT_FILES, RunOptions, run_pipeline
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "run",
+        help="spec to machine files in one go: solve, check, pictures, toolpath, export, send",
+    )
+    parser.add_argument("spec", help="spec file (TOML), e.g. examples/two_shapes.toml")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    parser.add_argument(
+        "--machine",
+        default=DEFAULT_MACHINE,
+        metavar="NAME|FILE",
+        help="machine profile (default %(default)s; see fabkit machines)",
+    )
+    parser.add_argument(
+        "--format",
+        action="append",
+        choices=list(FORMAT_FILES),
+        dest="formats",
+        help="machine file format, repeatable (default gcode)",
+    )
+    parser.add_argument(
+        "--size",
+        type=float,
+        default=DEFAULT_SIZE_MM,
+        metavar="MM",
+        help="longest side of the flat sheet in mm (default %(default)g)",
+    )
+    parser.add_argument(
+        "--process",
+        metavar="FILE",
+        help="TOML whose [process] table replaces the machine's (eps calibration)",
+    )
+    parser.add_argument(
+        "--send",
+        metavar="PORT",
+        help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
+    )
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    options = RunOptions(
+        spec=args.spec,
+        out=args.out,
+        machine=args.machine,
+        formats=tuple(args.formats or ("gcode",)),
+        size_mm=args.size,
+        send=args.send,
+        process_file=args.process,
+    )
+    figures = run_pipeline(options)
+    print(
+        f"done: see {args.out}/report.html (check "
+        f"{'passed' if figures['check']['passed'] else 'FAILED'})"
+    )
+    return 0

@@ -1,0 +1,54 @@
+"""fabkit run: spec to machine files in one go."""
+
+from __future__ import annotations
+
+import json
+
+from tests.conftest import EXAMPLES
+
+
+def test_run_writes_every_file(run_cli, tmp_path):
+    out = tmp_path / "out"
+    code, text, err = run_cli(
+        "run", EXAMPLES / "two_shapes.toml", "--out", out, "--format", "gcode", "--format", "dxf"
+    )
+    assert code == 0, err
+    expected = [
+        "design.npz",
+        "design.json",
+        "report.html",
+        "report.json",
+        "sheet.gcode",
+        "sheet.dxf",
+        "pictures/flat_sheet.png",
+        "pictures/eps.png",
+        "pictures/surfaces.png",
+        "pictures/residuals.png",
+        "patches/1_sphere.ply",
+        "patches/2_bump.ply",
+        "toolpath/toolpath.npz",
+        "toolpath/quality.json",
+        "toolpath/preview.png",
+    ]
+    for name in expected:
+        assert (out / name).is_file(), name
+    leftovers = [p for p in out.rglob("*") if ".part" in p.name]
+    assert leftovers == []
+    figures = json.loads((out / "report.json").read_text())
+    assert figures["check"]["passed"]
+    quality = figures["toolpath quality"][0]
+    # issue 5's bounds for Fig. 1 at 60 mm and the default 0.41 mm road
+    assert quality["empty_fraction"] <= 0.03 and quality["mean_overlap"] <= 0.03
+    assert quality["mean_angle_error_deg"] <= 3.0
+    gcode = (out / "sheet.gcode").read_text()
+    assert ";LAYER:0" in gcode and "G1" in gcode
+    assert "report.html" in text
+
+
+def test_run_bad_inputs_are_one_line(run_cli, tmp_path):
+    code, _, err = run_cli("run", tmp_path / "missing.toml", "--out", tmp_path / "o")
+    assert code == 2 and err.count("\n") == 1 and "does not exist" in err
+    code, _, err = run_cli(
+        "run", EXAMPLES / "two_shapes.toml", "--out", tmp_path / "o", "--machine", "nope"
+    )
+    assert code == 2 and err.count("\n") == 1 and "nope" in err
