@@ -136,7 +136,7 @@ def energy() -> None:
     print(f"energy: baromorph closed form vs direct integration, worst relative {worst:.1e}")
     for stage in (1, 2, 3):
         worst = 0.0
-        for t in np.linspace(0.1, 1, 10):
+        for t in np.linspace(0.05, 0.95, 10):  # stage 3 ends at zero energy
             l1, l2 = cycle_stretches(stage, t, eps)
             formula = cycle_energy(stage, t, eps, area, youngs, poisson, thickness)
             if stage != 2:
