@@ -39,6 +39,7 @@ import shapely.errors
 from scipy.interpolate import RegularGridInterpolator
 from scipy.spatial import cKDTree
 
+from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.expr import parse
 from fabkit.surfaces.analytic import check_keys, number
@@ -291,7 +292,8 @@ def field_from_design(
     """
     if (size_mm is None) == (mm_per_unit is None):
         raise FabkitError("design: give the size (--size MM, longest side) or --scale MM_PER_UNIT")
-    arrays = _load_design(Path(path))
+    design = Design.load(path)
+    arrays = {key: getattr(design, key) for key in DESIGN_KEYS}
     if not 0 <= feature < arrays["eps"].shape[0]:
         raise FabkitError(f"{path}: no eps feature {feature} (it has {arrays['eps'].shape[0]})")
     mesh = _DesignMesh.build(arrays, feature, 1.0, str(path))
@@ -303,30 +305,6 @@ def field_from_design(
     mesh = _DesignMesh.build(arrays, feature, scale, str(path))
     outline = shapely.affinity.scale(outline, scale, scale, origin=(0, 0))
     return FlatField(outline, mesh.theta, mesh.eps, f"{path}")
-
-
-def _load_design(path: Path) -> dict[str, np.ndarray]:
-    if not path.is_file():
-        raise FabkitError(f"design file '{path}' does not exist")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in DESIGN_KEYS if k not in data.files]
-            if missing:
-                raise FabkitError(f"{path}: not a fabkit design file (no '{missing[0]}' array)")
-            arrays = {k: np.asarray(data[k]) for k in DESIGN_KEYS}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise FabkitError(f"{path}: cannot read design file ({exc})") from None
-    nu, nv = len(arrays["u"]), len(arrays["v"])
-    shapes = {
-        "valid": (arrays["valid"].shape, (nu, nv)),
-        "r": (arrays["r"].shape[1:], (nu, nv, 2)),
-        "n": (arrays["n"].shape[1:], (nu, nv, 2)),
-        "eps": (arrays["eps"].shape[1:], (nu, nv)),
-    }
-    for key, (actual, expected) in shapes.items():
-        if actual != expected or (key != "valid" and len(arrays[key]) == 0):
-            raise FabkitError(f"{path}: '{key}' has shape {arrays[key].shape}, expected {expected}")
-    return arrays
 
 
 @dataclass(frozen=True, eq=False)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fabkit.cli import main
@@ -68,6 +69,25 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, arguments, m
     assert code == 2
     assert error.startswith("fabkit: error:") and message in error and "\n" not in error
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_broken_machine_profile_is_one_line(tmp_path, capsys):
+    profile = tmp_path / "machine.toml"
+    profile.write_text('name = "x"\nkind = "pneumatic_diw"\n')
+    arguments = ["--director", "0", "--shape", "disc:2", "--machine", str(profile)]
+    code = main(["toolpath", *arguments, "--out", str(tmp_path / "out")])
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and error.startswith("fabkit: error:") and "\n" not in error
+
+
+def test_alternate_layers_are_staggered(tmp_path):
+    out = tmp_path / "out"
+    arguments = ["--director", "0", "--shape", "square:4", "--road-width", "0.4", "--layers", "2"]
+    assert main(["toolpath", *arguments, "--pattern", "alternate", "--out", str(out)]) == 0
+    first, second = load_toolpath(out / "toolpath.npz").layers
+    heights = [np.array([m.xyz[0, 1] for m in layer.prints]) for layer in (first, second)]
+    gaps = np.abs(heights[1][:, None] - heights[0][None, :]).min(axis=1)
+    assert np.median(gaps) == pytest.approx(0.2, abs=0.01)  # halfway between the lines below
 
 
 def test_channels_command(tmp_path, capsys):

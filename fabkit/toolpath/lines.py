@@ -20,8 +20,9 @@ outline:
    point of the shrunk outline is ``close * w`` from every line (one per 2 ``close * w``
    cell, the farthest), grown both ways along the director like the line ends of step 4;
 6. *edge lines*: where the outline runs along the director (within ``edge_angle``) and the
-   strip along it is still uncovered (``edge_close * w`` from every line, i.e. a sliver at
-   least w/2 wide), a line follows the shrunk outline itself;
+   strip along it is still uncovered (``edge_close * w`` from every line, i.e. a sliver
+   wider than w/2, where a road fills more than it overlaps), a line follows the shrunk
+   outline itself;
 7. lines shorter than ``min_length * w`` are dropped.
 """
 
@@ -67,7 +68,7 @@ class LineSettings:
     min_length: float = 1.0
     sample: float = 0.25
     gap_rounds: int = 2
-    edge_close: float = 0.5
+    edge_close: float = 0.55
     edge_angle_deg: float = 15.0
     stripes: StripeSettings = field(default_factory=StripeSettings)
 
