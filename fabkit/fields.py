@@ -407,7 +407,7 @@ class _DesignMesh:
 class TriangleLocator:
     """Find the first triangle (lowest index) of a planar mesh containing each query point.
 
-    Triangles are binned into a uniform grid of buckets about twice the median triangle
+    Triangles are binned into a uniform grid of buckets about the median triangle
     size; a query tests only the triangles of its bucket, vectorised over all points.
     """
 
@@ -415,7 +415,7 @@ class TriangleLocator:
         self.points, self.triangles = points, triangles
         corners = points[triangles]  # (T, 3, 2)
         low, high = corners.min(axis=1), corners.max(axis=1)
-        size = float(np.median(np.max(high - low, axis=1))) * 2 or 1.0
+        size = float(np.median(np.max(high - low, axis=1))) or 1.0
         self.origin, self.size = low.min(axis=0), size
         self.shape = np.floor((high.max(axis=0) - self.origin) / size).astype(int) + 1
         i0, j0 = self._bucket(low).T
@@ -444,13 +444,13 @@ class TriangleLocator:
         offset = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
         candidate = self.members[self.starts[bucket[query]] + offset]
         weights = _barycentric(points[query], self.points[self.triangles[candidate]])
-        hit = (weights >= -1e-9).all(axis=1)
-        found = np.full(len(points), len(self.triangles))
-        np.minimum.at(found, query[hit], candidate[hit])
-        triangle = np.where(found < len(self.triangles), found, -1)
+        hit = np.flatnonzero((weights >= -1e-9).all(axis=1))
+        # per query point, the containing triangle of lowest index (members are sorted)
+        first = hit[np.concatenate([[True], np.diff(query[hit]) != 0])] if len(hit) else hit
+        triangle = np.full(len(points), -1)
+        triangle[query[first]] = candidate[first]
         result = np.zeros((len(points), 3))
-        chosen = hit & (candidate == found[query])
-        result[query[chosen]] = weights[chosen]
+        result[query[first]] = weights[first]
         return triangle, result
 
 
