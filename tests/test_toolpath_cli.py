@@ -71,6 +71,13 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, arguments, m
     assert not out.exists() or not any(out.iterdir())
 
 
+def test_clipped_eps_is_a_warning_with_the_fraction(tmp_path, capsys):
+    arguments = ["--director", "0", "--shape", "disc:3", "--eps", "x/2", "--clip-eps"]
+    assert main(["toolpath", *arguments, "--process", str(PROCESS), "--out", str(tmp_path)]) == 0
+    warning = capsys.readouterr().err.strip()
+    assert warning.startswith("fabkit: warning:") and "eps clipped" in warning and "%" in warning
+
+
 def test_a_broken_machine_profile_is_one_line(tmp_path, capsys):
     profile = tmp_path / "machine.toml"
     profile.write_text('name = "x"\nkind = "pneumatic_diw"\n')
