@@ -58,6 +58,8 @@ def test_design_with_encoding_and_a_bilayer(tmp_path, capsys):
         (["--director", "phi"], "--director needs --shape"),
         (["--director", "import os", "--shape", "disc:3"], "cannot parse"),
         (["--director", "phi", "--shape", "disc:3", "--layers", "0"], "--layers"),
+        (["--director", "phi", "--shape", "disc:3", "--end-inset", "2"], "--end-inset"),
+        (["--director", "phi", "--shape", "disc:3", "--road-width", "-1"], "road_width_mm"),
         (["--director", "phi", "--shape", "disc:3", "--process", "missing.toml"], "missing"),
     ],
 )

@@ -82,6 +82,8 @@ class JobResult:
 
 def run_job(job: ToolpathJob) -> JobResult:
     """Load, plan and write everything for ``job``."""
+    if not 0 <= job.end_inset <= 1:
+        raise FabkitError(f"--end-inset {job.end_inset:g}: expected a fraction of w in [0, 1]")
     fields = load_fields(job)
     process = job_process(job)
     settings = PlanSettings(
