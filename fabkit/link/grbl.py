@@ -1,0 +1,214 @@
+"""The GRBL 1.1 protocol: character counting, ``ok`` / ``error:N``, real-time bytes.
+
+GRBL answers every line with exactly one ``ok`` or ``error:N``, in order, and keeps the
+lines it has not parsed in a receive buffer (128 bytes, 127 usable). The sender counts
+the bytes of the unanswered lines and sends a line only if it fits (character
+counting). Real-time bytes skip the buffer: ``?`` asks for a status report, ``!`` holds
+the feed, ``~`` resumes, Ctrl-X resets.
+
+A lost ``ok`` leaves a phantom line in the count; when the machine has been quiet for a
+while with lines in flight, ``?`` is sent, and an ``Idle`` report then proves that
+every line sent has been executed. ``error:N`` (the line was not executed and the job
+cannot continue as written) and ``ALARM:N`` stop the job: the feed is held, the machine
+soft-reset and the profile's safe-stop snippet sent.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+
+from fabkit.errors import FabkitError
+from fabkit.link.session import SendReport, Session
+
+HOLD, RESUME, STATUS, RESET = b"!", b"~", b"?", b"\x18"
+ERRORS = {
+    1: "expected a command letter",
+    2: "bad number format",
+    9: "G-code locked out during alarm",
+    11: "line too long",
+    20: "unsupported command",
+    22: "feed rate not set",
+    25: "repeated word",
+    33: "invalid motion target",
+}
+ALARMS = {
+    1: "hard limit",
+    2: "soft limit",
+    3: "reset while in motion",
+    4: "probe fail",
+    6: "homing fail (reset)",
+    8: "homing fail (pull-off)",
+    9: "homing fail (switch not found)",
+}
+
+
+class GrblProtocol(Session):
+    """Streams a job to GRBL (see the module docstring)."""
+
+    protocol = "grbl"
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.rx_usable = self.serial.rx_buffer_bytes - 1
+        self.max_lines = self.options.window_lines or self.serial.planner_depth
+        longest = max((len(c.text) + 1 for c in self.job), default=0)
+        if longest > self.rx_usable:
+            raise FabkitError(
+                f"a {longest - 1}-character command does not fit in the "
+                f"{self.serial.rx_buffer_bytes}-byte receive buffer of {self.machine.name}"
+            )
+        self.inflight: deque[int] = deque()  # bytes of each unanswered line
+        self.inflight_bytes = 0
+        self.sent = 0
+        self.acked = 0
+        self.last_query_s = 0.0
+        self.quiet_query = False
+        self.held = False
+        self.ok_gap_s = 0.05
+        self.last_ok_s = time.monotonic()
+
+    def run(self) -> SendReport:
+        """Handshake, stream the whole job, return the report (FabkitError on failure)."""
+        self._handshake()
+        while self.acked < len(self.job):
+            if self.control.aborted:
+                self._abort("safe-stop sent")
+            self._hold(self.control.paused)
+            self._fill()
+            line = self.read_line()
+            if line is None:
+                self._on_silence()
+            else:
+                self._on_line(line)
+        self.show(self.acked, force=True)
+        return self.report()
+
+    # -- handshake and sending -------------------------------------------------------------
+
+    def _handshake(self) -> None:
+        deadline = time.monotonic() + self.options.handshake_s
+        while time.monotonic() < deadline:
+            self.write(STATUS)
+            retry_at = time.monotonic() + 0.5
+            while time.monotonic() < min(retry_at, deadline):
+                line = self.read_line()
+                if line is None:
+                    continue
+                if line.startswith("<Alarm"):
+                    raise FabkitError(
+                        f"{self.port_name} is in ALARM state: home ($H) or unlock ($X) it first"
+                    )
+                if line.startswith("<"):
+                    return
+                if line.startswith("Grbl"):
+                    break
+        raise FabkitError(
+            f"no answer from {self.port_name} at {self.serial.baud} baud: is it a GRBL "
+            "machine and the baud rate right?"
+        )
+
+    def _fill(self) -> None:
+        frames = []
+        while self.sent < len(self.job) and not self.held:
+            frame = self.job[self.sent].text.encode("ascii") + b"\n"
+            full = self.inflight_bytes + len(frame) > self.rx_usable
+            if full or len(self.inflight) >= self.max_lines:
+                break
+            self.inflight.append(len(frame))
+            self.inflight_bytes += len(frame)
+            self.sent += 1
+            self.transmissions += 1
+            frames.append(frame)
+        if frames:
+            self.quiet_query = False
+            self.write(b"".join(frames))
+
+    def _hold(self, paused: bool) -> None:
+        if paused != self.held:
+            self.held = paused
+            self.write(HOLD if paused else RESUME)
+            self.show(self.acked, "paused (feed hold)" if paused else "", force=True)
+
+    # -- answers ---------------------------------------------------------------------------
+
+    def _on_line(self, line: str) -> None:
+        if line == "ok":
+            now = time.monotonic()
+            self.ok_gap_s = 0.8 * self.ok_gap_s + 0.2 * (now - self.last_ok_s)
+            self.last_ok_s = now
+            self._retire(1)
+            self.show(self.acked)
+        elif line.startswith("error:"):
+            code = _code(line)
+            failed = self.job[self.acked] if self.acked < len(self.job) else None
+            where = f"file line {failed.file_line} ('{failed.text}')" if failed else "a line"
+            self._abort(f"{self.port_name} rejected {where}: {line} {ERRORS.get(code, '')}")
+        elif line.startswith("ALARM:"):
+            self._abort(f"{self.port_name} raised {line} {ALARMS.get(_code(line), '')}")
+        elif line.startswith("<"):
+            if line.startswith("<Idle") and self.quiet_query and self.inflight:
+                self.recoveries += 1  # idle and quiet: every line sent was executed
+                self._retire(len(self.inflight))
+        elif line.startswith("Grbl"):
+            raise self.lost(self.acked, "the machine reset during the job")
+
+    def _retire(self, count: int) -> None:
+        for _ in range(min(count, len(self.inflight))):
+            self.inflight_bytes -= self.inflight.popleft()
+            self.acked += 1
+
+    def _on_silence(self) -> None:
+        if not self.inflight:
+            return
+        now = time.monotonic()
+        if now - self.last_rx_s > self.options.dead_s:
+            raise self.lost(self.acked, f"no answer for {self.options.dead_s:g} s")
+        options = self.options
+        probe_after = min(max(8 * self.ok_gap_s, options.probe_min_s), options.probe_max_s)
+        quiet = now - max(self.last_rx_s, self.last_tx_s)
+        if quiet >= probe_after and now - self.last_query_s >= probe_after:
+            self.last_query_s = now
+            self.probes += 1
+            self.quiet_query = not self.held
+            self.write(STATUS)
+
+    # -- stopping --------------------------------------------------------------------------
+
+    def _abort(self, detail: str) -> None:
+        """Hold, reset, send the safe-stop snippet; raise FabkitError with ``detail``."""
+        done = self.acked
+        self.write(HOLD)
+        self._wait_for(("<Hold:0", "<Idle"), STATUS, 2.0)
+        self.write(RESET)
+        if any(line.startswith("ALARM") for line in self._wait_for(("Grbl",), b"", 3.0)):
+            detail += "; the machine is in ALARM after the reset (unlock with $X)"
+        else:
+            for text in self.machine.render("safe_stop_gcode"):
+                self.write(text.encode("ascii") + b"\n")
+                self._wait_for(("ok", "error:"), b"", 5.0)
+        raise self.aborted_error(done, detail)
+
+    def _wait_for(self, prefixes: tuple[str, ...], query: bytes, timeout_s: float) -> list[str]:
+        """The lines read until one starts with one of ``prefixes`` or ``timeout_s`` passed,
+        sending ``query`` every 0.1 s if given."""
+        seen: list[str] = []
+        deadline = time.monotonic() + timeout_s
+        next_query = 0.0
+        while time.monotonic() < deadline:
+            if query and time.monotonic() >= next_query:
+                self.write(query)
+                next_query = time.monotonic() + 0.1
+            line = self.read_line()
+            if line is None:
+                continue
+            seen.append(line)
+            if line.startswith(prefixes):
+                break
+        return seen
+
+
+def _code(line: str) -> int:
+    """The number of ``error:N`` / ``ALARM:N`` (0 if none)."""
+    digits = line.split(":", 1)[1].strip()
+    return int(digits) if digits.isdigit() else 0

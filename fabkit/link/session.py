@@ -1,0 +1,286 @@
+"""What both protocols share: options, user controls, progress, the report, port I/O.
+
+A protocol (:class:`~fabkit.link.marlin.MarlinProtocol`,
+:class:`~fabkit.link.grbl.GrblProtocol`) subclasses :class:`Session` and drives an
+already-open serial-like port: anything with ``read(n)``, ``write(b)``, ``in_waiting``
+and a ``timeout`` attribute (pyserial ports, the ``sim://`` emulator, test doubles).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol, TextIO
+
+from fabkit.errors import FabkitError
+from fabkit.link.gcode import Command
+from fabkit.machines import MachineProfile
+
+
+class SerialLike(Protocol):
+    """The part of a pyserial port the link uses."""
+
+    timeout: float | None
+
+    @property
+    def in_waiting(self) -> int: ...
+
+    def read(self, size: int = 1) -> bytes: ...
+
+    def write(self, data: bytes) -> int | None: ...
+
+
+@dataclass(frozen=True)
+class LinkOptions:
+    """Tuning of the link (s). The defaults suit real machines and the emulator alike.
+
+    ``window_lines`` caps the lines in flight (None: the profile's planner depth;
+    1: one line per ``ok``, the classic ping-pong). A silent machine with lines in
+    flight is probed after between ``probe_min_s`` and ``probe_max_s`` (adapting to the
+    recent pace of answers); it counts as lost after ``dead_s`` of silence, or
+    ``wait_dead_s`` while a waiting command (heat-up, homing, dwell) is in flight.
+    """
+
+    window_lines: int | None = None
+    poll_s: float = 0.01
+    probe_min_s: float = 0.05
+    probe_max_s: float = 2.0
+    assume_idle_s: float = 5.0
+    dead_s: float = 30.0
+    wait_dead_s: float = 1800.0
+    handshake_s: float = 10.0
+    finish_s: float = 60.0
+
+
+class LinkControl:
+    """Pause, resume and abort requests, safe to call from signal handlers or threads."""
+
+    def __init__(self) -> None:
+        self._paused = threading.Event()
+        self._aborted = threading.Event()
+
+    def pause(self) -> None:
+        self._paused.set()
+
+    def resume(self) -> None:
+        self._paused.clear()
+
+    def toggle_pause(self) -> None:
+        if self._paused.is_set():
+            self.resume()
+        else:
+            self.pause()
+
+    def abort(self) -> None:
+        self._aborted.set()
+
+    @property
+    def paused(self) -> bool:
+        return self._paused.is_set()
+
+    @property
+    def aborted(self) -> bool:
+        return self._aborted.is_set()
+
+
+class Progress:
+    """A progress bar (lines, %, ETA) redrawn at most every ``interval_s`` on ``stream``.
+
+    On a terminal it redraws one line; otherwise it prints a line every 10 %.
+    """
+
+    def __init__(self, stream: TextIO | None, total: int, interval_s: float = 0.2) -> None:
+        self.stream = stream
+        self.total = total
+        self.interval_s = interval_s
+        self.tty = bool(stream) and stream.isatty()
+        self.t0 = time.monotonic()
+        self.last_draw = -1.0
+        self.last_decile = -1
+        self.last_done = -1
+
+    def update(self, done: int, file_line: int, note: str = "", *, force: bool = False) -> None:
+        """``done`` of ``total`` lines acknowledged, the last one at ``file_line``."""
+        if self.stream is None:
+            return
+        now = time.monotonic()
+        fraction = done / self.total if self.total else 1.0
+        decile = int(10 * fraction)
+        due = now - self.last_draw >= self.interval_s if self.tty else decile > self.last_decile
+        if not (due or force) or (force and not self.tty and done == self.last_done):
+            return
+        self.last_draw = now
+        self.last_decile = decile
+        self.last_done = done
+        elapsed = now - self.t0
+        eta = elapsed * (1 - fraction) / fraction if fraction > 0 else 0.0
+        bar = "#" * int(20 * fraction)
+        text = (
+            f"[{bar:<20}] {100 * fraction:5.1f}%  {done}/{self.total} lines  "
+            f"file line {file_line}  ETA {_clock(eta)}"
+        )
+        if note:
+            text += f"  {note}"
+        self.stream.write("\r" + text.ljust(100)[:120] if self.tty else text + "\n")
+        self.stream.flush()
+
+    def finish(self) -> None:
+        if self.stream is not None and self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _clock(seconds: float) -> str:
+    seconds = int(seconds)
+    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
+
+
+@dataclass(frozen=True)
+class SendReport:
+    """What a finished job did (s, bytes, lines)."""
+
+    port: str
+    protocol: str
+    job_lines: int
+    first_file_line: int
+    last_file_line: int
+    elapsed_s: float
+    bytes_sent: int
+    transmissions: int
+    resends: int
+    probes: int
+    recoveries: int
+    warnings: tuple[str, ...]
+
+    @property
+    def lines_per_s(self) -> float:
+        return self.job_lines / self.elapsed_s if self.elapsed_s > 0 else float("inf")
+
+    def summary(self) -> str:
+        text = (
+            f"sent {self.job_lines} lines (file lines {self.first_file_line}-"
+            f"{self.last_file_line}) to {self.port} in {self.elapsed_s:.1f} s "
+            f"({self.lines_per_s:.0f} lines/s, {self.protocol}); "
+            f"{self.resends} resends, {self.probes} probes, {self.recoveries} recoveries"
+        )
+        return "\n".join([text, *(f"warning: {w}" for w in self.warnings)])
+
+
+class Session:
+    """Port I/O, line splitting, logging and bookkeeping shared by the protocols."""
+
+    protocol = ""
+
+    def __init__(
+        self,
+        port: SerialLike,
+        port_name: str,
+        job: Sequence[Command],
+        machine: MachineProfile,
+        options: LinkOptions,
+        control: LinkControl,
+        progress: Progress | None,
+        log: TextIO | None,
+    ) -> None:
+        if machine.serial is None:
+            raise FabkitError(f"machine {machine.name} has flavour none and takes no G-code")
+        self.port = port
+        self.port_name = port_name
+        self.job = job
+        self.machine = machine
+        self.serial = machine.serial
+        self.options = options
+        self.control = control
+        self.progress = progress
+        self.log = log
+        self.rx = bytearray()
+        self.t0 = time.monotonic()
+        self.last_rx_s = self.last_tx_s = self.t0
+        self.bytes_sent = 0
+        self.transmissions = 0
+        self.resends = 0
+        self.probes = 0
+        self.recoveries = 0
+        self.warnings: list[str] = []
+        self.aborting = False
+        port.timeout = options.poll_s
+
+    # -- I/O -------------------------------------------------------------------------------
+
+    def write(self, data: bytes) -> None:
+        """Send bytes; a dead port becomes the protocol's 'lost connection' error."""
+        self.port.write(data)
+        self.bytes_sent += len(data)
+        self.last_tx_s = time.monotonic()
+        if self.log is not None:
+            for line in data.decode("latin-1").splitlines() or [repr(data)]:
+                self.log.write(f"{self.last_tx_s - self.t0:10.4f} >> {line}\n")
+
+    def discard_input(self) -> None:
+        """Forget what arrived before now (a power-up banner, a previous session)."""
+        reset = getattr(self.port, "reset_input_buffer", None)
+        if reset is not None:
+            reset()
+        self.rx.clear()
+
+    def read_line(self) -> str | None:
+        """The next line from the machine (stripped), or None after ``poll_s`` without one."""
+        i = self.rx.find(b"\n")
+        if i < 0:
+            waiting = self.port.in_waiting
+            self.rx += self.port.read(waiting or 1)
+            i = self.rx.find(b"\n")
+            if i < 0:
+                return None
+        raw = bytes(self.rx[:i])
+        del self.rx[: i + 1]
+        self.last_rx_s = time.monotonic()
+        line = raw.decode("latin-1").strip()
+        if self.log is not None:
+            self.log.write(f"{self.last_rx_s - self.t0:10.4f} << {line}\n")
+        return line
+
+    # -- results ---------------------------------------------------------------------------
+
+    def file_line_after(self, done: int) -> int:
+        """The file line of the ``done``-th job line (the first line's predecessor if 0)."""
+        if not self.job:
+            return 0
+        return self.job[done - 1].file_line if done > 0 else self.job[0].file_line - 1
+
+    def lost(self, done: int, reason: str) -> FabkitError:
+        """The one-line error for a connection lost after ``done`` job lines."""
+        last = self.file_line_after(done)
+        return FabkitError(
+            f"lost the connection to {self.port_name} ({reason}); last acknowledged file line "
+            f"{last}; after reconnecting continue with --resume-from {last + 1}"
+        )
+
+    def aborted_error(self, done: int, detail: str) -> FabkitError:
+        last = self.file_line_after(done)
+        return FabkitError(
+            f"aborted: {detail}; last acknowledged file line {last}; "
+            f"continue later with --resume-from {last + 1}"
+        )
+
+    def report(self) -> SendReport:
+        return SendReport(
+            port=self.port_name,
+            protocol=self.protocol,
+            job_lines=len(self.job),
+            first_file_line=self.job[0].file_line if self.job else 0,
+            last_file_line=self.job[-1].file_line if self.job else 0,
+            elapsed_s=time.monotonic() - self.t0,
+            bytes_sent=self.bytes_sent,
+            transmissions=self.transmissions,
+            resends=self.resends,
+            probes=self.probes,
+            recoveries=self.recoveries,
+            warnings=tuple(self.warnings),
+        )
+
+    def show(self, done: int, note: str = "", *, force: bool = False) -> None:
+        if self.progress is not None:
+            self.progress.update(done, self.file_line_after(done), note, force=force)

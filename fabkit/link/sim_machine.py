@@ -1,0 +1,425 @@
+"""Parts shared by the emulated firmwares: wires, trace, counters, motion and heaters.
+
+Everything runs on one clock, in seconds, given by the caller (``t``); nothing here
+sleeps or reads the real time. Bytes travel at ``byte_s`` seconds per byte (10 bits
+per byte at the emulated baud rate; 0 = instantaneous) plus a fixed ``latency_s``.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections import deque
+from dataclasses import dataclass
+
+INF = math.inf
+_EPS = 1e-6  # of a byte time: keeps float arrival times from missing a byte
+
+
+@dataclass(frozen=True)
+class TraceEntry:
+    """One command the emulated machine executed, in order.
+
+    ``n`` is the Marlin line number (None for unnumbered lines and GRBL), ``command``
+    the text as parsed (line number and checksum removed); the position (mm) is the
+    logical tool position after the command, as the firmware would report it;
+    ``t_s`` is the emulator time at which it was executed.
+    """
+
+    n: int | None
+    command: str
+    x_mm: float
+    y_mm: float
+    z_mm: float
+    e_mm: float
+    t_s: float
+
+
+@dataclass
+class Counters:
+    """Live counts of what happened inside the emulator (mutated as it runs)."""
+
+    executed: int = 0
+    corrupted_lines: int = 0
+    dropped_oks: int = 0
+    garbled_lines: int = 0
+    spurious_lines: int = 0
+    rejected_lines: int = 0
+    drained_bytes: int = 0
+    overflow_bytes: int = 0
+    unknown_commands: int = 0
+    max_rx_bytes: int = 0
+    resets: int = 0
+
+
+@dataclass(frozen=True)
+class Faults:
+    """Fault injection settings (probabilities per line; counts of executed commands)."""
+
+    corrupt: float = 0.0
+    drop_ok: float = 0.0
+    garble: float = 0.0
+    noise: float = 0.0
+    reset_after: int | None = None
+    disconnect_after: int | None = None
+
+
+class Input:
+    """Host-to-machine bytes: the wire (with timing) and the firmware's receive ring.
+
+    While the firmware reads, complete lines are taken as their newline arrives; while
+    it is busy, arriving bytes fill the ring up to ``capacity`` and the rest are lost
+    (counted in ``overflow_bytes``). ``realtime`` bytes (GRBL's ``? ! ~`` and Ctrl-X)
+    never enter the ring: they become events at their arrival time.
+    """
+
+    def __init__(
+        self,
+        byte_s: float,
+        latency_s: float,
+        capacity: int,
+        counters: Counters,
+        realtime: bytes = b"",
+    ) -> None:
+        self.byte_s = byte_s
+        self.latency_s = latency_s
+        self.capacity = capacity
+        self.counters = counters
+        self.realtime = realtime
+        self.chunks: deque[list] = deque()  # [t of byte 0, data, consumed offset]
+        self.free_at = -INF
+        self.pending = bytearray()
+        self.rt_events: deque[tuple[float, int]] = deque()
+
+    def push(self, data: bytes, now: float) -> None:
+        """The host writes ``data`` at ``now``; it reaches the machine byte by byte."""
+        start = max(now, self.free_at)
+        self.free_at = start + len(data) * self.byte_s
+        base = start + self.byte_s + self.latency_s
+        if not self.realtime or len(data.translate(None, self.realtime)) == len(data):
+            self.chunks.append([base, data, 0])
+            return
+        run_start = 0
+        for i, byte in enumerate(data):
+            if byte in self.realtime:
+                if i > run_start:
+                    self.chunks.append([base + run_start * self.byte_s, data[run_start:i], 0])
+                self.rt_events.append((base + i * self.byte_s, byte))
+                run_start = i + 1
+        if run_start < len(data):
+            self.chunks.append([base + run_start * self.byte_s, data[run_start:], 0])
+
+    def _arrived(self, chunk: list, t: float) -> int:
+        """How many not-yet-consumed bytes of ``chunk`` have arrived by ``t``."""
+        t0, data, off = chunk
+        if self.byte_s == 0:
+            return len(data) - off if t >= t0 else 0
+        k = math.floor((t - t0) / self.byte_s + _EPS) + 1
+        return max(0, min(len(data), k) - off)
+
+    def _take_arrived(self, t: float) -> bytes:
+        taken = bytearray()
+        while self.chunks:
+            chunk = self.chunks[0]
+            n = self._arrived(chunk, t)
+            if n == 0:
+                break
+            taken += chunk[1][chunk[2] : chunk[2] + n]
+            chunk[2] += n
+            if chunk[2] < len(chunk[1]):
+                break
+            self.chunks.popleft()
+        return bytes(taken)
+
+    def next_newline_time(self) -> float:
+        """When the next complete line is available (-inf: already)."""
+        if b"\n" in self.pending:
+            return -INF
+        for t0, data, off in self.chunks:
+            i = data.find(b"\n", off)
+            if i >= 0:
+                return t0 + i * self.byte_s
+        return INF
+
+    def next_realtime_time(self) -> float:
+        return self.rt_events[0][0] if self.rt_events else INF
+
+    def pop_realtime(self) -> int:
+        return self.rt_events.popleft()[1]
+
+    def take_line(self, t: float) -> bytes | None:
+        """The next complete line (without its newline) arrived by ``t``, or None."""
+        i = self.pending.find(b"\n")
+        if i < 0:
+            self.pending += self._take_arrived(t)
+            i = self.pending.find(b"\n")
+            if i < 0:
+                return None
+        line = bytes(self.pending[:i])
+        del self.pending[: i + 1]
+        return line
+
+    def fill(self, t: float) -> None:
+        """The firmware is busy: bytes arrived by ``t`` wait in the ring or are lost."""
+        if len(self.pending) > self.capacity:
+            self.counters.overflow_bytes += len(self.pending) - self.capacity
+            del self.pending[self.capacity :]
+        arrived = self._take_arrived(t)
+        room = self.capacity - len(self.pending)
+        if len(arrived) > room:
+            self.counters.overflow_bytes += len(arrived) - room
+            arrived = arrived[:room]
+        self.pending += arrived
+        self.counters.max_rx_bytes = max(self.counters.max_rx_bytes, len(self.pending))
+
+    def drain(self, t: float) -> None:
+        """Throw away everything received by ``t`` (Marlin does so on a line error)."""
+        dropped = len(self.pending) + len(self._take_arrived(t))
+        self.counters.drained_bytes += dropped
+        self.pending.clear()
+
+
+class Output:
+    """Machine-to-host lines, with byte timing and the faults that hit them."""
+
+    def __init__(
+        self,
+        byte_s: float,
+        latency_s: float,
+        eol: bytes,
+        faults: Faults,
+        rng: random.Random,
+        counters: Counters,
+        noise_lines: tuple[str, ...],
+    ) -> None:
+        self.byte_s = byte_s
+        self.latency_s = latency_s
+        self.eol = eol
+        self.faults = faults
+        self.rng = rng
+        self.counters = counters
+        self.noise_lines = noise_lines
+        self.items: deque[tuple[float, bytes]] = deque()
+        self.free_at = -INF
+
+    def line(self, text: str, t: float) -> None:
+        """Send one line at ``t``, subject to the injected faults."""
+        faults, rng = self.faults, self.rng
+        if faults.noise and rng.random() < faults.noise:
+            self.counters.spurious_lines += 1
+            self.raw(rng.choice(self.noise_lines).encode("latin-1") + self.eol, t)
+        if faults.drop_ok and text.startswith("ok") and rng.random() < faults.drop_ok:
+            self.counters.dropped_oks += 1
+            return
+        data = text.encode("latin-1")
+        if faults.garble and data and rng.random() < faults.garble:
+            self.counters.garbled_lines += 1
+            data = flip_bit(data, rng)
+        self.raw(data + self.eol, t)
+
+    def raw(self, data: bytes, t: float) -> None:
+        """Send bytes at ``t`` without faults."""
+        start = max(t, self.free_at)
+        self.free_at = start + len(data) * self.byte_s
+        self.items.append((self.free_at + self.latency_s, data))
+
+    def next_time(self) -> float:
+        return self.items[0][0] if self.items else INF
+
+    def take(self, now: float) -> bytes:
+        """The bytes that have reached the host by ``now``."""
+        out = bytearray()
+        while self.items and self.items[0][0] <= now:
+            out += self.items.popleft()[1]
+        return bytes(out)
+
+
+def flip_bit(data: bytes, rng: random.Random) -> bytes:
+    """``data`` with one random bit of one random byte flipped (a UART bit error)."""
+    i = rng.randrange(len(data))
+    return data[:i] + bytes([data[i] ^ (1 << rng.randrange(8))]) + data[i + 1 :]
+
+
+class Heater:
+    """A first-order heater: the temperature approaches the set point with time constant
+    ``tau_s`` (scaled by the emulator's time scale; 0 = instantly), degrees C."""
+
+    AMBIENT_C = 25.0
+
+    def __init__(self, tau_s: float) -> None:
+        self.tau_s = tau_s
+        self.temp_c = self.AMBIENT_C
+        self.target_c = 0.0
+        self.t_ref = 0.0
+
+    def _goal(self) -> float:
+        return max(self.target_c, self.AMBIENT_C)
+
+    def update(self, t: float) -> None:
+        goal = self._goal()
+        if self.tau_s <= 0:
+            self.temp_c = goal
+        elif t > self.t_ref:
+            self.temp_c = goal + (self.temp_c - goal) * math.exp(-(t - self.t_ref) / self.tau_s)
+        self.t_ref = max(t, self.t_ref)
+
+    def set_target(self, target_c: float, t: float) -> None:
+        self.update(t)
+        self.target_c = target_c
+
+    def reach_time(self, t: float, window_c: float = 1.0) -> float:
+        """When the temperature will be within ``window_c`` of the set point."""
+        self.update(t)
+        gap = abs(self.temp_c - self._goal())
+        if gap <= window_c or self.tau_s <= 0:
+            return t
+        return t + self.tau_s * math.log(gap / window_c)
+
+
+_AXES = "XYZE"
+
+
+class Motion:
+    """Tool position, modal state and the planner's timeline (mm, mm/s, s).
+
+    Moves are queued in a planner of ``depth`` blocks; each takes length / feed times
+    ``time_scale`` seconds, one after the other. A feed hold (GRBL ``!``) freezes the
+    timeline until resumed.
+    """
+
+    def __init__(self, depth: int, time_scale: float, rapid_mm_s: float) -> None:
+        self.depth = depth
+        self.time_scale = time_scale
+        self.rapid_mm_s = rapid_mm_s
+        self.pos = [0.0, 0.0, 0.0, 0.0]
+        self.absolute = True
+        self.absolute_e = True
+        self.unit_mm = 1.0
+        self.feed_mm_s: float | None = None
+        self.ends: deque[float] = deque()
+        self.last_end = -INF
+        self.held_since: float | None = None
+
+    def _prune(self, t: float) -> None:
+        if self.held_since is None:
+            while self.ends and self.ends[0] <= t:
+                self.ends.popleft()
+
+    def full(self, t: float) -> bool:
+        self._prune(t)
+        return len(self.ends) >= self.depth
+
+    def busy(self, t: float) -> bool:
+        self._prune(t)
+        return bool(self.ends)
+
+    def free_time(self) -> float:
+        """When the oldest planned block finishes (inf while held or empty)."""
+        return self.ends[0] if self.ends and self.held_since is None else INF
+
+    def idle_time(self, t: float) -> float:
+        """When the planner will be empty (inf while held with blocks left)."""
+        self._prune(t)
+        if not self.ends:
+            return t
+        return INF if self.held_since is not None else self.ends[-1]
+
+    def hold(self, t: float) -> None:
+        if self.held_since is None:
+            self._prune(t)
+            self.held_since = t
+
+    def resume(self, t: float) -> None:
+        if self.held_since is not None:
+            shift = t - self.held_since
+            self.ends = deque(end + shift for end in self.ends)
+            self.last_end += shift
+            self.held_since = None
+
+    def clear(self) -> None:
+        self.ends.clear()
+        self.last_end = -INF
+        self.held_since = None
+
+    def target(self, values: dict[str, float]) -> list[float]:
+        """The position after a move with ``values`` (axis letter -> number)."""
+        out = list(self.pos)
+        for i, axis in enumerate(_AXES):
+            if axis in values:
+                value = values[axis] * (self.unit_mm if axis != "E" else 1.0)
+                absolute = self.absolute_e if axis == "E" else self.absolute
+                out[i] = value if absolute else out[i] + value
+        return out
+
+    def move(self, values: dict[str, float], t: float, *, rapid: bool, arc: int = 0) -> None:
+        """Plan a move (call only when not ``full``); updates the position."""
+        if "F" in values and values["F"] > 0:
+            self.feed_mm_s = values["F"] * self.unit_mm / 60.0
+        end = self.target(values)
+        length = _arc_length(self.pos, end, values, arc) if arc else _distance(self.pos, end)
+        feed = self.rapid_mm_s if rapid or not self.feed_mm_s else self.feed_mm_s
+        self.pos = end
+        duration = length / feed * self.time_scale
+        if duration > 0:
+            start = max(t, self.last_end)
+            self.last_end = start + duration
+            self.ends.append(self.last_end)
+
+    def set_position(self, values: dict[str, float]) -> None:
+        """G92: the current position takes the given coordinates."""
+        for i, axis in enumerate(_AXES):
+            if axis in values:
+                self.pos[i] = values[axis]
+
+    def home(self, values: dict[str, float]) -> None:
+        """G28 / $H: the named axes (all of X, Y, Z if none) go to 0."""
+        axes = [a for a in "XYZ" if a in values] or list("XYZ")
+        for axis in axes:
+            self.pos[_AXES.index(axis)] = 0.0
+
+
+def _distance(a: list[float], b: list[float]) -> float:
+    d = math.dist(a[:3], b[:3])
+    return d if d > 0 else abs(a[3] - b[3])
+
+
+def _arc_length(a: list[float], b: list[float], values: dict[str, float], arc: int) -> float:
+    """Length of a G2 (arc=2, clockwise) / G3 arc in XY given by I, J (else the chord)."""
+    if "I" not in values and "J" not in values:
+        return _distance(a, b)
+    cx, cy = a[0] + values.get("I", 0.0), a[1] + values.get("J", 0.0)
+    r = math.hypot(a[0] - cx, a[1] - cy)
+    start = math.atan2(a[1] - cy, a[0] - cx)
+    stop = math.atan2(b[1] - cy, b[0] - cx)
+    sweep = (stop - start) % (2 * math.pi)
+    if arc == 2:
+        sweep = (2 * math.pi - sweep) % (2 * math.pi)
+    sweep = sweep or 2 * math.pi
+    return math.hypot(r * sweep, b[2] - a[2])
+
+
+@dataclass(frozen=True)
+class EmulatorConfig:
+    """Everything that defines one emulated machine (see ``docs/link.md`` for the URL).
+
+    ``baud`` sets the byte timing (10 bits per byte; 0 = instantaneous). ``time_scale``
+    multiplies move, dwell and heating times (0 = instantaneous). ``resend_ok`` and
+    ``drain`` select the Marlin variant: 2.1.x sends ``ok`` after ``Resend:`` and empties
+    its receive buffer on a line error (the defaults); 2.0.x drains without ``ok``;
+    1.1.x sends ``ok`` without draining.
+    """
+
+    personality: str = "marlin"
+    baud: int = 115200
+    time_scale: float = 1.0
+    latency_s: float = 0.0
+    rx_buffer_bytes: int = 128
+    planner_depth: int = 16
+    command_slots: int = 4
+    resend_ok: bool = True
+    drain: bool = True
+    keepalive_s: float = 2.0
+    heater_tau_s: float = 20.0
+    rapid_mm_s: float = 50.0
+    seed: int = 0
+    faults: Faults = Faults()
