@@ -23,7 +23,6 @@ head-tail symmetry of the director is respected.
 
 from __future__ import annotations
 
-import ast
 import tomllib
 import zipfile
 from collections.abc import Callable, Mapping
@@ -102,50 +101,17 @@ class FlatField:
 
 
 def planar_expression(text: Any, where: str) -> PlaneFunction:
-    """Parse a safe expression in x, y, r, phi (see :data:`EXPRESSION_NAMES`).
-
-    ``arctan2(a, b)`` calls are parsed argument by argument with the same whitelist parser
-    and evaluated with :func:`numpy.arctan2`; nothing is ever ``eval``-ed.
-    """
+    """Parse a safe expression in x, y, r, phi (see :data:`EXPRESSION_NAMES`) with the
+    whitelist parser (``arctan2(y, x)`` included); nothing is ever ``eval``-ed."""
     if not isinstance(text, str | int | float) or isinstance(text, bool):
         raise FabkitError(f"{where}: expected an expression string, got {text!r}")
-    text = str(text)
-    try:
-        tree = ast.parse(text.replace("^", "**").strip(), mode="eval")
-    except (SyntaxError, ValueError, RecursionError, MemoryError):
-        tree = None  # the whitelist parser reports the syntax error
-    calls: list[tuple[PlaneFunction, PlaneFunction]] = []
-    if tree is not None:
-        tree = _Arctan2Lifter(calls, where).visit(tree)
-        text = ast.unparse(tree)
-    names = EXPRESSION_NAMES + tuple(f"atan2_{k}" for k in range(len(calls)))
-    expression = parse(text, names, where)
+    expression = parse(str(text), EXPRESSION_NAMES, where)
 
     def evaluate(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
-        lifted = [np.arctan2(a(x, y), b(x, y)) for a, b in calls]
-        return expression(x, y, np.hypot(x, y), np.arctan2(y, x), *lifted)
+        return expression(x, y, np.hypot(x, y), np.arctan2(y, x))
 
     return evaluate
-
-
-class _Arctan2Lifter(ast.NodeTransformer):
-    """Replace each two-argument ``arctan2(a, b)`` by a fresh name ``atan2_k``."""
-
-    def __init__(self, calls: list[tuple[PlaneFunction, PlaneFunction]], where: str):
-        self.calls, self.where = calls, where
-
-    def visit_Call(self, node: ast.Call) -> ast.AST:
-        if isinstance(node.func, ast.Name) and node.func.id == "arctan2":
-            if len(node.args) != 2 or node.keywords:
-                raise FabkitError(f"{self.where}: arctan2 takes exactly two arguments (y, x)")
-            first, second = (
-                planar_expression(ast.unparse(a), f"{self.where} (arctan2 argument)")
-                for a in node.args
-            )
-            self.calls.append((first, second))
-            return ast.Name(id=f"atan2_{len(self.calls) - 1}", ctx=ast.Load())
-        return self.generic_visit(node)
 
 
 def parse_shape(text: Any, where: str = "shape") -> shapely.Polygon:
