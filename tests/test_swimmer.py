@@ -206,7 +206,11 @@ def test_command_writes_results_and_machine_file(tmp_path, run_cli):
     assert "displacement per cycle" in out
     data = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert data["displacement_per_cycle_radii"] < 0
-    assert set(data["convergence"]) == {"Stokeslet rings 5", "1 stations per leg"}
+    assert set(data["convergence"]) == {
+        "coarse Stokeslet points",
+        "half the stations",
+        "extrapolated to fine points",
+    }
     for name in ("stroke.npz", "cycle.png", "position.png", "energy.png", "swimmer.gcode"):
         assert (tmp_path / "out" / name).stat().st_size > 0
     code, _, err = run_cli("swimmer", tmp_path / "missing.toml", "--out", tmp_path / "x")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from fabkit.atomic import atomic_path
 from fabkit.progress import ProgressBar
-from fabkit.swimmer.cycle import run_stroke
+from fabkit.swimmer.cycle import convergence, run_stroke
 from fabkit.swimmer.fabricate import fabricate
 from fabkit.swimmer.report import (
     describe,
@@ -52,14 +52,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         for bar in bars:
             bar.close()
-    convergence = {}
-    if not args.no_convergence:
-        rings = spec.hydrodynamics.rings
-        coarse = max(2, round(rings / 1.5))
-        convergence[f"Stokeslet rings {coarse}"] = stroke.refined(coarse)
-        if spec.stations % 2 == 0:
-            convergence[f"{spec.stations // 2} stations per leg"] = stroke.refined(rings, 2)
-    data = summary(stroke, convergence)
+    data = summary(stroke, None if args.no_convergence else convergence(stroke))
     with atomic_path(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(data, indent=2), encoding="utf-8")
     save_stroke(stroke, out / "stroke.npz")

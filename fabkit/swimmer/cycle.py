@@ -288,3 +288,38 @@ def flow(
     points = [sheet.carry(p) for p in shapes.positions]
     trajectory = swim(points, epsilon, hydro.viscosity, progress)
     return Stroke(spec, path, sheet, shapes, trajectory, epsilon, time.perf_counter() - started)
+
+
+POINT_ORDER = 0.6
+"""Measured order of the displacement per cycle in the Stokeslet spacing h: error ~ h^0.6
+(``benchmarks/swimmer.py``, docs/swimmer.md), slowed by the force singularity at the
+sheet's edge."""
+COARSENING = 1.5
+"""Ratio of Stokeslet rings between a stroke and its coarse re-solve."""
+
+
+@dataclass(frozen=True)
+class Convergence:
+    """A stroke re-solved with ``COARSENING`` times fewer Stokeslet rings (``coarse``) and
+    with every other station (``half_stations``, None when the stations per leg are odd).
+    """
+
+    stroke: Stroke
+    coarse: Stroke
+    half_stations: Stroke | None
+
+    @property
+    def extrapolated(self) -> np.ndarray:
+        """Displacement per cycle (3,) in radii, Richardson-extrapolated to h -> 0 from
+        ``coarse`` and ``stroke`` with error ~ h^POINT_ORDER, h = sqrt(area / points)."""
+        fine, coarse = self.stroke, self.coarse
+        ratio = (len(fine.sheet.stokes) / len(coarse.sheet.stokes)) ** (POINT_ORDER / 2)
+        return fine.displacement + (fine.displacement - coarse.displacement) / (ratio - 1)
+
+
+def convergence(stroke: Stroke) -> Convergence:
+    """Re-solve ``stroke``'s hydrodynamics coarser (see :class:`Convergence`); no new shapes."""
+    rings = stroke.spec.hydrodynamics.rings
+    coarse = stroke.refined(max(2, round(rings / COARSENING)))
+    half = stroke.refined(rings, 2) if stroke.spec.stations % 2 == 0 else None
+    return Convergence(stroke, coarse, half)

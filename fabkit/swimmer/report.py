@@ -19,7 +19,7 @@ import numpy as np
 
 from fabkit.atomic import atomic_path
 from fabkit.mechanics.energy import DENSITIES
-from fabkit.swimmer.cycle import Stroke
+from fabkit.swimmer.cycle import POINT_ORDER, Convergence, Stroke, barycentric
 from fabkit.swimmer.motion import align
 
 MM3_PA_TO_MJ = 1e-6
@@ -47,12 +47,8 @@ def energy_bounds(stroke: Stroke) -> dict[str, np.ndarray]:
     return bounds
 
 
-def summary(stroke: Stroke, convergence: dict[str, Stroke]) -> dict[str, Any]:
-    """The numbers of a run as a JSON-ready dict (see module docstring).
-
-    ``convergence`` maps a label (e.g. "half stations") to the same stroke re-solved
-    with other discretisation settings (:meth:`Stroke.refined`).
-    """
+def summary(stroke: Stroke, checks: Convergence | None = None) -> dict[str, Any]:
+    """The numbers of a run as a JSON-ready dict (see module docstring)."""
     spec = stroke.spec
     displacement = stroke.displacement
     corners = np.isclose(stroke.path.parameter, np.round(stroke.path.parameter))
@@ -62,14 +58,7 @@ def summary(stroke: Stroke, convergence: dict[str, Stroke]) -> dict[str, Any]:
         "displacement_per_cycle_mm": float(displacement[2] * spec.radius),
         "sideways_drift_radii": float(np.hypot(displacement[0], displacement[1])),
         "rotation_rad": float(np.linalg.norm(stroke.rotation)),
-        "convergence": {
-            label: {
-                "displacement_per_cycle_radii": float(other.displacement[2]),
-                "stokes_points": len(other.sheet.stokes),
-                "stations": len(other.path.stimuli),
-            }
-            for label, other in convergence.items()
-        },
+        "convergence": None if checks is None else _convergence(checks),
         "path": spec.path.tolist(),
         "stations": len(stroke.path.stimuli),
         "stokes_points": len(stroke.sheet.stokes),
@@ -85,6 +74,24 @@ def summary(stroke: Stroke, convergence: dict[str, Stroke]) -> dict[str, Any]:
     }
 
 
+def _convergence(checks: Convergence) -> dict[str, Any]:
+    rows = {"coarse Stokeslet points": checks.coarse, "half the stations": checks.half_stations}
+    table = {
+        label: {
+            "displacement_per_cycle_radii": float(other.displacement[2]),
+            "stokes_points": len(other.sheet.stokes),
+            "stations": len(other.path.stimuli),
+        }
+        for label, other in rows.items()
+        if other is not None
+    }
+    table["extrapolated to fine points"] = {
+        "displacement_per_cycle_radii": float(checks.extrapolated[2]),
+        "order": POINT_ORDER,
+    }
+    return table
+
+
 def describe(data: dict[str, Any]) -> str:
     """A few lines for the terminal."""
     lines = [
@@ -92,12 +99,15 @@ def describe(data: dict[str, Any]) -> str:
         f"({data['displacement_per_cycle_mm']:+.4g} mm) along the axis (+ = towards the top layer)",
         f"sideways drift {data['sideways_drift_radii']:.2g} R, "
         f"rotation {data['rotation_rad']:.2g} rad",
+        f"({data['stations']} shapes, {data['stokes_points']} Stokeslet points)",
     ]
-    for label, item in data["convergence"].items():
-        lines.append(
-            f"  {label:28} {item['displacement_per_cycle_radii']:+.5g} R "
+    for label, item in (data["convergence"] or {}).items():
+        where = (
             f"({item['stations']} shapes, {item['stokes_points']} Stokeslet points)"
+            if "stations" in item
+            else f"(Richardson, error ~ h^{item['order']:g})"
         )
+        lines.append(f"  {label:28} {item['displacement_per_cycle_radii']:+.5g} R {where}")
     failed = data["converged"].count(False)
     if failed:
         lines.append(f"warning: {failed} of {len(data['converged'])} shapes did not converge")
@@ -156,47 +166,75 @@ def _plane(stimuli: np.ndarray) -> np.ndarray:
 
 
 def plot_cycle(stroke: Stroke, path: Path) -> None:
-    """The path in stimulus space with the equilibrium shape at corners and mid-legs."""
+    """The path in stimulus space with the equilibrium shape at corners and mid-legs.
+
+    Each shape is drawn in the body frame (best fit to the first) with two material
+    lines, the diameter y = 0 (red) and the circle r = R/2 (black), to show that the
+    points correspond across shapes.
+    """
     plt = _pyplot()
-    spec = stroke.spec
+    from matplotlib.lines import Line2D
+
+    spec, sheet = stroke.spec, stroke.sheet
     plane = _plane(stroke.path.stimuli)
-    figure = plt.figure(figsize=(9, 8))
-    axes = figure.add_axes((0.3, 0.3, 0.4, 0.4))
+    figure = plt.figure(figsize=(10, 9))
+    axes = figure.add_axes((0.34, 0.33, 0.32, 0.34))
     axes.plot(plane[:, 0], plane[:, 1], "o-", color="0.3", markersize=3)
     for start, end in zip(plane[:-1], plane[1:], strict=True):
-        axes.annotate("", end, start, arrowprops={"arrowstyle": "->", "color": "C0"})
+        middle = 0.5 * (start + end)
+        axes.annotate("", middle, start, arrowprops={"arrowstyle": "->", "color": "C0"})
     names = (*spec.stimuli, "")[:2]
     axes.set_xlabel(names[0] or "stimulus")
     axes.set_ylabel(names[1] or "(one stimulus)")
-    axes.set_title("stimulus path and shapes")
     low, high = plane.min(axis=0), plane.max(axis=0)
-    pad = 0.15 * np.maximum(high - low, 1e-9)
+    pad = 0.1 * np.maximum(high - low, 1e-9)
     axes.set_xlim(low[0] - pad[0], high[0] + pad[0])
     axes.set_ylim(low[1] - pad[1], high[1] + pad[1])
+    figure.suptitle(f"stimulus path and shapes: {stroke.displacement[2]:+.4g} R per cycle")
+    figure.canvas.draw()
+    markers = _material_lines(spec.radius)
+    hosts = [barycentric(sheet.points, sheet.triangles, line) for line in markers]
     reference = stroke.shapes.positions[0]
-    parameter = stroke.path.parameter
-    legs = int(round(parameter[-1]))
-    chosen = sorted(
-        {int(np.argmin(np.abs(parameter - t))) for t in np.arange(0, legs + 0.5, 0.5)}
-        - {len(parameter) - 1}
-    )
-    center = plane.mean(axis=0)
-    for index in chosen:
-        where = axes.transData.transform(plane[index])
-        outward = plane[index] - center
+    to_figure = axes.transData + figure.transFigure.inverted()
+    middle = to_figure.transform(plane[:-1].mean(axis=0))
+    for index in _shown_stations(stroke.path.parameter):
+        anchor = to_figure.transform(plane[index])
+        outward = anchor - middle
         outward = outward / (np.linalg.norm(outward) or 1.0)
-        x, y = figure.transFigure.inverted().transform(where) + 0.3 * outward * [1, 1]
-        inset = figure.add_axes((x - 0.1, y - 0.1, 0.2, 0.2), projection="3d")
+        x, y = 0.5 + 0.36 * outward
+        figure.add_artist(Line2D([anchor[0], x], [anchor[1], y], color="0.75", linewidth=0.6))
+        inset = figure.add_axes((x - 0.12, y - 0.12, 0.24, 0.24), projection="3d")
+        inset.set_facecolor((1.0, 1.0, 1.0, 0.0))
         shape = align(stroke.shapes.positions[index], reference)
-        inset.plot_trisurf(*shape.T, triangles=stroke.sheet.triangles, cmap="viridis", linewidth=0)
-        limit = spec.radius
+        inset.plot_trisurf(
+            *shape.T, triangles=sheet.triangles, cmap="viridis", linewidth=0, alpha=0.75
+        )
+        for (host, weights), color in zip(hosts, ("red", "black"), strict=True):
+            line = np.einsum("nc,ncd->nd", weights, shape[sheet.triangles[host]])
+            inset.plot(*line.T, color=color, linewidth=1.5, zorder=10)
+        limit = 0.75 * spec.radius
         inset.set(xlim=(-limit, limit), ylim=(-limit, limit), zlim=(-limit, limit))
-        inset.set_box_aspect((1, 1, 1))
         inset.set_axis_off()
-        inset.view_init(elev=20, azim=-60)
+        inset.view_init(elev=30, azim=-60)
         label = ", ".join(f"{v:g}" for v in np.round(stroke.path.stimuli[index], 3))
-        inset.set_title(f"({label})", fontsize=8, pad=-4)
+        inset.text2D(0.5, 0.82, f"({label})", transform=inset.transAxes, ha="center", fontsize=9)
     _save(figure, path)
+
+
+def _shown_stations(parameter: np.ndarray) -> list[int]:
+    """Stations nearest to every corner and mid-leg (the closing corner left out)."""
+    legs = int(round(parameter[-1]))
+    wanted = np.arange(0, legs, 0.5)
+    return sorted({int(np.argmin(np.abs(parameter - t))) for t in wanted})
+
+
+def _material_lines(radius: float) -> list[np.ndarray]:
+    """Flat points (n, 2) of the diameter y = 0 and the circle r = R / 2."""
+    t = np.linspace(-1.0, 1.0, 41)
+    angle = np.linspace(0.0, 2 * np.pi, 81)
+    diameter = np.column_stack([radius * t, np.zeros_like(t)])
+    circle = 0.5 * radius * np.column_stack([np.cos(angle), np.sin(angle)])
+    return [diameter, circle]
 
 
 def plot_position(stroke: Stroke, path: Path) -> None:
