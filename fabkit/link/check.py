@@ -293,26 +293,25 @@ class _Checker:
                 self._check_inside("Y", cy + radius * math.sin(angle))
 
     def _check_speed(self, code: str, start: list[float | None], de_mm: float) -> None:
+        """The feed against travel/print limits; per-axis speeds once the move is known."""
         state, limits = self.state, self.machine.limits
         deltas = [
             (b - a) if a is not None and b is not None else 0.0
             for a, b in zip(start, state.pos, strict=True)
         ]
         length = math.hypot(*deltas) or abs(de_mm)
-        if length <= 0:
-            return
-        rapid = code == "G0" and self.grbl
-        if rapid:
+        if code == "G0" and self.grbl:  # rapid: at the machine's own maximum rates
             state.motion_time_s += length / limits.travel_mm_s
             return
         speed = state.feed_mm_s
         if speed is None:
-            if self.grbl and code != "G0":
+            if self.grbl:
                 self.fail(f"{code} before any feed rate (F) was set")
             return
         printing = de_mm > 0 or state.flow_on
-        key = "print_mm_s" if printing else "travel_mm_s"
-        self._speed_limit("feed", speed, key)
+        self._speed_limit("feed", speed, "print_mm_s" if printing else "travel_mm_s")
+        if length <= 0:
+            return
         components = [*(abs(d) for d in deltas), abs(de_mm)]
         for axis, delta in zip("xyze", components, strict=True):
             self._speed_limit(f"{axis.upper()} speed", speed * delta / length, f"{axis}_mm_s")

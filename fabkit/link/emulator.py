@@ -29,9 +29,12 @@ seed               random seed of the faults (default 0)
 
 from __future__ import annotations
 
+import array
+import fcntl
 import os
 import random
 import select
+import termios
 import threading
 import time
 import tty
@@ -267,6 +270,7 @@ class PtyEmulator:
             if out:
                 os.write(self._master, out)
             if emulator.disconnected:
+                self._unread_drained(deadline=now + 1.0)
                 os.close(self._master)
                 self._master = -1
                 return
@@ -274,3 +278,13 @@ class PtyEmulator:
             ready, _, _ = select.select([self._master], [], [], wait)
             if ready:
                 emulator.host_write(os.read(self._master, 4096), time.monotonic())
+
+    def _unread_drained(self, deadline: float) -> None:
+        """Wait until the sender has read everything sent (closing would discard it)."""
+        waiting = array.array("i", [0])
+        time.sleep(0.02)  # let the pty layer move the last write to the slave's queue
+        while time.monotonic() < deadline:
+            fcntl.ioctl(self._slave, termios.FIONREAD, waiting)
+            if waiting[0] == 0:
+                return
+            time.sleep(0.005)

@@ -22,6 +22,7 @@ from fabkit.errors import FabkitError
 from fabkit.link.session import SendReport, Session
 
 HOLD, RESUME, STATUS, RESET = b"!", b"~", b"?", b"\x18"
+STATUS_MIN_S = 0.2  # at most 5 status queries a second while the machine moves
 ERRORS = {
     1: "expected a command letter",
     2: "bad number format",
@@ -64,6 +65,7 @@ class GrblProtocol(Session):
         self.acked = 0
         self.last_query_s = 0.0
         self.quiet_query = False
+        self.last_idle = False
         self.held = False
         self.ok_gap_s = 0.05
         self.last_ok_s = time.monotonic()
@@ -147,7 +149,8 @@ class GrblProtocol(Session):
         elif line.startswith("ALARM:"):
             self._abort(f"{self.port_name} raised {line} {ALARMS.get(_code(line), '')}")
         elif line.startswith("<"):
-            if line.startswith("<Idle") and self.quiet_query and self.inflight:
+            self.last_idle = line.startswith("<Idle")
+            if self.last_idle and self.quiet_query and self.inflight:
                 self.recoveries += 1  # idle and quiet: every line sent was executed
                 self._retire(len(self.inflight))
         elif line.startswith("Grbl"):
@@ -167,7 +170,8 @@ class GrblProtocol(Session):
         options = self.options
         probe_after = min(max(8 * self.ok_gap_s, options.probe_min_s), options.probe_max_s)
         quiet = now - max(self.last_rx_s, self.last_tx_s)
-        if quiet >= probe_after and now - self.last_query_s >= probe_after:
+        spacing = probe_after if self.last_idle else max(probe_after, STATUS_MIN_S)
+        if quiet >= probe_after and now - self.last_query_s >= spacing:
             self.last_query_s = now
             self.probes += 1
             self.quiet_query = not self.held
@@ -179,9 +183,10 @@ class GrblProtocol(Session):
         """Hold, reset, send the safe-stop snippet; raise FabkitError with ``detail``."""
         done = self.acked
         self.write(HOLD)
-        self._wait_for(("<Hold:0", "<Idle"), STATUS, 2.0)
+        self._wait_for(("<Hold:0", "<Idle", "<Alarm"), STATUS, 2.0)
         self.write(RESET)
-        if any(line.startswith("ALARM") for line in self._wait_for(("Grbl",), b"", 3.0)):
+        after_reset = self._wait_for(("Grbl",), b"", 3.0) + self._wait_for(("[MSG:",), b"", 0.2)
+        if any(line.startswith("ALARM") or "'$X' to unlock" in line for line in after_reset):
             detail += "; the machine is in ALARM after the reset (unlock with $X)"
         else:
             for text in self.machine.render("safe_stop_gcode"):

@@ -48,6 +48,7 @@ from fabkit.link.gcode import code_of, frame_marlin
 from fabkit.link.session import SendReport, Session
 
 WAIT_CODES = frozenset({"M109", "M190", "G28", "G29", "G4", "M400", "M0", "M1", "M600"})
+WAIT_PROBE_S = 2.5  # longer than Marlin's default busy: interval
 _RESEND = re.compile(r"(?:resend|rs)\s*:?\s*n?:?\s*(\d+)", re.IGNORECASE)
 _ADVANCED_OK = re.compile(r"ok\s+N(\d+)")
 _UNKNOWN = re.compile(r'echo:\s*Unknown command:\s*"(.*)"')
@@ -365,6 +366,8 @@ class MarlinProtocol(Session):
             raise self.lost(self.done_lines, f"no answer for {limit:g} s")
         options = self.options
         probe_after = min(max(8 * self.ok_gap_s, options.probe_min_s), options.probe_max_s)
+        if waiting:  # heat-ups report every 1 s, busy: comes every 2 s
+            probe_after = max(probe_after, WAIT_PROBE_S)
         quiet = now - max(self.last_rx_s, self.last_tx_s)
         if quiet < probe_after or now - self.last_probe_s < probe_after:
             return

@@ -78,11 +78,12 @@ def send_file(
     resume_from: int | None = None,
     dry_run: bool = False,
     options: LinkOptions | None = None,
-    progress_stream: TextIO | None = sys.stderr,
+    show_progress: bool = True,
 ) -> SendReport | JobCheck:
     """Check ``path`` against the machine, then (unless ``dry_run``) stream it to ``port``.
 
-    Returns the check (dry run) or the send report; every problem is a FabkitError.
+    Returns the check (dry run) or the send report; every problem is a FabkitError. The
+    progress bar goes to stderr unless ``show_progress`` is False.
     """
     if port is None and not dry_run:
         raise FabkitError("--port is required (or use --dry-run to only check the file)")
@@ -103,7 +104,7 @@ def send_file(
         return checked
     handle = open_port(port, baud or profile.serial.baud)
     control = LinkControl()
-    progress = Progress(progress_stream, len(job)) if progress_stream is not None else None
+    progress = Progress(sys.stderr, len(job)) if show_progress else None
     try:
         with _log_file(log_path) as log, _keys(control):
             return stream_job(

@@ -132,6 +132,11 @@ class Progress:
             self.stream.flush()
 
 
+def _visible(line: str) -> str:
+    """``line`` as is, or as a Python literal if it holds control characters."""
+    return repr(line) if any(ord(c) < 32 or ord(c) > 126 for c in line) else line
+
+
 def _clock(seconds: float) -> str:
     seconds = int(seconds)
     return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
@@ -215,8 +220,8 @@ class Session:
         self.bytes_sent += len(data)
         self.last_tx_s = time.monotonic()
         if self.log is not None:
-            for line in data.decode("latin-1").splitlines() or [repr(data)]:
-                self.log.write(f"{self.last_tx_s - self.t0:10.4f} >> {line}\n")
+            for line in data.decode("latin-1").split("\n")[: data.count(b"\n") or 1]:
+                self.log.write(f"{self.last_tx_s - self.t0:10.4f} >> {_visible(line)}\n")
 
     def discard_input(self) -> None:
         """Forget what arrived before now (a power-up banner, a previous session)."""
@@ -239,7 +244,7 @@ class Session:
         self.last_rx_s = time.monotonic()
         line = raw.decode("latin-1").strip()
         if self.log is not None:
-            self.log.write(f"{self.last_rx_s - self.t0:10.4f} << {line}\n")
+            self.log.write(f"{self.last_rx_s - self.t0:10.4f} << {_visible(line)}\n")
         return line
 
     # -- results ---------------------------------------------------------------------------

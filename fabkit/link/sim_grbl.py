@@ -36,6 +36,7 @@ _G_SUPPORTED = {
     40, 43.1, 49, 53, 54, 55, 56, 57, 58, 59, 61, 80, 90, 91, 91.1, 92, 92.1, 93, 94,
 }  # fmt: skip
 _M_SUPPORTED = {0, 1, 2, 30, 3, 4, 5, 7, 8, 9, 56}
+_LETTERS = set("FGIJKLMNPRSTXYZ")
 _SYNC_M = {0, 1, 2, 30, 3, 4, 5, 7, 8, 9}
 _MOTION_G = {0, 1, 2, 3, 38.2, 38.3, 38.4, 38.5, 80}
 
@@ -212,6 +213,8 @@ class GrblFirmware:
             if match.start() != pos:
                 return None, 1 if not line[pos].isalpha() else 2
             letter, number = match.group(1), float(match.group(2))
+            if letter not in _LETTERS:
+                return None, 20
             if letter == "G":
                 g.append(number)
             elif letter == "M":

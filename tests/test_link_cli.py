@@ -1,0 +1,119 @@
+"""``fabkit send``: the whole path from a file to the emulator, and every refusal is one
+line with exit code 2."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from fabkit.cli import main
+from tests.test_link_support import grbl_job, marlin_job
+
+SIM = "sim://marlin?time_scale=0&baud=0"
+
+
+def write(tmp_path: Path, lines: list[str], name: str = "job.gcode") -> str:
+    path = tmp_path / name
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def marlin_file(tmp_path: Path, n: int = 300) -> str:
+    return write(tmp_path, ["; sliced by a test"] + [c.text for c in marlin_job(n)])
+
+
+def error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("fabkit: error: ")
+    return err[-1]
+
+
+def test_send_streams_and_reports(tmp_path, capsys):
+    path = marlin_file(tmp_path)
+    assert main(["send", path, "--port", f"{SIM}&corrupt=0.01&seed=1"]) == 0
+    captured = capsys.readouterr()
+    assert re.match(r"sent 305 lines \(file lines 2-306\) to sim://marlin", captured.out)
+    assert "100.0%  305/305 lines" in captured.err  # the progress bar is on stderr
+
+
+def test_dry_run_checks_and_sends_nothing(tmp_path, capsys):
+    path = marlin_file(tmp_path, 10)
+    assert main(["send", path, "--dry-run"]) == 0
+    assert "15 commands, 11 moves fit machine marlin_generic" in capsys.readouterr().out
+    assert main(["send", path, "--dry-run", "--machine", "grbl_diw"]) == 2
+    assert error_line(capsys).endswith("job.gcode:4: unknown command M82 for flavour grbl")
+
+
+def test_a_job_outside_the_envelope_is_refused_before_the_port_is_opened(tmp_path, capsys):
+    path = write(tmp_path, ["G21", "G90", "G1 X10 F600", "G1 X300 Y5"])
+    assert main(["send", path, "--port", "/dev/does-not-exist"]) == 2
+    assert error_line(capsys) == (
+        f"fabkit: error: {path}:4: X=300.000 mm is outside the envelope x_mm = [0, 220] "
+        "of machine marlin_generic"
+    )
+
+
+@pytest.mark.parametrize(
+    ("port", "expected"),
+    [
+        ("/dev/does-not-exist", "cannot open port /dev/does-not-exist: "),
+        ("sim://marlin?speed=9", "cannot open port sim://marlin?speed=9: unknown sim option"),
+        ("sim://printer", "'sim://printer' is not sim://marlin or sim://grbl"),
+        ("nosuchscheme://x", "cannot open port nosuchscheme://x: invalid URL"),
+    ],
+)
+def test_bad_ports_are_one_line(tmp_path, capsys, port, expected):
+    assert main(["send", marlin_file(tmp_path, 5), "--port", port]) == 2
+    assert expected in error_line(capsys)
+
+
+def test_missing_port_and_a_mismatched_emulator(tmp_path, capsys):
+    path = marlin_file(tmp_path, 5)
+    assert main(["send", path]) == 2
+    assert "--port is required" in error_line(capsys)
+    assert main(["send", path, "--port", SIM, "--machine", "grbl_diw"]) == 2
+    assert "sim://marlin?time_scale=0&baud=0 emulates a marlin machine" in error_line(capsys)
+
+
+def test_sim_grbl_pairs_with_grbl_diw_by_default(tmp_path, capsys):
+    path = write(tmp_path, [c.text for c in grbl_job(200)])
+    assert main(["send", path, "--port", "sim://grbl?time_scale=0&baud=0"]) == 0
+    assert "lines/s, grbl);" in capsys.readouterr().out
+
+
+def test_disconnect_then_resume_from_the_named_line(tmp_path, capsys):
+    path = marlin_file(tmp_path, 400)
+    log = tmp_path / "send.log"
+    assert main(["send", path, "--port", f"{SIM}&disconnect_after=150", "--log", str(log)]) == 2
+    message = error_line(capsys)
+    assert "last acknowledged file line 149;" in message  # 148 job lines + M110 + M105
+    assert message.endswith("continue with --resume-from 150")
+    assert ">> N0 M110 N0*125" in log.read_text()  # the log survives the failure
+    assert main(["send", path, "--port", SIM, "--resume-from", "150"]) == 0
+    assert "(file lines 150-406)" in capsys.readouterr().out
+
+
+def test_resume_from_outside_the_file(tmp_path, capsys):
+    path = marlin_file(tmp_path, 5)
+    assert main(["send", path, "--port", SIM, "--resume-from", "99"]) == 2
+    assert "--resume-from 99 is outside" in error_line(capsys)
+
+
+def test_a_machine_without_gcode_and_an_unwritable_log(tmp_path, capsys):
+    path = marlin_file(tmp_path, 5)
+    assert main(["send", path, "--dry-run", "--machine", "dmd_photoalign"]) == 2
+    assert "dmd_photoalign has flavour none" in error_line(capsys)
+    log = str(tmp_path / "no" / "dir" / "x.log")
+    assert main(["send", path, "--port", SIM, "--log", log]) == 2
+    assert "cannot write log file" in error_line(capsys)
+
+
+def test_a_missing_or_binary_file(tmp_path, capsys):
+    assert main(["send", str(tmp_path / "none.gcode"), "--dry-run"]) == 2
+    assert "cannot read G-code file" in error_line(capsys)
+    binary = tmp_path / "bin.gcode"
+    binary.write_bytes(b"G1 X1\nG1 X\xff2\n")
+    assert main(["send", str(binary), "--dry-run"]) == 2
+    assert error_line(capsys).endswith("bin.gcode:2: non-ASCII byte in G-code")

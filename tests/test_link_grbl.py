@@ -1,0 +1,102 @@
+"""The GRBL sender against the emulator: character counting, errors, alarms, real-time."""
+
+from __future__ import annotations
+
+import io
+import threading
+
+import pytest
+
+from fabkit.errors import FabkitError
+from fabkit.link.gcode import Command, commands_from_lines
+from fabkit.link.ports import open_port
+from fabkit.link.send import stream_job
+from fabkit.link.session import LinkControl
+from fabkit.machines import load_machine
+from tests.test_link_support import executed, grbl_job, quick, run_sim
+
+FAST = "sim://grbl?time_scale=0&baud=0"
+
+
+def test_20k_lines_with_lost_garbled_and_spurious_answers_arrive_exactly_once_in_order():
+    job = grbl_job(20_000)
+    url = f"{FAST}&drop_ok=0.001&garble=0.01&noise=0.01&seed=2"
+    report, emulator = run_sim(url, job, "grbl_diw", options=quick())
+    assert executed(emulator) == [c.text for c in job]
+    stats = emulator.stats()
+    assert stats.dropped_oks > 10 and stats.garbled_lines > 100 and stats.spurious_lines > 100
+    assert report.recoveries > 0  # '?' found the machine idle: the lost oks were settled
+
+
+def test_character_counting_keeps_the_receive_buffer_from_overflowing():
+    job = grbl_job(200, seed=3)
+    url = "sim://grbl?time_scale=0.001&baud=1000000&drop_ok=0.005&seed=4"
+    _, emulator = run_sim(url, job, "grbl_diw", options=quick())
+    assert executed(emulator) == [c.text for c in job]
+    stats = emulator.stats()
+    assert stats.overflow_bytes == 0 and 100 < stats.max_rx_bytes <= 127
+
+
+def test_an_error_stops_the_job_names_the_line_and_runs_the_safe_stop():
+    job = grbl_job(300)
+    job.insert(100, Command(4242, "G1 X10 Q5"))  # Q: not a GRBL word here -> error:20
+    port = open_port(FAST, 115200)
+    with pytest.raises(FabkitError) as caught:
+        stream_job(port, job, load_machine("grbl_diw"), port_name="sim://grbl")
+    message = str(caught.value)
+    assert "rejected file line 4242 ('G1 X10 Q5'): error:20 unsupported command" in message
+    assert "last acknowledged file line" in message and "\n" not in message
+    assert executed(port.emulator)[-4:] == load_machine("grbl_diw").render("safe_stop_gcode")
+
+
+def test_an_alarm_at_connection_is_refused():
+    port = open_port(FAST, 115200)
+    port.emulator.firmware.alarm = True
+    with pytest.raises(FabkitError, match=r"is in ALARM state: home \(\$H\) or unlock \(\$X\)"):
+        stream_job(port, grbl_job(5), load_machine("grbl_diw"), port_name="sim://grbl")
+
+
+def test_an_alarm_during_the_job_stops_it():
+    job = commands_from_lines(["G21", "F600"] + ["G1 X100", "G1 X0"] * 10)
+    url = "sim://grbl?time_scale=1&baud=0&reset_after=3"  # a reset while moving: ALARM:3
+    with pytest.raises(FabkitError, match=r"raised ALARM:3 reset while in motion; the machine"):
+        run_sim(url, job, "grbl_diw", options=quick())
+
+
+def test_abort_holds_resets_and_sends_the_safe_stop():
+    job = grbl_job(2000)
+    port = open_port("sim://grbl?time_scale=0.02&baud=0", 115200)
+    control = LinkControl()
+    threading.Timer(0.3, control.abort).start()
+    log = io.StringIO()
+    with pytest.raises(FabkitError, match=r"^aborted: safe-stop sent"):
+        stream_job(port, job, load_machine("grbl_diw"), control=control, log=log)
+    traffic = log.getvalue()
+    assert ">> !" in traffic and ">> '\\x18'" in traffic
+    assert executed(port.emulator)[-4:] == ["M9", "G91", "G0 Z5", "G90"]
+    assert not port.emulator.firmware.alarm  # reset after the hold completed: no alarm
+
+
+def test_pause_is_a_feed_hold_and_resume_a_cycle_start():
+    job = grbl_job(150)
+    port = open_port("sim://grbl?time_scale=0.001&baud=0", 115200)
+    control = LinkControl()
+    states = []
+
+    def pause_then_resume():
+        control.pause()
+        threading.Event().wait(0.2)
+        states.append(port.emulator.firmware.state(port.emulator._now))
+        control.resume()
+
+    threading.Timer(0.1, pause_then_resume).start()
+    log = io.StringIO()
+    stream_job(port, job, load_machine("grbl_diw"), control=control, log=log)
+    assert states == ["Hold:0"]
+    assert ">> !" in log.getvalue() and ">> ~" in log.getvalue()
+    assert executed(port.emulator) == [c.text for c in job]
+
+
+def test_a_reset_during_the_job_is_a_lost_connection():
+    with pytest.raises(FabkitError, match=r"reset during the job\); last acknowledged file line"):
+        run_sim(f"{FAST}&reset_after=100", grbl_job(300), "grbl_diw")

@@ -1,0 +1,214 @@
+"""The Marlin sender against the emulator: nothing lost, nothing repeated, in order."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+import threading
+from dataclasses import replace
+
+import pytest
+
+from fabkit.errors import FabkitError
+from fabkit.link.gcode import Command, commands_from_lines
+from fabkit.link.ports import open_port
+from fabkit.link.send import stream_job
+from fabkit.link.session import LinkControl, Progress
+from fabkit.machines import load_machine
+from tests.test_link_support import (
+    executed,
+    marlin_job,
+    numbers_are_contiguous,
+    quick,
+    run_sim,
+)
+
+FAST = "sim://marlin?time_scale=0&baud=0"
+FAULTS = "corrupt=0.01&drop_ok=0.001"
+
+
+def test_20k_lines_with_1_percent_corruption_and_lost_oks_arrive_exactly_once_in_order():
+    job = marlin_job(20_000)
+    report, emulator = run_sim(f"{FAST}&{FAULTS}&seed=3", job, "marlin_generic")
+    assert executed(emulator) == [c.text for c in job]
+    assert numbers_are_contiguous(emulator)
+    stats = emulator.stats()
+    assert stats.corrupted_lines > 150 and stats.dropped_oks > 10
+    assert report.resends >= 150 and report.recoveries == 0
+
+
+@pytest.mark.parametrize(
+    "variant",
+    ["resend_ok=0", "drain=0", "garble=0.01&noise=0.02"],
+    ids=["marlin-2.0-no-ok-after-resend", "marlin-1.1-no-drain", "garbled-and-noisy-answers"],
+)
+def test_every_marlin_variant_and_noisy_answers(variant):
+    job = marlin_job(4000, seed=2)
+    report, emulator = run_sim(
+        f"{FAST}&{FAULTS}&{variant}&seed=5", job, "marlin_generic", options=quick()
+    )
+    assert executed(emulator) == [c.text for c in job]
+    assert numbers_are_contiguous(emulator)
+    assert report.recoveries == 0
+
+
+def test_real_byte_timing_never_overflows_the_receive_buffer():
+    # moves take time: the planner fills, the firmware stops reading, the ring fills up
+    job = commands_from_lines(["G1 F3000"] + [f"G1 X{10 + i % 90}" for i in range(400)])
+    url = f"sim://marlin?time_scale=0.01&baud=1000000&{FAULTS}&seed=9"
+    machine = load_machine("marlin_generic")
+    _, emulator = run_sim(url, job, "marlin_generic", options=quick())
+    assert executed(emulator) == [c.text for c in job]
+    assert emulator.stats().overflow_bytes == 0 and 60 < emulator.stats().max_rx_bytes <= 127
+    # control: a sender that believes in a 1 KiB buffer overruns the 128-byte ring
+    greedy = replace(machine, serial=replace(machine.serial, rx_buffer_bytes=1024))
+    port = open_port(url, 115200)
+    with contextlib.suppress(FabkitError):
+        stream_job(port, job[:200], greedy, options=quick(dead_s=2.0))
+    assert port.emulator.stats().overflow_bytes > 0
+
+
+class Rewriting:
+    """A port whose answers pass through ``change`` (other firmwares' spellings)."""
+
+    def __init__(self, port, change):
+        self.port, self.change = port, change
+        self.pending = b""  # a partial line, held back until complete
+
+    @property
+    def timeout(self):
+        return self.port.timeout
+
+    @timeout.setter
+    def timeout(self, value):
+        self.port.timeout = value
+
+    @property
+    def in_waiting(self):
+        return self.port.in_waiting
+
+    def read(self, size=1):
+        data = self.pending + self.port.read(max(size, self.port.in_waiting))
+        cut = data.rfind(b"\n") + 1
+        self.pending = data[cut:]
+        return self.change(data[:cut])
+
+    def write(self, data):
+        return self.port.write(data)
+
+
+@pytest.mark.parametrize("spelling", [b"Resend:", b"rs ", b"rs N"])
+def test_other_resend_spellings(spelling):
+    port = open_port(f"{FAST}&corrupt=0.02&seed=1", 115200)
+    job = marlin_job(2000)
+    rewriting = Rewriting(port, lambda data: data.replace(b"Resend: ", spelling))
+    report = stream_job(rewriting, job, load_machine("marlin_generic"), options=quick())
+    assert executed(port.emulator) == [c.text for c in job] and report.resends > 10
+
+
+def test_lost_oks_are_detected_by_probing_and_recovered():
+    job = marlin_job(3000)
+    report, emulator = run_sim(f"{FAST}&drop_ok=0.01&seed=2", job, "marlin_generic")
+    assert emulator.stats().dropped_oks > 10 and report.probes > 0
+    assert executed(emulator) == [c.text for c in job]
+
+
+def test_heating_waits_report_temperatures_and_busy_lines_keep_the_link_alive():
+    job = commands_from_lines(["G21", "M109 S210", "G4 S0.4", "G1 X10 F600"])
+    url = "sim://marlin?time_scale=1&baud=0&heat_tau_s=0.15&keepalive_s=0.1"
+    progress, log = io.StringIO(), io.StringIO()
+    report, emulator = run_sim(
+        url, job, "marlin_generic", progress=Progress(progress, len(job)), log=log, options=quick()
+    )
+    assert executed(emulator) == [c.text for c in job]
+    assert "heating T:" in progress.getvalue() and "<< busy: processing" in log.getvalue()
+    assert report.probes == 0  # busy and temperature lines count as answers
+
+
+def test_disconnect_names_the_last_acknowledged_line_and_resume_is_continuous():
+    job = marlin_job(3000)
+    port = open_port(f"{FAST}&disconnect_after=1202", 115200)
+    with pytest.raises(FabkitError) as caught:
+        stream_job(port, job, load_machine("marlin_generic"), port_name="sim://marlin")
+    message = str(caught.value)
+    assert "\n" not in message
+    assert "lost the connection to sim://marlin" in message
+    last = int(re.search(r"last acknowledged file line (\d+)", message).group(1))
+    assert f"--resume-from {last + 1}" in message
+    first = executed(port.emulator)
+    _, emulator = run_sim(FAST, [c for c in job if c.file_line > last], "marlin_generic")
+    assert first + executed(emulator) == [c.text for c in job]
+
+
+def test_a_reset_during_the_job_stops_it():
+    with pytest.raises(FabkitError, match=r"reset during the job\); last acknowledged file line"):
+        run_sim(f"{FAST}&reset_after=300", marlin_job(1000), "marlin_generic")
+
+
+def test_abort_sends_the_safe_stop_snippet_after_the_lines_in_flight():
+    machine = load_machine("marlin_diw_pneumatic")
+    job = marlin_job(2000)
+    port = open_port("sim://marlin?time_scale=0.02&baud=0", 115200)
+    control = LinkControl()
+    threading.Timer(0.3, control.abort).start()
+    with pytest.raises(FabkitError, match=r"^aborted: safe-stop sent; last acknowledged"):
+        stream_job(port, job, machine, control=control)
+    tail = executed(port.emulator)[-5:]
+    assert tail == machine.render("safe_stop_gcode")
+    assert len(executed(port.emulator)) < 200
+
+
+def test_pause_stops_sending_and_resume_completes_the_job():
+    job = marlin_job(400)
+    port = open_port("sim://marlin?time_scale=0.0003&baud=0", 115200)
+    control = LinkControl()
+    counts = []
+
+    def pause_then_resume():
+        control.pause()
+        counts.append(len(port.emulator.trace))
+        threading.Event().wait(0.4)
+        counts.append(len(port.emulator.trace))
+        control.resume()
+
+    threading.Timer(0.2, pause_then_resume).start()
+    stream_job(port, job, load_machine("marlin_generic"), control=control)
+    assert executed(port.emulator) == [c.text for c in job]
+    assert counts[1] - counts[0] <= 20  # only the lines already in flight ran
+
+
+def test_a_silent_port_is_one_line_naming_the_baud_rate():
+    class Silent:
+        timeout = 0.01
+        in_waiting = 0
+
+        def read(self, size=1):
+            return b""
+
+        def write(self, data):
+            return len(data)
+
+    with pytest.raises(FabkitError, match=r"^no answer from dev at 115200 baud"):
+        stream_job(
+            Silent(),
+            marlin_job(3),
+            load_machine("marlin_generic"),
+            port_name="dev",
+            options=quick(handshake_s=0.3),
+        )
+
+
+def test_a_firmware_error_stops_the_job():
+    job = marlin_job(10)
+    job.insert(5, Command(99, "M112"))
+    with pytest.raises(FabkitError, match=r"reported 'Error:Printer halted. kill\(\) called!'"):
+        run_sim(FAST, job, "marlin_generic")
+
+
+def test_the_log_holds_both_directions():
+    log = io.StringIO()
+    run_sim(FAST, marlin_job(3), "marlin_generic", log=log)
+    lines = log.getvalue().splitlines()
+    assert re.fullmatch(r" +\d+\.\d{4} >> N0 M110 N0\*125", lines[0])
+    assert any(line.endswith("<< ok") for line in lines)

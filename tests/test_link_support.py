@@ -1,0 +1,65 @@
+"""Helpers shared by the link tests: jobs, running them on the emulator, comparing traces."""
+
+from __future__ import annotations
+
+import random
+
+from fabkit.link.emulator import Emulator
+from fabkit.link.gcode import Command, commands_from_lines
+from fabkit.link.ports import open_port
+from fabkit.link.send import stream_job
+from fabkit.link.session import LinkOptions, SendReport
+from fabkit.machines import load_machine
+
+HOUSEKEEPING = ("M110 N0", "M105")  # lines the Marlin sender adds (handshake, probes)
+
+
+def marlin_job(n: int, seed: int = 1) -> list[Command]:
+    """A printing job of ``n`` moves inside marlin_generic's envelope and limits."""
+    rng = random.Random(seed)
+    lines = ["; a test job", "G21", "G90", "M82", "G92 E0", "G1 Z0.3 F600"]
+    for i in range(n):
+        x, y = rng.uniform(10, 200), rng.uniform(10, 200)
+        lines.append(f"G1 X{x:.3f} Y{y:.3f} E{0.01 * (i + 1):.4f} F2400")
+    return commands_from_lines(lines)
+
+
+def grbl_job(n: int, seed: int = 1) -> list[Command]:
+    """A dispensing job of ``n`` moves for grbl_diw (flow on M8, off M9 every 50 moves)."""
+    rng = random.Random(seed)
+    lines = ["G21", "G90", "G94", "M9", "G0 Z1", "F1200"]
+    for i in range(n):
+        if i % 50 == 0:
+            lines.append("M8")
+        lines.append(f"G1 X{rng.uniform(10, 200):.3f} Y{rng.uniform(10, 200):.3f}")
+        if i % 50 == 49:
+            lines.append("M9")
+    return commands_from_lines(lines)
+
+
+def executed(emulator: Emulator) -> list[str]:
+    """The executed job commands, in order (the sender's own M110/M105 left out)."""
+    return [e.command for e in emulator.trace if e.command not in HOUSEKEEPING]
+
+
+def numbers_are_contiguous(emulator: Emulator) -> bool:
+    """Marlin line numbers executed 0, 1, 2, ... without gap or repeat."""
+    numbers = [e.n for e in emulator.trace]
+    return numbers == list(range(len(numbers)))
+
+
+def run_sim(url: str, job: list[Command], machine: str, **options) -> tuple[SendReport, Emulator]:
+    """Stream ``job`` to a ``sim://`` URL; the report and the emulator."""
+    port = open_port(url, 115200)
+    report = stream_job(port, job, load_machine(machine), port_name=url, **options)
+    return report, port.emulator
+
+
+def quick(**options) -> LinkOptions:
+    """Link options for tests: short probes and timeouts."""
+    return LinkOptions(**{"probe_min_s": 0.02, "assume_idle_s": 2.0, **options})
+
+
+def test_jobs_are_what_the_helpers_say():
+    assert len(marlin_job(10)) == 15 and marlin_job(3)[0].file_line == 2
+    assert sum(c.text == "M8" for c in grbl_job(100)) == 2

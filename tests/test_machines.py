@@ -1,0 +1,149 @@
+"""Machine profiles: every shipped profile loads; every kind of mistake is one clear line."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from fabkit.cli import main
+from fabkit.errors import FabkitError
+from fabkit.machines import (
+    CALIBRATION_PARAMETERS,
+    FLAVOURS,
+    KINDS,
+    MACHINES_DIR,
+    list_machines,
+    load_machine,
+)
+
+SHIPPED = [
+    "marlin_generic",
+    "marlin_diw_pneumatic",
+    "grbl_diw",
+    "klipper_generic",
+    "hyrel_pulse",
+    "dmd_photoalign",
+    "laser_cutter",
+]
+BASE = (MACHINES_DIR / "marlin_generic.toml").read_text()
+
+
+def _edited(tmp_path: Path, old: str, new: str, text: str = BASE) -> Path:
+    """A copy of a shipped profile with one edit."""
+    assert old in text
+    path = tmp_path / "edited.toml"
+    path.write_text(text.replace(old, new, 1))
+    return path
+
+
+def _error(path: Path) -> str:
+    with pytest.raises(FabkitError) as caught:
+        load_machine(path)
+    message = str(caught.value)
+    assert "\n" not in message and "edited.toml" in message
+    return message
+
+
+def test_every_shipped_profile_loads_with_consistent_fields():
+    profiles = {p.name: p for p in list_machines()}
+    assert set(SHIPPED) <= set(profiles)
+    assert list(profiles) == sorted(profiles)
+    for name, p in profiles.items():
+        assert p.path.stem == name
+        assert p.kind in KINDS and p.flavour in FLAVOURS
+        assert (p.serial is None) == (p.gcode is None) == (p.flavour == "none")
+        for axis in "xyz":
+            lo, hi = p.envelope.axis(axis)
+            assert lo < hi
+        if p.process.calibration is not None:
+            assert p.process.calibration.parameter in CALIBRATION_PARAMETERS
+        if p.gcode is not None:
+            assert p.render("safe_stop_gcode"), name
+            assert all("{" not in line for line in p.render("start_gcode"))
+
+
+def test_kinds_cover_all_four_machine_types():
+    assert {p.kind for p in list_machines()} == set(KINDS)
+
+
+def test_name_or_path_load_the_same_profile():
+    by_name = load_machine("grbl_diw")
+    by_path = load_machine(MACHINES_DIR / "grbl_diw.toml")
+    assert by_name == by_path
+    assert by_name.serial.protocol == "grbl" and by_name.serial.rx_buffer_bytes == 128
+
+
+def test_render_fills_placeholders_in_gcode_units():
+    machine = load_machine("marlin_generic")
+    start = machine.render("start_gcode")
+    assert "M109 S210" in start and "G1 Z0.4 F300" in start  # z_mm_s 5 -> F300 mm/min
+    assert machine.placeholders()["travel_feed_mm_min"] == "7200"
+
+
+def test_process_profile_interpolates_the_calibration():
+    process = load_machine("marlin_diw_pneumatic").process
+    table = process.calibration
+    middle = (table.eps[0] + table.eps[1]) / 2
+    assert process.value_for_eps(table.eps[0]) == pytest.approx(table.value[0])
+    assert process.value_for_eps(middle) == pytest.approx((table.value[0] + table.value[1]) / 2)
+    with pytest.raises(FabkitError, match="outside the calibrated range"):
+        process.value_for_eps(table.eps[-1] + 1)
+
+
+def test_unknown_machine_names_the_known_ones():
+    with pytest.raises(FabkitError, match=r"unknown machine 'nope'; known machines: .*grbl_diw"):
+        load_machine("nope")
+    with pytest.raises(FabkitError, match="does not exist"):
+        load_machine("missing/profile.toml")
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ('flavour = "marlin"', 'flavour = "marlin"\ncolour = "red"', "unknown key 'colour'"),
+        ("x_mm_s = 300", "x_mm_s = 300\nw_mm_s = 3", r"unknown key 'w_mm_s' in \[limits\]"),
+        ("y_mm_s = 300\n", "", r"\[limits\] y_mm_s is missing"),
+        ('name = "marlin_generic"\n', "", "name is missing"),
+        ("x_mm_s = 300", 'x_mm_s = "fast"', r"\[limits\] x_mm_s must be a number, got a string"),
+        ("x_mm_s = 300", "x_mm_s = true", "must be a number, got a boolean"),
+        ("z_mm_s = 5", "z_mm_s = -5", r"\[limits\] z_mm_s must be > 0, got -5"),
+        ("retract_mm = 1.0", "retract_mm = -1.0", "retract_mm must not be negative"),
+        ("baud = 115200", "baud = 115200.5", r"\[serial\] baud must be an integer"),
+        ('protocol = "marlin"', 'protocol = "smoothie"', "is not one of marlin, grbl"),
+        ('kind = "extrusion_printer"', 'kind = "printer"', "kind = 'printer' is not one of"),
+        ("x_mm = [0, 220]", "x_mm = [220, 0]", r"must be \[min, max\] with min < max"),
+        ("x_mm = [0, 220]", "x_mm = [0, 220, 5]", r"must be \[min, max\]"),
+        ("nozzle_c = 210", "nozzle_c = 300", "nozzle_c = 300 exceeds nozzle_max_c"),
+        ("value = [25, 15, 8, 4]", "value = [25, 15, 8]", "same length"),
+        ("eps = [-0.40, -0.30, -0.20, -0.10]", "eps = [-0.4, -0.2, -0.3, -0.1]", "increasing"),
+        ('parameter = "print_speed_mm_s"', 'parameter = "colour"', "is not one of"),
+        ("M109 S{nozzle_c}", "M109 S{hot}", r"unknown placeholder \{hot\}"),
+        ("rx_buffer_bytes = 128", "rx_buffer_bytes = 8", "rx_buffer_bytes must be >= 32"),
+        ("[envelope]", "envelope = 3\n[envelopes]", r"\[envelope\] must be a table"),
+    ],
+)
+def test_mistakes_are_one_line_naming_file_and_key(tmp_path, old, new, expected):
+    assert re.search(expected, _error(_edited(tmp_path, old, new)))
+
+
+def test_bad_toml_is_one_line(tmp_path):
+    assert "not valid TOML" in _error(_edited(tmp_path, "[envelope]", "[envelope"))
+
+
+def test_flavour_none_must_not_carry_serial_or_gcode(tmp_path):
+    text = (MACHINES_DIR / "dmd_photoalign.toml").read_text()
+    path = _edited(tmp_path, "[process]", "[serial]\nbaud = 9600\n\n[process]", text)
+    assert "[serial] must be absent for flavour none" in _error(path)
+    with pytest.raises(FabkitError, match="takes no G-code"):
+        load_machine("dmd_photoalign").render("start_gcode")
+
+
+def test_fabkit_machines_lists_name_kind_flavour_envelope_protocol(capsys):
+    assert main(["machines"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].split() == ["NAME", "KIND", "FLAVOUR", "ENVELOPE", "PROTOCOL"]
+    rows = {line.split()[0]: line.split() for line in out[1:]}
+    assert rows["grbl_diw"] == ["grbl_diw", "pneumatic_diw", "grbl", "300x300x80", "mm", "grbl"]
+    assert rows["dmd_photoalign"][-1] == "-"
