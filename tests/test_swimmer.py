@@ -160,6 +160,15 @@ def test_bilayer_half_loop_goes_less_than_half(coarse, elastic_cycle):
     assert 0.1 < half / elastic_cycle.displacement[2] < 0.3
 
 
+def test_one_active_layer_cannot_swim(coarse):
+    """Purcell's scallop theorem: one stimulus can only make reciprocal strokes."""
+    table = coarse_table()
+    table["layers"] = table["layers"][1:]
+    stroke = run_stroke(build_swimmer(table))
+    assert np.ptp(stroke.shapes.positions[3][:, 2]) > 1.0
+    assert np.all(np.abs(stroke.displacement) < 1e-6)
+
+
 def test_refined_keeps_corners_and_refuses_a_bad_stride(elastic_cycle):
     with pytest.raises(FabkitError, match="stride"):
         elastic_cycle.refined(7, stride=2)

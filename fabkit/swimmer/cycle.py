@@ -5,13 +5,14 @@ stimuli. At every station the forward simulator (:mod:`fabkit.mechanics.simulate
 the bilayer's equilibrium, starting from the previous station's shape and metrics, so
 the sheet follows one branch as a quasi-static sheet would. The first shape is
 simulated from the flat sheet without a seed, so the layers' mismatch picks the
-direction the sheet bends.
+direction the sheet bends (a single layer has no mismatch and gets the simulator's
+seed). An unactuated sheet (every metric the identity) is the flat sheet itself.
 
 A stimulus met again (a closed cycle's last corner, a path walked back) is given the
 shape it had before when the new equilibrium agrees with it to ``SAME_BRANCH`` x radius:
 then a closed cycle closes exactly and a reciprocal path retraces its shapes bit for
 bit. When it does not agree the sheet has changed branch (hysteresis); the new shape is
-kept and :attr:`Stroke.closure` says by how much the shapes differ.
+kept and :attr:`Shapes.closure` says by how much the shapes differ.
 
 The Stokeslet points (:func:`~fabkit.swimmer.stokes.disc_points`) are material points:
 fixed barycentric coordinates in the elastic mesh's flat triangles, carried to every
@@ -181,7 +182,7 @@ def equilibria(
                 spec.thickness,
                 spec.mechanics.poisson,
                 settings,
-                initial=state,
+                initial=None if state is flat and len(spec.layers) == 1 else state,
                 start_metrics=metrics,
             )
             shape, done = result.positions, result.converged
