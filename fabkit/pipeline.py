@@ -28,15 +28,12 @@ from pathlib import Path
 from typing import Any
 
 from fabkit.atomic import atomic_path
-from fabkit.design.check import check_design
 from fabkit.design.patches import write_patch_mesh
-from fabkit.design.report import summary, write_summary
-from fabkit.design.solver import solve
+from fabkit.design.report import solve_to_file
 from fabkit.errors import FabkitError
 from fabkit.machines import load_machine
 from fabkit.plot import render_design
 from fabkit.plot.report import html_report
-from fabkit.progress import ProgressBar
 from fabkit.spec import load_spec
 from fabkit.toolpath.job import ToolpathJob, run_job
 from fabkit.writers.export import ExportOptions, export
@@ -71,15 +68,8 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     load_machine(options.machine)  # a bad profile is refused before any work
 
     say(f"[1/6] solving {options.spec}")
-    bar = ProgressBar("      solving")
-    try:
-        solution = solve(spec, progress=bar)
-    finally:
-        bar.close()
-    check = check_design(solution.design)
-    solved = summary(solution, check)
-    solution.design.save(out / "design.npz")
-    write_summary(out / "design.json", solved)
+    result = solve_to_file(spec, out / "design.npz", "      solving")
+    solution, check, solved = result.solution, result.check, result.summary
     say(
         f"      {solved['valid_points']} valid points in {solved['solve_seconds']:.2f} s; "
         f"check {'passed' if check.passed else 'FAILED'}"

@@ -5,11 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fabkit.design.check import check_design
-from fabkit.design.report import describe, summary, write_summary
-from fabkit.design.solver import solve
+from fabkit.design.report import describe, solve_to_file
 from fabkit.errors import FabkitError
-from fabkit.progress import ProgressBar
 from fabkit.spec import load_spec
 
 
@@ -39,15 +36,7 @@ def run(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec).with_solver(
         step=args.step, diagonals=args.diagonals, quadrants=args.quadrants
     )
-    bar = ProgressBar("solving")
-    try:
-        solution = solve(spec, progress=bar)
-    finally:
-        bar.close()
-    report = check_design(solution.design)
-    data = summary(solution, report)
-    solution.design.save(out)
-    write_summary(out.with_suffix(".json"), data)
-    print(describe(data, report))
+    solved = solve_to_file(spec, out)
+    print(describe(solved.summary, solved.check))
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0

@@ -4,16 +4,18 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from fabkit.atomic import atomic_path
-from fabkit.design.check import CheckReport
+from fabkit.design.check import CheckReport, check_design
 from fabkit.design.design import Design
-from fabkit.design.solver import Solution
-from fabkit.spec import spec_from_json
+from fabkit.design.solver import Solution, solve
+from fabkit.progress import ProgressBar
+from fabkit.spec import Spec, spec_from_json
 
 
 def realised_areas(design: Design) -> dict[str, float]:
@@ -52,6 +54,30 @@ def summary(solution: Solution, check: CheckReport) -> dict[str, Any]:
         "stops": stops,
         "check": check.to_dict(),
     }
+
+
+@dataclass(frozen=True)
+class Solved:
+    """A solve written to disk: the solution, its check, and the summary data."""
+
+    solution: Solution
+    check: CheckReport
+    summary: dict[str, Any]
+
+
+def solve_to_file(spec: Spec, out: str | Path, label: str = "solving") -> Solved:
+    """Solve with a progress bar, check, and write ``out`` (.npz) and its .json summary."""
+    out = Path(out)
+    bar = ProgressBar(label)
+    try:
+        solution = solve(spec, progress=bar)
+    finally:
+        bar.close()
+    check = check_design(solution.design)
+    data = summary(solution, check)
+    solution.design.save(out)
+    write_summary(out.with_suffix(".json"), data)
+    return Solved(solution, check, data)
 
 
 def write_summary(path: str | Path, data: dict[str, Any]) -> None:
