@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -35,11 +35,13 @@ from fabkit.machines import load_machine
 from fabkit.plot import render_design
 from fabkit.plot.report import html_report
 from fabkit.spec import load_spec
-from fabkit.toolpath.job import ToolpathJob, run_job
+from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
+from fabkit.writers.dxf import layout_layers, write_dxf
 from fabkit.writers.export import ExportOptions, export
 
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
 DEFAULT_MACHINE = "marlin_diw_pneumatic"
+BAROMORPH_MACHINE = "laser_cutter"
 DEFAULT_SIZE_MM = 60.0
 
 
@@ -54,6 +56,7 @@ class RunOptions:
     size_mm: float = DEFAULT_SIZE_MM
     send: str | None = None
     process_file: str | None = None
+    baromorph: str | None = None
 
 
 def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dict[str, Any]:
@@ -79,29 +82,10 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     pictures = render_design(solution.design, out / "pictures")
     meshes = _patch_meshes(solution.design, spec, out / "patches")
 
-    say(f"[3/6] planning print lines for {options.machine} at {options.size_mm:g} mm")
-    job = run_job(
-        ToolpathJob(
-            inputs=(str(out / "design.npz"),),
-            machine=options.machine,
-            process_file=options.process_file,
-            size_mm=options.size_mm,
-            out=str(out / "toolpath"),
-        )
-    )
-    quality = [q.to_dict() for q in job.plan.quality]
-
-    say(f"[4/6] writing {', '.join(options.formats)}")
-    exports = {
-        fmt: export(
-            _export_source(fmt, out),
-            options.machine,
-            fmt,
-            out / FORMAT_FILES[fmt],
-            _export_options(fmt, options),
-        )
-        for fmt in options.formats
-    }
+    if options.baromorph:
+        fabricated = _channels(options, out, say)
+    else:
+        fabricated = _print_lines(options, out, say)
 
     sent = None
     if options.send:
@@ -118,27 +102,81 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
         "machine": options.machine,
         "solve": {k: solved[k] for k in ("solve_seconds", "valid_points", "areas", "stop_counts")},
         "check": check.to_dict(),
-        "toolpath quality": quality,
-        "toolpath warnings": list(job.plan.warnings),
-        "exports": exports,
+        **fabricated.figures,
         "sent": sent,
         "meshes": meshes,
     }
-    toolpath_picture = [
-        (
-            "Print lines coloured by the encoded parameter (travels thin)",
-            out / "toolpath" / "preview.png",
-        )
-    ]
     html_report(
         f"fabkit run {Path(options.spec).name}",
         figures,
-        pictures + toolpath_picture,
+        pictures + [fabricated.picture],
         out / "report.html",
     )
     with atomic_path(out / "report.json") as tmp:
         tmp.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
     return figures
+
+
+@dataclass(frozen=True)
+class _Fabricated:
+    """Key figures of the fabrication stages and their preview (caption, PNG)."""
+
+    figures: dict[str, Any]
+    picture: tuple[str, Path]
+
+
+def _print_lines(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
+    """Print lines along the director, then the machine files."""
+    say(f"[3/6] planning print lines for {options.machine} at {options.size_mm:g} mm")
+    job = run_job(
+        ToolpathJob(
+            inputs=(str(out / "design.npz"),),
+            machine=options.machine,
+            process_file=options.process_file,
+            size_mm=options.size_mm,
+            out=str(out / "toolpath"),
+        )
+    )
+    say(f"[4/6] writing {', '.join(options.formats)}")
+    exports = {
+        fmt: export(
+            _export_source(fmt, out),
+            options.machine,
+            fmt,
+            out / FORMAT_FILES[fmt],
+            _export_options(fmt, options),
+        )
+        for fmt in options.formats
+    }
+    figures = {
+        "toolpath quality": [q.to_dict() for q in job.plan.quality],
+        "toolpath warnings": list(job.plan.warnings),
+        "exports": exports,
+    }
+    caption = "Print lines coloured by the encoded parameter (travels thin)"
+    return _Fabricated(figures, (caption, out / "toolpath" / "preview.png"))
+
+
+def _channels(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
+    """Baromorph channels whose width encodes eps, their mould, and a DXF for a cutter."""
+    if options.formats != ("dxf",):
+        raise FabkitError("a baromorph run writes DXF only: use --format dxf (or no --format)")
+    say(f"[3/6] laying out baromorph channels at {options.size_mm:g} mm")
+    fields = ToolpathJob(inputs=(str(out / "design.npz"),), size_mm=options.size_mm)
+    result = run_channel_job(
+        ChannelJob(fields=fields, baromorph=options.baromorph, out=str(out / "channels"))
+    )
+    say("[4/6] writing channels.dxf")
+    drawing = write_dxf(
+        out / "channels.dxf", machine=load_machine(options.machine), **layout_layers(result.layout)
+    )
+    figures = {
+        "channels": asdict(result.report),
+        "mould": str(out / "channels" / "mould.stl"),
+        "exports": {"dxf": f"wrote {out / 'channels.dxf'}: {drawing}"},
+    }
+    caption = "Baromorph channels coloured by width (walls grey), inlet red"
+    return _Fabricated(figures, (caption, out / "channels" / "channels.png"))
 
 
 def _patch_meshes(design, spec, folder: Path) -> list[str]:

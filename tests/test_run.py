@@ -52,3 +52,38 @@ def test_run_bad_inputs_are_one_line(run_cli, tmp_path):
         "run", EXAMPLES / "two_shapes.toml", "--out", tmp_path / "o", "--machine", "nope"
     )
     assert code == 2 and err.count("\n") == 1 and "nope" in err
+
+
+def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
+    import ezdxf
+    import trimesh
+
+    out = tmp_path / "baro"
+    code, _, err = run_cli(
+        "run",
+        EXAMPLES / "baromorph.toml",
+        "--out",
+        out,
+        "--baromorph",
+        EXAMPLES / "baromorph_channels.toml",
+    )
+    assert code == 0, err
+    channels = json.loads((out / "report.json").read_text())["channels"]
+    assert channels["valid"] and channels["connected"]
+    assert channels["max_width_error"] <= 0.01 and channels["min_wall_mm"] >= 0.6
+    document = ezdxf.readfile(out / "channels.dxf")
+    assert len(document.audit().errors) == 0
+    layers = {entity.dxf.layer for entity in document.modelspace()}
+    assert {"CHANNELS", "OUTLINE", "INLET"} <= layers
+    assert trimesh.load(out / "channels" / "mould.stl").is_watertight
+    code, _, err = run_cli(
+        "run",
+        EXAMPLES / "baromorph.toml",
+        "--out",
+        out,
+        "--format",
+        "gcode",
+        "--baromorph",
+        EXAMPLES / "baromorph_channels.toml",
+    )
+    assert code == 2 and "DXF only" in err

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.pipeline import DEFAULT_MACHINE, DEFAULT_SIZE_MM, FORMAT_FILES, RunOptions, run_pipeline
+from fabkit.pipeline import (
+    BAROMORPH_MACHINE,
+    DEFAULT_MACHINE,
+    DEFAULT_SIZE_MM,
+    FORMAT_FILES,
+    RunOptions,
+    run_pipeline,
+)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -16,9 +23,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument(
         "--machine",
-        default=DEFAULT_MACHINE,
+        default=None,
         metavar="NAME|FILE",
-        help="machine profile (default %(default)s; see fabkit machines)",
+        help=f"machine profile (default {DEFAULT_MACHINE}, or {BAROMORPH_MACHINE} with "
+        "--baromorph; see fabkit machines)",
     )
     parser.add_argument(
         "--format",
@@ -40,6 +48,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="TOML whose [process] table replaces the machine's (eps calibration)",
     )
     parser.add_argument(
+        "--baromorph",
+        metavar="FILE",
+        help="lay out baromorph channels with these settings instead of print lines "
+        "(writes channels/ and channels.dxf; default machine laser_cutter)",
+    )
+    parser.add_argument(
         "--send",
         metavar="PORT",
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
@@ -51,11 +65,12 @@ def run(args: argparse.Namespace) -> int:
     options = RunOptions(
         spec=args.spec,
         out=args.out,
-        machine=args.machine,
-        formats=tuple(args.formats or ("gcode",)),
+        machine=args.machine or (BAROMORPH_MACHINE if args.baromorph else DEFAULT_MACHINE),
+        formats=tuple(args.formats or (("dxf",) if args.baromorph else ("gcode",))),
         size_mm=args.size,
         send=args.send,
         process_file=args.process,
+        baromorph=args.baromorph,
     )
     figures = run_pipeline(options)
     print(
