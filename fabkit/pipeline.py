@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,17 +42,22 @@ from fabkit.writers.export import ExportOptions, export
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
 DEFAULT_MACHINE = "marlin_diw_pneumatic"
 BAROMORPH_MACHINE = "laser_cutter"
+LASER_WRITER = "laser_writer"
 DEFAULT_SIZE_MM = 60.0
 
 
 @dataclass(frozen=True)
 class RunOptions:
-    """What ``fabkit run`` is asked to do; ``size_mm`` is the sheet's longest side in mm."""
+    """What ``fabkit run`` is asked to do; ``size_mm`` is the sheet's longest side in mm.
+
+    ``formats`` None: DXF for baromorph channels, laser patterns on a laser writer, else
+    G-code. ``machine`` None: laser_cutter for baromorph channels, else a pneumatic DIW.
+    """
 
     spec: str
     out: str
-    machine: str = DEFAULT_MACHINE
-    formats: tuple[str, ...] = ("gcode",)
+    machine: str | None = None
+    formats: tuple[str, ...] | None = None
     size_mm: float = DEFAULT_SIZE_MM
     send: str | None = None
     process_file: str | None = None
@@ -61,6 +66,7 @@ class RunOptions:
 
 def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dict[str, Any]:
     """Run every stage; returns the key figures (also written to report.json)."""
+    options = _with_defaults(options)
     for fmt in options.formats:
         if fmt not in FORMAT_FILES:
             raise FabkitError(f"--format {fmt}: expected one of {', '.join(FORMAT_FILES)}")
@@ -84,6 +90,8 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
 
     if options.baromorph:
         fabricated = _channels(options, out, say)
+    elif load_machine(options.machine).kind == LASER_WRITER:
+        fabricated = _laser_patterns(options, out, say)
     else:
         fabricated = _print_lines(options, out, say)
 
@@ -117,6 +125,20 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     return figures
 
 
+def _with_defaults(options: RunOptions) -> RunOptions:
+    """Fill in the machine and the formats that suit the route (see :class:`RunOptions`)."""
+    machine = options.machine or (BAROMORPH_MACHINE if options.baromorph else DEFAULT_MACHINE)
+    formats = options.formats
+    if not formats:
+        if options.baromorph:
+            formats = ("dxf",)
+        elif load_machine(machine).kind == LASER_WRITER:
+            formats = ("laser",)
+        else:
+            formats = ("gcode",)
+    return replace(options, machine=machine, formats=tuple(formats))
+
+
 @dataclass(frozen=True)
 class _Fabricated:
     """Key figures of the fabrication stages and their preview (caption, PNG)."""
@@ -140,11 +162,7 @@ def _print_lines(options: RunOptions, out: Path, say: Callable[[str], None]) -> 
     say(f"[4/6] writing {', '.join(options.formats)}")
     exports = {
         fmt: export(
-            _export_source(fmt, out),
-            options.machine,
-            fmt,
-            out / FORMAT_FILES[fmt],
-            _export_options(fmt, options),
+            out / "toolpath" / "toolpath.npz", options.machine, fmt, out / FORMAT_FILES[fmt]
         )
         for fmt in options.formats
     }
@@ -155,6 +173,25 @@ def _print_lines(options: RunOptions, out: Path, say: Callable[[str], None]) -> 
     }
     caption = "Print lines coloured by the encoded parameter (travels thin)"
     return _Fabricated(figures, (caption, out / "toolpath" / "preview.png"))
+
+
+def _laser_patterns(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
+    """Photoalignment patterns straight from the design (no print lines)."""
+    if options.formats != ("laser",):
+        raise FabkitError(
+            f"{options.machine} is a laser writer: use --format laser (or no --format)"
+        )
+    say("[3/6] no print lines: a laser writer exposes the director field directly")
+    say("[4/6] writing laser/")
+    summary = export(
+        out / "design.npz",
+        options.machine,
+        "laser",
+        out / "laser",
+        ExportOptions(size_mm=options.size_mm),
+    )
+    caption = "Photoalignment pattern: director angle and exposure bins"
+    return _Fabricated({"exports": {"laser": summary}}, (caption, out / "laser" / "preview.png"))
 
 
 def _channels(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
@@ -187,12 +224,3 @@ def _patch_meshes(design, spec, folder: Path) -> list[str]:
             write_patch_mesh(design, j, path)
             names.append(str(path))
     return names
-
-
-def _export_source(fmt: str, out: Path) -> Path:
-    """G-code and DXF are written from the toolpath, laser patterns from the design."""
-    return out / ("design.npz" if fmt == "laser" else "toolpath/toolpath.npz")
-
-
-def _export_options(fmt: str, options: RunOptions) -> ExportOptions:
-    return ExportOptions(size_mm=options.size_mm) if fmt == "laser" else ExportOptions()

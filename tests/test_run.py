@@ -87,3 +87,23 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
         EXAMPLES / "baromorph_channels.toml",
     )
     assert code == 2 and "DXF only" in err
+
+
+def test_run_photoalignment_pattern(run_cli, tmp_path):
+    out = tmp_path / "laser"
+    code, _, err = run_cli(
+        "run",
+        EXAMPLES / "two_shapes.toml",
+        "--out",
+        out,
+        "--machine",
+        "dmd_photoalign",
+        "--size",
+        "20",
+    )
+    assert code == 0, err
+    manifest = json.loads((out / "laser" / "manifest.json").read_text())
+    assert manifest and (out / "laser" / "angle.png").is_file()
+    assert not (out / "toolpath").exists()  # a laser writer needs no print lines
+    figures = json.loads((out / "report.json").read_text())
+    assert "binning error" in figures["exports"]["laser"]

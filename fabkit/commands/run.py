@@ -33,7 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="append",
         choices=list(FORMAT_FILES),
         dest="formats",
-        help="machine file format, repeatable (default gcode)",
+        help="machine file format, repeatable (default: dxf with --baromorph, laser on a "
+        "laser writer, else gcode)",
     )
     parser.add_argument(
         "--size",
@@ -65,8 +66,8 @@ def run(args: argparse.Namespace) -> int:
     options = RunOptions(
         spec=args.spec,
         out=args.out,
-        machine=args.machine or (BAROMORPH_MACHINE if args.baromorph else DEFAULT_MACHINE),
-        formats=tuple(args.formats or (("dxf",) if args.baromorph else ("gcode",))),
+        machine=args.machine,
+        formats=tuple(args.formats) if args.formats else None,
         size_mm=args.size,
         send=args.send,
         process_file=args.process,
