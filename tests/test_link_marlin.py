@@ -44,13 +44,16 @@ def test_20k_lines_with_1_percent_corruption_and_lost_oks_arrive_exactly_once_in
     ids=["marlin-2.0-no-ok-after-resend", "marlin-1.1-no-drain", "garbled-and-noisy-answers"],
 )
 def test_every_marlin_variant_and_noisy_answers(variant):
-    job = marlin_job(4000, seed=2)
+    # with Marlin 2.x at most two lines are unanswered; on 2.0.x (no ok after a resend)
+    # both can turn out to be lines whose answer never comes: the link then waits until
+    # silence proves nothing is held (quick(): 2 s) before it probes
+    job = marlin_job(1500, seed=2)
     report, emulator = run_sim(
         f"{FAST}&{FAULTS}&{variant}&seed=5", job, "marlin_generic", options=quick()
     )
     assert executed(emulator) == [c.text for c in job]
     assert numbers_are_contiguous(emulator)
-    assert report.recoveries == 0
+    assert report.recoveries <= (2 if variant == "resend_ok=0" else 0)
 
 
 def test_real_byte_timing_never_overflows_the_receive_buffer():
@@ -60,9 +63,11 @@ def test_real_byte_timing_never_overflows_the_receive_buffer():
     machine = load_machine("marlin_generic")
     _, emulator = run_sim(url, job, "marlin_generic", options=quick())
     assert executed(emulator) == [c.text for c in job]
-    assert emulator.stats().overflow_bytes == 0 and 60 < emulator.stats().max_rx_bytes <= 127
-    # control: a sender that believes in a 1 KiB buffer overruns the 128-byte ring
-    greedy = replace(machine, serial=replace(machine.serial, rx_buffer_bytes=1024))
+    assert emulator.stats().overflow_bytes == 0 and 0 < emulator.stats().max_rx_bytes <= 127
+    # control: a sender that believes in a 1 KiB buffer (and, not being Marlin, keeps up
+    # to 16 lines in flight) overruns the 128-byte ring
+    serial = replace(machine.serial, rx_buffer_bytes=1024)
+    greedy = replace(machine, flavour="klipper", serial=serial)
     port = open_port(url, 115200)
     with contextlib.suppress(FabkitError):
         stream_job(port, job[:200], greedy, options=quick(dead_s=2.0))
@@ -212,3 +217,25 @@ def test_the_log_holds_both_directions():
     lines = log.getvalue().splitlines()
     assert re.fullmatch(r" +\d+\.\d{4} >> N0 M110 N0\*125", lines[0])
     assert any(line.endswith("<< ok") for line in lines)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_heavy_ok_loss_still_finishes_at_the_last_job_line(seed):
+    # with lost "ok T:" answers the last probes may be credited one behind: the job
+    # is complete when its last line is, whatever probes follow it
+    job = marlin_job(200, seed=seed)
+    url = f"{FAST}&drop_ok=0.01&seed={seed}"
+    report, emulator = run_sim(url, job, "marlin_generic", options=quick())
+    assert executed(emulator) == [c.text for c in job] and report.probes > 0
+
+
+@pytest.mark.parametrize("seed", [5, 22, 33])
+def test_a_line_cut_by_marlins_drain_never_runs(seed):
+    # Marlin 2.x empties its receive buffer on a bad line; a line half-received then
+    # would arrive without its N word and run unchecked. The machine is kept busy (moves
+    # take time) so that lines queue up behind a blocked command, as when printing.
+    job = commands_from_lines(["G1 F3000"] + [f"G1 X{10 + i % 90}" for i in range(400)])
+    url = f"sim://marlin?time_scale=0.01&baud=1000000&corrupt=0.02&drop_ok=0.002&seed={seed}"
+    report, emulator = run_sim(url, job, "marlin_generic", options=quick())
+    assert all(entry.n is not None for entry in emulator.trace)
+    assert executed(emulator) == [c.text for c in job] and report.recoveries == 0

@@ -77,7 +77,8 @@ class GrblProtocol(Session):
             if self.control.aborted:
                 self._abort("safe-stop sent")
             self._hold(self.control.paused)
-            self._fill()
+            if b"\n" not in self.rx:  # answer everything received before sending more
+                self._fill()
             line = self.read_line()
             if line is None:
                 self._on_silence()
@@ -137,7 +138,8 @@ class GrblProtocol(Session):
     def _on_line(self, line: str) -> None:
         if line == "ok":
             now = time.monotonic()
-            self.ok_gap_s = 0.8 * self.ok_gap_s + 0.2 * (now - self.last_ok_s)
+            gap = now - max(self.last_ok_s, self.last_tx_s)  # the machine's pace, not our waits
+            self.ok_gap_s = 0.8 * self.ok_gap_s + 0.2 * gap
             self.last_ok_s = now
             self._retire(1)
             self.show(self.acked)

@@ -8,14 +8,23 @@ Stream
     is executed twice or out of order.
 
 Window
-    Every transmission stays in ``inflight`` until an answer retires it. Lines leave the
+    Every transmission stays in ``inflight`` until it is known gone. Lines leave the
     firmware's receive ring in order and every ``ok`` or ``Resend:`` answers a distinct
-    one (the ``ok`` that 2.1.x and 1.1.x send right after ``Resend:`` answers the same
-    line, so the next plain ``ok`` after a ``Resend:`` retires nothing; on 2.0.x that
-    only errs on the safe side). So *k* answers prove the first *k* transmissions gone,
-    and retiring the oldest per answer keeps ``inflight`` a superset of what can still be
-    in the ring. Its bytes stay within the ring (``rx_buffer_bytes - 1``) and its count
-    within the planner depth; job lines leave room for two M105 probes. Lost ``ok``
+    one, so *k* answers prove the first *k* transmissions gone. Exceptions, counted as
+    nothing (which only errs on the safe side): the ``ok`` that 2.1.x and 1.1.x send
+    right after ``Resend:`` (it answers the same line; 2.0.x sends none), and an ``ok``
+    after an unknown-command echo that is not a line in flight (a fragment of a line
+    split by a corrupted byte). An ``ok T:`` re-bases the count: every answer owed by
+    lines sent before its M105 has arrived by then. The unanswered bytes stay within
+    the ring (``rx_buffer_bytes - 1``), their count within the planner depth; job lines
+    leave room for two M105 probes.
+
+    Marlin 2.x empties its ring when it rejects a line. If a later line has only partly
+    arrived then, its rest arrives without ``N<n>`` and Marlin executes it unchecked (a
+    line run twice, out of order). That needs three unanswered lines at once: the
+    command Marlin is stuck in, the rejected line behind it and the partial one. So
+    for Marlin at most two lines are unanswered (two 45-byte lines fill the usual
+    window anyway); Klipper, RepRapFirmware and Hyrel do not drain. Lost ``ok``
     lines and lines the firmware drained only make the window more cautious, until an
     ``ok T:`` retires everything up to its M105.
 
@@ -53,6 +62,11 @@ _RESEND = re.compile(r"(?:resend|rs)\s*:?\s*n?:?\s*(\d+)", re.IGNORECASE)
 _ADVANCED_OK = re.compile(r"ok\s+N(\d+)")
 _UNKNOWN = re.compile(r'echo:\s*Unknown command:\s*"(.*)"')
 _PROBE = "M105"
+_KNOWN_LINES = ("echo:", "busy:", "//", "wait", "X:", "FIRMWARE_NAME", "Cap:")
+PROBE_LINE, SAFE_STOP = -1, -2  # job_index of lines that are not job lines
+DRAINING_FLAVOURS = frozenset({"marlin"})  # firmwares that empty the ring on a line error
+DRAINING_MAX_LINES = 2
+SYNC_EVERY = 20  # most job lines between probes on draining firmwares (clears lost answers)
 
 
 class MarlinProtocol(Session):
@@ -64,6 +78,8 @@ class MarlinProtocol(Session):
         super().__init__(*args, **kwargs)
         self.rx_usable = self.serial.rx_buffer_bytes - 1
         self.max_lines = self.options.window_lines or self.serial.planner_depth
+        if self.machine.flavour in DRAINING_FLAVOURS:
+            self.max_lines = min(self.max_lines, DRAINING_MAX_LINES)
         biggest_n = 10 ** len(str(2 * len(self.job) + 1000)) - 1
         longest = max((len(c.text) for c in self.job), default=0)
         longest_frame = len(frame_marlin(biggest_n, "x" * longest))
@@ -74,11 +90,16 @@ class MarlinProtocol(Session):
                 f"{self.serial.rx_buffer_bytes}-byte receive buffer of {self.machine.name}"
             )
         self.texts: list[str] = ["M110 N0", _PROBE]
-        self.job_index: list[int] = [-1, -1]
+        self.job_index: list[int] = [PROBE_LINE, PROBE_LINE]
         self.cursor = 2
         self.inflight: deque[tuple[int, int, int, str]] = deque()  # (n, bytes, tx, text)
         self.inflight_bytes = 0
         self.last_tx_of: dict[int, int] = {}
+        self.first_tx: dict[int, int] = {}  # line number -> its first transmission
+        self.answers = 0  # answers counted: that many first transmissions are gone
+        self.stalled = False
+        self.since_probe = 0
+        self.sync_every = SYNC_EVERY
         self.highest_sent = 1
         self.e_count = 1  # lines executed, counted from oks (frozen during sync)
         self.e_cert = 1  # lines certainly executed (from ok T: and ok N<n>)
@@ -110,7 +131,8 @@ class MarlinProtocol(Session):
                 deadline = time.monotonic() + self.options.finish_s
             if deadline is not None and time.monotonic() > deadline:
                 break
-            self._fill()
+            if b"\n" not in self.rx:  # answer everything received before sending more
+                self._fill()
             line = self.read_line()
             if line is None:
                 self._on_silence()
@@ -178,10 +200,13 @@ class MarlinProtocol(Session):
             text = self.texts[n]
             frame = frame_marlin(n, text)
             limit = self.job_window if self.job_index[n] >= 0 else self.rx_usable
-            if self.inflight_bytes + len(frame) > limit or len(self.inflight) >= self.max_lines:
+            probe = self.job_index[n] == PROBE_LINE
+            cap = self.max_lines + (1 if probe and self.stalled else 0)
+            if self.inflight_bytes + len(frame) > limit or len(self.inflight) >= cap:
                 break
             self.inflight.append((n, len(frame), self.transmissions, text))
             self.last_tx_of[n] = self.transmissions
+            self.first_tx.setdefault(n, self.transmissions)
             self.transmissions += 1
             self.inflight_bytes += len(frame)
             self.highest_sent = max(self.highest_sent, n)
@@ -191,12 +216,19 @@ class MarlinProtocol(Session):
             self.write(b"".join(frames))
 
     def _append(self) -> bool:
-        """Number the next line: a job line or a safe-stop line."""
+        """Number the next line: a job line (or, now and then, a probe) or a safe-stop line."""
+        draining = self.machine.flavour in DRAINING_FLAVOURS
         if self.job_next < len(self.job) and not self.aborting:
-            text, index = self.job[self.job_next].text, self.job_next
-            self.job_next += 1
+            if draining and self.since_probe >= self.sync_every:
+                self.since_probe = 0
+                self.probes += 1
+                text, index = _PROBE, PROBE_LINE
+            else:
+                text, index = self.job[self.job_next].text, self.job_next
+                self.job_next += 1
+                self.since_probe += 1
         elif self.tail:
-            text, index = self.tail.pop(0), -1
+            text, index = self.tail.pop(0), SAFE_STOP
         else:
             return False
         self.texts.append(text)
@@ -204,8 +236,13 @@ class MarlinProtocol(Session):
         return True
 
     def _done(self) -> bool:
-        finished = self.job_next == len(self.job) or self.aborting
-        return finished and not self.tail and self.executed >= len(self.texts) - 1
+        """Every job (or safe-stop) line executed; probes after the last one do not count."""
+        if not (self.job_next == len(self.job) or self.aborting) or self.tail:
+            return False
+        last = len(self.texts) - 1
+        while last > 1 and self.job_index[last] == PROBE_LINE:
+            last -= 1
+        return self.executed >= last
 
     def _begin_abort(self) -> None:
         self.aborting = True
@@ -215,13 +252,15 @@ class MarlinProtocol(Session):
     # -- answers ---------------------------------------------------------------------------
 
     def _on_line(self, line: str) -> None:
+        self.stalled = False
         if line.startswith("ok"):
             self._on_ok(line)
             return
         resend = _RESEND.match(line)
         if resend:
             self._on_resend(int(resend.group(1)))
-            self._retire(through_probe=False)
+            self.answers += 1
+            self._retire()
             self.after_resend = True
             self.resend_tx = self.transmissions
         elif line.startswith(("Error:", "!!")):
@@ -243,20 +282,36 @@ class MarlinProtocol(Session):
         elif line.startswith("T:") or " T:" in line:
             self.heating_note = "heating " + line.split(" W:")[0]
             self.show(self.done_lines, self.heating_note)
+        elif self.inflight and not line.startswith(_KNOWN_LINES):
+            self.probes += 1  # perhaps a garbled answer: find out now, before another
+            self._queue_probe()
 
     def _on_ok(self, line: str) -> None:
         now = time.monotonic()
-        self.ok_gap_s = 0.8 * self.ok_gap_s + 0.2 * (now - self.last_ok_s)
+        gap = now - max(self.last_ok_s, self.last_tx_s)  # the machine's pace, not our waits
+        self.ok_gap_s = 0.8 * self.ok_gap_s + 0.2 * gap
         self.last_ok_s = now
         temperature = "T:" in line
-        if temperature or not self.after_resend:
-            self._retire(through_probe=temperature)
+        # an echo of a line in flight (perhaps with a garbled N word) answers it; any other
+        # echo is a fragment of a line split by a corrupted byte, answered already
+        echo = self.unknown_echo
+        garbage = echo is not None and not any(
+            echo == entry[3] or echo.endswith(" " + entry[3]) for entry in self.inflight
+        )
+        if garbage:
+            pass
+        elif temperature or not self.after_resend:
+            self.answers += 1
         else:
             self.after_resend = False
+            self._queue_probe()  # if that was no resend's ok (2.0.x), re-base soon
         advanced = _ADVANCED_OK.match(line)
         if advanced:
             self.e_cert = max(self.e_cert, int(advanced.group(1)))
         probe = self._answered_m105() if temperature else None
+        if probe is not None and probe in self.first_tx:
+            self._rebase(probe)
+        self._retire()
         if probe is not None:
             self.e_cert = max(self.e_cert, probe)
             if self.sync and self.sync_probe is not None and probe >= self.sync_probe:
@@ -280,20 +335,28 @@ class MarlinProtocol(Session):
             self.warnings.append(f"the machine did not know '{self.texts[n]}'")
         self.e_count = n
 
-    def _retire(self, *, through_probe: bool) -> None:
-        """One ``ok``: retire the oldest transmission (an ``ok T:``: through its M105)."""
-        if not self.inflight:
-            return
-        count = 1
-        if through_probe:
-            for i, entry in enumerate(self.inflight):
-                if entry[3] == _PROBE:
-                    count = i + 1
-                    # sent after the last Resend: that request's ok (if any) came before
-                    self.after_resend = self.after_resend and entry[2] < self.resend_tx
-                    break
-        for _ in range(count):
+    def _retire(self) -> None:
+        """Drop the transmissions known gone from the window (see Window above)."""
+        while self.inflight and self.inflight[0][2] < self.answers:
             self.inflight_bytes -= self.inflight.popleft()[1]
+
+    def _rebase(self, probe: int) -> None:
+        """An ``ok T:`` for line ``probe`` (or a later M105): every transmission up to the
+        probe's is gone, and every answer they owe has arrived (earlier lines execute
+        first; rejected ones are answered when parsed), so later answers count on from
+        there. With several copies of the line, which one ran is unknown: the first
+        copy's predecessors are the safe bound."""
+        first = self.first_tx[probe]
+        once = self.last_tx_of.get(probe) == first
+        bound = first + 1 if once else first
+        # answers were lost: probe more often (on draining firmwares), else less often
+        lost = bound > self.answers
+        self.sync_every = (
+            max(5, self.sync_every // 2) if lost else min(SYNC_EVERY, 2 * self.sync_every)
+        )
+        self.answers = max(self.answers, bound)
+        # a probe sent after the last Resend: that request's ok (if any) came already
+        self.after_resend = self.after_resend and first < self.resend_tx
 
     def _answered_m105(self) -> int | None:
         """The line number of the M105 an ``ok T:`` answers, as low as it can be.
@@ -317,7 +380,7 @@ class MarlinProtocol(Session):
         at = max(self.cursor, self.highest_sent + 1)
         if at == len(self.texts) or self.texts[at] != _PROBE:
             self.texts.insert(at, _PROBE)
-            self.job_index.insert(at, -1)
+            self.job_index.insert(at, PROBE_LINE)
         if self.sync and self.sync_probe is None:
             self.sync_probe = at
         return at
@@ -346,8 +409,9 @@ class MarlinProtocol(Session):
             self.sync_probe = x
         elif copies == (1 if self.checksum_error else 0):
             self.texts.insert(x, _PROBE)
-            self.job_index.insert(x, -1)
+            self.job_index.insert(x, PROBE_LINE)
             self.highest_sent = x - 1
+            self.first_tx = {n: tx for n, tx in self.first_tx.items() if n < x}
             self.sync_probe = x
         else:
             later = [n for n in range(x, len(self.texts)) if self.texts[n] == _PROBE]
@@ -369,13 +433,16 @@ class MarlinProtocol(Session):
         if waiting:  # heat-ups report every 1 s, busy: comes every 2 s
             probe_after = max(probe_after, WAIT_PROBE_S)
         quiet = now - max(self.last_rx_s, self.last_tx_s)
+        # silent longer than Marlin's busy: interval: no line is really held, so a probe
+        # may go beyond the line cap
+        self.stalled = now - self.last_rx_s >= WAIT_PROBE_S
         if quiet < probe_after or now - self.last_probe_s < probe_after:
             return
         self.last_probe_s = now
+        if self.inflight and now - self.last_rx_s > options.assume_idle_s and not waiting:
+            self.recoveries += 1  # silent for long: nothing can be left in the ring
+            self.answers = self.transmissions
+            self._retire()
         if self.cursor > self.highest_sent:
             self.probes += 1
             self._queue_probe()
-        elif now - self.last_rx_s > options.assume_idle_s and not waiting:
-            self.recoveries += 1  # silent for long: nothing can be left in the ring
-            self.inflight.clear()
-            self.inflight_bytes = 0
