@@ -24,9 +24,10 @@ Window
     line run twice, out of order). That needs three unanswered lines at once: the
     command Marlin is stuck in, the rejected line behind it and the partial one. So
     for Marlin at most two lines are unanswered (two 45-byte lines fill the usual
-    window anyway); Klipper, RepRapFirmware and Hyrel do not drain. Lost ``ok``
-    lines and lines the firmware drained only make the window more cautious, until an
-    ``ok T:`` retires everything up to its M105.
+    window anyway); Klipper, RepRapFirmware and Hyrel do not drain. Lost ``ok`` lines
+    and lines the firmware drained only make the window more cautious until the next
+    ``ok T:``; so that they cannot fill both slots, Marlin gets an M105 every 20 job
+    lines (5 after a loss) and after any line the sender does not recognise.
 
 Resends
     ``Resend: X`` (also ``Resend:X``, ``rs X``) rewinds to line X. The lines sent after
@@ -42,8 +43,11 @@ Resends
 
 Silence
     With lines in flight and no answer for a while (adapting to the recent pace), a
-    numbered M105 probes the machine. No answer at all for ``dead_s`` (``wait_dead_s``
-    while a heat-up, homing or dwell is in flight) is a lost connection.
+    numbered M105 probes the machine; it may exceed the two-line cap only after 2.5 s
+    without answers (Marlin says ``busy:`` every 2 s while it holds a line). After
+    ``assume_idle_s`` the ring is assumed empty; no answer at all for ``dead_s``
+    (``wait_dead_s`` while a heat-up, homing or dwell is in flight) is a lost
+    connection.
 """
 
 from __future__ import annotations
