@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import string
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,13 +30,23 @@ MACHINES_DIR = Path(__file__).resolve().parent.parent / "machines"
 KINDS = ("extrusion_printer", "pneumatic_diw", "laser_writer", "cutter_plotter")
 FLAVOURS = ("marlin", "klipper", "reprap", "grbl", "hyrel", "none")
 PROTOCOLS = ("marlin", "grbl")
-CALIBRATION_PARAMETERS = (
+E_MODES = ("absolute", "relative")
+E_UNITS = ("filament", "volume", "pulses")
+"""What the E axis counts: mm of filament, mm^3 (= uL) of material, or extruder pulses."""
+RELATIONS = ("perpendicular", "parallel")
+"""How a photoalignment layer's director lies with respect to the light's polarisation."""
+DEFAULT_RELATION = "perpendicular"
+"""Azo dyes such as SD1 align the director perpendicular to the polarisation."""
+PRINT_PARAMETERS = (
     "print_speed_mm_s",
     "extrusion_multiplier",
     "temperature_c",
     "line_spacing_mm",
 )
-"""Process parameters an eps calibration may map to (same names as the toolpath's)."""
+"""Print-line parameters an eps calibration may map to (same names as the toolpath's)."""
+LIGHT_PARAMETERS = ("dose_mj_cm2",)
+"""Exposure parameters an eps calibration of a laser writer may map to."""
+CALIBRATION_PARAMETERS = PRINT_PARAMETERS + LIGHT_PARAMETERS
 
 GCODE_KEYS = ("start_gcode", "end_gcode", "flow_on_gcode", "flow_off_gcode", "safe_stop_gcode")
 PLACEHOLDERS = (
@@ -88,12 +98,22 @@ class Limits:
 
 @dataclass(frozen=True)
 class Tool:
-    """The nozzle (or beam / blade) and the moves around printing, mm and mm/s."""
+    """The nozzle (or beam / blade) and the moves around printing, mm and mm/s.
+
+    The E axis (machines whose flow follows E): ``e_mode`` "absolute" (M82) or
+    "relative" (M83), None = what the start G-code selects; ``e_units`` one of E_UNITS,
+    None = "volume" for flavour hyrel, else "filament"; ``filament_diameter_mm`` converts
+    volume to filament length; ``pulses_per_mm3`` converts it to pulses (None = unknown).
+    """
 
     nozzle_diameter_mm: float
     travel_lift_mm: float
     retract_mm: float
     retract_speed_mm_s: float
+    e_mode: str | None = None
+    e_units: str | None = None
+    filament_diameter_mm: float = 1.75
+    pulses_per_mm3: float | None = None
 
 
 @dataclass(frozen=True)
@@ -138,11 +158,17 @@ class SerialSettings:
 
 @dataclass(frozen=True)
 class Calibration:
-    """Measured eps (programmed strain) against one process parameter, eps increasing."""
+    """Measured eps (programmed strain) against one process parameter.
+
+    ``eps`` strictly increasing, ``value`` positive and strictly monotone; ``clip``: eps
+    outside the table is clipped to it (with a warning) instead of being an error. The
+    stage that uses the table interpolates it (the toolpath: monotone PCHIP).
+    """
 
     parameter: str
     eps: tuple[float, ...]
     value: tuple[float, ...]
+    clip: bool = False
 
 
 @dataclass(frozen=True)
@@ -155,17 +181,23 @@ class ProcessProfile:
     travel_speed_mm_s: float
     calibration: Calibration | None
 
-    def value_for_eps(self, eps: float) -> float:
-        """The calibrated parameter value giving strain ``eps`` (linear interpolation)."""
-        table = self.calibration
-        if table is None:
-            raise FabkitError("this process has no [process.calibration] table")
-        if not table.eps[0] <= eps <= table.eps[-1]:
-            raise FabkitError(
-                f"eps={eps:g} is outside the calibrated range "
-                f"[{table.eps[0]:g}, {table.eps[-1]:g}] of [process.calibration]"
-            )
-        return float(np.interp(eps, table.eps, table.value))
+
+@dataclass(frozen=True)
+class LaserOptics:
+    """The light of a photoalignment writer (the optional ``[laser]`` table).
+
+    ``pixel_pitch_mm``: projected pixel (DMD) or scan line pitch, None = the process road
+    width; ``relation``: the aligned director lies perpendicular (azo dyes such as SD1) or
+    parallel to the polarisation; ``input_polarisation_deg``: the polarisation entering
+    the half-wave plate, degrees from +x in [0, 180); ``intensity_mw_cm2`` (exposure
+    times) and ``max_power_mw`` (scan power limit), None = unknown.
+    """
+
+    pixel_pitch_mm: float | None = None
+    relation: str = DEFAULT_RELATION
+    input_polarisation_deg: float = 0.0
+    intensity_mw_cm2: float | None = None
+    max_power_mw: float | None = None
 
 
 @dataclass(frozen=True)
@@ -173,7 +205,8 @@ class MachineProfile:
     """One machine: what it is, where it can go, how fast, and how to talk to it.
 
     ``gcode`` and ``serial`` are None exactly when ``flavour == "none"`` (a machine that
-    takes no G-code, e.g. a projector-based writer driven by images).
+    takes no G-code, e.g. a projector-based writer driven by images); ``laser`` is set
+    only for kind ``laser_writer`` (defaults when its profile has no ``[laser]`` table).
     """
 
     name: str
@@ -187,6 +220,7 @@ class MachineProfile:
     gcode: GcodeTemplates | None
     serial: SerialSettings | None
     process: ProcessProfile
+    laser: LaserOptics | None
     path: Path
 
     def placeholders(self) -> dict[str, str]:
@@ -302,6 +336,11 @@ class _Table:
             self.fail(f"{self._name(key)} is missing")
         return self.data[key]
 
+    def optional(self, key: str, read: Callable[[str], Any], default: Any) -> Any:
+        """``read(key)`` (one of the typed getters) if the table has ``key``, else ``default``."""
+        self.seen.add(key)
+        return read(key) if key in self.data else default
+
     def _name(self, key: str) -> str:
         return f"{self.where} {key}" if self.where else key
 
@@ -330,6 +369,12 @@ class _Table:
         if value < 0:
             self.fail(f"{self._name(key)} must not be negative, got {value}")
         return float(value)
+
+    def flag(self, key: str) -> bool:
+        value = self._raw(key)
+        if not isinstance(value, bool):
+            self.fail(f"{self._name(key)} must be true or false, got {_type(value)}")
+        return value
 
     def integer(self, key: str) -> int:
         value = self._raw(key)
@@ -380,10 +425,19 @@ def _type(value: Any) -> str:
 def _parse(data: dict[str, Any], path: Path) -> MachineProfile:
     top = _Table(data, "", path)
     flavour = top.text("flavour", FLAVOURS)
+    kind = top.text("kind", KINDS)
     streamable = flavour != "none"
+    for key in ("gcode", "serial"):
+        if not streamable and top.has(key):
+            top.fail(f"[{key}] must be absent for flavour none (the machine takes no G-code)")
+    if kind != "laser_writer" and top.has("laser"):
+        top.fail(f"[laser] is only for kind laser_writer, not {kind}")
+    laser = None
+    if kind == "laser_writer":
+        laser = top.optional("laser", lambda key: _laser(top.table(key)), LaserOptics())
     profile = MachineProfile(
         name=top.text("name"),
-        kind=top.text("kind", KINDS),
+        kind=kind,
         flavour=flavour,
         description=top.text("description"),
         envelope=_envelope(top.table("envelope")),
@@ -392,12 +446,10 @@ def _parse(data: dict[str, Any], path: Path) -> MachineProfile:
         temperature=_temperatures(top.table("temperature")),
         gcode=_gcode(top.table("gcode")) if streamable else None,
         serial=_serial(top.table("serial")) if streamable else None,
-        process=_process(top.table("process")),
+        process=_process(top.table("process"), light=kind == "laser_writer"),
+        laser=laser,
         path=path,
     )
-    for key in ("gcode", "serial"):
-        if not streamable and top.has(key):
-            top.fail(f"[{key}] must be absent for flavour none (the machine takes no G-code)")
     top.finish()
     if profile.gcode is not None:
         _check_placeholders(profile.gcode, path)
@@ -424,9 +476,17 @@ def _tool(t: _Table) -> Tool:
         travel_lift_mm=t.number("travel_lift_mm"),
         retract_mm=t.number("retract_mm"),
         retract_speed_mm_s=t.number("retract_speed_mm_s"),
+        e_mode=t.optional("e_mode", lambda key: t.text(key, E_MODES), None),
+        e_units=t.optional("e_units", lambda key: t.text(key, E_UNITS), None),
+        filament_diameter_mm=t.optional("filament_diameter_mm", _positive(t), 1.75),
+        pulses_per_mm3=t.optional("pulses_per_mm3", _positive(t), None),
     )
     t.finish()
     return out
+
+
+def _positive(t: _Table) -> Callable[[str], float]:
+    return lambda key: t.number(key, positive=True)
 
 
 def _temperatures(t: _Table) -> Temperatures:
@@ -457,21 +517,32 @@ def _serial(t: _Table) -> SerialSettings:
     return out
 
 
-def _process(t: _Table) -> ProcessProfile:
+def parse_process(data: Mapping[str, Any], path: Path, *, light: bool = False) -> ProcessProfile:
+    """A ``[process]`` table (with its optional calibration) read from the file ``path``.
+
+    ``light``: the machine is a laser writer, whose calibration may also map eps to an
+    exposure (LIGHT_PARAMETERS). Errors are one line naming the file and the key.
+    """
+    return _process(_Table(data, "[process]", path), light=light)
+
+
+def _process(t: _Table, *, light: bool) -> ProcessProfile:
     values = {
         key: t.number(key, positive=True)
         for key in ("road_width_mm", "layer_height_mm", "print_speed_mm_s", "travel_speed_mm_s")
     }
-    calibration = _calibration(t.table("calibration")) if t.has("calibration") else None
+    calibration = t.optional("calibration", lambda key: _calibration(t.table(key), light), None)
     t.finish()
     return ProcessProfile(**values, calibration=calibration)
 
 
-def _calibration(t: _Table) -> Calibration:
+def _calibration(t: _Table, light: bool) -> Calibration:
+    parameters = CALIBRATION_PARAMETERS if light else PRINT_PARAMETERS
     out = Calibration(
-        parameter=t.text("parameter", CALIBRATION_PARAMETERS),
+        parameter=t.text("parameter", parameters),
         eps=t.numbers("eps"),
         value=t.numbers("value"),
+        clip=t.optional("clip", t.flag, False),
     )
     t.finish()
     if len(out.eps) < 2 or len(out.eps) != len(out.value):
@@ -480,6 +551,24 @@ def _calibration(t: _Table) -> Calibration:
         t.fail("[process.calibration] eps must be strictly increasing")
     if any(v <= 0 for v in out.value):
         t.fail("[process.calibration] value must hold positive numbers only")
+    steps = np.diff(out.value)
+    if not (np.all(steps > 0) or np.all(steps < 0)):
+        t.fail("[process.calibration] value must be strictly increasing or decreasing in eps")
+    return out
+
+
+def _laser(t: _Table) -> LaserOptics:
+    out = LaserOptics(
+        pixel_pitch_mm=t.optional("pixel_pitch_mm", _positive(t), None),
+        relation=t.optional("relation", lambda key: t.text(key, RELATIONS), DEFAULT_RELATION),
+        input_polarisation_deg=t.optional("input_polarisation_deg", t.number, 0.0),
+        intensity_mw_cm2=t.optional("intensity_mw_cm2", _positive(t), None),
+        max_power_mw=t.optional("max_power_mw", _positive(t), None),
+    )
+    t.finish()
+    if not out.input_polarisation_deg < 180:
+        angle = out.input_polarisation_deg
+        t.fail(f"[laser] input_polarisation_deg must be in [0, 180), got {angle:g}")
     return out
 
 

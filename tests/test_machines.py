@@ -82,14 +82,29 @@ def test_render_fills_placeholders_in_gcode_units():
     assert machine.placeholders()["travel_feed_mm_min"] == "7200"
 
 
-def test_process_profile_interpolates_the_calibration():
-    process = load_machine("marlin_diw_pneumatic").process
-    table = process.calibration
-    middle = (table.eps[0] + table.eps[1]) / 2
-    assert process.value_for_eps(table.eps[0]) == pytest.approx(table.value[0])
-    assert process.value_for_eps(middle) == pytest.approx((table.value[0] + table.value[1]) / 2)
-    with pytest.raises(FabkitError, match="outside the calibrated range"):
-        process.value_for_eps(table.eps[-1] + 1)
+def test_optional_keys_have_documented_defaults_and_are_read_when_given(tmp_path):
+    plain = load_machine(_edited(tmp_path, 'e_units = "filament"\n', ""))
+    assert plain.tool.e_mode is None and plain.tool.e_units is None
+    assert plain.tool.filament_diameter_mm == 1.75 and plain.tool.pulses_per_mm3 is None
+    assert plain.laser is None and plain.process.calibration.clip is False
+    edits = 'e_units = "pulses"\npulses_per_mm3 = 90\ne_mode = "relative"\n'
+    tuned = load_machine(_edited(tmp_path, 'e_units = "filament"\n', edits))
+    assert (tuned.tool.e_units, tuned.tool.pulses_per_mm3, tuned.tool.e_mode) == (
+        "pulses",
+        90.0,
+        "relative",
+    )
+    clipped = load_machine(
+        _edited(tmp_path, "value = [25, 15, 8, 4]", "value = [25, 15, 8, 4]\nclip = true")
+    )
+    assert clipped.process.calibration.clip is True
+
+
+def test_laser_writer_reads_its_light_table():
+    laser = load_machine("dmd_photoalign")
+    assert laser.laser.relation == "perpendicular" and laser.laser.pixel_pitch_mm == 0.01
+    assert laser.laser.intensity_mw_cm2 == 10 and laser.laser.max_power_mw is None
+    assert laser.process.calibration.parameter == "dose_mj_cm2"
 
 
 def test_unknown_machine_names_the_known_ones():
@@ -122,6 +137,13 @@ def test_unknown_machine_names_the_known_ones():
         ("M109 S{nozzle_c}", "M109 S{hot}", r"unknown placeholder \{hot\}"),
         ("rx_buffer_bytes = 128", "rx_buffer_bytes = 8", "rx_buffer_bytes must be >= 32"),
         ("[envelope]", "envelope = 3\n[envelopes]", r"\[envelope\] must be a table"),
+        ('e_units = "filament"', 'e_units = "grams"', "e_units = 'grams' is not one of"),
+        ('e_units = "filament"', 'e_mode = "both"', "e_mode = 'both' is not one of"),
+        ("filament_diameter_mm = 1.75", "filament_diameter_mm = 0", "must be > 0, got 0"),
+        ("value = [25, 15, 8, 4]", "value = [25, 15, 8, 4]\nclip = 1", "clip must be true"),
+        ("value = [25, 15, 8, 4]", "value = [25, 15, 15, 4]", "strictly increasing or decr"),
+        ('parameter = "print_speed_mm_s"', 'parameter = "dose_mj_cm2"', "is not one of"),
+        ("[serial]", "[laser]\nrelation = 'parallel'\n\n[serial]", r"\[laser\] is only for"),
     ],
 )
 def test_mistakes_are_one_line_naming_file_and_key(tmp_path, old, new, expected):
@@ -130,6 +152,20 @@ def test_mistakes_are_one_line_naming_file_and_key(tmp_path, old, new, expected)
 
 def test_bad_toml_is_one_line(tmp_path):
     assert "not valid TOML" in _error(_edited(tmp_path, "[envelope]", "[envelope"))
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ('relation = "perpendicular"', 'relation = "sideways"', "relation = 'sideways'"),
+        ("input_polarisation_deg = 0", "input_polarisation_deg = 180", r"in \[0, 180\)"),
+        ("intensity_mw_cm2 = 10", "intensity_mw_cm2 = 0", "intensity_mw_cm2 must be > 0"),
+        ("intensity_mw_cm2 = 10", "power = 3", r"unknown key 'power' in \[laser\]"),
+    ],
+)
+def test_laser_table_mistakes(tmp_path, old, new, expected):
+    text = (MACHINES_DIR / "dmd_photoalign.toml").read_text()
+    assert re.search(expected, _error(_edited(tmp_path, old, new, text)))
 
 
 def test_flavour_none_must_not_carry_serial_or_gcode(tmp_path):

@@ -66,7 +66,7 @@ def test_process_files_and_their_errors(tmp_path):
     cases = {
         "[process]\nroad_width_mm = 0.3\n": "layer_height_mm is missing",
         "[other]\n": "missing table \\[process\\]",
-        good.read_text().replace("0.3", "'wide'"): "road_width_mm must be a finite number",
+        good.read_text().replace("0.3", "'wide'"): "road_width_mm must be a number",
         good.read_text().replace("clip = true", "colour = 1"): "unknown key 'colour'",
         good.read_text().replace("extrusion_multiplier", "pressure"): "not one of",
     }

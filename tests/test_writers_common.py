@@ -24,7 +24,7 @@ from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile, load_machine
 from fabkit.spec import load_spec
 from fabkit.toolpath import PRINT, TRAVEL, Layer, Move, Toolpath
-from fabkit.writers.common import check_inside, placement_offset, profile_setting
+from fabkit.writers.common import check_inside, placement_offset
 from fabkit.writers.lines import Word, render
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -268,9 +268,3 @@ def test_check_inside_names_axis_and_machine():
     check_inside(np.array([[0.0, 220.0, 0.0]]), machine, "test")
     with pytest.raises(FabkitError, match=r"test: Y = 230.000 mm is outside .*marlin_generic"):
         check_inside(np.array([[10.0, 230.0, 1.0]]), machine, "test")
-
-
-def test_profile_setting_falls_back_to_the_default():
-    machine = load_machine("marlin_generic")
-    assert profile_setting(machine, "tool.nozzle_diameter_mm", 9) == 0.4
-    assert profile_setting(machine, "tool.no_such_field", 1.75) == 1.75

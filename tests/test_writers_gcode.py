@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import re
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -196,24 +195,28 @@ def test_pneumatic_flow_multiplier_becomes_a_slower_feed():
     assert run.feed[printing].tolist() == [8.0, 4.0]
 
 
-def test_reprap_flavour_and_filament_diameter_option(tmp_path):
-    table = tomllib.loads(Path(load_machine("marlin_generic").path).read_text())
+def test_reprap_flavour_and_the_profiles_e_settings(tmp_path):
     text = (
         Path(load_machine("marlin_generic").path)
         .read_text()
         .replace('flavour = "marlin"', 'flavour = "reprap"')
         .replace('name = "marlin_generic"', 'name = "reprap_test"')
+        .replace("filament_diameter_mm = 1.75", 'filament_diameter_mm = 2.85\ne_mode = "relative"')
     )
-    assert table["flavour"] == "marlin"
     profile = tmp_path / "reprap_test.toml"
     profile.write_text(text)
     machine = load_machine(profile)
+    assert "M82" in machine.render("start_gcode")  # the profile's e_mode wins over it
     toolpath = baromorph_toolpath(machine)
-    data, summary = gcode_bytes(toolpath, machine, GcodeOptions(filament_diameter_mm=2.85))
-    assert data.startswith(b";FLAVOR:RepRap\n")
+    data, summary = gcode_bytes(toolpath, machine)
+    assert data.startswith(b";FLAVOR:RepRap\n") and summary.e_mode == "relative"
+    assert data.decode().splitlines().count("M83") == 1
     run = replay(data.decode())
     volume = run.e_step.sum() * math.pi * 2.85**2 / 4
     assert volume == pytest.approx(model_volume(toolpath), rel=1e-4)
+    data, _ = gcode_bytes(toolpath, machine, GcodeOptions(filament_diameter_mm=1.75))
+    volume = replay(data.decode()).e_step.sum() * math.pi * 1.75**2 / 4
+    assert volume == pytest.approx(model_volume(toolpath), rel=1e-4)  # the option wins
 
 
 def test_refusals_are_one_line_errors():

@@ -136,6 +136,18 @@ def test_polariser_and_half_wave_plate_follow_the_relation(tmp_path, relation, o
     assert summary.exposures == 12  # one dose: a mask per angle bin
 
 
+def test_the_profiles_light_table_and_dose_calibration_apply(tmp_path):
+    text = Path(load_machine("dmd_photoalign").path).read_text()
+    path = tmp_path / "parallel.toml"
+    path.write_text(text.replace('relation = "perpendicular"', 'relation = "parallel"'))
+    machine = load_machine(path)
+    settings = LaserSettings.for_machine(machine)
+    assert settings.relation == "parallel" and settings.intensity_mw_cm2 == 10
+    table = machine.process.calibration
+    assert settings.dose.dose(np.array(table.eps)) == pytest.approx(table.value)
+    assert LaserSettings.for_machine(machine, relation="perpendicular").relation == "perpendicular"
+
+
 def _scanning_writer(tmp_path: Path):
     text = Path(load_machine("laser_cutter").path).read_text()
     text = text.replace('name = "laser_cutter"', 'name = "scan_writer"')

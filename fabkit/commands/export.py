@@ -9,7 +9,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fabkit.writers.common import FORMATS, IMAGE_FORMATS, RELATIONS
+from fabkit.machines import RELATIONS
+from fabkit.writers.common import FORMATS, IMAGE_FORMATS
 from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
 
 

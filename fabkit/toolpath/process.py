@@ -2,7 +2,7 @@
 
 The settings live in the ``[process]`` table of a machine profile (``machines/*.toml``,
 read by :mod:`fabkit.machines`); ``--process FILE`` replaces that table with the one in
-FILE, read by :func:`load_process` here (the same keys, plus ``clip`` in the calibration)::
+FILE, read by :func:`load_process` here with the profile reader (the same keys)::
 
     [process]
     road_width_mm = 0.4
@@ -26,23 +26,21 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from fabkit.errors import FabkitError
-from fabkit.machines import CALIBRATION_PARAMETERS, load_machine
+from fabkit.machines import PRINT_PARAMETERS, ProcessProfile, load_machine, parse_process
 
 DEFAULT_MACHINE = "marlin_diw_pneumatic"
 """The profile whose ``[process]`` is used when no machine is given (a pneumatic DIW
 printer; see ``machines/marlin_diw_pneumatic.toml``)."""
 
 PROCESS_KEYS = ("road_width_mm", "layer_height_mm", "print_speed_mm_s", "travel_speed_mm_s")
-PARAMETERS = (*CALIBRATION_PARAMETERS, "channel_width_mm")
+PARAMETERS = (*PRINT_PARAMETERS, "channel_width_mm")
 """Calibrated parameters: the print ones, and the channel width of baromorphs."""
 
 
@@ -126,12 +124,12 @@ def encode_eps(eps: np.ndarray, calibration: Calibration) -> Encoding:
     return Encoding(curve(np.clip(eps, low, high)), float(outside.mean()) if len(eps) else 0.0)
 
 
-def process_from_profile(profile: Any, source: str) -> Process:
+def process_from_profile(profile: ProcessProfile, source: str) -> Process:
     """A :class:`Process` from a machine profile's ``.process`` (``fabkit.machines``)."""
     table = profile.calibration
     calibration = None
     if table is not None:
-        calibration = Calibration(table.parameter, tuple(table.eps), tuple(table.value))
+        calibration = Calibration(table.parameter, table.eps, table.value, table.clip)
     values = {key: float(getattr(profile, key)) for key in PROCESS_KEYS}
     return Process(**values, calibration=calibration, source=source)
 
@@ -151,62 +149,6 @@ def load_process(path: str | Path) -> Process:
         raise FabkitError(f"process file '{path}' does not exist") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise FabkitError(f"{path}: cannot read process file ({exc})") from None
-    process = table.get("process")
-    if not isinstance(process, Mapping):
+    if "process" not in table:
         raise FabkitError(f"{path}: missing table [process]")
-    try:
-        return _process(process, str(path))
-    except FabkitError as exc:
-        raise FabkitError(f"{path}: {exc}") from None
-
-
-def _process(table: Mapping[str, Any], source: str) -> Process:
-    unknown = sorted(set(table) - {*PROCESS_KEYS, "calibration"})
-    if unknown:
-        raise FabkitError(f"unknown key '{unknown[0]}' in [process]")
-    missing = [key for key in PROCESS_KEYS if key not in table]
-    if missing:
-        raise FabkitError(f"[process] {missing[0]} is missing")
-    values = {key: _number(table[key], f"[process] {key}") for key in PROCESS_KEYS}
-    calibration = None
-    if "calibration" in table:
-        calibration = _calibration(table["calibration"])
-    return Process(**values, calibration=calibration, source=source)
-
-
-def _calibration(table: Any) -> Calibration:
-    where = "[process.calibration]"
-    if not isinstance(table, Mapping):
-        raise FabkitError(f"{where} must be a table")
-    unknown = sorted(set(table) - {"parameter", "eps", "value", "clip"})
-    if unknown:
-        raise FabkitError(f"unknown key '{unknown[0]}' in {where}")
-    for key in ("parameter", "eps", "value"):
-        if key not in table:
-            raise FabkitError(f"{where} {key} is missing")
-    clip = table.get("clip", False)
-    if not isinstance(clip, bool):
-        raise FabkitError(f"{where} clip must be true or false")
-    if table["parameter"] not in CALIBRATION_PARAMETERS:
-        raise FabkitError(
-            f"{where} parameter {table['parameter']!r} is not one of "
-            f"{', '.join(CALIBRATION_PARAMETERS)}"
-        )
-    return Calibration(
-        table["parameter"],
-        _numbers(table["eps"], f"{where} eps"),
-        _numbers(table["value"], f"{where} value"),
-        clip,
-    )
-
-
-def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise FabkitError(f"{where} must be a finite number, got {value!r}")
-    return float(value)
-
-
-def _numbers(value: Any, where: str) -> tuple[float, ...]:
-    if not isinstance(value, list):
-        raise FabkitError(f"{where} must be an array of numbers")
-    return tuple(_number(v, where) for v in value)
+    return process_from_profile(parse_process(table["process"], path), str(path))

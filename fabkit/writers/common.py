@@ -1,4 +1,4 @@
-"""What every writer shares: placing the sheet on the machine, and reading profile fields.
+"""What every writer shares: placing the sheet on the machine and keeping it inside.
 
 Toolpaths and director fields live in the sheet's frame (mm, z up). A writer moves them
 into machine coordinates by an offset: given explicitly, or by default the one that puts
@@ -8,8 +8,6 @@ the model's z is already the height above the bed).
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from fabkit.errors import FabkitError
@@ -17,8 +15,6 @@ from fabkit.machines import MachineProfile
 
 FORMATS = ("gcode", "dxf", "laser")
 """Output formats of ``fabkit export``."""
-RELATIONS = ("perpendicular", "parallel")
-"""How a photoalignment material's director lies relative to the light's polarisation."""
 IMAGE_FORMATS = ("png", "tiff")
 """Image formats of the laser-writer maps and masks."""
 
@@ -59,17 +55,3 @@ def check_inside(points: np.ndarray, machine: MachineProfile, what: str) -> None
                 f"of {machine.name} ({name} {lo:g}..{hi:g} mm); move or shrink the part "
                 "(--offset) or pick a larger machine"
             )
-
-
-def profile_setting(machine: MachineProfile, dotted: str, default: Any) -> Any:
-    """The profile field ``dotted`` (like ``"tool.filament_diameter_mm"``), or ``default``.
-
-    Used for fields the profile format does not define (yet): a writer keeps working with
-    its documented default until the profile carries the field.
-    """
-    value: Any = machine
-    for name in dotted.split("."):
-        value = getattr(value, name, None)
-        if value is None:
-            return default
-    return value

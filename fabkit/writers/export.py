@@ -32,7 +32,7 @@ from fabkit.errors import FabkitError
 from fabkit.fields import FlatField, field_from_design, load_director_file
 from fabkit.machines import load_machine
 from fabkit.toolpath.model import Toolpath, load_toolpath
-from fabkit.writers.common import FORMATS, profile_setting
+from fabkit.writers.common import FORMATS
 from fabkit.writers.dxf import DEFAULT_INLET_RADIUS_MM, write_dxf
 from fabkit.writers.gcode import GcodeOptions, write_gcode
 from fabkit.writers.laser import LaserSettings, sample_field, write_laser
@@ -153,8 +153,11 @@ def _laser(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptio
             "laser patterns are written from a director field: export the design.npz "
             "(or a director .toml), not a toolpath"
         )
-    pixel = options.pixel_mm or profile_setting(
-        machine, "laser.pixel_pitch_mm", machine.process.road_width_mm
+    optics = machine.laser
+    pixel = (
+        options.pixel_mm
+        or (optics.pixel_pitch_mm if optics is not None else None)
+        or machine.process.road_width_mm
     )
     grid = sample_field(_field(kind, loaded, options), pixel)
     settings = LaserSettings.for_machine(machine, **options.laser)

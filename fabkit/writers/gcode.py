@@ -44,13 +44,11 @@ from fabkit.atomic import atomic_path
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile
 from fabkit.toolpath.model import PRINT, Toolpath
-from fabkit.writers.common import placement_offset, profile_setting
+from fabkit.writers.common import placement_offset
 from fabkit.writers.lines import Word, render
 
 E_MODES = ("absolute", "relative")
 E_UNITS = ("filament", "volume", "pulses")
-DEFAULT_FILAMENT_DIAMETER_MM = 1.75
-"""Filament diameter when neither the options nor the profile give one, mm."""
 DEFAULT_RETRACT_MIN_TRAVEL_MM = 1.0
 """Travels shorter than this (mm) neither lift nor retract (slicers' "minimum travel")."""
 
@@ -175,8 +173,10 @@ def _setup(machine: MachineProfile, options: GcodeOptions) -> _Setup:
     e_mode = options.e_mode or _profile_e_mode(machine)
     if e_mode not in E_MODES:
         raise FabkitError(f"E mode '{e_mode}' is not one of {', '.join(E_MODES)}")
-    units = options.e_units or profile_setting(
-        machine, "tool.e_units", "volume" if machine.flavour == "hyrel" else "filament"
+    units = (
+        options.e_units
+        or machine.tool.e_units
+        or ("volume" if machine.flavour == "hyrel" else "filament")
     )
     if units not in E_UNITS:
         raise FabkitError(f"E units '{units}' is not one of {', '.join(E_UNITS)}")
@@ -204,20 +204,18 @@ def _profile_e_mode(machine: MachineProfile) -> str:
         word = line.split(";")[0].split()
         if word and word[0].upper() in ("M82", "M83"):
             mode = "absolute" if word[0].upper() == "M82" else "relative"
-    return profile_setting(machine, "tool.e_mode", mode)
+    return machine.tool.e_mode or mode
 
 
 def _e_per_mm3(machine: MachineProfile, options: GcodeOptions, units: str) -> float:
     if units == "volume":
         return 1.0
     if units == "pulses":
-        pulses = options.pulses_per_mm3 or profile_setting(machine, "tool.pulses_per_mm3", None)
+        pulses = options.pulses_per_mm3 or machine.tool.pulses_per_mm3
         if not pulses or pulses <= 0:
             raise FabkitError("E units 'pulses' need pulses per mm^3 (--pulses-per-mm3)")
         return float(pulses)
-    diameter = options.filament_diameter_mm or profile_setting(
-        machine, "tool.filament_diameter_mm", DEFAULT_FILAMENT_DIAMETER_MM
-    )
+    diameter = options.filament_diameter_mm or machine.tool.filament_diameter_mm
     if diameter <= 0:
         raise FabkitError(f"filament diameter must be > 0 mm, got {diameter}")
     return 4.0 / (math.pi * diameter**2)

@@ -53,13 +53,11 @@ from PIL import Image
 
 import fabkit
 from fabkit.errors import FabkitError
-from fabkit.machines import MachineProfile
+from fabkit.machines import DEFAULT_RELATION, RELATIONS, LaserOptics, MachineProfile
 from fabkit.writers.common import (
     IMAGE_FORMATS,
-    RELATIONS,
     check_inside,
     placement_offset,
-    profile_setting,
 )
 from fabkit.writers.lines import Word, render
 
@@ -70,8 +68,6 @@ DEFAULT_BINS = 18
 DEFAULT_DOSE_MJ_CM2 = 1000.0
 """Dose when there is no eps-to-dose calibration (typical of azo-dye photoalignment)."""
 DEFAULT_DOSE_LEVELS = 4
-DEFAULT_RELATION = "perpendicular"
-"""Azo dyes such as SD1 align the director perpendicular to the polarisation."""
 ANGLE_CONVENTION = (
     "theta in [0, pi) counter-clockwise from the sheet +x axis (+y up); images have x to "
     "the right and y down (row 0 = largest y); origin_mm = lower-left image corner"
@@ -171,10 +167,15 @@ def _in_chunks(function: Any, points: np.ndarray, size: int = 1 << 15) -> np.nda
 
 @dataclass(frozen=True)
 class DoseCalibration:
-    """Measured exposure dose (mJ/cm^2) giving eps, eps increasing; linear in between."""
+    """Measured exposure dose (mJ/cm^2) giving eps, eps increasing; linear in between.
+
+    ``clip``: eps outside the table takes the dose of the nearest end instead of being an
+    error.
+    """
 
     eps: tuple[float, ...]
     dose_mj_cm2: tuple[float, ...]
+    clip: bool = False
 
     def __post_init__(self) -> None:
         if len(self.eps) < 2 or len(self.eps) != len(self.dose_mj_cm2):
@@ -187,10 +188,11 @@ class DoseCalibration:
     def dose(self, eps: np.ndarray) -> np.ndarray:
         """Dose (mJ/cm^2) for each eps (NaN stays NaN); out of range is an error."""
         known = eps[np.isfinite(eps)]
-        if len(known) and (known.min() < self.eps[0] or known.max() > self.eps[-1]):
+        outside = len(known) and (known.min() < self.eps[0] or known.max() > self.eps[-1])
+        if outside and not self.clip:
             raise FabkitError(
                 f"eps spans [{known.min():g}, {known.max():g}], outside the dose calibration "
-                f"range [{self.eps[0]:g}, {self.eps[-1]:g}]"
+                f"range [{self.eps[0]:g}, {self.eps[-1]:g}] (extend it, or set clip = true)"
             )
         return np.interp(eps, self.eps, self.dose_mj_cm2)
 
@@ -229,16 +231,17 @@ class LaserSettings:
     @classmethod
     def for_machine(cls, machine: MachineProfile, **overrides: Any) -> LaserSettings:
         """Settings from the profile where it has them, then ``overrides`` (None ignored)."""
+        optics = machine.laser or LaserOptics()
         values: dict[str, Any] = {
-            "relation": profile_setting(machine, "laser.relation", DEFAULT_RELATION),
-            "input_polarisation_deg": profile_setting(machine, "laser.input_polarisation_deg", 0.0),
-            "intensity_mw_cm2": profile_setting(machine, "laser.intensity_mw_cm2", None),
-            "max_power_mw": profile_setting(machine, "laser.max_power_mw", None),
+            "relation": optics.relation,
+            "input_polarisation_deg": optics.input_polarisation_deg,
+            "intensity_mw_cm2": optics.intensity_mw_cm2,
+            "max_power_mw": optics.max_power_mw,
             "scan_speed_mm_s": machine.process.print_speed_mm_s,
         }
         table = machine.process.calibration
         if table is not None and table.parameter == "dose_mj_cm2":
-            values["dose"] = DoseCalibration(table.eps, table.value)
+            values["dose"] = DoseCalibration(table.eps, table.value, table.clip)
         values.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**values)
 
