@@ -104,7 +104,9 @@ def eps_maps(design: Design, path: str | Path) -> None:
     spec = spec_from_json(design.spec)
     points, triangles = grid_triangles(design.valid)
     features = spec.material.features
-    figure, axes = plt.subplots(len(features), 2, figsize=(11, 4.6 * len(features)), squeeze=False)
+    figure, axes = plt.subplots(
+        len(features), 2, figsize=(11, 4.6 * len(features)), squeeze=False, layout="constrained"
+    )
     xy = design.r[0][points[:, 0], points[:, 1]]
     extent = [design.u[0], design.u[-1], design.v[0], design.v[-1]]
     for row, name in enumerate(features):
@@ -116,9 +118,12 @@ def eps_maps(design: Design, path: str | Path) -> None:
             )
             figure.colorbar(shading, ax=axes[row, 0], label=name)
         axes[row, 0].set_aspect("equal")
+        axes[row, 0].set_xlabel("x (design units)")
+        axes[row, 0].set_ylabel("y (design units)")
         axes[row, 0].set_title(f"{name} on the flat sheet")
+        solved = np.where(design.valid, values, np.nan)
         image = axes[row, 1].imshow(
-            values.T, origin="lower", extent=extent, cmap="viridis", aspect="auto"
+            solved.T, origin="lower", extent=extent, cmap="viridis", aspect="auto"
         )
         figure.colorbar(image, ax=axes[row, 1], label=name)
         axes[row, 1].set_xlabel("u")
@@ -189,7 +194,11 @@ def _equal_3d(axes, points: np.ndarray) -> None:
 def residual_maps(design: Design, maps: tuple[ResidualMaps, ...], path: str | Path) -> None:
     """Residual maps on the (u, v) grid: one row per surface, one column per residual."""
     figure, axes = plt.subplots(
-        len(maps), len(RESIDUALS), figsize=(4 * len(RESIDUALS), 3.4 * len(maps)), squeeze=False
+        len(maps),
+        len(RESIDUALS),
+        figsize=(4 * len(RESIDUALS), 3.4 * len(maps)),
+        squeeze=False,
+        layout="constrained",
     )
     extent = [design.u[0], design.u[-1], design.v[0], design.v[-1]]
     norm = LogNorm(vmin=1e-7, vmax=1e-1)
@@ -200,6 +209,8 @@ def residual_maps(design: Design, maps: tuple[ResidualMaps, ...], path: str | Pa
                 values.T, origin="lower", extent=extent, norm=norm, cmap="magma", aspect="auto"
             )
             axes[row, column].set_title(f"{surface.name}: {key}", fontsize=9)
+            axes[row, column].set_xlabel("u" if row == len(maps) - 1 else "")
+            axes[row, column].set_ylabel("v" if column == 0 else "")
             _zoom(axes[row, column], design)
-        figure.colorbar(image, ax=axes[row, :].tolist(), label="residual", shrink=0.8)
+        figure.colorbar(image, ax=axes[row, :].tolist(), label="residual")
     save(figure, path)
