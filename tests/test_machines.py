@@ -25,6 +25,7 @@ SHIPPED = [
     "klipper_generic",
     "hyrel_pulse",
     "dmd_photoalign",
+    "scan_photoalign",
     "laser_cutter",
 ]
 BASE = (MACHINES_DIR / "marlin_generic.toml").read_text()

@@ -15,6 +15,8 @@ from PIL import Image
 
 from fabkit.errors import FabkitError
 from fabkit.fields import field_from_design
+from fabkit.link.check import check_job
+from fabkit.link.gcode import read_job
 from fabkit.machines import load_machine
 from fabkit.writers.laser import (
     DirectorGrid,
@@ -148,17 +150,8 @@ def test_the_profiles_light_table_and_dose_calibration_apply(tmp_path):
     assert LaserSettings.for_machine(machine, relation="perpendicular").relation == "perpendicular"
 
 
-def _scanning_writer(tmp_path: Path):
-    text = Path(load_machine("laser_cutter").path).read_text()
-    text = text.replace('name = "laser_cutter"', 'name = "scan_writer"')
-    text = text.replace('kind = "cutter_plotter"', 'kind = "laser_writer"')
-    path = tmp_path / "scan_writer.toml"
-    path.write_text(text)
-    return load_machine(path)
-
-
 def test_baromorph_scan_lines_cover_every_pixel_once(tmp_path):
-    machine = _scanning_writer(tmp_path)
+    machine = load_machine("scan_photoalign")
     grid = _baromorph_grid()
     settings = LaserSettings.for_machine(
         machine,
@@ -199,10 +192,12 @@ def test_baromorph_scan_lines_cover_every_pixel_once(tmp_path):
     assert (covered == grid.mask).all()
     assert summary.scan_lines > len(words)
     assert summary.max_binning_error_deg <= 5.0
+    job = check_job(read_job(folder / "scan.gcode"), machine)  # what fabkit send checks
+    assert job.moves == len(lines) + 1  # and the end G-code's G0 X0 Y0
 
 
 def test_scan_power_above_the_limit_is_refused(tmp_path):
-    machine = _scanning_writer(tmp_path)
+    machine = load_machine("scan_photoalign")
     settings = LaserSettings.for_machine(machine, max_power_mw=0.01)
     with pytest.raises(FabkitError, match="scan power .* above the limit 0.01 mW"):
         write_laser(_baromorph_grid(1.0), tmp_path / "out", machine, settings)
