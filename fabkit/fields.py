@@ -23,7 +23,6 @@ head-tail symmetry of the director is respected.
 
 from __future__ import annotations
 
-import tomllib
 import zipfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
@@ -42,6 +41,7 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.expr import parse
 from fabkit.surfaces.analytic import check_keys, number
+from fabkit.tomlfile import read_toml
 
 PlaneFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """A vectorised function of x and y (mm, broadcast arrays) returning an array of their shape."""
@@ -445,12 +445,7 @@ def load_director_file(path: str | Path) -> FlatField:
     # or, instead of theta/eps: grid = "theta.npz" with theta, mask, pixel_mm (, eps)
     """
     path = Path(path)
-    try:
-        table = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FabkitError(f"director file '{path}' does not exist") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise FabkitError(f"{path}: cannot read director file ({exc})") from None
+    table = read_toml(path, "director")
     check_keys(table, {"director"}, str(path))
     director = table.get("director")
     if not isinstance(director, Mapping):

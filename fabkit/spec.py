@@ -7,7 +7,6 @@ See ``docs/spec.md`` for every key. Every problem a user can make in a spec is a
 from __future__ import annotations
 
 import json
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ from fabkit.material import ALONG, Material, check_unstretched
 from fabkit.surfaces import Surface, build_surface
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.surfaces.base import UNBOUNDED
+from fabkit.tomlfile import read_toml
 
 ALL_QUADRANTS = ((1, 1), (-1, 1), (-1, -1), (1, -1))
 PERPENDICULAR_TOLERANCE = 1e-6
@@ -99,17 +99,7 @@ class Spec:
 def load_spec(path: str | Path) -> Spec:
     """Read and validate a TOML spec file."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FabkitError(f"spec file '{path}' does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FabkitError(f"cannot read spec file '{path}': {exc}") from None
-    try:
-        table = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise FabkitError(f"{path}: not valid TOML: {exc}") from None
-    return build_spec(table, path.resolve().parent)
+    return build_spec(read_toml(path, "spec"), path.resolve().parent)
 
 
 def spec_from_json(text: str) -> Spec:

@@ -8,7 +8,6 @@ problem is a one-line :class:`FabkitError` naming the key.
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ from fabkit.errors import FabkitError
 from fabkit.expr import Expression, parse
 from fabkit.fields import PlaneFunction, planar_expression
 from fabkit.surfaces.analytic import check_keys, number
+from fabkit.tomlfile import read_toml
 
 
 @dataclass(frozen=True)
@@ -101,16 +101,7 @@ class SwimmerSpec:
 
 def load_swimmer(path: str | Path) -> SwimmerSpec:
     """Read and validate a swimmer TOML file."""
-    path = Path(path)
-    try:
-        table = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FabkitError(f"swimmer file '{path}' does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FabkitError(f"cannot read swimmer file '{path}': {exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise FabkitError(f"{path}: not valid TOML: {exc}") from None
-    return build_swimmer(table)
+    return build_swimmer(read_toml(path, "swimmer"))
 
 
 def build_swimmer(table: Mapping[str, Any]) -> SwimmerSpec:

@@ -23,7 +23,6 @@ channel's width (cut perpendicular to its centreline) against the calibration.
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +34,7 @@ from scipy.spatial import cKDTree
 
 from fabkit.errors import FabkitError
 from fabkit.fields import FlatField
+from fabkit.tomlfile import read_toml
 from fabkit.toolpath.lines import (
     LineSettings,
     is_closed,
@@ -115,12 +115,7 @@ class ChannelReport:
 def load_baromorph(path: str | Path) -> BaromorphSettings:
     """Read the ``[baromorph]`` table of a TOML file (see ``docs/toolpath.md``)."""
     path = Path(path)
-    try:
-        table = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FabkitError(f"baromorph file '{path}' does not exist") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise FabkitError(f"{path}: cannot read baromorph file ({exc})") from None
+    table = read_toml(path, "baromorph")
     try:
         return _settings(table.get("baromorph"))
     except FabkitError as exc:

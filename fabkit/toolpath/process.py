@@ -25,7 +25,6 @@ warning gives the clipped fraction.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -34,6 +33,7 @@ from scipy.interpolate import PchipInterpolator
 
 from fabkit.errors import FabkitError
 from fabkit.machines import PRINT_PARAMETERS, ProcessProfile, load_machine, parse_process
+from fabkit.tomlfile import read_toml
 
 DEFAULT_MACHINE = "marlin_diw_pneumatic"
 """The profile whose ``[process]`` is used when no machine is given (a pneumatic DIW
@@ -143,12 +143,7 @@ def machine_process(name_or_path: str | None) -> Process:
 def load_process(path: str | Path) -> Process:
     """Read the ``[process]`` table of a TOML file (module docstring); one-line errors."""
     path = Path(path)
-    try:
-        table = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FabkitError(f"process file '{path}' does not exist") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise FabkitError(f"{path}: cannot read process file ({exc})") from None
+    table = read_toml(path, "process")
     if "process" not in table:
         raise FabkitError(f"{path}: missing table [process]")
     return process_from_profile(parse_process(table["process"], path), str(path))
