@@ -3,7 +3,9 @@
 Each module in :mod:`fabkit.commands` defines ``register(subparsers)``, which adds
 its sub-command(s) with a handler ``func(args) -> int``. The CLI holds no logic:
 handlers parse nothing beyond their arguments and call one stage function.
-A :class:`~fabkit.errors.FabkitError` becomes one line on stderr and exit code 2.
+A :class:`~fabkit.errors.FabkitError`, a bad command line and an operating-system error
+(a path that cannot be written, a full disk) become one line on stderr and exit code 2;
+Ctrl-C becomes one line and exit code 130.
 """
 
 from __future__ import annotations
@@ -12,15 +14,27 @@ import argparse
 import importlib
 import pkgutil
 import sys
+from typing import NoReturn
 
 import fabkit
 import fabkit.commands
 from fabkit.errors import FabkitError
 
 
+class _UsageError(Exception):
+    """A command line argparse refuses: reported as one line, like a FabkitError."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line, not a usage block and a message."""
+
+    def error(self, message: str) -> NoReturn:
+        raise _UsageError(f"{message} (see {self.prog} --help)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every sub-command found in :mod:`fabkit.commands`."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="fabkit",
         description="Design flat active sheets that morph into several shapes, and make them.",
     )
@@ -35,18 +49,30 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; return the process exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as exc:
+        return _error(str(exc))
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     try:
         return int(args.func(args) or 0)
     except FabkitError as exc:
-        print(f"fabkit: error: {exc}", file=sys.stderr)
-        return 2
+        return _error(str(exc))
+    except OSError as exc:  # a safety net: stages report the files they know about themselves
+        if exc.strerror and exc.filename is not None:
+            return _error(f"{exc.filename}: {exc.strerror}")
+        return _error(str(exc))
     except KeyboardInterrupt:
         print("fabkit: interrupted", file=sys.stderr)
         return 130
+
+
+def _error(message: str) -> int:
+    """Print ``fabkit: error: <message>`` as one line; return exit code 2."""
+    print(f"fabkit: error: {' '.join(message.splitlines())}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

@@ -22,20 +22,23 @@ report.json        the key figures as data
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from fabkit.atomic import atomic_path
+from fabkit.atomic import atomic_path, check_folder
 from fabkit.design.patches import write_patch_mesh
 from fabkit.design.report import solve_to_file
 from fabkit.errors import FabkitError
 from fabkit.machines import load_machine
 from fabkit.plot import render_design
 from fabkit.plot.report import html_report
-from fabkit.spec import load_spec
+from fabkit.spec import Spec, load_spec
+from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
+from fabkit.toolpath.process import load_process
 from fabkit.writers.dxf import layout_layers, write_dxf
 from fabkit.writers.export import ExportOptions, export
 
@@ -50,6 +53,8 @@ DEFAULT_SIZE_MM = 60.0
 class RunOptions:
     """What ``fabkit run`` is asked to do; ``size_mm`` is the sheet's longest side in mm.
 
+    ``step`` and ``diagonals`` replace the spec's solver settings when given.
+
     ``formats`` None: DXF for baromorph channels, laser patterns on a laser writer, else
     G-code. ``machine`` None: laser_cutter for baromorph channels, else a pneumatic DIW.
     """
@@ -62,19 +67,19 @@ class RunOptions:
     send: str | None = None
     process_file: str | None = None
     baromorph: str | None = None
+    step: float | None = None
+    diagonals: int | None = None
 
 
 def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dict[str, Any]:
-    """Run every stage; returns the key figures (also written to report.json)."""
+    """Run every stage; returns the key figures (also written to report.json).
+
+    Every input (spec, options, machine, process and channel files, the output folder) is
+    checked before any work, so bad input is refused without writing anything.
+    """
     options = _with_defaults(options)
-    for fmt in options.formats:
-        if fmt not in FORMAT_FILES:
-            raise FabkitError(f"--format {fmt}: expected one of {', '.join(FORMAT_FILES)}")
-    if options.send and "gcode" not in options.formats:
-        raise FabkitError("--send needs --format gcode")
+    spec = _check_inputs(options)
     out = Path(options.out)
-    spec = load_spec(options.spec)
-    load_machine(options.machine)  # a bad profile is refused before any work
 
     say(f"[1/6] solving {options.spec}")
     result = solve_to_file(spec, out / "design.npz", "      solving")
@@ -123,6 +128,40 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     with atomic_path(out / "report.json") as tmp:
         tmp.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
     return figures
+
+
+def _check_inputs(options: RunOptions) -> Spec:
+    """Refuse bad input before any work; returns the spec with the solver options applied."""
+    for fmt in options.formats:
+        if fmt not in FORMAT_FILES:
+            raise FabkitError(f"--format {fmt}: expected one of {', '.join(FORMAT_FILES)}")
+    if options.send and "gcode" not in options.formats:
+        raise FabkitError("--send needs --format gcode")
+    if not (math.isfinite(options.size_mm) and options.size_mm > 0):
+        raise FabkitError(f"--size {options.size_mm:g}: expected a positive finite number")
+    check_folder(options.out, f"--out {options.out}")
+    spec = load_spec(options.spec)
+    if options.step is not None or options.diagonals is not None:
+        spec = spec.with_solver(step=options.step, diagonals=options.diagonals)
+    machine = load_machine(options.machine)
+    if options.baromorph:
+        if options.formats != ("dxf",):
+            raise FabkitError("a baromorph run writes DXF only: use --format dxf (or no --format)")
+        load_baromorph(options.baromorph)
+    elif machine.kind == LASER_WRITER:
+        if options.formats != ("laser",):
+            raise FabkitError(
+                f"{options.machine} is a laser writer: use --format laser (or no --format)"
+            )
+    elif options.process_file:
+        load_process(options.process_file)
+    spans = [hi - lo for lo, hi in (machine.envelope.x_mm, machine.envelope.y_mm)]
+    if options.size_mm > max(spans):
+        raise FabkitError(
+            f"--size {options.size_mm:g}: the sheet does not fit the envelope of "
+            f"{options.machine} ({spans[0]:g} x {spans[1]:g} mm); give a smaller --size"
+        )
+    return spec
 
 
 def _with_defaults(options: RunOptions) -> RunOptions:
@@ -177,10 +216,6 @@ def _print_lines(options: RunOptions, out: Path, say: Callable[[str], None]) -> 
 
 def _laser_patterns(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
     """Photoalignment patterns straight from the design (no print lines)."""
-    if options.formats != ("laser",):
-        raise FabkitError(
-            f"{options.machine} is a laser writer: use --format laser (or no --format)"
-        )
     say("[3/6] no print lines: a laser writer exposes the director field directly")
     say("[4/6] writing laser/")
     summary = export(
@@ -196,8 +231,6 @@ def _laser_patterns(options: RunOptions, out: Path, say: Callable[[str], None]) 
 
 def _channels(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
     """Baromorph channels whose width encodes eps, their mould, and a DXF for a cutter."""
-    if options.formats != ("dxf",):
-        raise FabkitError("a baromorph run writes DXF only: use --format dxf (or no --format)")
     say(f"[3/6] laying out baromorph channels at {options.size_mm:g} mm")
     fields = ToolpathJob(inputs=(str(out / "design.npz"),), size_mm=options.size_mm)
     result = run_channel_job(

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
+from fabkit.errors import FabkitError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -41,6 +43,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    options = {
+        "--isometry-median": args.isometry_median,
+        "--isometry-p95": args.isometry_p95,
+        "--curvature-median": args.curvature_median,
+        "--region": args.region,
+    }
+    for option, value in options.items():
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise FabkitError(f"{option} {value:g}: expected a positive finite number")
     tolerances = Tolerances(args.isometry_median, args.isometry_p95, args.curvature_median)
     report = check_design(Design.load(args.design), tolerances, region=args.region)
     print(json.dumps(report.to_dict(), indent=2) if args.json else report.table())

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from dataclasses import asdict
 from pathlib import Path
 
@@ -40,6 +41,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.design is None and args.cycle is None:
         raise FabkitError("give a design file, --cycle PLOT.png, or both")
+    if args.cycle is not None:
+        if not (math.isfinite(args.epsilon) and args.epsilon > -1 and args.epsilon != 0):
+            raise FabkitError(
+                f"--epsilon {args.epsilon:g}: expected a finite non-zero number above -1 "
+                "(the stretches are 1 + Lambda eps)"
+            )
+        if not (math.isfinite(args.area) and args.area > 0):
+            raise FabkitError(f"--area {args.area:g}: expected a positive finite number")
     output = {}
     if args.design is not None:
         work = design_work(Design.load(args.design), args.youngs, args.poisson, args.thickness)

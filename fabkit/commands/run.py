@@ -55,6 +55,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "(writes channels/ and channels.dxf; default machine laser_cutter)",
     )
     parser.add_argument(
+        "--step", type=float, help="solver grid step in u and v (default: the spec's)"
+    )
+    parser.add_argument(
+        "--diagonals", type=int, help="solver diagonals per quadrant (default: the spec's)"
+    )
+    parser.add_argument(
         "--send",
         metavar="PORT",
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
@@ -72,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
         send=args.send,
         process_file=args.process,
         baromorph=args.baromorph,
+        step=args.step,
+        diagonals=args.diagonals,
     )
     figures = run_pipeline(options)
     print(

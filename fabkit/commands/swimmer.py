@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from fabkit.atomic import atomic_path
+from fabkit.atomic import atomic_path, check_folder
 from fabkit.progress import ProgressBar
 from fabkit.swimmer.cycle import convergence, run_stroke
 from fabkit.swimmer.fabricate import fabricate
@@ -42,6 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_folder(args.out, f"--out {args.out}")
     spec = load_swimmer(args.spec)
     if args.stations is not None:
         spec = spec.with_path(spec.path, args.stations)

@@ -66,6 +66,8 @@ class Design:
         path = Path(path)
         if not path.is_file():
             raise FabkitError(f"design file '{path}' does not exist")
+        if not zipfile.is_zipfile(path):
+            raise FabkitError(f"{path}: cannot read design file (not an .npz archive)")
         try:
             with np.load(path, allow_pickle=False) as data:
                 missing = [k for k in KEYS if k not in data.files]
@@ -77,6 +79,7 @@ class Design:
         arrays["spec"] = str(arrays["spec"])
         design = cls(**arrays)
         design.check_shapes(path)
+        design.check_values(path)
         return design
 
     def check_shapes(self, where: str | Path = "design") -> None:
@@ -98,3 +101,22 @@ class Design:
                 )
         if self.valid.dtype != bool:
             raise FabkitError(f"{where}: 'valid' must be boolean")
+
+    def check_values(self, where: str | Path = "design") -> None:
+        """Refuse non-numeric arrays, and non-finite values on the grid or at valid points."""
+        for key in ("u", "v", "alpha", "beta", "eps", "r", "n", "stimuli"):
+            if not np.issubdtype(getattr(self, key).dtype, np.number):
+                raise FabkitError(f"{where}: '{key}' is not numeric")
+        checks = {
+            "u": self.u,
+            "v": self.v,
+            "stimuli": self.stimuli,
+            "alpha": self.alpha[self.valid],
+            "beta": self.beta[self.valid],
+            "eps": self.eps[:, self.valid],
+            "r": self.r[:, self.valid],
+            "n": self.n[:, self.valid],
+        }
+        for key, values in checks.items():
+            if not np.isfinite(values).all():
+                raise FabkitError(f"{where}: '{key}' has non-finite values (at valid points)")

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from fabkit.atomic import atomic_path
+from fabkit.atomic import atomic_path, check_folder
 from fabkit.errors import FabkitError
 from fabkit.fields import (
     FlatField,
@@ -84,6 +84,7 @@ def run_job(job: ToolpathJob) -> JobResult:
     """Load, plan and write everything for ``job``."""
     if not 0 <= job.end_inset <= 1:
         raise FabkitError(f"--end-inset {job.end_inset:g}: expected a fraction of w in [0, 1]")
+    check_folder(job.out, f"--out {job.out}")
     fields = load_fields(job)
     process = job_process(job)
     settings = PlanSettings(
@@ -179,6 +180,7 @@ class ChannelResult:
 
 def run_channel_job(job: ChannelJob) -> ChannelResult:
     """Lay out, check and write baromorph channels and their mould."""
+    check_folder(job.out, f"--out {job.out}")
     fields = load_fields(job.fields)
     if len(fields) != 1:
         raise FabkitError("channels: give exactly one input field")

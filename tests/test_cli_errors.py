@@ -1,0 +1,841 @@
+"""Every command's bad-input paths: one line ``fabkit: error: ...``, exit code 2, no output.
+
+Each row of :data:`CASES` is one bad input of one command. The test asserts that the
+command exits with code 2, prints exactly one line on stderr that starts with
+``fabkit: error:`` and names the problem (every listed substring), prints no traceback,
+creates none of the outputs the command was asked for (and no ``*.part`` file), and
+leaves a file that was in the way untouched. The first substring of every row is a
+phrase that docs/troubleshooting.md lists with its fix (a test checks that too).
+
+Placeholders in braces are input files made once per module (:func:`files`) or paths
+in the test's own folder (``{out}``, ``{missing}``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from fabkit.design.solver import solve
+from fabkit.spec import build_spec
+from fabkit.toolpath.job import ToolpathJob, run_job
+from fabkit.writers.export import export
+from tests.conftest import EXAMPLES, ROOT, example_table
+
+TWO = EXAMPLES / "two_shapes.toml"
+SWIMMER = EXAMPLES / "swimmer.toml"
+CHANNELS = EXAMPLES / "baromorph_channels.toml"
+BLOCKER_TEXT = "a file in the way of an output folder\n"
+SIM = "sim://marlin?baud=0&time_scale=0"
+DIW = "marlin_diw_pneumatic"
+
+
+@dataclass(frozen=True)
+class Case:
+    """``fabkit ARGS`` must fail naming ``says`` (says[0]: the documented phrase)."""
+
+    args: str
+    says: tuple[str, ...]
+    outputs: tuple[str, ...] = ("{out}",)
+
+
+def case(args: str, *says: str, outputs: tuple[str, ...] = ("{out}",), id: str):
+    return pytest.param(Case(args, says, outputs), id=id)
+
+
+CASES = [
+    # ------------------------------------------------------------------ spec
+    case("spec {missing}.toml", "does not exist", outputs=(), id="spec-missing"),
+    case("spec {garbage}", "cannot read spec file", outputs=(), id="spec-garbage"),
+    case("spec {bad_toml}", "not valid TOML", outputs=(), id="spec-bad-toml"),
+    case("spec {wrong_json}", "not valid TOML", outputs=(), id="spec-json"),
+    case("spec {unknown_key}", "unknown key", "colour", outputs=(), id="spec-unknown-key"),
+    case(
+        "spec {unknown_surface}",
+        "unknown surface kind",
+        "torus",
+        outputs=(),
+        id="spec-unknown-surface",
+    ),
+    case(
+        "spec {nan_radius}",
+        "expected a positive finite number",
+        "surfaces[1].geometry.radius",
+        outputs=(),
+        id="spec-nan-radius",
+    ),
+    case(
+        "spec {nan_stimulus}",
+        "expected a finite number",
+        "surfaces[2].stimulus",
+        outputs=(),
+        id="spec-nan-stimulus",
+    ),
+    case(
+        "spec {unsafe}",
+        "is not allowed in",
+        "'__import__'",
+        "material.lambda2",
+        outputs=(),
+        id="spec-unsafe-expression",
+    ),
+    case(
+        "spec {unknown_name}",
+        "is not allowed in",
+        "'foo'",
+        "surfaces[2].geometry.z",
+        outputs=(),
+        id="spec-unknown-name",
+    ),
+    case(
+        "spec {one_target}",
+        "need exactly",
+        "surfaces",
+        outputs=(),
+        id="spec-too-few-surfaces",
+    ),
+    case("spec", "the following arguments are required", outputs=(), id="spec-no-file"),
+    # ------------------------------------------------------------------ solve
+    case("solve {missing}.toml --out {out}.npz", "does not exist", id="solve-missing"),
+    case("solve {unsafe} --out {out}.npz", "is not allowed in", id="solve-unsafe-expression"),
+    case("solve {spec} --out {out}.txt", "must end in .npz", id="solve-out-suffix"),
+    case("solve {spec} --out {out}.npz --step -1", "solver.step: expected", id="solve-step-neg"),
+    case("solve {spec} --out {out}.npz --step nan", "solver.step: expected", id="solve-step-nan"),
+    case("solve {spec} --out {out}.npz --step 0", "solver.step: expected", id="solve-step-zero"),
+    case(
+        "solve {spec} --out {out}.npz --diagonals 0",
+        "solver.diagonals: expected",
+        id="solve-diagonals-zero",
+    ),
+    case(
+        "solve {spec} --out {out}.npz --step abc",
+        "invalid float value",
+        "--step",
+        id="solve-step-text",
+    ),
+    case(
+        "solve {spec} --out {out}.npz --quadrants 1;x",
+        "argument --",
+        "--quadrants: expected",
+        id="solve-quadrants-text",
+    ),
+    case(
+        "solve {spec} --out {out}.npz --quadrants 2,2",
+        "solver.quadrants: expected",
+        id="solve-quadrants-bad",
+    ),
+    case(
+        "solve {spec} --out {blocker}/design.npz --step 0.1 --diagonals 30",
+        "exists and is not a folder",
+        outputs=(),
+        id="solve-out-under-file",
+    ),
+    # ------------------------------------------------------------------ check
+    case("check {missing}.npz", "does not exist", outputs=(), id="check-missing"),
+    case("check {garbage}", "cannot read design file", outputs=(), id="check-garbage"),
+    case("check {truncated}", "cannot read design file", outputs=(), id="check-truncated"),
+    case("check {wrong_json}", "cannot read design file", outputs=(), id="check-json"),
+    case("check {npy}", "cannot read design file", outputs=(), id="check-npy"),
+    case("check {toolpath}", "not a fabkit design file", outputs=(), id="check-toolpath"),
+    case("check {nan_design}", "has non-finite values", "'alpha'", outputs=(), id="check-nan"),
+    case(
+        "check {design} --isometry-median nan",
+        "expected a positive finite number",
+        "--isometry-median",
+        outputs=(),
+        id="check-tolerance-nan",
+    ),
+    case(
+        "check {design} --isometry-p95 -1",
+        "expected a positive finite number",
+        "--isometry-p95",
+        outputs=(),
+        id="check-tolerance-negative",
+    ),
+    case(
+        "check {design} --region 0",
+        "expected a positive finite number",
+        "--region",
+        outputs=(),
+        id="check-region-zero",
+    ),
+    # ------------------------------------------------------------------ plot
+    case("plot {missing}.npz --out {out}", "does not exist", id="plot-missing"),
+    case("plot {garbage} --out {out}", "cannot read design file", id="plot-garbage"),
+    case("plot {truncated} --out {out}", "cannot read design file", id="plot-truncated"),
+    case(
+        "plot {design} --out {out} --mesh-format xyz",
+        "invalid choice",
+        "--mesh-format",
+        id="plot-mesh-format",
+    ),
+    case(
+        "plot {design} --out {blocker}",
+        "exists and is not a folder",
+        outputs=(),
+        id="plot-out-is-file",
+    ),
+    # ------------------------------------------------------------------ toolpath
+    case("toolpath {missing}.npz --size 60 --out {out}", "does not exist", id="toolpath-missing"),
+    case(
+        "toolpath {garbage} --size 60 --out {out}",
+        "cannot read design file",
+        id="toolpath-garbage",
+    ),
+    case(
+        "toolpath {truncated} --size 60 --out {out}",
+        "cannot read design file",
+        id="toolpath-truncated",
+    ),
+    case(
+        "toolpath {bad_toml} --out {out}",
+        "not valid TOML",
+        id="toolpath-director-bad-toml",
+    ),
+    case("toolpath {wrong_json} --out {out}", "expected a design .npz", id="toolpath-json"),
+    case(
+        "toolpath {design} --out {out}",
+        "give the size",
+        id="toolpath-design-without-size",
+    ),
+    *[
+        case(
+            f"toolpath {{design}} --size {size} --out {{out}}",
+            "expected a positive finite number",
+            "--size",
+            id=f"toolpath-size-{size}",
+        )
+        for size in ("-5", "nan", "0")
+    ],
+    case(
+        "toolpath {design} --size 60 --road-width -1 --out {out}",
+        "must be a positive number",
+        "road_width_mm",
+        id="toolpath-road-width",
+    ),
+    case(
+        "toolpath {design} --size 60 --layer-height 0 --out {out}",
+        "must be a positive number",
+        "layer_height_mm",
+        id="toolpath-layer-height",
+    ),
+    case(
+        "toolpath {design} --size 60 --layers 0 --out {out}",
+        "cannot be split evenly",
+        "--layers",
+        id="toolpath-layers-zero",
+    ),
+    case(
+        "toolpath {design} --size 60 --end-inset nan --out {out}",
+        "--end-inset",
+        id="toolpath-end-inset",
+    ),
+    case(
+        "toolpath {design} --size 60 --feature 5 --out {out}",
+        "no eps feature",
+        id="toolpath-feature",
+    ),
+    case(
+        "toolpath {design} --size 60 --machine nope --out {out}",
+        "unknown machine",
+        "'nope'",
+        id="toolpath-unknown-machine",
+    ),
+    case(
+        "toolpath {design} --size 60 --process {missing}.toml --out {out}",
+        "does not exist",
+        "process file",
+        id="toolpath-process-missing",
+    ),
+    case(
+        "toolpath {design} --size 60 --process {bad_toml} --out {out}",
+        "not valid TOML",
+        id="toolpath-process-bad-toml",
+    ),
+    case(
+        "toolpath {design} --size 60 --out {blocker}",
+        "exists and is not a folder",
+        outputs=(),
+        id="toolpath-out-is-file",
+    ),
+    case(
+        "toolpath --director __import__('os') --shape disc:10 --out {out}",
+        "is not allowed in",
+        "director.theta",
+        id="toolpath-director-unsafe",
+    ),
+    case(
+        "toolpath --director phi --shape disc:10 --eps nan --out {out}",
+        "is not allowed in",
+        "director.eps",
+        id="toolpath-eps-nan",
+    ),
+    case(
+        "toolpath --director phi --shape blob:10 --out {out}",
+        "unknown shape",
+        "--shape",
+        id="toolpath-unknown-shape",
+    ),
+    case(
+        "toolpath --director phi --shape disc:nan --out {out}",
+        "positive number(s)",
+        "--shape",
+        id="toolpath-shape-nan",
+    ),
+    case("toolpath --director phi --out {out}", "--director needs --shape", id="toolpath-no-shape"),
+    case("toolpath --out {out}", "give a design.npz or director .toml input", id="toolpath-none"),
+    case(
+        "toolpath {design} --size 60 --pattern zigzag --out {out}",
+        "invalid choice",
+        "--pattern",
+        id="toolpath-pattern",
+    ),
+    # ------------------------------------------------------------------ channels
+    case(
+        "channels {missing}.npz --baromorph {channels} --size 60 --out {out}",
+        "does not exist",
+        id="channels-missing",
+    ),
+    case(
+        "channels {garbage} --baromorph {channels} --size 60 --out {out}",
+        "cannot read design file",
+        id="channels-garbage",
+    ),
+    case(
+        "channels {design} --baromorph {missing}.toml --size 60 --out {out}",
+        "does not exist",
+        "baromorph file",
+        id="channels-settings-missing",
+    ),
+    case(
+        "channels {design} --baromorph {bad_toml} --size 60 --out {out}",
+        "not valid TOML",
+        id="channels-settings-bad-toml",
+    ),
+    case(
+        "channels {design} --baromorph {spec} --size 60 --out {out}",
+        "missing table [baromorph]",
+        id="channels-settings-no-table",
+    ),
+    case(
+        "channels {design} --baromorph {channels} --size -60 --out {out}",
+        "expected a positive finite number",
+        "--size",
+        id="channels-size",
+    ),
+    case(
+        "channels {design} --baromorph {channels} --size 60 --out {blocker}",
+        "exists and is not a folder",
+        outputs=(),
+        id="channels-out-is-file",
+    ),
+    # ------------------------------------------------------------------ export
+    case(
+        f"export {{missing}}.npz --machine {DIW} --format gcode -o {{out}}.gcode",
+        "does not exist",
+        outputs=("{out}.gcode",),
+        id="export-missing",
+    ),
+    case(
+        f"export {{garbage}} --machine {DIW} --format gcode -o {{out}}.gcode",
+        "cannot read",
+        outputs=("{out}.gcode",),
+        id="export-garbage",
+    ),
+    case(
+        f"export {{truncated_toolpath}} --machine {DIW} --format gcode -o {{out}}.gcode",
+        "cannot read",
+        outputs=("{out}.gcode",),
+        id="export-truncated",
+    ),
+    case(
+        f"export {{wrong_json}} --machine {DIW} --format gcode -o {{out}}.gcode",
+        "not a toolpath file",
+        outputs=("{out}.gcode",),
+        id="export-json",
+    ),
+    case(
+        "export {toolpath} --machine nope --format gcode -o {out}.gcode",
+        "unknown machine",
+        "'nope'",
+        outputs=("{out}.gcode",),
+        id="export-unknown-machine",
+    ),
+    case(
+        "export {toolpath} --machine {missing}.toml --format gcode -o {out}.gcode",
+        "does not exist",
+        "machine profile",
+        outputs=("{out}.gcode",),
+        id="export-machine-file-missing",
+    ),
+    case(
+        "export {toolpath} --machine {bad_toml} --format gcode -o {out}.gcode",
+        "not valid TOML",
+        outputs=("{out}.gcode",),
+        id="export-machine-bad-toml",
+    ),
+    case(
+        f"export {{toolpath}} --machine {DIW} --format gcode -o {{out}}.gcode --offset 500,500",
+        "outside the envelope",
+        outputs=("{out}.gcode",),
+        id="export-move-out-of-range",
+    ),
+    case(
+        f"export {{toolpath}} --machine {DIW} --format gcode -o {{out}}.gcode --offset nan,0",
+        "finite numbers",
+        "offset",
+        outputs=("{out}.gcode",),
+        id="export-offset-nan",
+    ),
+    case(
+        f"export {{toolpath}} --machine {DIW} --format gcode -o {{out}}.gcode --offset 1",
+        "argument --",
+        "--offset: expected X,Y",
+        outputs=("{out}.gcode",),
+        id="export-offset-short",
+    ),
+    case(
+        f"export {{toolpath}} --machine {DIW} --format stl -o {{out}}.stl",
+        "invalid choice",
+        "--format",
+        outputs=("{out}.stl",),
+        id="export-format",
+    ),
+    case(
+        f"export {{toolpath}} --machine {DIW} --format gcode -o {{blocker}}/sheet.gcode",
+        "exists and is not a folder",
+        outputs=(),
+        id="export-out-under-file",
+    ),
+    case(
+        f"export {{toolpath}} --machine {DIW} --format gcode -o {{folder}}",
+        "a folder of that name exists",
+        outputs=(),
+        id="export-out-is-folder",
+    ),
+    case(
+        f"export {{design}} --machine {DIW} --format gcode -o {{out}}.gcode",
+        "G-code is written from a toolpath",
+        outputs=("{out}.gcode",),
+        id="export-design-to-gcode",
+    ),
+    case(
+        "export {design} --machine dmd_photoalign --format laser -o {out} --size -20",
+        "expected a positive finite number",
+        "--size",
+        id="export-laser-size",
+    ),
+    case(
+        "export {design} --machine dmd_photoalign --format laser -o {out} --size 5 --bins 0",
+        "bins must be",
+        id="export-laser-bins",
+    ),
+    case(
+        "export {design} --machine dmd_photoalign --format laser -o {out} --size 5 --dose nan",
+        "dose must be",
+        id="export-laser-dose-nan",
+    ),
+    case(
+        "export {design} --machine dmd_photoalign --format laser -o {blocker} --size 5",
+        "exists and is not a directory",
+        outputs=(),
+        id="export-laser-out-is-file",
+    ),
+    case(
+        "export {design} --machine laser_cutter --format dxf -o {out}.dxf --size 60 "
+        "--inlet-radius nan",
+        "inlet radius must be",
+        outputs=("{out}.dxf",),
+        id="export-dxf-inlet-nan",
+    ),
+    case(
+        "export {design} --machine laser_cutter --format dxf -o {out}.dxf --size 60 "
+        "--geometry {wrong_json}",
+        "geometry file",
+        outputs=("{out}.dxf",),
+        id="export-dxf-geometry",
+    ),
+    # ------------------------------------------------------------------ machines
+    case("machines extra", "unrecognized arguments", outputs=(), id="machines-extra-argument"),
+    # ------------------------------------------------------------------ send
+    case(
+        f"send {{missing}}.gcode --port {SIM} --machine {DIW}",
+        "cannot read G-code file",
+        outputs=(),
+        id="send-missing",
+    ),
+    case(
+        f"send {{garbage}} --port {SIM} --machine {DIW}",
+        "non-ASCII byte",
+        outputs=(),
+        id="send-garbage",
+    ),
+    case(
+        f"send {{gcode}} --port {SIM} --machine nope",
+        "unknown machine",
+        outputs=(),
+        id="send-unknown-machine",
+    ),
+    case(
+        f"send {{far_gcode}} --port {SIM} --machine {DIW}",
+        "outside the envelope",
+        "X=500.000",
+        outputs=(),
+        id="send-move-out-of-range",
+    ),
+    case(
+        f"send {{fast_gcode}} --port {SIM} --machine {DIW}",
+        "exceeds [limits]",
+        outputs=(),
+        id="send-feed-too-fast",
+    ),
+    case(
+        f"send {{gcode}} --port /dev/fabkit-no-such-port --machine {DIW}",
+        "cannot open port",
+        "/dev/fabkit-no-such-port",
+        outputs=(),
+        id="send-no-such-device",
+    ),
+    case(
+        f"send {{gcode}} --port http://localhost/printer --machine {DIW}",
+        "cannot open port",
+        "http",
+        outputs=(),
+        id="send-unsupported-url",
+    ),
+    case(
+        f"send {{gcode}} --port sim://nope --machine {DIW}",
+        "cannot open port",
+        "sim://nope",
+        outputs=(),
+        id="send-unknown-emulator",
+    ),
+    case(
+        f"send {{gcode}} --port sim://grbl --machine {DIW}",
+        "emulates a grbl machine but profile",
+        outputs=(),
+        id="send-protocol-mismatch",
+    ),
+    case(f"send {{gcode}} --machine {DIW}", "--port is required", outputs=(), id="send-no-port"),
+    case(
+        f"send {{gcode}} --port {SIM} --machine {DIW} --resume-from 0",
+        "is outside",
+        "--resume-from 0",
+        outputs=(),
+        id="send-resume-from-zero",
+    ),
+    case(
+        f"send {{gcode}} --port sim://marlin --machine {DIW} --baud -5",
+        "cannot open port",
+        "baudrate",
+        outputs=(),
+        id="send-baud-negative",
+    ),
+    case(
+        f"send {{gcode}} --port {SIM} --machine {DIW} --log {{blocker}}/log.txt",
+        "cannot write log file",
+        outputs=(),
+        id="send-log-under-file",
+    ),
+    # ------------------------------------------------------------------ simulate
+    case("simulate {missing}.npz --stimulus 1", "does not exist", id="simulate-missing"),
+    case("simulate {garbage} --stimulus 1", "cannot read design file", id="simulate-garbage"),
+    case(
+        "simulate {design} --stimulus nope",
+        "expected a surface name",
+        "--stimulus nope",
+        id="simulate-unknown-surface",
+    ),
+    case(
+        "simulate {design} --stimulus 1 --thickness -1 --out {out}.ply",
+        "thickness must be positive",
+        outputs=("{out}.ply",),
+        id="simulate-thickness",
+    ),
+    case(
+        "simulate {design} --stimulus 1 --poisson nan --out {out}.ply",
+        "poisson ratio must lie in",
+        outputs=("{out}.ply",),
+        id="simulate-poisson-nan",
+    ),
+    case(
+        "simulate {design} --stimulus 1 --steps 0 --out {out}.ply",
+        "at least one ramp step",
+        outputs=("{out}.ply",),
+        id="simulate-steps",
+    ),
+    case(
+        "simulate {design} --stimulus 1 --out {out}.txt",
+        "mesh format must be one of",
+        outputs=("{out}.txt",),
+        id="simulate-out-format",
+    ),
+    # ------------------------------------------------------------------ energy
+    case("energy", "give a design file, --cycle", outputs=(), id="energy-nothing"),
+    case("energy {missing}.npz", "does not exist", outputs=(), id="energy-missing"),
+    case("energy {garbage}", "cannot read design file", outputs=(), id="energy-garbage"),
+    case(
+        "energy {design} --youngs nan",
+        "Young's modulus must be positive",
+        outputs=(),
+        id="energy-youngs",
+    ),
+    case(
+        "energy {design} --poisson 0.6",
+        "Poisson ratio must lie in",
+        outputs=(),
+        id="energy-poisson",
+    ),
+    case(
+        "energy {design} --thickness 0",
+        "thickness must be positive",
+        outputs=(),
+        id="energy-thickness",
+    ),
+    case(
+        "energy --cycle {out}.txt",
+        "the cycle plot is written as .png",
+        outputs=("{out}.txt",),
+        id="energy-cycle-suffix",
+    ),
+    case(
+        "energy --cycle {out}.png --epsilon nan",
+        "expected a finite non-zero number above -1",
+        "--epsilon",
+        outputs=("{out}.png",),
+        id="energy-epsilon-nan",
+    ),
+    case(
+        "energy --cycle {out}.png --area -1",
+        "expected a positive finite number",
+        "--area",
+        outputs=("{out}.png",),
+        id="energy-area",
+    ),
+    case(
+        "energy --cycle {blocker}/cycle.png",
+        "exists and is not a folder",
+        outputs=(),
+        id="energy-cycle-under-file",
+    ),
+    # ------------------------------------------------------------------ swimmer
+    case("swimmer {missing}.toml --out {out}", "does not exist", id="swimmer-missing"),
+    case("swimmer {bad_toml} --out {out}", "not valid TOML", id="swimmer-bad-toml"),
+    case("swimmer {spec} --out {out}", "unknown key", "'initial'", id="swimmer-design-spec"),
+    case(
+        "swimmer {swimmer_unsafe} --out {out}",
+        "is not allowed in",
+        "layers[0].director",
+        id="swimmer-unsafe-expression",
+    ),
+    case(
+        "swimmer {swimmer} --out {out} --stations 0",
+        "expected a positive integer",
+        "stations",
+        id="swimmer-stations",
+    ),
+    case(
+        "swimmer {swimmer} --out {blocker}",
+        "exists and is not a folder",
+        outputs=(),
+        id="swimmer-out-is-file",
+    ),
+    # ------------------------------------------------------------------ run
+    case("run {missing}.toml --out {out}", "does not exist", id="run-missing"),
+    case("run {garbage} --out {out}", "cannot read spec file", id="run-garbage"),
+    case("run {bad_toml} --out {out}", "not valid TOML", id="run-bad-toml"),
+    case("run {unknown_key} --out {out}", "unknown key", "colour", id="run-unknown-key"),
+    case(
+        "run {unknown_surface} --out {out}",
+        "unknown surface kind",
+        "torus",
+        id="run-unknown-surface",
+    ),
+    case(
+        "run {nan_radius} --out {out}",
+        "expected a positive finite number",
+        "radius",
+        id="run-nan",
+    ),
+    case("run {unsafe} --out {out}", "is not allowed in", "__import__", id="run-unsafe"),
+    *[
+        case(
+            f"run {{spec}} --out {{out}} --size {size}",
+            "expected a positive finite number",
+            "--size",
+            id=f"run-size-{size}",
+        )
+        for size in ("-5", "nan", "0")
+    ],
+    case(
+        "run {spec} --out {out} --size 5000",
+        "does not fit the envelope",
+        "--size 5000",
+        id="run-size-too-large",
+    ),
+    case("run {spec} --out {out} --step 0", "solver.step: expected", id="run-step-zero"),
+    case("run {spec} --out {out} --diagonals -1", "solver.diagonals: expected", id="run-diag"),
+    case("run {spec} --out {out} --step abc", "invalid float value", id="run-step-text"),
+    case("run {spec} --out {out} --machine nope", "unknown machine", id="run-unknown-machine"),
+    case(
+        "run {spec} --out {out} --machine {bad_toml}",
+        "not valid TOML",
+        id="run-machine-bad-toml",
+    ),
+    case(
+        "run {spec} --out {out} --process {missing}.toml",
+        "does not exist",
+        "process file",
+        id="run-process-missing",
+    ),
+    case(
+        "run {spec} --out {out} --baromorph {missing}.toml",
+        "does not exist",
+        "baromorph file",
+        id="run-baromorph-missing",
+    ),
+    case(
+        "run {spec} --out {out} --baromorph {channels} --format gcode",
+        "writes DXF only",
+        id="run-baromorph-gcode",
+    ),
+    case(
+        "run {spec} --out {out} --machine dmd_photoalign --format gcode",
+        "is a laser writer",
+        id="run-laser-gcode",
+    ),
+    case("run {spec} --out {out} --format stl", "invalid choice", id="run-format"),
+    case(
+        f"run {{spec}} --out {{out}} --format dxf --send {SIM}",
+        "--send needs --format gcode",
+        id="run-send-without-gcode",
+    ),
+    case(
+        "run {spec} --out {blocker}",
+        "exists and is not a folder",
+        outputs=(),
+        id="run-out-is-file",
+    ),
+    case(
+        "run {spec} --out {blocker}/run",
+        "exists and is not a folder",
+        outputs=(),
+        id="run-out-under-file",
+    ),
+    # The port is opened last: the run's files are complete, report.json is not written.
+    case(
+        "run {spec} --out {out} --step 0.1 --diagonals 30 --size 20 "
+        "--send /dev/fabkit-no-such-port",
+        "cannot open port",
+        outputs=("{out}/report.json", "{out}/report.html"),
+        id="run-send-no-such-device",
+    ),
+]
+
+
+def edited(text: str, old: str, new: str) -> str:
+    assert old in text, old
+    return text.replace(old, new, 1)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> dict[str, str]:
+    """Bad and good inputs, made once: a coarse Fig. 1 design, a small toolpath, ..."""
+    folder = tmp_path_factory.mktemp("inputs")
+    table = example_table("two_shapes.toml")
+    table["solver"].update(step=0.1, diagonals=30)  # a coarse grid keeps the test fast
+    design = solve(build_spec(table, ROOT)).design
+    design.save(folder / "design.npz")
+    arrays = dict(np.load(folder / "design.npz"))
+    arrays["alpha"] = np.where(arrays["valid"], np.nan, arrays["alpha"])
+    np.savez(folder / "nan_design.npz", **arrays)
+    np.save(folder / "heights.npy", np.zeros((3, 3)))
+    run_job(ToolpathJob(director="arctan2(y, x)", shape="disc:5", out=str(folder / "toolpath")))
+    toolpath = folder / "toolpath" / "toolpath.npz"
+    export(toolpath, DIW, "gcode", folder / "sheet.gcode")
+    data = (folder / "design.npz").read_bytes()
+    (folder / "truncated.npz").write_bytes(data[: len(data) // 2])
+    data = toolpath.read_bytes()
+    (folder / "truncated_toolpath.npz").write_bytes(data[: len(data) // 2])
+    (folder / "garbage.npz").write_bytes(b"\x00\x01garbage\xff\xfe" * 8)
+    (folder / "wrong.json").write_text(json.dumps({"not": "what fabkit wants"}))
+    (folder / "bad.toml").write_text("[material\nfeatures = \n")
+    (folder / "far.gcode").write_text("G90\nG1 X500 Y10 F600\n")
+    (folder / "fast.gcode").write_text("G90\nG1 X10 Y10 F6000000\n")
+    (folder / "folder").mkdir()
+    two = TWO.read_text()
+    specs = {
+        "unknown_key": edited(two, 'name = "flat"\n', 'name = "flat"\ncolour = "red"\n'),
+        "unknown_surface": edited(two, 'kind = "sphere"', 'kind = "torus"'),
+        "nan_radius": edited(two, "radius = 1.0", "radius = nan"),
+        "nan_stimulus": edited(two, "stimulus = [2]", "stimulus = [nan]"),
+        "unsafe": edited(two, '"exp(L*eps)"', "\"__import__('os')\""),
+        "unknown_name": edited(two, 'y**2/4))"', 'y**2/4)) + foo"'),
+        "one_target": two.split('[[surfaces]]\nname = "bump"')[0]
+        + "[initial]"
+        + two.split("[initial]")[1],
+    }
+    for name, text in specs.items():
+        (folder / f"{name}.toml").write_text(text)
+    swimmer = edited(SWIMMER.read_text(), 'director = "phi"', "director = \"__import__('os')\"")
+    (folder / "swimmer_unsafe.toml").write_text(swimmer)
+    paths = {name: str(folder / f"{name}.toml") for name in [*specs, "swimmer_unsafe"]}
+    return {
+        **paths,
+        "spec": str(TWO),
+        "swimmer": str(SWIMMER),
+        "channels": str(CHANNELS),
+        "design": str(folder / "design.npz"),
+        "nan_design": str(folder / "nan_design.npz"),
+        "npy": str(folder / "heights.npy"),
+        "toolpath": str(toolpath),
+        "gcode": str(folder / "sheet.gcode"),
+        "truncated": str(folder / "truncated.npz"),
+        "truncated_toolpath": str(folder / "truncated_toolpath.npz"),
+        "garbage": str(folder / "garbage.npz"),
+        "wrong_json": str(folder / "wrong.json"),
+        "bad_toml": str(folder / "bad.toml"),
+        "far_gcode": str(folder / "far.gcode"),
+        "fast_gcode": str(folder / "fast.gcode"),
+        "folder": str(folder / "folder"),
+    }
+
+
+@pytest.mark.parametrize("bad", CASES)
+def test_bad_input_is_one_line_and_writes_nothing(bad: Case, files, run_cli, tmp_path):
+    blocker = tmp_path / "blocker"
+    blocker.write_text(BLOCKER_TEXT)
+    places = {**files, "out": str(tmp_path / "out"), "missing": str(tmp_path / "missing")}
+    places["blocker"] = str(blocker)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, _, err = run_cli(*[arg.format(**places) for arg in bad.args.split()])
+    assert code == 2, err
+    assert err.startswith("fabkit: error: ") and err.count("\n") == 1, err
+    assert "Traceback" not in err
+    for phrase in bad.says:
+        assert phrase in err, (phrase, err)
+    for output in bad.outputs:
+        assert not (tmp_path / output.format(out="out")).exists(), output
+    if bad.outputs == ("{out}",):
+        assert sorted(p.name for p in tmp_path.iterdir()) == before
+    assert [p for p in tmp_path.rglob("*") if ".part" in p.name] == []
+    assert blocker.read_text() == BLOCKER_TEXT
+
+
+def test_every_error_phrase_is_in_troubleshooting():
+    guide = (ROOT / "docs" / "troubleshooting.md").read_text()
+    missing = sorted({p.values[0].says[0] for p in CASES if p.values[0].says[0] not in guide})
+    assert missing == [], f"add to docs/troubleshooting.md: {missing}"
+
+
+def test_an_operating_system_error_is_one_line(run_cli, monkeypatch):
+    def refuse(*_):
+        raise PermissionError(13, "Permission denied", "/somewhere/sheet.gcode")
+
+    monkeypatch.setattr("fabkit.commands.machines.machine_table", refuse)
+    code, _, err = run_cli("machines")
+    assert code == 2
+    assert err == "fabkit: error: /somewhere/sheet.gcode: Permission denied\n"
