@@ -1,0 +1,118 @@
+"""Ctrl-C in the middle of ``fabkit run`` leaves no half-written file under a final name.
+
+The interrupt is simulated where it hurts most: while a file is half-written in its
+temporary place (the G-code, a picture, a laser pattern folder). Afterwards every file
+under a final name must be complete, nothing ``*.part`` may remain, and the command
+prints one line and exits with 130.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import matplotlib.figure
+import numpy as np
+import trimesh
+from PIL import Image
+
+from fabkit.design.design import Design
+from tests.conftest import EXAMPLES
+
+COARSE = ("--step", "0.1", "--diagonals", "30", "--size", "20")
+
+
+def assert_complete(out: Path) -> list[str]:
+    """Every file under ``out`` reads back whole; returns their relative names."""
+    names = []
+    for path in sorted(p for p in out.rglob("*") if p.is_file()):
+        name = str(path.relative_to(out))
+        names.append(name)
+        assert ".part" not in name and ".old" not in name, name
+        suffix = path.suffix
+        if name == "design.npz":
+            Design.load(path)
+        elif suffix == ".npz":
+            with np.load(path, allow_pickle=False) as data:
+                for key in data.files:
+                    data[key]  # reading checks every member's CRC
+        elif suffix == ".json":
+            json.loads(path.read_text())
+        elif suffix in (".png", ".tif"):
+            with Image.open(path) as image:
+                image.load()
+        elif suffix == ".svg":
+            ET.parse(path)
+        elif suffix == ".ply":
+            assert len(trimesh.load(path).faces) > 0
+        elif suffix == ".html":
+            assert path.read_text().rstrip().endswith("</html>")
+        elif suffix == ".gcode":
+            assert path.read_text().endswith("\n")
+        else:
+            raise AssertionError(f"unexpected file {name}")
+    return names
+
+
+def test_ctrl_c_while_writing_gcode(run_cli, tmp_path, monkeypatch):
+    real_replace = os.replace
+
+    def interrupted(src, dst):
+        if Path(dst).name == "sheet.gcode":
+            data = Path(src).read_bytes()
+            Path(src).write_bytes(data[: len(data) // 2])  # half-written in its temporary
+            raise KeyboardInterrupt
+        real_replace(src, dst)
+
+    monkeypatch.setattr("fabkit.atomic.os.replace", interrupted)
+    out = tmp_path / "out"
+    code, _, err = run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *COARSE)
+    assert code == 130
+    assert err == "fabkit: interrupted\n"
+    names = assert_complete(out)
+    assert "sheet.gcode" not in names and "report.json" not in names
+    assert {"design.npz", "design.json", "toolpath/toolpath.npz"} <= set(names)
+
+
+def test_ctrl_c_while_drawing_pictures(run_cli, tmp_path, monkeypatch):
+    real_savefig = matplotlib.figure.Figure.savefig
+    saved = []
+
+    def interrupted(figure, target, *args, **kwargs):
+        if len(saved) == 2:  # two pictures are done, the third is half-written
+            Path(target).write_bytes(b"\x89PNG\r\n\x1a\n half a picture")
+            raise KeyboardInterrupt
+        saved.append(target)
+        return real_savefig(figure, target, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", interrupted)
+    out = tmp_path / "out"
+    code, _, err = run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *COARSE)
+    assert code == 130
+    assert err == "fabkit: interrupted\n"
+    names = assert_complete(out)
+    assert len([n for n in names if n.startswith("pictures/")]) == 2
+    assert not (out / "toolpath").exists() and not (out / "sheet.gcode").exists()
+
+
+def test_ctrl_c_while_writing_a_laser_pattern(run_cli, tmp_path, monkeypatch):
+    real_save = Image.Image.save
+
+    def interrupted(image, target, *args, **kwargs):
+        if "laser" in str(target) and Path(target).name.startswith("exposure"):
+            Path(target).write_bytes(b"\x89PNG\r\n\x1a\n half an exposure")
+            raise KeyboardInterrupt
+        return real_save(image, target, *args, **kwargs)
+
+    monkeypatch.setattr(Image.Image, "save", interrupted)
+    out = tmp_path / "out"
+    code, _, err = run_cli(
+        "run", EXAMPLES / "two_shapes.toml", "--out", out, "--machine", "dmd_photoalign", *COARSE
+    )
+    assert code == 130
+    assert err == "fabkit: interrupted\n"
+    names = assert_complete(out)
+    assert not any(name.startswith("laser") for name in names)
+    assert "design.npz" in names and "report.json" not in names
