@@ -1,0 +1,84 @@
+"""Every command in examples/README.md runs, on coarse grids, and writes its files.
+
+The commands are read from the README's ``sh`` blocks, so the page and this test cannot
+drift apart. ``fabkit run`` gets ``--step 0.1 --diagonals 30`` appended (a coarse solver
+grid); the swimmer runs on a copy of its spec with small meshes and two stations per leg
+(as in tests/test_swimmer.py). Outputs go to the test's folder, never to ``out/``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+
+import pytest
+
+from tests.conftest import EXAMPLES, ROOT
+
+README = EXAMPLES / "README.md"
+COARSE_SOLVE = ["--step", "0.1", "--diagonals", "30"]
+
+
+def example_commands() -> list[str]:
+    """The ``fabkit ...`` lines of the README's ``sh`` blocks."""
+    blocks = re.findall(r"```sh\n(.*?)```", README.read_text(), flags=re.S)
+    return [line for block in blocks for line in block.splitlines() if line.startswith("fabkit ")]
+
+
+def out_name(command: str) -> str:
+    words = shlex.split(command)
+    return words[words.index("--out") + 1]
+
+
+def coarse_swimmer(folder) -> str:
+    text = (EXAMPLES / "swimmer.toml").read_text()
+    for old, new in [("rings = 12", "rings = 5"), ("rings = 20", "rings = 7")]:
+        assert old in text
+        text = text.replace(old, new)
+    path = folder / "swimmer.toml"
+    path.write_text(text)
+    return str(path)
+
+
+@pytest.mark.parametrize("command", example_commands(), ids=out_name)
+def test_example_runs(command, run_cli, tmp_path):
+    args = shlex.split(command)[1:]
+    out = tmp_path / out_name(command).removeprefix("out/")
+    args[args.index("--out") + 1] = str(out)
+    args = [str(ROOT / a) if a.startswith("examples/") else a for a in args]
+    name = args[0]
+    if name == "run":
+        args += COARSE_SOLVE
+    if name == "swimmer":
+        args[args.index(str(EXAMPLES / "swimmer.toml"))] = coarse_swimmer(tmp_path)
+        args += ["--stations", "2"]
+    code, _, err = run_cli(*args)
+    assert code == 0, err
+    assert [p for p in out.rglob("*") if ".part" in p.name] == []
+    expected = {
+        "run": ["design.npz", "report.html", "report.json"],
+        "swimmer": ["summary.json", "stroke.npz", "swimmer.gcode"],
+        "toolpath": ["toolpath.npz", "quality.json", "preview.png"],
+        "channels": ["channels.json", "mould.stl", "channels.png"],
+    }[name]
+    if name == "run":
+        if "--baromorph" in args:
+            expected += ["channels.dxf", "channels/mould.stl"]
+        elif "dmd_photoalign" in args:
+            expected += ["laser/manifest.json", "laser/angle.png"]
+        else:
+            expected += ["sheet.gcode", "toolpath/toolpath.npz"]
+        assert json.loads((out / "report.json").read_text())["exports"]
+    for file in expected:
+        assert (out / file).stat().st_size > 0, file
+
+
+def test_every_example_file_has_a_command():
+    commands = "\n".join(example_commands())
+    for path in sorted(EXAMPLES.rglob("*.toml")):
+        assert f"examples/{path.relative_to(EXAMPLES)}" in commands, path
+
+
+def test_examples_are_linked_from_the_readme():
+    assert "](examples/README.md)" in (ROOT / "README.md").read_text()
