@@ -211,6 +211,12 @@ CASES = [
         for size in ("-5", "nan", "0")
     ],
     case(
+        "toolpath {design} --size 5000 --out {out}",
+        "road widths of",
+        "give a smaller --size",
+        id="toolpath-size-too-large",
+    ),
+    case(
         "toolpath {design} --size 60 --road-width -1 --out {out}",
         "must be a positive number",
         "road_width_mm",

@@ -87,6 +87,7 @@ def run_job(job: ToolpathJob) -> JobResult:
     check_folder(job.out, f"--out {job.out}")
     fields = load_fields(job)
     process = job_process(job)
+    _check_extent(fields, process.road_width_mm)
     settings = PlanSettings(
         layers=job.layers,
         pattern=job.pattern,
@@ -103,6 +104,22 @@ def run_job(job: ToolpathJob) -> JobResult:
         files.append(out / "toolpath.json")
         save_toolpath(plan.toolpath, files[-1])
     return JobResult(plan, tuple(files))
+
+
+MAX_ROADS_ACROSS = 5000
+"""Road widths across the sheet beyond which planning would take hours and many GB."""
+
+
+def _check_extent(fields: list[FlatField], road_width_mm: float) -> None:
+    """Refuse a sheet too many road widths across (e.g. a mistyped --size) before planning."""
+    x0, y0, x1, y1 = np.array([f.outline.bounds for f in fields]).T
+    across = max(x1.max() - x0.min(), y1.max() - y0.min())
+    if across / road_width_mm > MAX_ROADS_ACROSS:
+        raise FabkitError(
+            f"the sheet is {across:.4g} mm across, {across / road_width_mm:.0f} road widths of "
+            f"{road_width_mm:g} mm, more than {MAX_ROADS_ACROSS}: give a smaller --size "
+            "(or a wider --road-width)"
+        )
 
 
 def load_fields(job: ToolpathJob) -> list[FlatField]:
