@@ -11,9 +11,17 @@ from scipy.spatial import Delaunay
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.mechanics.compare import align, compare, integrated_curvature
+from fabkit.mechanics.energy import grid_integral
 from fabkit.mechanics.mesh import design_mesh, disc_mesh
 from fabkit.mechanics.metric import edge_lengths, metric_from_director, metric_from_lengths
-from fabkit.mechanics.simulate import Settings, simulate, simulate_design, surface_index
+from fabkit.mechanics.shell import Sheet
+from fabkit.mechanics.simulate import (
+    Settings,
+    design_metrics,
+    simulate,
+    simulate_design,
+    surface_index,
+)
 from fabkit.spec import build_spec
 from tests.conftest import ROOT
 
@@ -118,13 +126,27 @@ def fig1_design():
     return solve(build_spec(table, ROOT)).design
 
 
-def test_fig1_sphere_is_reproduced(fig1_design):
-    surface = surface_index(fig1_design, "sphere")
-    simulation = simulate_design(fig1_design, surface, trim=3)  # thickness 1 % of its size
-    report = compare(fig1_design, simulation)
+@pytest.mark.parametrize(("stimulus", "whole"), [("sphere", 0.075), ("bump", 0.026)])
+def test_fig1_targets_are_reproduced_where_the_sheet_is_wide_enough(fig1_design, stimulus, whole):
+    """Thickness 1 % of the flat domain's size. Without the arms (regions under 0.5 in
+    (u, v) across: --trim 5 on this step-0.1 grid), each cell split 3 x 3, both targets
+    are met within 2 % of the patch size. The whole domain misses (see docs/mechanics.md,
+    Limits): the sphere's narrow arms unroll (measured 6.9 %), the bump relaxes towards a
+    near-isometric shape of lower bending energy (2.4 %)."""
+    surface = surface_index(fig1_design, stimulus)
+    report = compare(fig1_design, simulate_design(fig1_design, surface, trim=5, refine=3))
     assert report.converged
-    assert report.rms <= 0.025, report.table()
-    assert report.strain_median <= 3e-3
+    assert report.rms <= 0.02, report.table()
+    assert report.strain_median <= 5e-3
+    report = compare(fig1_design, simulate_design(fig1_design, surface))
+    assert report.rms <= whole, report.table()
+
+
+def test_trimming_keeps_the_thickness_of_the_whole_sheet(fig1_design):
+    settings = Settings(max_iterations=1)
+    whole = simulate_design(fig1_design, 1, settings=settings)
+    trimmed = simulate_design(fig1_design, 1, settings=settings, trim=5)
+    assert trimmed.thickness == whole.thickness
 
 
 def test_unknown_stimulus_is_a_one_line_error(fig1_design):
@@ -139,14 +161,38 @@ def test_design_mesh_carries_material_coordinates(fig1_design):
     assert len(design_mesh(fig1_design, trim=3).triangles) < len(mesh.triangles)
 
 
+def test_refined_design_mesh_splits_every_cell(fig1_design):
+    mesh, fine = design_mesh(fig1_design), design_mesh(fig1_design, refine=3)
+    assert len(fine.triangles) == 9 * len(mesh.triangles)
+    nodes = fine.grid[fine.nodes] // 3
+    assert np.array_equal(fine.points[fine.nodes], fig1_design.r[0][nodes[:, 0], nodes[:, 1]])
+    assert np.count_nonzero(fine.nodes) == len(mesh.points)
+    # the sheet as made: its area in the reference metric against the designed flat area
+    # iint alpha beta du dv; unrefined cells are too long and curved to carry it
+    design = fig1_design
+    designed = grid_integral(design.alpha * design.beta, design.valid, design.step)
+    coarse_error = abs(made_area(design, mesh) / designed - 1)
+    fine_error = abs(made_area(design, fine) / designed - 1)
+    assert fine_error < 0.005 and fine_error < 0.5 * coarse_error
+    with pytest.raises(FabkitError, match="refine"):
+        design_mesh(fig1_design, refine=0)
+
+
+def made_area(design, mesh) -> float:
+    """Area of the flat sheet as made in its reference metric (surface 0's stimulus)."""
+    metrics = design_metrics(design, mesh, 0)
+    flat = Sheet.build(mesh.points, mesh.triangles).area
+    return float(np.sum(np.sqrt(np.linalg.det(metrics)) * flat))
+
+
 def test_simulate_cli_writes_the_mesh_and_reports(fig1_design, run_cli, tmp_path):
     path = tmp_path / "design.npz"
     fig1_design.save(path)
     mesh = tmp_path / "sphere.ply"
     code, out, _ = run_cli(
-        "simulate", path, "--stimulus", "1", "--trim", "3", "--out", mesh, "--json"
+        "simulate", path, "--stimulus", "1", "--trim", "5", "--refine", "2", "--out", mesh, "--json"
     )
     assert code == 0 and mesh.stat().st_size > 0
-    assert json.loads(out)["rms"] <= 0.025
+    assert json.loads(out)["rms"] <= 0.02
     code, _, err = run_cli("simulate", path, "--stimulus", "1", "--out", tmp_path / "x.txt")
     assert code == 2 and "mesh format" in err

@@ -24,7 +24,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--stimulus", required=True, help="surface name or index whose stimulus to apply"
     )
     parser.add_argument(
-        "--thickness", type=float, help="sheet thickness (design units; default 1 %% of its size)"
+        "--thickness",
+        type=float,
+        help="sheet thickness (design units; default 1 %% of the solved flat domain's diameter)",
     )
     parser.add_argument("--poisson", type=float, default=0.5, help="Poisson ratio (default 0.5)")
     defaults = Settings()
@@ -36,6 +38,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--trim", type=int, default=0, help="drop regions fewer than TRIM grid cells across"
+    )
+    parser.add_argument(
+        "--refine",
+        type=int,
+        default=1,
+        help="split every grid cell into REFINE x REFINE sub-cells (default 1)",
     )
     parser.add_argument("--out", type=Path, help="mesh of the result (.ply, .stl, .glb, .obj)")
     parser.add_argument("--json", action="store_true", help="print the comparison as JSON")
@@ -51,7 +59,14 @@ def run(args: argparse.Namespace) -> int:
     bar = ProgressBar("simulating")
     try:
         simulation = simulate_design(
-            design, surface, args.thickness, args.poisson, settings, args.trim, progress=bar
+            design,
+            surface,
+            args.thickness,
+            args.poisson,
+            settings,
+            args.trim,
+            args.refine,
+            progress=bar,
         )
     finally:
         bar.close()

@@ -153,10 +153,13 @@ class Comparison:
 
 
 def target_points(design: Design, simulation: DesignSimulation) -> np.ndarray:
-    """The target points (V, 3) r_s(u, v) of the simulated vertices, embedded in 3D."""
+    """The target points (V, 3) r_s(u, v) of the simulated vertices, embedded in 3D.
+
+    On a refined mesh the chart points between the design's grid points are
+    interpolated bilinearly in (u, v) (they lie on the target surface).
+    """
     surface = spec_from_json(design.spec).targets[simulation.surface].surface
-    grid = simulation.mesh.grid
-    embedded = surface.embed(design.r[simulation.surface][grid[:, 0], grid[:, 1]])
+    embedded = surface.embed(simulation.mesh.sample(design.r[simulation.surface]))
     if embedded is None:
         raise FabkitError(
             f"surface '{simulation.name}' is intrinsic (metric only): no 3D target to compare"
@@ -165,10 +168,15 @@ def target_points(design: Design, simulation: DesignSimulation) -> np.ndarray:
 
 
 def compare(design: Design, simulation: DesignSimulation) -> Comparison:
-    """Align a design simulation with its target and measure the differences."""
-    target = target_points(design, simulation)
+    """Align a design simulation with its target and measure the differences.
+
+    Distances are measured at the design's own grid points (the refined mesh's other
+    vertices are left out, so the figures compare across refinements).
+    """
     result, mesh = simulation.result, simulation.mesh
-    alignment = align(result.positions, target)
+    nodes = mesh.nodes
+    target = target_points(design, simulation)[nodes]
+    alignment = align(result.positions[nodes], target)
     size = diameter(target)
     strain = metric_strain(result.positions, mesh.points, mesh.triangles, simulation.metrics)
     return Comparison(

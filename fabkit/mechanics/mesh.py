@@ -24,14 +24,40 @@ from fabkit.errors import FabkitError
 class DesignMesh:
     """The solved flat domain of a design as a triangle mesh.
 
-    ``points`` (V, 2) flat-sheet positions r[0]; ``triangles`` (F, 3) counter-clockwise;
-    ``grid`` (V, 2) int, the (i, j) grid index of every vertex, so vertex k sits at
-    material coordinates (u[i], v[j]) and corresponds to r_s[i, j] on every surface s.
+    ``points`` (V, 2) flat-sheet positions; ``triangles`` (F, 3) counter-clockwise;
+    ``grid`` (V, 2) int, every vertex's index (i, j) on the design grid refined ``refine``
+    times, so vertex k sits at material coordinates (u, v) = (u[0], v[0]) + step
+    grid[k] / refine. With ``refine`` = 1 the vertices are the design's grid points and
+    vertex k corresponds to r_s[i, j] on every surface s; otherwise :meth:`sample`
+    interpolates the design's fields at the vertices.
     """
 
     points: np.ndarray
     triangles: np.ndarray
     grid: np.ndarray
+    refine: int = 1
+
+    @property
+    def nodes(self) -> np.ndarray:
+        """Boolean mask (V,) of the vertices that are points of the design's own grid."""
+        return np.all(self.grid % self.refine == 0, axis=1)
+
+    def sample(self, field: np.ndarray) -> np.ndarray:
+        """A design field (nu, nv, ...) at the vertices (V, ...), bilinear in (u, v).
+
+        Exact at the design's grid points; inside a grid cell only the cell's four corners
+        are used (a solved cell's corners are all solved).
+        """
+        field = np.asarray(field)
+        low = np.minimum(self.grid // self.refine, np.array(field.shape[:2]) - 2)
+        fraction = self.grid / self.refine - low
+        total = np.zeros((len(self.grid), *field.shape[2:]))
+        for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
+            weight = np.abs(1 - di - fraction[:, 0]) * np.abs(1 - dj - fraction[:, 1])
+            value = field[low[:, 0] + di, low[:, 1] + dj]
+            weight = weight.reshape(-1, *([1] * (value.ndim - 1)))
+            total += weight * np.where(weight > 0, value, 0.0)
+        return total
 
 
 @dataclass(frozen=True)
@@ -49,25 +75,34 @@ class Topology:
     flaps: np.ndarray
 
 
-def design_mesh(design: Design, trim: int = 0) -> DesignMesh:
+def design_mesh(design: Design, trim: int = 0, refine: int = 1) -> DesignMesh:
     """Triangulate every solved grid cell of ``design`` (two triangles per cell).
 
     With ``trim`` = k > 1, only cells inside a solved block of k x k cells are kept
     (a morphological opening): it cuts away spikes fewer than k cells across, which a
     mesh cannot resolve (a one-cell ribbon bends freely whatever its metric).
+    With ``refine`` = n > 1 every kept cell is split into n x n sub-cells, uniform in
+    material coordinates; the new vertices' flat positions interpolate the design's
+    flat sheet r[0] bilinearly (they only chart the sheet: its reference metric comes
+    from the designed metric in (u, v), see
+    :func:`~fabkit.mechanics.simulate.design_metrics`).
     """
+    if refine < 1:
+        raise FabkitError(f"refine must be a positive integer, got {refine}")
     valid = design.valid
+    cells = valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:] & valid[1:, 1:]
     if trim > 1:
-        cells = valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:] & valid[1:, 1:]
         cells = ndimage.binary_opening(cells, structure=np.ones((trim, trim), dtype=bool))
-        valid = np.zeros_like(valid)
-        for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
-            valid[di : di + cells.shape[0], dj : dj + cells.shape[1]] |= cells
-    grid, triangles = grid_triangles(valid)
+    fine = np.kron(cells, np.ones((refine, refine), dtype=bool))
+    used = np.zeros((fine.shape[0] + 1, fine.shape[1] + 1), dtype=bool)
+    for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        used[di : di + fine.shape[0], dj : dj + fine.shape[1]] |= fine
+    grid, triangles = grid_triangles(used)
     if len(triangles) == 0:
         raise FabkitError("the design has no solved grid cell to simulate")
-    points = design.r[0][grid[:, 0], grid[:, 1]]
-    return DesignMesh(points, counter_clockwise(points, triangles), grid)
+    mesh = DesignMesh(np.zeros((len(grid), 2)), triangles, grid, refine)
+    points = mesh.sample(design.r[0])
+    return DesignMesh(points, counter_clockwise(points, triangles), grid, refine)
 
 
 def disc_mesh(radius: float, rings: int) -> tuple[np.ndarray, np.ndarray]:

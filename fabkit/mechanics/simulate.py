@@ -272,11 +272,12 @@ def design_metrics(design: Design, mesh: DesignMesh, surface: int) -> np.ndarray
     metric in flat-sheet coordinates fits its three edge lengths.
     """
     spec = spec_from_json(design.spec)
-    i, j = mesh.grid[:, 0], mesh.grid[:, 1]
-    response = spec.material.response(design.eps[:, i, j], design.stimuli[surface : surface + 1])
-    stretch_u = design.alpha[i, j] * response.lambda1[0]
-    stretch_v = design.beta[i, j] * response.lambda2[0]
-    lengths = grid_edge_lengths(mesh.triangles, mesh.grid, design.step, stretch_u, stretch_v)
+    eps = np.moveaxis(mesh.sample(np.moveaxis(design.eps, 0, -1)), -1, 0)
+    response = spec.material.response(eps, design.stimuli[surface : surface + 1])
+    stretch_u = mesh.sample(design.alpha) * response.lambda1[0]
+    stretch_v = mesh.sample(design.beta) * response.lambda2[0]
+    step = design.step / mesh.refine
+    lengths = grid_edge_lengths(mesh.triangles, mesh.grid, step, stretch_u, stretch_v)
     return metric_from_lengths(mesh.points, mesh.triangles, lengths)
 
 
@@ -287,20 +288,30 @@ def simulate_design(
     poisson: float = 0.5,
     settings: Settings = Settings(),
     trim: int = 0,
+    refine: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> DesignSimulation:
     """Simulate ``design``'s flat domain under surface ``surface``'s stimulus.
 
-    ``thickness`` defaults to 1 % of the flat domain's diameter (design units); ``trim``
-    as in :func:`~fabkit.mechanics.mesh.design_mesh`.
+    ``thickness`` defaults to 1 % of the diameter of the design's whole solved flat
+    domain (design units; trimming does not change it); ``trim`` and ``refine`` as in
+    :func:`~fabkit.mechanics.mesh.design_mesh`.
     """
     spec = spec_from_json(design.spec)
-    mesh = design_mesh(design, trim)
+    mesh = design_mesh(design, trim, refine)
     if thickness is None:
-        thickness = 0.01 * diameter(mesh.points)
+        thickness = 0.01 * diameter(design_mesh(design).points)
     metrics = design_metrics(design, mesh, surface)
+    made = design_metrics(design, mesh, 0)
     result = simulate(
-        mesh.points, mesh.triangles, metrics, thickness, poisson, settings, progress=progress
+        mesh.points,
+        mesh.triangles,
+        metrics,
+        thickness,
+        poisson,
+        settings,
+        start_metrics=made,
+        progress=progress,
     )
     name = spec.targets[surface].name
     return DesignSimulation(surface, name, mesh, metrics, thickness, result)
