@@ -112,8 +112,9 @@ class Comparison:
     """A simulated design against its target.
 
     ``size`` is the target patch's diameter (design units); ``rms`` and ``max`` are
-    distances after alignment divided by ``size``; ``strain_median``, ``strain_p95``,
-    ``strain_max`` summarise :func:`metric_strain` over the faces.
+    distances at the design's grid points after alignment divided by ``size``;
+    ``strain_median``, ``strain_p95``, ``strain_max`` summarise :func:`metric_strain`
+    over the faces.
     """
 
     name: str
