@@ -9,7 +9,7 @@ Files in the output folder:
 ================== ==============================================================
 design.npz/.json   the design and its solve summary (``fabkit solve``)
 pictures/          flat sheet, eps, actuated surfaces, residual maps (PNG)
-patches/           each actuated patch as a mesh (PLY)
+patches/           each actuated patch as a mesh (PLY, or ``--mesh-format``)
 toolpath/          toolpath.npz, quality.json, preview.png/svg (``fabkit toolpath``)
 sheet.gcode        machine file(s), one per ``--format`` (``fabkit export``)
 sheet.dxf          (with ``--format dxf``)
@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from fabkit.atomic import atomic_path, check_folder
-from fabkit.design.patches import write_patch_mesh
+from fabkit.design.patches import MESH_FORMATS, write_patch_meshes
 from fabkit.design.report import solve_to_file
 from fabkit.errors import FabkitError
 from fabkit.machines import load_machine
@@ -53,7 +53,8 @@ DEFAULT_SIZE_MM = 60.0
 class RunOptions:
     """What ``fabkit run`` is asked to do; ``size_mm`` is the sheet's longest side in mm.
 
-    ``step`` and ``diagonals`` replace the spec's solver settings when given.
+    ``step`` and ``diagonals`` replace the spec's solver settings when given;
+    ``mesh_format`` is the patch meshes' file type (ply, stl, glb or obj).
 
     ``formats`` None: DXF for baromorph channels, laser patterns on a laser writer, else
     G-code. ``machine`` None: laser_cutter for baromorph channels, else a pneumatic DIW.
@@ -69,6 +70,7 @@ class RunOptions:
     baromorph: str | None = None
     step: float | None = None
     diagonals: int | None = None
+    mesh_format: str = "ply"
 
 
 def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dict[str, Any]:
@@ -91,7 +93,10 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
 
     say("[2/6] drawing pictures and patch meshes")
     pictures = render_design(solution.design, out / "pictures")
-    meshes = _patch_meshes(solution.design, spec, out / "patches")
+    meshes = [
+        str(path)
+        for path in write_patch_meshes(solution.design, out / "patches", options.mesh_format)
+    ]
 
     if options.baromorph:
         fabricated = _channels(options, out, say)
@@ -135,6 +140,11 @@ def _check_inputs(options: RunOptions) -> Spec:
     for fmt in options.formats:
         if fmt not in FORMAT_FILES:
             raise FabkitError(f"--format {fmt}: expected one of {', '.join(FORMAT_FILES)}")
+    if f".{options.mesh_format}" not in MESH_FORMATS:
+        raise FabkitError(
+            f"--mesh-format {options.mesh_format}: expected one of "
+            + ", ".join(suffix.lstrip(".") for suffix in MESH_FORMATS)
+        )
     if options.send and "gcode" not in options.formats:
         raise FabkitError("--send needs --format gcode")
     if not (math.isfinite(options.size_mm) and options.size_mm > 0):
@@ -247,13 +257,3 @@ def _channels(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fa
     }
     caption = "Baromorph channels coloured by width (walls grey), inlet red"
     return _Fabricated(figures, (caption, out / "channels" / "channels.png"))
-
-
-def _patch_meshes(design, spec, folder: Path) -> list[str]:
-    names = []
-    for j, target in enumerate(spec.targets):
-        if target.surface.embed(target.start[None]) is not None:
-            path = folder / f"{j}_{target.name}.ply"
-            write_patch_mesh(design, j, path)
-            names.append(str(path))
-    return names

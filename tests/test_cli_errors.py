@@ -574,6 +574,12 @@ CASES = [
         id="simulate-steps",
     ),
     case(
+        "simulate {design} --stimulus 1 --max-iterations 0 --out {out}.ply",
+        "at least one Newton iteration",
+        outputs=("{out}.ply",),
+        id="simulate-max-iterations",
+    ),
+    case(
         "simulate {design} --stimulus 1 --out {out}.txt",
         "mesh format must be one of",
         outputs=("{out}.txt",),

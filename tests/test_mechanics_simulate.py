@@ -196,3 +196,13 @@ def test_simulate_cli_writes_the_mesh_and_reports(fig1_design, run_cli, tmp_path
     assert json.loads(out)["rms"] <= 0.02
     code, _, err = run_cli("simulate", path, "--stimulus", "1", "--out", tmp_path / "x.txt")
     assert code == 2 and "mesh format" in err
+
+
+def test_simulate_cli_says_when_newton_stops_before_converging(fig1_design, run_cli, tmp_path):
+    path = tmp_path / "design.npz"
+    fig1_design.save(path)
+    args = ("simulate", path, "--stimulus", "1", "--trim", "5")
+    code, out, _ = run_cli(*args, "--max-iterations", "2")
+    assert code == 0 and "not converged" in out and "--max-iterations" in out
+    code, out, _ = run_cli(*args)
+    assert code == 0 and "converged True" in out and "not converged" not in out

@@ -43,6 +43,10 @@ def test_run_writes_every_file(run_cli, tmp_path):
     gcode = (out / "sheet.gcode").read_text()
     assert ";LAYER:0" in gcode and "G1" in gcode
     assert "report.html" in text
+    page = (out / "report.html").read_text()
+    # the key figures are tables: one row per surface with its residual columns
+    assert "<th>length_u median</th>" in page and "<td>sphere</td>" in page
+    assert page.count("data:image/png;base64,") == 5
 
 
 def test_run_bad_inputs_are_one_line(run_cli, tmp_path):

@@ -7,10 +7,9 @@ from pathlib import Path
 
 from fabkit.design.check import check_design
 from fabkit.design.design import Design
-from fabkit.design.patches import write_patch_mesh
+from fabkit.design.patches import MESH_FORMATS, write_patch_meshes
 from fabkit.plot import render_design
 from fabkit.plot.report import html_report
-from fabkit.spec import spec_from_json
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -19,7 +18,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("design", help="design file (.npz) written by fabkit solve")
     parser.add_argument("--out", default="plots", help="output folder (default %(default)s)")
-    parser.add_argument("--mesh-format", default="ply", choices=["ply", "stl", "glb", "obj"])
+    parser.add_argument(
+        "--mesh-format",
+        default="ply",
+        choices=[suffix.lstrip(".") for suffix in MESH_FORMATS],
+        help="format of the patch meshes (default %(default)s)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -27,20 +31,14 @@ def run(args: argparse.Namespace) -> int:
     design = Design.load(args.design)
     out = Path(args.out)
     pictures = render_design(design, out)
-    spec = spec_from_json(design.spec)
-    meshes = []
-    for j, target in enumerate(spec.targets):
-        if target.surface.embed(target.start[None]) is not None:
-            path = out / f"patch_{j}_{target.name}.{args.mesh_format}"
-            write_patch_mesh(design, j, path)
-            meshes.append(path.name)
+    meshes = [path.name for path in write_patch_meshes(design, out, args.mesh_format, "patch_")]
     report = check_design(design)
     figures = {
         "valid points": int(design.valid.sum()),
         "grid step": design.step,
-        "check passed": str(report.passed),
-        "residuals (median / p95)": report.table(),
-        "meshes": ", ".join(meshes),
+        "check passed": report.passed,
+        "check": report.to_dict(),
+        "meshes": meshes,
     }
     html_report(f"fabkit design {Path(args.design).name}", figures, pictures, out / "report.html")
     for _, path in pictures:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from fabkit.design.patches import MESH_FORMATS
 from fabkit.pipeline import (
     BAROMORPH_MACHINE,
     DEFAULT_MACHINE,
@@ -61,6 +62,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--diagonals", type=int, help="solver diagonals per quadrant (default: the spec's)"
     )
     parser.add_argument(
+        "--mesh-format",
+        default="ply",
+        choices=[suffix.lstrip(".") for suffix in MESH_FORMATS],
+        help="format of the patch meshes in patches/ (default %(default)s)",
+    )
+    parser.add_argument(
         "--send",
         metavar="PORT",
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
@@ -80,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
         baromorph=args.baromorph,
         step=args.step,
         diagonals=args.diagonals,
+        mesh_format=args.mesh_format,
     )
     figures = run_pipeline(options)
     print(

@@ -34,6 +34,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--steps", type=int, default=defaults.steps, help="ramp steps (default %(default)s)"
     )
     parser.add_argument(
+        "--max-iterations",
+        type=int,
+        default=defaults.max_iterations,
+        help="Newton iterations per ramp step (default %(default)s)",
+    )
+    parser.add_argument(
         "--seed", choices=SEEDS, default=defaults.seed, help="initial out-of-plane perturbation"
     )
     parser.add_argument(
@@ -55,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         raise FabkitError(f"--out {args.out}: mesh format must be one of {', '.join(MESH_FORMATS)}")
     design = Design.load(args.design)
     surface = surface_index(design, args.stimulus)
-    settings = Settings(steps=args.steps, seed=args.seed)
+    settings = Settings(steps=args.steps, seed=args.seed, max_iterations=args.max_iterations)
     bar = ProgressBar("simulating")
     try:
         simulation = simulate_design(
@@ -74,6 +80,12 @@ def run(args: argparse.Namespace) -> int:
     if args.out is not None:
         save_mesh(args.out, simulation.result.positions, simulation.mesh.triangles)
     print(json.dumps(report.to_dict(), indent=2) if args.json else report.table())
-    if args.out is not None and not args.json:
-        print(f"wrote {args.out}")
+    if not args.json:
+        if not simulation.result.converged:
+            print(
+                f"  not converged: Newton stopped at {settings.max_iterations} iterations per "
+                "ramp step with the sheet still moving; raise --max-iterations"
+            )
+        if args.out is not None:
+            print(f"wrote {args.out}")
     return 0

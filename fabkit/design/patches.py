@@ -64,3 +64,21 @@ def write_patch_mesh(design: Design, surface: int, path: str | Path) -> None:
     mesh = trimesh.Trimesh(vertices, triangles, process=False)
     with atomic_path(path) as tmp:
         mesh.export(tmp, file_type=path.suffix.lower().lstrip("."))
+
+
+def write_patch_meshes(
+    design: Design, folder: str | Path, mesh_format: str = "ply", prefix: str = ""
+) -> list[Path]:
+    """Write the patch on every surface with a 3D embedding; returns the paths written.
+
+    Files are ``folder / f"{prefix}{index}_{name}.{mesh_format}"``; surfaces given only by
+    their metric are skipped.
+    """
+    spec = spec_from_json(design.spec)
+    paths = []
+    for index, target in enumerate(spec.targets):
+        if target.surface.embed(target.start[None]) is not None:
+            path = Path(folder) / f"{prefix}{index}_{target.name}.{mesh_format}"
+            write_patch_mesh(design, index, path)
+            paths.append(path)
+    return paths

@@ -95,6 +95,8 @@ def simulate(
         raise FabkitError(f"seed: expected one of {', '.join(SEEDS)}, got {settings.seed!r}")
     if settings.steps < 1:
         raise FabkitError("steps: at least one ramp step is needed")
+    if settings.max_iterations < 1:
+        raise FabkitError("max_iterations: at least one Newton iteration per step is needed")
     sheet = Sheet.build(points, triangles)
     target = np.asarray(metrics, dtype=float)
     target = target[None] if target.ndim == 3 else target
