@@ -235,7 +235,7 @@ def _laser_patterns(options: RunOptions, out: Path, say: Callable[[str], None]) 
         out / "laser",
         ExportOptions(size_mm=options.size_mm),
     )
-    caption = "Photoalignment pattern: director angle and exposure bins"
+    caption = "Photoalignment pattern: binned director angle and the dose of each exposure (mm)"
     return _Fabricated({"exports": {"laser": summary}}, (caption, out / "laser" / "preview.png"))
 
 

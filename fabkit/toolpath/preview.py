@@ -119,7 +119,11 @@ def _polygon_path(polygon: shapely.Polygon) -> MplPath:
 def save_channel_preview(layout, paths: list[str | Path], dpi: int = 200) -> None:
     """Draw a baromorph :class:`~fabkit.toolpath.baromorph.ChannelLayout`: the sheet in
     grey, channels coloured by their mean width, the manifold dark, the inlet as a dot."""
-    figure = Figure(figsize=(PANEL_INCHES + 1.5, PANEL_INCHES))
+    low_x, low_y, high_x, high_y = shapely.union_all([layout.outline, layout.network]).bounds
+    margin = 0.03 * max(high_x - low_x, high_y - low_y)
+    aspect = (high_x - low_x + 2 * margin) / (high_y - low_y + 2 * margin)
+    width = float(np.clip(PANEL_INCHES * aspect, 2.5, 2 * PANEL_INCHES))
+    figure = Figure(figsize=(width + 1.8, PANEL_INCHES), layout="constrained")
     ax = figure.subplots()
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")
@@ -137,8 +141,6 @@ def save_channel_preview(layout, paths: list[str | Path], dpi: int = 200) -> Non
             ax.add_patch(PathPatch(_polygon_path(polygon), facecolor=cmap(norm(mean)), lw=0))
     ax.plot(*layout.inlet, "o", color="tab:red", label="inlet")
     ax.legend(loc="upper right")
-    low_x, low_y, high_x, high_y = shapely.union_all([layout.outline, layout.network]).bounds
-    margin = 0.03 * max(high_x - low_x, high_y - low_y)
     ax.set_xlim(low_x - margin, high_x + margin)
     ax.set_ylim(low_y - margin, high_y + margin)
     figure.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, label="channel width (mm)")

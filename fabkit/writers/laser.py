@@ -28,9 +28,9 @@ c. For scanning writers (a laser_writer profile that takes G-code): ``scan.gcode
    fast axis as ``A`` (degrees) and the laser power as ``S`` (mW) from
    P = dose * spot width * speed; ``G0`` moves (beam off) rotate the plate.
 
-Plus ``preview.png`` (hue = binned director angle). Everything is checked (envelope,
-feeds, power) before the directory is written, and the directory appears whole or not
-at all.
+Plus ``preview.png`` (binned director angle as a cyclic hue and the dose, in machine mm).
+Everything is checked (envelope, feeds, power) before the directory is written, and the
+directory appears whole or not at all.
 """
 
 from __future__ import annotations
@@ -48,7 +48,6 @@ from typing import Any, Protocol
 
 import numpy as np
 import shapely
-from matplotlib.colors import hsv_to_rgb
 from PIL import Image
 
 import fabkit
@@ -68,6 +67,8 @@ DEFAULT_BINS = 18
 DEFAULT_DOSE_MJ_CM2 = 1000.0
 """Dose when there is no eps-to-dose calibration (typical of azo-dye photoalignment)."""
 DEFAULT_DOSE_LEVELS = 4
+PREVIEW_HEIGHT_IN = 5.0
+"""Height of the preview's panels (inches at 100 dpi)."""
 ANGLE_CONVENTION = (
     "theta in [0, pi) counter-clockwise from the sheet +x axis (+y up); images have x to "
     "the right and y down (row 0 = largest y); origin_mm = lower-left image corner"
@@ -425,7 +426,7 @@ def write_laser(
         _write_maps(tmp, grid, plan, sidecar, suffix)
         for k, exposure in enumerate(plan.exposures):
             Image.fromarray(plan.index == k).save(tmp / exposure.file)
-        _write_preview(tmp / "preview.png", grid, plan)
+        _write_preview(tmp / "preview.png", grid, plan, origin)
         _write_json(tmp / "manifest.json", manifest)
         if scan is not None:
             (tmp / "scan.gcode").write_bytes(scan)
@@ -460,14 +461,52 @@ def _write_maps(
     _write_json(folder / "angle.json", sidecar)
 
 
-def _write_preview(path: Path, grid: DirectorGrid, plan: ExposurePlan) -> None:
-    """Hue = binned director angle / pi, black outside; scaled up to >= 400 px."""
-    centres = plan.binning.centres[np.maximum(plan.binning.label, 0)]
-    hsv = np.stack([centres / np.pi, np.ones(grid.shape), grid.mask.astype(float)], axis=-1)
-    rgb = (hsv_to_rgb(hsv) * 255).astype(np.uint8)
-    factor = max(1, math.ceil(400 / max(grid.shape)))
-    rgb = np.repeat(np.repeat(rgb, factor, axis=0), factor, axis=1)
-    Image.fromarray(rgb).save(path)
+def _write_preview(path: Path, grid: DirectorGrid, plan: ExposurePlan, origin: np.ndarray) -> None:
+    """Binned director angle (cyclic hue) and the dose each pixel's exposure delivers,
+    axes in machine mm (RGB PNG)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rows, cols = grid.shape
+    extent = (
+        origin[0],
+        origin[0] + cols * grid.pixel_mm,
+        origin[1],
+        origin[1] + rows * grid.pixel_mm,
+    )  # row 0 is the top row (module docstring)
+    centres = np.degrees(plan.binning.centres)[np.maximum(plan.binning.label, 0)]
+    doses = [exposure.dose_mj_cm2 for exposure in plan.exposures]
+    delivered = np.where(grid.mask, np.array(doses)[np.maximum(plan.index, 0)], np.nan)
+    panel_width = float(np.clip(PREVIEW_HEIGHT_IN * cols / rows, 2.5, 8.0)) + 1.8
+    figure = Figure(figsize=(2 * panel_width, PREVIEW_HEIGHT_IN + 0.8), layout="constrained")
+    angle_ax, dose_ax = figure.subplots(1, 2)
+    panels = (
+        (
+            angle_ax,
+            np.where(grid.mask, centres, np.nan),
+            "hsv",
+            (0.0, 180.0),
+            f"director angle (degrees, {len(plan.binning.centres)} bins)",
+        ),
+        (
+            dose_ax,
+            delivered,
+            "viridis",
+            (None, None),
+            f"dose per exposure (mJ/cm^2, {len(set(doses))} levels)",
+        ),
+    )
+    for ax, values, cmap, (low, high), label in panels:
+        image = ax.imshow(
+            values, cmap=cmap, vmin=low, vmax=high, extent=extent, interpolation="nearest"
+        )
+        figure.colorbar(image, ax=ax, label=label)
+        ax.set_title(label.split(" (")[0])
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("y (mm)")
+    canvas = FigureCanvasAgg(figure)
+    canvas.draw()
+    Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3]).save(path)
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
