@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from fabkit.atomic import atomic_path, check_folder
-from fabkit.design.patches import MESH_FORMATS, write_patch_meshes
+from fabkit.design.patches import MESH_TYPES, write_patch_meshes
 from fabkit.design.report import solve_to_file
 from fabkit.errors import FabkitError
 from fabkit.machines import load_machine
@@ -140,10 +140,9 @@ def _check_inputs(options: RunOptions) -> Spec:
     for fmt in options.formats:
         if fmt not in FORMAT_FILES:
             raise FabkitError(f"--format {fmt}: expected one of {', '.join(FORMAT_FILES)}")
-    if f".{options.mesh_format}" not in MESH_FORMATS:
+    if options.mesh_format not in MESH_TYPES:
         raise FabkitError(
-            f"--mesh-format {options.mesh_format}: expected one of "
-            + ", ".join(suffix.lstrip(".") for suffix in MESH_FORMATS)
+            f"--mesh-format {options.mesh_format}: expected one of " + ", ".join(MESH_TYPES)
         )
     if options.send and "gcode" not in options.formats:
         raise FabkitError("--send needs --format gcode")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from fabkit.design.check import check_design
 from fabkit.design.design import Design
-from fabkit.design.patches import MESH_FORMATS, write_patch_meshes
+from fabkit.design.patches import MESH_TYPES, write_patch_meshes
 from fabkit.plot import render_design
 from fabkit.plot.report import html_report
 
@@ -21,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--mesh-format",
         default="ply",
-        choices=[suffix.lstrip(".") for suffix in MESH_FORMATS],
+        choices=list(MESH_TYPES),
         help="format of the patch meshes (default %(default)s)",
     )
     parser.set_defaults(func=run)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.design.patches import MESH_FORMATS
+from fabkit.design.patches import MESH_TYPES
 from fabkit.pipeline import (
     BAROMORPH_MACHINE,
     DEFAULT_MACHINE,
@@ -64,7 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--mesh-format",
         default="ply",
-        choices=[suffix.lstrip(".") for suffix in MESH_FORMATS],
+        choices=list(MESH_TYPES),
         help="format of the patch meshes in patches/ (default %(default)s)",
     )
     parser.add_argument(

@@ -12,6 +12,8 @@ from fabkit.errors import FabkitError
 from fabkit.spec import spec_from_json
 
 MESH_FORMATS = (".ply", ".stl", ".glb", ".obj")
+MESH_TYPES = tuple(suffix.lstrip(".") for suffix in MESH_FORMATS)
+"""The mesh file types by name, as ``--mesh-format`` takes them."""
 
 
 def grid_triangles(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
