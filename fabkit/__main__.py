@@ -1,5 +1,5 @@
-import sys
+"""``python -m fabkit``: the command line (see :mod:`fabkit.entry`)."""
 
-from fabkit.cli import main
+from fabkit.entry import run
 
-sys.exit(main())
+run()

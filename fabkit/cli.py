@@ -4,8 +4,10 @@ Each module in :mod:`fabkit.commands` defines ``register(subparsers)``, which ad
 its sub-command(s) with a handler ``func(args) -> int``. The CLI holds no logic:
 handlers parse nothing beyond their arguments and call one stage function.
 A :class:`~fabkit.errors.FabkitError`, a bad command line and an operating-system error
-(a path that cannot be written, a full disk) become one line on stderr and exit code 2;
-Ctrl-C becomes one line and exit code 130.
+(a path that cannot be written, a full disk) become one line on stderr and exit code 2.
+Ctrl-C at any moment, the sub-commands' imports included, becomes one line and exit code
+130. Any other exception is a bug: one line ``fabkit: internal error: ...`` and exit code
+1, with the traceback only under ``--debug``.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import argparse
 import importlib
 import pkgutil
 import sys
+import traceback
 from typing import NoReturn
 
 import fabkit
@@ -39,6 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Design flat active sheets that morph into several shapes, and make them.",
     )
     parser.add_argument("--version", action="version", version=f"fabkit {fabkit.__version__}")
+    parser.add_argument(
+        "--debug", action="store_true", help="print the traceback of an internal error"
+    )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(fabkit.commands.__path__), key=lambda m: m.name):
         module = importlib.import_module(f"fabkit.commands.{info.name}")
@@ -48,6 +54,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; return the process exit code."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        return _run(argv)
+    except KeyboardInterrupt:
+        print("fabkit: interrupted", file=sys.stderr)
+        return 130
+    except FabkitError as exc:
+        return _error(str(exc))
+    except OSError as exc:  # a safety net: stages report the files they know about themselves
+        if exc.strerror and exc.filename is not None:
+            return _error(f"{exc.filename}: {exc.strerror}")
+        return _error(str(exc))
+    except MemoryError:
+        return _error("out of memory: try a coarser grid or a smaller sheet")
+    except Exception as exc:  # a bug: one line, the traceback only when asked for
+        if "--debug" in argv:
+            traceback.print_exc()
+        message = " ".join(f"{type(exc).__name__}: {exc}".splitlines())[:300]
+        print(
+            f"fabkit: internal error: {message} (run with --debug for the traceback)",
+            file=sys.stderr,
+        )
+        return 1
+
+
+def _run(argv: list[str]) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -56,17 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    try:
-        return int(args.func(args) or 0)
-    except FabkitError as exc:
-        return _error(str(exc))
-    except OSError as exc:  # a safety net: stages report the files they know about themselves
-        if exc.strerror and exc.filename is not None:
-            return _error(f"{exc.filename}: {exc.strerror}")
-        return _error(str(exc))
-    except KeyboardInterrupt:
-        print("fabkit: interrupted", file=sys.stderr)
-        return 130
+    return int(args.func(args) or 0)
 
 
 def _error(message: str) -> int:

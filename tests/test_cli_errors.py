@@ -14,7 +14,6 @@ in the test's own folder (``{out}``, ``{missing}``).
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -23,27 +22,14 @@ from fabkit.design.solver import solve
 from fabkit.spec import build_spec
 from fabkit.toolpath.job import ToolpathJob, run_job
 from fabkit.writers.export import export
+from tests.attack import assert_refused, case
 from tests.conftest import EXAMPLES, ROOT, example_table
 
 TWO = EXAMPLES / "two_shapes.toml"
 SWIMMER = EXAMPLES / "swimmer.toml"
 CHANNELS = EXAMPLES / "baromorph_channels.toml"
-BLOCKER_TEXT = "a file in the way of an output folder\n"
 SIM = "sim://marlin?baud=0&time_scale=0"
 DIW = "marlin_diw_pneumatic"
-
-
-@dataclass(frozen=True)
-class Case:
-    """``fabkit ARGS`` must fail naming ``says`` (says[0]: the documented phrase)."""
-
-    args: str
-    says: tuple[str, ...]
-    outputs: tuple[str, ...] = ("{out}",)
-
-
-def case(args: str, *says: str, outputs: tuple[str, ...] = ("{out}",), id: str):
-    return pytest.param(Case(args, says, outputs), id=id)
 
 
 CASES = [
@@ -817,30 +803,8 @@ def files(tmp_path_factory) -> dict[str, str]:
 
 
 @pytest.mark.parametrize("bad", CASES)
-def test_bad_input_is_one_line_and_writes_nothing(bad: Case, files, run_cli, tmp_path):
-    blocker = tmp_path / "blocker"
-    blocker.write_text(BLOCKER_TEXT)
-    places = {**files, "out": str(tmp_path / "out"), "missing": str(tmp_path / "missing")}
-    places["blocker"] = str(blocker)
-    before = sorted(p.name for p in tmp_path.iterdir())
-    code, _, err = run_cli(*[arg.format(**places) for arg in bad.args.split()])
-    assert code == 2, err
-    assert err.startswith("fabkit: error: ") and err.count("\n") == 1, err
-    assert "Traceback" not in err
-    for phrase in bad.says:
-        assert phrase in err, (phrase, err)
-    for output in bad.outputs:
-        assert not (tmp_path / output.format(out="out")).exists(), output
-    if bad.outputs == ("{out}",):
-        assert sorted(p.name for p in tmp_path.iterdir()) == before
-    assert [p for p in tmp_path.rglob("*") if ".part" in p.name] == []
-    assert blocker.read_text() == BLOCKER_TEXT
-
-
-def test_every_error_phrase_is_in_troubleshooting():
-    guide = (ROOT / "docs" / "troubleshooting.md").read_text()
-    missing = sorted({p.values[0].says[0] for p in CASES if p.values[0].says[0] not in guide})
-    assert missing == [], f"add to docs/troubleshooting.md: {missing}"
+def test_bad_input_is_one_line_and_writes_nothing(bad, files, run_cli, tmp_path):
+    assert_refused(bad, files, tmp_path, run_cli)
 
 
 def test_an_operating_system_error_is_one_line(run_cli, monkeypatch):

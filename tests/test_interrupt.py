@@ -10,11 +10,16 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import subprocess
+import sys
+import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import matplotlib.figure
 import numpy as np
+import pytest
 import trimesh
 from PIL import Image
 
@@ -116,3 +121,31 @@ def test_ctrl_c_while_writing_a_laser_pattern(run_cli, tmp_path, monkeypatch):
     names = assert_complete(out)
     assert not any(name.startswith("laser") for name in names)
     assert "design.npz" in names and "report.json" not in names
+
+
+@pytest.mark.parametrize("delay_s", [0.05, 0.3, 0.8, 1.5])
+def test_ctrl_c_while_the_command_starts_is_one_line(tmp_path, delay_s):
+    """SIGINT while Python imports the CLI and its stages: exit 130, one line, no traceback."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "fabkit", "run", str(EXAMPLES / "two_shapes.toml"),
+         "--out", str(tmp_path / "out"), *COARSE],
+        stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+    )  # fmt: skip
+    time.sleep(delay_s)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert err == "fabkit: interrupted\n"
+
+
+def test_an_unexpected_exception_is_one_line_and_exit_1(run_cli, monkeypatch):
+    def broken(*_):
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setattr("fabkit.commands.machines.machine_table", broken)
+    code, _, err = run_cli("machines")
+    assert code == 1
+    assert err.startswith("fabkit: internal error: ZeroDivisionError: division by zero")
+    assert err.count("\n") == 1 and "Traceback" not in err
+    code, _, err = run_cli("--debug", "machines")
+    assert code == 1 and "Traceback" in err

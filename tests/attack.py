@@ -1,0 +1,107 @@
+"""The attack-table harness: a bad input must be refused in one line, quickly, writing nothing.
+
+A row (:class:`Case`) is one ``fabkit ARGS`` command line and the phrases its error must
+contain. :func:`assert_refused` runs it in-process and asserts what the README promises
+for bad input:
+
+* exit code 2 (or ``code`` for a row that expects another, e.g. 130);
+* exactly one line on stderr, starting with ``fabkit: error:``, naming every phrase;
+* no traceback;
+* none of the row's outputs created, and (rows whose outputs are ``{out}``) nothing at
+  all created in the test's folder: no ``*.part``, nothing beside or above ``--out``;
+* a file that was in the way (``{blocker}``) left untouched;
+* done within the row's time bound (default :data:`SECONDS`): a command still running
+  then is stopped by SIGALRM and the row fails.
+
+Every ``tests/test_attack_*.py`` file and ``tests/test_cli_errors.py`` hold such rows in a
+list called ``CASES``; ``tests/test_attack_table.py`` counts them and checks that the first
+phrase of every row is listed in docs/troubleshooting.md.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+SECONDS = 10.0
+"""Default time bound of one row, in seconds."""
+BLOCKER_TEXT = "a file in the way of an output folder\n"
+
+
+@dataclass(frozen=True)
+class Case:
+    """``fabkit ARGS`` must fail naming ``says`` (says[0]: the documented phrase)."""
+
+    args: str
+    says: tuple[str, ...]
+    outputs: tuple[str, ...] = ("{out}",)
+    seconds: float = SECONDS
+    code: int = 2
+
+
+def case(
+    args: str,
+    *says: str,
+    outputs: tuple[str, ...] = ("{out}",),
+    id: str,
+    seconds: float = SECONDS,
+    code: int = 2,
+):
+    """One row, as a pytest parameter with its id."""
+    return pytest.param(Case(args, says, outputs, seconds, code), id=id)
+
+
+class TookTooLong(Exception):
+    """Raised by SIGALRM inside a command that outlived its row's time bound."""
+
+
+def _alarm(signum, frame):  # noqa: ARG001 - the signal handler's signature
+    raise TookTooLong
+
+
+def run_bounded(run: Callable[[], tuple[int, str, str]], seconds: float):
+    """``run()`` stopped by SIGALRM after ``seconds``; returns (result, elapsed s)."""
+    previous = signal.signal(signal.SIGALRM, _alarm)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    start = time.perf_counter()
+    try:
+        result = run()
+    except TookTooLong:
+        pytest.fail(f"still running after {seconds:g} s")
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    return result, time.perf_counter() - start
+
+
+def assert_refused(bad: Case, places: dict[str, str], tmp_path: Path, run_cli) -> str:
+    """Run ``bad`` with ``{name}`` placeholders from ``places``; assert the promise; return err.
+
+    ``{out}``, ``{missing}`` and ``{blocker}`` are added here, inside ``tmp_path``.
+    """
+    blocker = tmp_path / "blocker"
+    blocker.write_text(BLOCKER_TEXT)
+    places = {**places, "out": str(tmp_path / "out"), "missing": str(tmp_path / "missing")}
+    places["blocker"] = str(blocker)
+    before = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+    args = [arg.format(**places) for arg in bad.args.split()]
+    (code, _, err), _ = run_bounded(lambda: run_cli(*args), bad.seconds)
+    assert code == bad.code, err
+    prefix = "fabkit: error: " if bad.code == 2 else "fabkit: "
+    assert err.startswith(prefix) and err.count("\n") == 1, err
+    assert "Traceback" not in err
+    for phrase in bad.says:
+        assert phrase in err, (phrase, err)
+    for output in bad.outputs:
+        assert not (tmp_path / output.format(out="out")).exists(), output
+    if bad.outputs == ("{out}",):
+        after = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+        assert after == before, sorted(set(after) - set(before))
+    assert [p for p in tmp_path.rglob("*") if ".part" in p.name] == []
+    assert blocker.read_text() == BLOCKER_TEXT
+    return err
