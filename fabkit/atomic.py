@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -63,3 +64,31 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}")
+"""A name that may become part of a file name: a letter or digit, then up to 63 letters,
+digits and ``_ . + -``; never a separator, never ``..``."""
+
+
+def check_name(name: object, where: str) -> str:
+    """``name`` if it can safely be part of a file name; else a one-line FabkitError.
+
+    Surface, feature and layer names end up in output file names (``patches/1_<name>.ply``);
+    a name like ``x/../../y`` must never move a file outside the output folder.
+    """
+    if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name) or ".." in name:
+        raise FabkitError(
+            f"{where}: name {str(name)[:40]!r} must be 1-64 letters, digits, '_', '.', '+' "
+            "or '-', starting with a letter or digit (it becomes part of file names)"
+        )
+    return name
+
+
+def inside(folder: str | os.PathLike[str], name: str) -> Path:
+    """``folder / name``, refused (FabkitError) unless it stays inside ``folder``."""
+    base = Path(folder).resolve()
+    path = (base / name).resolve()
+    if path != base and base not in path.parents:
+        raise FabkitError(f"{name}: would be written outside the output folder {folder}")
+    return Path(folder) / name
