@@ -214,6 +214,7 @@ def test_arcs_in_both_forms():
     assert "needs an end point different from its start" in refused([*start, "G2 R5"])
     assert "off its circle" in refused([*start, "G2 X110 Y100 I10 J3"])
     assert "X=300.000 mm" in refused([*start, "G2 I100 J0 P1"])  # P: whole turns
+    assert "is outside the envelope" in refused([*start, "G2 X120 Y110 R500 P1"])
     assert check([*start, "G2 I60 J0"]).bounds_mm[0] == (100.0, 220.0)  # a full circle
     assert "R together with I/J" in refused([*start, "G2 X120 Y100 I10 R10"])
     assert "Klipper refuses R arcs" in refused(
@@ -436,6 +437,34 @@ def test_grbl_flow_program_end_and_laser_power():
         [*laser, "G1 X30 S50"], "scan_photoalign"
     )
     assert "GRBL has no A word" in refused([*GRBL, "G0 X10 A20"], "grbl_diw")
+
+
+MODELLED = {
+    "marlin_generic": "G0 G1 G4 G21 G28 G29 G90 G91 M0 M1 M3 M4 M5 M7 M8 M9 M17 M18 M82 M83 M84 "
+    "M104 M105 M106 M107 M109 M114 M115 M117 M118 M140 M190 M201 M203 M204 M205 M220 M221 "
+    "M300 M400 M410 T0",
+    "grbl_diw": "G0 G1 G17 G18 G19 G21 G28.1 G30.1 G40 G49 G53 G54 G55 G56 G57 G58 G59 G61 G80 "
+    "G90 G91 G91.1 G92.1 G93 G94 M0 M1 M2 M3 M4 M5 M7 M8 M9 M30 M56 T0 T1 T2 T3 T4 T5 T6 T7 "
+    "T8 T9",
+}
+
+
+@pytest.mark.parametrize(("machine", "preamble"), [("marlin_generic", MARLIN), ("grbl_diw", GRBL)])
+def test_every_other_command_is_refused(machine, preamble):
+    """The check is an allow-list: of every G0-G199 (and .1, .2), M0-M999 and T0-T9 given
+    alone, only these pass; each is a move, mode or offset the check follows, or moves and
+    heats nothing (GRBL only records T). Everything else is refused."""
+    profile = load_machine(machine)
+    passed = []
+    for code in [f"G{n}{s}" for n in range(200) for s in ("", ".1", ".2")] + [
+        f"{letter}{n}" for letter, top in (("M", 1000), ("T", 10)) for n in range(top)
+    ]:
+        try:
+            check_job(commands_from_lines([*preamble, "G0 X10 Y10 Z10 F300", code]), profile)
+            passed.append(code)
+        except FabkitError:
+            pass
+    assert passed == MODELLED[machine].split()
 
 
 # -- reading a file ------------------------------------------------------------------------

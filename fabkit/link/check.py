@@ -36,6 +36,7 @@ from fabkit.machines import GCODE_KEYS, MachineProfile
 
 MAX_MARLIN_CHARS = 80  # Marlin keeps 95 characters, of which "N<n> " and "*<xor>" take some
 MAX_GRBL_CHARS = 79  # GRBL's line buffer is 80 bytes
+_CONTROL = re.compile(r"[^\x20-\x7e]")
 
 
 @dataclass(frozen=True)
@@ -81,8 +82,8 @@ class _Checker:
         self.extra_axes = "A" if self.grbl and machine.kind == "laser_writer" else ""
         self.tracker = Tracker(machine)
         snippets = {key: self._snippet(key) for key in GCODE_KEYS}
-        self.flow_on = snippets["flow_on_gcode"]
-        self.flow_off = snippets["flow_off_gcode"]
+        self.flow_on_codes = {code for line in snippets["flow_on_gcode"] for code in line.codes}
+        self.flow_off = [line for line in snippets["flow_off_gcode"] if line.codes]
         if self.grbl:
             self.dialect: GrblDialect | MarlinDialect = GrblDialect(self.tracker, self.extra_axes)
         else:
@@ -117,7 +118,7 @@ class _Checker:
         limit = MAX_GRBL_CHARS if self.grbl else MAX_MARLIN_CHARS
         if len(text) > limit:
             raise GcodeError(f"command is {len(text)} characters long, the limit is {limit}")
-        if any(ord(c) < 32 or ord(c) > 126 for c in text):
+        if _CONTROL.search(text):
             raise GcodeError("control character in command")
         forbidden = "?!~" if self.grbl else "*"
         for char in forbidden:
@@ -131,16 +132,14 @@ class _Checker:
         command with a flow-on line (a valve, coolant output, spindle or laser)."""
         if any(_holds(block, line) for line in self.flow_off):
             self.tracker.flow_on = False
-        elif any(set(line.codes) & set(block.codes) for line in self.flow_on):
+        elif not self.flow_on_codes.isdisjoint(block.codes):
             self.tracker.flow_on = True
 
 
 def _holds(block: Block, line: Block) -> bool:
     """``block`` has every command and value word of ``line``."""
-    return (
-        bool(line.codes)
-        and set(line.codes) <= set(block.codes)
-        and all(block.values.get(letter) == value for letter, value in line.values.items())
+    return set(line.codes) <= set(block.codes) and all(
+        block.values.get(letter) == value for letter, value in line.values.items()
     )
 
 

@@ -32,6 +32,7 @@ _NON_MODAL = ("G4", "G10", "G28", "G28.1", "G30", "G30.1", "G53", "G92", "G92.1"
 _PLANES = {"G17": (0, 1, "IJ"), "G18": (2, 0, "KI"), "G19": (1, 2, "JK")}
 _WCS = ("G54", "G55", "G56", "G57", "G58", "G59")
 _LENGTH_WORDS = "XYZIJKR"
+MAX_LINE_NUMBER = 10_000_000
 
 
 class GrblDialect:
@@ -98,6 +99,8 @@ class GrblDialect:
 
     def _check_words(self, p: _Parsed) -> None:
         """GRBL's block errors that need the modal state, then its unused-word rule."""
+        if p.values.get("N", 0.0) > MAX_LINE_NUMBER:
+            raise p.reject(27, "line number above 10000000")
         if "G4" in p.g and "P" not in p.values:
             raise p.reject(28, "G4 needs P (seconds)")
         if p.axis_command == "tool" and "G43.1" in p.g and set(p.axes) != {"Z"}:
@@ -204,7 +207,9 @@ class GrblDialect:
                 raise p.reject(26, "no axis words")
             return
         if p.extra_axes and p.motion not in ("G0", "G1"):
-            raise GcodeError(f"{p.label} cannot be checked: {p.extra_axes} with {p.motion}")
+            raise GcodeError(
+                f"{p.label} cannot be checked: {p.extra_axes} is followed with G0/G1 only"
+            )
         end = self._targets(p)
         if p.motion in ("G2", "G3"):
             self.t.move(p.label, end, speed=speed, arc=self._arc(p, end))
@@ -319,7 +324,9 @@ class _Parsed:
         self.wcs = next((_WCS.index(c) for c in self.g if c in _WCS), dialect.active)
         self.feed = self._feed(dialect)
         if self.extra_axes and (self.non_modal or self.axis_command != "motion"):
-            raise GcodeError(f"{self.label} cannot be checked: {self.extra_axes} with {self.g}")
+            raise GcodeError(
+                f"{self.label} cannot be checked: {self.extra_axes} is followed with G0/G1 only"
+            )
 
     def reject(self, number: int, reason: str) -> GcodeError:
         return grbl_reject(self.text, number, reason)

@@ -22,6 +22,8 @@ mode), and Klipper ``klippy/extras/gcode_move.py`` (E is relative if G91 or M83)
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from fabkit.link.arcs import centre_arc, radius_arc
 from fabkit.link.gcode import Block, GcodeError, is_extended
 from fabkit.link.tracker import AXES, ArcMove, Span, Speed, Tracker
@@ -176,12 +178,12 @@ class MarlinDialect:
             raise GcodeError(f"{label} cannot be checked: an arc from or to an uncertain point")
         a, b = (start[0].lo, start[1].lo), (end[0].lo, end[1].lo)
         clockwise = code == "G2"
+        turns = values.get("P", 0.0)  # G2_G3.cpp: whole circles first, in either form
+        if not (turns.is_integer() and 0 <= turns <= 100):
+            raise GcodeError(f"{label}: P (whole turns) must be a whole number 0-100")
         if "R" in values:
-            arc = radius_arc(a, b, values["R"], clockwise)
+            arc = replace(radius_arc(a, b, values["R"], clockwise), turns=int(turns))
         elif "I" in values or "J" in values:
-            turns = values.get("P", 0.0)
-            if not (turns.is_integer() and 0 <= turns <= 100):
-                raise GcodeError(f"{label}: P (whole turns) must be a whole number 0-100")
             offset = (values.get("I", 0.0), values.get("J", 0.0))
             arc = centre_arc(a, b, offset, clockwise, int(turns))
         else:
@@ -278,6 +280,11 @@ class MarlinDialect:
 
     def _G92(self, label: str, block: Block) -> None:
         """Set the logical position: the shift becomes machine - value (G92.cpp)."""
+        if not block.values:
+            raise GcodeError(
+                f"{label} cannot be checked: without axis words Klipper sets every axis to 0 "
+                "and Marlin does nothing"
+            )
         for i, axis in enumerate(AXES):
             if axis in block.values:
                 self.shift[i] = self.t.known(label, i) - block.values[axis]

@@ -207,12 +207,15 @@ _G_GROUPS = {
 _M_GROUPS = {"M0": 4, "M1": 4, "M2": 4, "M30": 4, "M3": 7, "M4": 7, "M5": 7, "M7": 8, "M8": 8,
              "M9": 8, "M56": 9}  # fmt: skip
 _GRBL_POSITIVE = "FNPST"  # negative values are error:4
+_GRBL_NUMBER = re.compile(r"[-+]?(\d*)\.?(\d*)")
 
 
 def grbl_line(text: str) -> str:
     """The line GRBL's protocol loop hands its parser (grbl/protocol.c): blanks and control
     characters dropped everywhere, ``( )`` and ``;`` comments removed, letters upper-cased.
     grblHAL (``gc_normalize_block``) does the same."""
+    if "(" not in text and ";" not in text and text.isprintable():
+        return text.replace(" ", "").upper()
     out: list[str] = []
     in_paren = False
     for char in text:
@@ -278,8 +281,8 @@ def _grbl_system(line: str) -> str:
 
 def _grbl_number(text: str, line: str, start: int) -> tuple[float, int]:
     """GRBL's read_float (nuts_bolts.c): sign, digits and one '.', no exponent."""
-    match = re.compile(r"[-+]?(\d*)\.?(\d*)").match(line, start)
-    digits = match.group(1) + match.group(2) if match else ""
+    match = _GRBL_NUMBER.match(line, start)
+    digits = match.group(1) + match.group(2)
     if not digits:
         raise grbl_reject(text, 2, f"no number after '{line[start - 1]}'")
     if len(digits) > GRBL_MAX_DIGITS:

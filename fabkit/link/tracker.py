@@ -143,8 +143,8 @@ class Tracker:
         of :attr:`pos`, known or not) with ``de`` of E travel, then make it."""
         start = self.pos
         for i, span in enumerate(end):
-            if span is not start[i]:
-                self.inside(i, self.known(label, i) if span is None else span)
+            if span is not start[i] and span is not None:
+                self.inside(i, span)
         if arc is not None:
             self._arc_inside(label, start, arc)
         self._speed(label, start, end, de, speed, arc)
