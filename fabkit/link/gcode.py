@@ -214,7 +214,7 @@ def grbl_line(text: str) -> str:
     """The line GRBL's protocol loop hands its parser (grbl/protocol.c): blanks and control
     characters dropped everywhere, ``( )`` and ``;`` comments removed, letters upper-cased.
     grblHAL (``gc_normalize_block``) does the same."""
-    if "(" not in text and ";" not in text and text.isprintable():
+    if "(" not in text and ";" not in text and text.isascii() and text.isprintable():
         return text.replace(" ", "").upper()
     out: list[str] = []
     in_paren = False
@@ -276,7 +276,7 @@ def read_grbl(text: str, extra_axes: str = "") -> Block:
 
 def _grbl_system(line: str) -> str:
     """``$H`` (homing), else the name of another system command (``$J``, ``$X``, ``$110``)."""
-    return "$H" if line == "$H" else "$" + re.split(r"[=]", line[1:], maxsplit=1)[0][:8]
+    return "$H" if line == "$H" else "$" + line[1:].split("=", 1)[0][:8]
 
 
 def _grbl_number(text: str, line: str, start: int) -> tuple[float, int]:
