@@ -17,7 +17,7 @@ HOUSEKEEPING = ("M110 N0", "M105")  # lines the Marlin sender adds (handshake, p
 def marlin_job(n: int, seed: int = 1) -> list[Command]:
     """A printing job of ``n`` moves inside marlin_generic's envelope and limits."""
     rng = random.Random(seed)
-    lines = ["; a test job", "G21", "G90", "M82", "G92 E0", "G1 Z0.3 F600"]
+    lines = ["; a test job", "G21", "G90", "M82", "G92 E0", "G1 Z0.3 F300"]
     for i in range(n):
         x, y = rng.uniform(10, 200), rng.uniform(10, 200)
         lines.append(f"G1 X{x:.3f} Y{y:.3f} E{0.01 * (i + 1):.4f} F2400")
