@@ -3,7 +3,8 @@
 A :class:`FlatField` is what the toolpath stage needs from a design: the domain outline
 (a shapely polygon, mm), the director angle ``theta(x, y)`` (radians, defined mod pi,
 defined on the whole plane so that line generation may look a little past the outline)
-and, if the design has one, the designable feature ``eps(x, y)``.
+and every designable feature ``eps_i(x, y)``, by name (a design's features are named in
+its spec; a director file's single ``eps`` is the feature ``eps``).
 
 It comes from one of three sources:
 
@@ -40,6 +41,7 @@ from scipy.spatial import cKDTree
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.expr import parse
+from fabkit.spec import spec_from_json
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -55,16 +57,19 @@ DESIGN_KEYS = ("u", "v", "valid", "eps", "r", "n")
 
 @dataclass(frozen=True, eq=False)
 class FlatField:
-    """A director field (and optional eps) on the flat sheet; lengths in mm, angles in rad.
+    """A director field and its features on the flat sheet; lengths in mm, angles in rad.
 
-    ``theta_fn(x, y)`` and ``eps_fn(x, y)`` take broadcast arrays of mm coordinates and return
-    arrays of their shape; theta is defined mod pi. ``eps_fn`` is None when there is no eps.
+    ``theta_fn(x, y)`` and every function of ``features`` (feature name -> eps(x, y), in
+    the design's order) take broadcast arrays of mm coordinates and return arrays of
+    their shape; theta is defined mod pi. ``mm_per_unit``: the scale of a design's field
+    (mm per design unit), None for fields given in mm.
     """
 
     outline: shapely.Polygon | shapely.MultiPolygon
     theta_fn: PlaneFunction
-    eps_fn: PlaneFunction | None
+    features: Mapping[str, PlaneFunction]
     source: str
+    mm_per_unit: float | None = None
 
     def theta(self, points: np.ndarray) -> np.ndarray:
         """Director angle (n,) in (-pi/2, pi/2] at (n, 2) points; finite everywhere."""
@@ -78,16 +83,31 @@ class FlatField:
         angles = self.theta(points)
         return np.column_stack([np.cos(angles), np.sin(angles)])
 
-    def eps(self, points: np.ndarray) -> np.ndarray:
-        """eps (n,) at (n, 2) points; a FabkitError if the field has none."""
-        if self.eps_fn is None:
-            raise FabkitError(f"{self.source}: has no eps field to encode")
-        points = np.asarray(points, dtype=float).reshape(-1, 2)
-        return np.asarray(self.eps_fn(points[:, 0], points[:, 1]), dtype=float)
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The feature names, in order."""
+        return tuple(self.features)
 
     @property
     def has_eps(self) -> bool:
-        return self.eps_fn is not None
+        return bool(self.features)
+
+    def feature(self, name: str, points: np.ndarray) -> np.ndarray:
+        """Feature ``name`` (n,) at (n, 2) points."""
+        if name not in self.features:
+            known = ", ".join(self.features) or "none"
+            raise FabkitError(f"{self.source}: has no feature '{name}' (features: {known})")
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        return np.asarray(self.features[name](points[:, 0], points[:, 1]), dtype=float)
+
+    def eps(self, points: np.ndarray) -> np.ndarray:
+        """The field's only feature (n,) at (n, 2) points; an error unless it has one."""
+        if len(self.features) != 1:
+            count = f"{len(self.features)} features ({', '.join(self.features)})"
+            raise FabkitError(
+                f"{self.source}: needs one eps feature, it has {count if self.features else 'none'}"
+            )
+        return self.feature(self.names[0], points)
 
     def clipped(self, clip: shapely.Geometry) -> FlatField:
         """The same field on the outline intersected with ``clip`` (mm)."""
@@ -149,15 +169,34 @@ def parse_shape(text: Any, where: str = "shape") -> shapely.Polygon:
 
 
 def field_from_expression(
-    theta: str, outline: shapely.Geometry, eps: str | float | None = None, where: str = "director"
+    theta: str,
+    outline: shapely.Geometry,
+    eps: str | float | Mapping[str, Any] | None = None,
+    where: str = "director",
 ) -> FlatField:
-    """A director field ``theta(x, y)`` (radians) on ``outline`` (mm), optional eps(x, y)."""
+    """A director field ``theta(x, y)`` (radians) on ``outline`` (mm), with features:
+    ``eps`` one expression (the feature ``eps``), a mapping name -> expression, or None."""
     theta_fn = planar_expression(theta, f"{where}.theta")
-    eps_fn = None if eps is None else planar_expression(eps, f"{where}.eps")
+    if eps is None:
+        features = {}
+    elif isinstance(eps, Mapping):
+        if not eps:
+            raise FabkitError(f"{where}.eps: give at least one feature = expression")
+        for name in eps:
+            check_feature_name(name, f"{where}.eps")
+        features = {str(k): planar_expression(v, f"{where}.eps.{k}") for k, v in eps.items()}
+    else:
+        features = {"eps": planar_expression(eps, f"{where}.eps")}
     outline = _polygonal(outline)
     if outline.is_empty or outline.area <= 0:
         raise FabkitError(f"{where}: the outline is empty")
-    return FlatField(outline, theta_fn, eps_fn, f"theta = {theta}")
+    return FlatField(outline, theta_fn, features, f"theta = {theta}")
+
+
+def check_feature_name(name: Any, where: str) -> None:
+    """A feature name: an identifier (letters, digits, underscores; not a digit first)."""
+    if not (isinstance(name, str) and name.isidentifier() and name.isascii()):
+        raise FabkitError(f"{where}: feature name {name!r} must be an identifier like eps1")
 
 
 # --------------------------------------------------------------------------- grids
@@ -168,21 +207,24 @@ def field_from_grid(
     mask: np.ndarray,
     pixel_mm: float,
     origin: tuple[float, float] = (0.0, 0.0),
-    eps: np.ndarray | None = None,
+    eps: np.ndarray | Mapping[str, np.ndarray] | None = None,
     source: str = "theta grid",
 ) -> FlatField:
     """A director field from an (nx, ny) theta grid (radians) and boolean mask.
 
     Node ``(i, j)`` sits at ``origin + pixel_mm * (i, j)`` (mm). The outline is the mask's
-    0.5 contour; theta (as a tensor) and eps are interpolated bilinearly, and extended by
-    the nearest masked node outside the mask.
+    0.5 contour; theta (as a tensor) and the features are interpolated bilinearly, and
+    extended by the nearest masked node outside the mask. ``eps``: one grid (the feature
+    ``eps``) or a mapping name -> grid.
     """
     theta = np.asarray(theta, dtype=float)
     mask = np.asarray(mask, dtype=bool)
     if theta.ndim != 2 or mask.shape != theta.shape or min(theta.shape) < 2:
         raise FabkitError(f"{source}: theta and mask must be 2-D arrays of one shape (>= 2 x 2)")
-    if eps is not None and np.shape(eps) != theta.shape:
-        raise FabkitError(f"{source}: eps must have the shape of theta {theta.shape}")
+    grids = {} if eps is None else dict(eps) if isinstance(eps, Mapping) else {"eps": eps}
+    for name, grid in grids.items():
+        if np.shape(grid) != theta.shape:
+            raise FabkitError(f"{source}: {name} must have the shape of theta {theta.shape}")
     mask = mask & np.isfinite(theta)
     if not mask.any():
         raise FabkitError(f"{source}: the mask selects no point")
@@ -192,14 +234,14 @@ def field_from_grid(
     filled = _fill_nearest(mask, np.cos(2 * theta), np.sin(2 * theta))
     cos2, sin2 = (RegularGridInterpolator((xs, ys), f, bounds_error=False) for f in filled[:2])
     theta_fn = _tensor_angle(cos2, sin2, xs, ys)
-    eps_fn = None
-    if eps is not None:
-        (eps_filled,) = _fill_nearest(mask, np.asarray(eps, dtype=float))
-        eps_fn = _clamped(RegularGridInterpolator((xs, ys), eps_filled), xs, ys)
+    features = {}
+    for name, grid in grids.items():
+        (filled,) = _fill_nearest(mask, np.asarray(grid, dtype=float))
+        features[name] = _clamped(RegularGridInterpolator((xs, ys), filled), xs, ys)
     outline = _mask_outline(mask.astype(float), xs, ys)
     if outline.is_empty:
         raise FabkitError(f"{source}: the mask has no area (needs 2 x 2 neighbouring points)")
-    return FlatField(outline, theta_fn, eps_fn, source)
+    return FlatField(outline, theta_fn, features, source)
 
 
 def _fill_nearest(mask: np.ndarray, *grids: np.ndarray) -> list[np.ndarray]:
@@ -249,28 +291,28 @@ def field_from_design(
     path: str | Path,
     size_mm: float | None = None,
     mm_per_unit: float | None = None,
-    feature: int = 0,
 ) -> FlatField:
     """The flat-sheet field of a solved ``design.npz``, scaled to millimetres.
 
     Give exactly one of ``size_mm`` (the longest side of the outline's bounding box, mm) and
-    ``mm_per_unit`` (mm per design unit). ``feature`` picks the eps feature to carry.
+    ``mm_per_unit`` (mm per design unit). Every feature of the design is carried, named as
+    in its spec.
     """
     if (size_mm is None) == (mm_per_unit is None):
         raise FabkitError("design: give the size (--size MM, longest side) or --scale MM_PER_UNIT")
     design = Design.load(path)
     arrays = {key: getattr(design, key) for key in DESIGN_KEYS}
-    if not 0 <= feature < arrays["eps"].shape[0]:
-        raise FabkitError(f"{path}: no eps feature {feature} (it has {arrays['eps'].shape[0]})")
-    mesh = _DesignMesh.build(arrays, feature, 1.0, str(path))
+    names = spec_from_json(design.spec).material.features
+    mesh = _DesignMesh.build(arrays, 1.0, str(path))
     outline = mesh.outline()
     if size_mm is not None:
         low_x, low_y, high_x, high_y = outline.bounds
         mm_per_unit = number(size_mm, "--size", positive=True) / max(high_x - low_x, high_y - low_y)
     scale = number(mm_per_unit, "--scale", positive=True)
-    mesh = _DesignMesh.build(arrays, feature, scale, str(path))
+    mesh = _DesignMesh.build(arrays, scale, str(path))
     outline = shapely.affinity.scale(outline, scale, scale, origin=(0, 0))
-    return FlatField(outline, mesh.theta, mesh.eps, f"{path}")
+    features = {name: mesh.feature_function(k) for k, name in enumerate(names)}
+    return FlatField(outline, mesh.theta, features, f"{path}", scale)
 
 
 @dataclass(frozen=True, eq=False)
@@ -279,7 +321,7 @@ class _DesignMesh:
 
     ``points`` (V, 2) flat-sheet positions of valid grid nodes; ``triangles`` (T, 3) node
     indices, ordered by distance of the cell from the design origin (smallest |u|+|v| first);
-    ``cos2``, ``sin2``, ``eps_values`` (V,) per-node values.
+    ``cos2``, ``sin2`` (V,) and ``eps_values`` (N, V) per-node values.
     """
 
     points: np.ndarray
@@ -292,13 +334,12 @@ class _DesignMesh:
     nodes: cKDTree
 
     @classmethod
-    def build(
-        cls, arrays: Mapping[str, np.ndarray], feature: int, scale: float, where: str
-    ) -> _DesignMesh:
+    def build(cls, arrays: Mapping[str, np.ndarray], scale: float, where: str) -> _DesignMesh:
         """The mesh of ``arrays`` (a design file's contents) with positions times ``scale``."""
         valid = arrays["valid"].astype(bool)
-        r0, n0, eps = arrays["r"][0], arrays["n"][0], arrays["eps"][feature]
-        valid &= np.isfinite(r0).all(axis=-1) & np.isfinite(n0).all(axis=-1) & np.isfinite(eps)
+        r0, n0, eps = arrays["r"][0], arrays["n"][0], arrays["eps"]
+        valid &= np.isfinite(r0).all(axis=-1) & np.isfinite(n0).all(axis=-1)
+        valid &= np.isfinite(eps).all(axis=0)
         cells = valid[:-1, :-1] & valid[1:, :-1] & valid[1:, 1:] & valid[:-1, 1:]
         if not cells.any():
             raise FabkitError(f"{where}: the design has no valid grid cell")
@@ -321,7 +362,7 @@ class _DesignMesh:
             triangles=triangles,
             cos2=np.cos(2 * angle),
             sin2=np.sin(2 * angle),
-            eps_values=eps[valid].astype(float),
+            eps_values=eps[:, valid].astype(float),
             where=where,
             locator=TriangleLocator(points, triangles),
             nodes=cKDTree(points),
@@ -350,8 +391,13 @@ class _DesignMesh:
         cos2, sin2 = self._interpolate(x, y, self.cos2, self.sin2)
         return 0.5 * np.arctan2(sin2, cos2)
 
-    def eps(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return self._interpolate(x, y, self.eps_values)[0]
+    def feature_function(self, index: int) -> PlaneFunction:
+        """Feature ``index`` as a function of x, y (mm)."""
+
+        def evaluate(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+            return self._interpolate(x, y, self.eps_values[index])[0]
+
+        return evaluate
 
     def _interpolate(self, x: np.ndarray, y: np.ndarray, *values: np.ndarray) -> list[np.ndarray]:
         """Barycentric interpolation in the containing image triangle; nearest node outside."""
@@ -441,7 +487,7 @@ def load_director_file(path: str | Path) -> FlatField:
     [director]
     theta = "phi + pi/2"      # radians; names x, y, r, phi; arctan2(a, b) allowed
     shape = "disc:10"         # or outline = [[x, y], ...] (mm)
-    eps = "0.3"               # optional
+    eps = "0.3"               # optional: the feature eps; or { eps1 = "...", eps2 = "..." }
     # or, instead of theta/eps: grid = "theta.npz" with theta, mask, pixel_mm (, eps)
     """
     path = Path(path)

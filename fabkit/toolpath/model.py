@@ -4,22 +4,28 @@ A :class:`Toolpath` is a tuple of :class:`Layer` s; a layer is the ordered tuple
 :class:`Move` s (print moves and the travels between them). A move is a polyline with
 per-vertex data:
 
-========= ======= ==========================================================================
-field     shape   meaning
-========= ======= ==========================================================================
-xyz       (n, 3)  vertex positions, mm (machine-independent: the sheet's frame, z up)
-width     (n,)    road width, mm (0 on travels)
-speed     (n,)    feed rate, mm/s
-flow      (n,)    extrusion multiplier: the volume deposited along a segment is
-                  ``length * width * layer height * flow`` (1 = nominal road, 0 on travels)
-value     (n,)    the encoded process parameter (see :attr:`Toolpath.parameter`); NaN if none
-========= ======= ==========================================================================
+=========== ======= ========================================================================
+field       shape   meaning
+=========== ======= ========================================================================
+xyz         (n, 3)  vertex positions, mm (machine-independent: the sheet's frame, z up)
+width       (n,)    road width, mm (0 on travels)
+speed       (n,)    feed rate, mm/s
+flow        (n,)    extrusion multiplier: the volume deposited along a segment is
+                    ``length * width * layer height * flow`` (1 = nominal road, 0 on travels)
+channels    {name:  one array per encoded process parameter (:attr:`Toolpath.channels`),
+            (n,)}   named by the parameter (``print_speed_mm_s``, ``ink_fraction``, ...);
+                    NaN on travels
+=========== ======= ========================================================================
 
-Vertex ``k`` carries the settings of the segment that *ends* at it (the G-code convention:
-a move to vertex ``k`` is made with ``speed[k]``, ``flow[k]``, ``width[k]``, ``value[k]``);
-vertex 0 carries the settings at the start of the move. Writers (G-code, DXF, laser) read
-only this model; :func:`save_toolpath` / :func:`load_toolpath` store it as ``.npz`` or
-``.json`` with the same content.
+The channels are the values the process gives each feature of the design (see
+:mod:`fabkit.process`); ``speed`` and ``flow`` already hold the print speed and extrusion
+multiplier channels where those are encoded. Vertex ``k`` carries the settings of the
+segment that *ends* at it (the G-code convention: a move to vertex ``k`` is made with
+``speed[k]``, ``flow[k]``, ``width[k]`` and every channel's ``[k]``); vertex 0 carries the
+settings at the start of the move. Writers (G-code, DXF, laser) read only this model;
+:func:`save_toolpath` / :func:`load_toolpath` store it as ``.npz`` or ``.json`` with the
+same content (format ``fabkit-toolpath/2``; files of format 1, with one encoded
+``parameter`` and its ``value`` per vertex, are read as one channel).
 """
 
 from __future__ import annotations
@@ -36,17 +42,20 @@ import numpy as np
 
 from fabkit.atomic import atomic_path
 from fabkit.errors import FabkitError
+from fabkit.process import PARAMETERS
 
-FORMAT = "fabkit-toolpath/1"
+FORMAT = "fabkit-toolpath/2"
 """Format tag stored in every saved toolpath."""
+OLD_FORMATS = ("fabkit-toolpath/1",)
+"""Older tags :func:`load_toolpath` still reads."""
 
 PRINT = "print"
 TRAVEL = "travel"
 KINDS = (PRINT, TRAVEL)
-PARAMETERS = ("", "print_speed_mm_s", "extrusion_multiplier", "temperature_c", "line_spacing_mm")
-"""Names :attr:`Toolpath.parameter` may take ("" = nothing encoded)."""
 
-_VERTEX_FIELDS = ("width", "speed", "flow", "value")
+_VERTEX_FIELDS = ("width", "speed", "flow")
+_CHANNEL_KEY = "channel_"
+"""Prefix of the per-vertex channel arrays in a ``.npz`` toolpath."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,7 +67,7 @@ class Move:
     width: np.ndarray
     speed: np.ndarray
     flow: np.ndarray
-    value: np.ndarray
+    channels: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -70,8 +79,9 @@ class Move:
             raise FabkitError("toolpath: a move has non-finite coordinates")
         object.__setattr__(self, "xyz", xyz)
         for name in _VERTEX_FIELDS:
-            values = np.broadcast_to(np.asarray(getattr(self, name), dtype=float), (len(xyz),))
-            object.__setattr__(self, name, values.copy())
+            object.__setattr__(self, name, _per_vertex(getattr(self, name), len(xyz)))
+        channels = {str(k): _per_vertex(v, len(xyz)) for k, v in self.channels.items()}
+        object.__setattr__(self, "channels", channels)
 
     @classmethod
     def make(
@@ -82,12 +92,12 @@ class Move:
         width: np.ndarray | float,
         speed: np.ndarray | float,
         flow: np.ndarray | float = 1.0,
-        value: np.ndarray | float = math.nan,
+        channels: Mapping[str, np.ndarray | float] | None = None,
     ) -> Move:
         """A move at height ``z`` (mm) from (n, 2) points; scalars are broadcast to vertices."""
         xy = np.asarray(xy, dtype=float)
         xyz = np.column_stack([xy, np.full(len(xy), float(z))])
-        return cls(kind, xyz, width, speed, flow, value)
+        return cls(kind, xyz, width, speed, flow, dict(channels or {}))
 
     @property
     def length_mm(self) -> float:
@@ -99,6 +109,10 @@ class Move:
         """Time to run the move at its per-segment speeds, s."""
         lengths = np.linalg.norm(np.diff(self.xyz, axis=0), axis=1)
         return float((lengths / np.maximum(self.speed[1:], 1e-9)).sum())
+
+
+def _per_vertex(values: Any, count: int) -> np.ndarray:
+    return np.broadcast_to(np.asarray(values, dtype=float), (count,)).copy()
 
 
 @dataclass(frozen=True, eq=False)
@@ -116,22 +130,34 @@ class Layer:
 
 @dataclass(frozen=True, eq=False)
 class Toolpath:
-    """Layers of moves plus the name of the encoded parameter and JSON-able metadata.
+    """Layers of moves, the encoded channels, and JSON-able metadata.
 
-    ``parameter`` is one of :data:`PARAMETERS`: which process parameter ``Move.value``
-    holds (``"print_speed_mm_s"`` etc.; ``""`` if nothing is encoded). ``meta`` holds
-    provenance (source, machine, process settings, quality report) as plain JSON values.
+    ``channels`` maps every encoded parameter (one of :data:`fabkit.process.PARAMETERS`)
+    to the feature(s) it encodes (``"eps1"``, or ``"eps1+eps2"`` for a joint table; ``""``
+    when unknown, as in a format-1 file); every move carries exactly these channels.
+    ``meta`` holds provenance (sources, process, scale, ignored features) as plain JSON.
     """
 
     layers: tuple[Layer, ...]
-    parameter: str = ""
+    channels: Mapping[str, str] = field(default_factory=dict)
     meta: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.parameter not in PARAMETERS:
-            raise FabkitError(
-                f"toolpath: encoded parameter '{self.parameter}' is not one of {PARAMETERS[1:]}"
-            )
+        object.__setattr__(self, "channels", dict(self.channels))
+        for name in self.channels:
+            if name not in PARAMETERS:
+                raise FabkitError(
+                    f"toolpath: channel '{name}' is not a parameter ({', '.join(PARAMETERS)})"
+                )
+        wanted = set(self.channels)
+        for index, layer in enumerate(self.layers):
+            for move in layer.moves:
+                if set(move.channels) != wanted:
+                    raise FabkitError(
+                        f"toolpath: a move of layer {index} has channels "
+                        f"{sorted(move.channels) or 'none'}, the toolpath "
+                        f"{sorted(wanted) or 'none'}"
+                    )
 
     def moves(self) -> Iterator[tuple[int, Move]]:
         """Every move in machine order, with its layer index."""
@@ -195,7 +221,7 @@ def _to_arrays(toolpath: Toolpath) -> dict[str, np.ndarray]:
     counts = [len(m.xyz) for _, m in moves]
     arrays = {
         "format": np.array(FORMAT),
-        "parameter": np.array(toolpath.parameter),
+        "channels": np.array(json.dumps(list(toolpath.channels.items()))),
         "meta": np.array(json.dumps(toolpath.meta)),
         "layer_z": np.array([layer.z_mm for layer in toolpath.layers], dtype=float),
         "layer_height": np.array([layer.height_mm for layer in toolpath.layers], dtype=float),
@@ -207,12 +233,23 @@ def _to_arrays(toolpath: Toolpath) -> dict[str, np.ndarray]:
     for name in _VERTEX_FIELDS:
         parts = [getattr(m, name) for _, m in moves]
         arrays[name] = np.concatenate(parts) if parts else np.zeros(0)
+    for name in toolpath.channels:
+        parts = [m.channels[name] for _, m in moves]
+        arrays[_CHANNEL_KEY + name] = np.concatenate(parts) if parts else np.zeros(0)
     return arrays
 
 
 def _from_arrays(data: Mapping[str, np.ndarray]) -> Toolpath:
-    if str(data.get("format", "")) != FORMAT:
+    tag = str(data.get("format", ""))
+    if tag != FORMAT and tag not in OLD_FORMATS:
         raise FabkitError(f"not a toolpath file of format {FORMAT}")
+    if tag == FORMAT:
+        channels = dict(_channel_pairs(json.loads(str(data["channels"]))))
+        vertex_channels = {name: data[_CHANNEL_KEY + name] for name in channels}
+    else:  # format 1: one parameter, its values in "value"
+        parameter = str(data["parameter"])
+        channels = {parameter: ""} if parameter else {}
+        vertex_channels = {parameter: data["value"]} if parameter else {}
     start, kinds, owners = data["move_start"], data["move_kind"], data["move_layer"]
     n_layers = len(data["layer_z"])
     if len(start) != len(kinds) + 1 or len(owners) != len(kinds) or start[-1] != len(data["xyz"]):
@@ -222,12 +259,24 @@ def _from_arrays(data: Mapping[str, np.ndarray]) -> Toolpath:
     per_layer: list[list[Move]] = [[] for _ in range(n_layers)]
     for k, (a, b) in enumerate(zip(start[:-1], start[1:], strict=True)):
         fields = {name: data[name][a:b] for name in _VERTEX_FIELDS}
-        per_layer[owners[k]].append(Move(KINDS[kinds[k]], data["xyz"][a:b], **fields))
+        values = {name: array[a:b] for name, array in vertex_channels.items()}
+        per_layer[owners[k]].append(
+            Move(KINDS[kinds[k]], data["xyz"][a:b], **fields, channels=values)
+        )
     layers = tuple(
         Layer(float(z), float(h), tuple(moves))
         for z, h, moves in zip(data["layer_z"], data["layer_height"], per_layer, strict=True)
     )
-    return Toolpath(layers, str(data["parameter"]), json.loads(str(data["meta"])))
+    return Toolpath(layers, channels, json.loads(str(data["meta"])))
+
+
+def _channel_pairs(pairs: Any) -> list[tuple[str, str]]:
+    """The ``[[parameter, features], ...]`` list of a saved toolpath, checked."""
+    if not isinstance(pairs, list) or not all(
+        isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) for x in p) for p in pairs
+    ):
+        raise FabkitError("channels must be a list of [parameter, features] pairs")
+    return [(p[0], p[1]) for p in pairs]
 
 
 def _to_json(toolpath: Toolpath) -> dict[str, Any]:
@@ -236,7 +285,7 @@ def _to_json(toolpath: Toolpath) -> dict[str, Any]:
 
     return {
         "format": FORMAT,
-        "parameter": toolpath.parameter,
+        "channels": [list(pair) for pair in toolpath.channels.items()],
         "meta": dict(toolpath.meta),
         "layers": [
             {
@@ -249,6 +298,7 @@ def _to_json(toolpath: Toolpath) -> dict[str, Any]:
                         "y": m.xyz[:, 1].tolist(),
                         "z": m.xyz[:, 2].tolist(),
                         **{name: listed(getattr(m, name)) for name in _VERTEX_FIELDS},
+                        "channels": {name: listed(v) for name, v in m.channels.items()},
                     }
                     for m in layer.moves
                 ],
@@ -259,11 +309,22 @@ def _to_json(toolpath: Toolpath) -> dict[str, Any]:
 
 
 def _from_json(table: Mapping[str, Any]) -> Toolpath:
-    if table.get("format") != FORMAT:
+    tag = table.get("format")
+    if tag != FORMAT and tag not in OLD_FORMATS:
         raise FabkitError(f"not a toolpath file of format {FORMAT}")
 
     def array(values: list[float | None]) -> np.ndarray:
         return np.array([math.nan if v is None else v for v in values], dtype=float)
+
+    if tag == FORMAT:
+        channels = dict(_channel_pairs(table["channels"]))
+    else:
+        channels = {table["parameter"]: ""} if table["parameter"] else {}
+
+    def move_channels(m: Mapping[str, Any]) -> dict[str, np.ndarray]:
+        if tag == FORMAT:
+            return {name: array(values) for name, values in m["channels"].items()}
+        return {name: array(m["value"]) for name in channels}
 
     layers = []
     for layer in table["layers"]:
@@ -272,8 +333,9 @@ def _from_json(table: Mapping[str, Any]) -> Toolpath:
                 m["kind"],
                 np.column_stack([m["x"], m["y"], m["z"]]).astype(float),
                 **{name: array(m[name]) for name in _VERTEX_FIELDS},
+                channels=move_channels(m),
             )
             for m in layer["moves"]
         )
         layers.append(Layer(float(layer["z_mm"]), float(layer["height_mm"]), moves))
-    return Toolpath(tuple(layers), table["parameter"], table["meta"])
+    return Toolpath(tuple(layers), channels, table["meta"])
