@@ -24,6 +24,7 @@ head-tail symmetry of the director is respected.
 
 from __future__ import annotations
 
+import json
 import zipfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
@@ -41,7 +42,6 @@ from scipy.spatial import cKDTree
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.expr import parse
-from fabkit.spec import spec_from_json
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -302,7 +302,7 @@ def field_from_design(
         raise FabkitError("design: give the size (--size MM, longest side) or --scale MM_PER_UNIT")
     design = Design.load(path)
     arrays = {key: getattr(design, key) for key in DESIGN_KEYS}
-    names = spec_from_json(design.spec).material.features
+    names = feature_names(design, str(path))
     mesh = _DesignMesh.build(arrays, 1.0, str(path))
     outline = mesh.outline()
     if size_mm is not None:
@@ -313,6 +313,22 @@ def field_from_design(
     outline = shapely.affinity.scale(outline, scale, scale, origin=(0, 0))
     features = {name: mesh.feature_function(k) for k, name in enumerate(names)}
     return FlatField(outline, mesh.theta, features, f"{path}", scale)
+
+
+def feature_names(design: Design, where: str = "design") -> tuple[str, ...]:
+    """The names of a design's features, from the spec it carries (``material.features``)."""
+    try:
+        names = json.loads(design.spec)["material"]["features"]
+    except (ValueError, KeyError, TypeError):
+        names = None
+    count = design.eps.shape[0]
+    if not (
+        isinstance(names, list) and len(names) == count and all(isinstance(n, str) for n in names)
+    ):
+        raise FabkitError(
+            f"{where}: its spec does not name its {count} feature(s) (material.features)"
+        )
+    return tuple(names)
 
 
 @dataclass(frozen=True, eq=False)

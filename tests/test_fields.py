@@ -64,7 +64,7 @@ def write_design(
         r=r,
         n=n,
         stimuli=np.array([[0.0], [1.0], [2.0]]),
-        spec=np.array(json.dumps({"synthetic": True})),
+        spec=np.array(json.dumps({"synthetic": True, "material": {"features": ["eps"]}})),
     )
     return path
 

@@ -114,7 +114,11 @@ def made_mesh(design: Design, made: PointFunction, trim: int = 0) -> DesignMesh:
     dropped); a one-line error if nothing is left."""
     mesh = design_mesh(design, trim)
     centroids = mesh.points[mesh.triangles].mean(axis=1)
-    keep = np.asarray(made(centroids), dtype=bool)
+    return _faces(mesh, np.asarray(made(centroids), dtype=bool))
+
+
+def _faces(mesh: DesignMesh, keep: np.ndarray) -> DesignMesh:
+    """``mesh`` with the faces ``keep`` only (unused vertices dropped)."""
     if not keep.any():
         raise FabkitError("no face of the design's mesh lies on the sheet as made")
     triangles = mesh.triangles[keep]
@@ -129,7 +133,17 @@ def sheet_metrics(
     design: Design, mesh: DesignMesh, surface: int, theta: np.ndarray, eps: np.ndarray
 ) -> np.ndarray:
     """Per-face reference metrics (F, 2, 2) at surface ``surface``'s stimulus for the
-    director angles ``theta`` (V,) and features ``eps`` (N, V) at the mesh's vertices."""
+    director angles ``theta`` (V,) and features ``eps`` (N, V) at the mesh's vertices
+    (a one-line error where a face's edge lengths make no metric)."""
+    return metric_from_lengths(
+        mesh.points, mesh.triangles, _edge_lengths(design, mesh, surface, theta, eps)
+    )
+
+
+def _edge_lengths(
+    design: Design, mesh: DesignMesh, surface: int, theta: np.ndarray, eps: np.ndarray
+) -> np.ndarray:
+    """Reference lengths (F, 3) of every face's edges (module docstring)."""
     spec = spec_from_json(design.spec)
     response = spec.material.response(eps, design.stimuli[surface : surface + 1])
     director = np.column_stack([np.cos(theta), np.sin(theta)])
@@ -139,7 +153,20 @@ def sheet_metrics(
     start, end = mesh.triangles[:, [1, 2, 0]], mesh.triangles[:, [2, 0, 1]]
     steps = design.step / mesh.refine * (mesh.grid[end] - mesh.grid[start])  # (F, 3, 2)
     speed = [np.sqrt(np.einsum("fei,feij,fej->fe", steps, pulled[k], steps)) for k in (start, end)]
-    return metric_from_lengths(mesh.points, mesh.triangles, 0.5 * (speed[0] + speed[1]))
+    return 0.5 * (speed[0] + speed[1])
+
+
+def _metric_faces(
+    design: Design, mesh: DesignMesh, theta: np.ndarray, eps: np.ndarray
+) -> np.ndarray:
+    """Faces (F,) bool whose edge lengths make a metric at every stimulus (a sheet whose
+    director turns fast across a coarse face may break the triangle inequality there)."""
+    ok = np.ones(len(mesh.triangles), dtype=bool)
+    for surface in range(len(design.stimuli)):
+        lengths = _edge_lengths(design, mesh, surface, theta, eps)
+        a, b, c = lengths.T
+        ok &= (a < b + c) & (b < c + a) & (c < a + b)
+    return ok
 
 
 def _flat_jacobian(design: Design, mesh: DesignMesh) -> np.ndarray:
@@ -184,8 +211,17 @@ def simulate_sheet(
     mesh = made_mesh(coarse, fields.made, trim)
     if thickness is None:
         thickness = 0.01 * diameter(design_mesh(design).points)
-    theta = np.asarray(fields.theta(mesh.points), dtype=float)
-    eps = np.asarray(fields.features(mesh.points), dtype=float).reshape(-1, len(mesh.points))
+
+    def sample(mesh: DesignMesh) -> tuple[np.ndarray, np.ndarray]:
+        theta = np.asarray(fields.theta(mesh.points), dtype=float)
+        eps = np.asarray(fields.features(mesh.points), dtype=float)
+        return theta, eps.reshape(-1, len(mesh.points))
+
+    theta, eps = sample(mesh)
+    ok = _metric_faces(coarse, mesh, theta, eps)
+    if not ok.all():
+        mesh = _faces(mesh, ok)
+        theta, eps = sample(mesh)
     metrics = sheet_metrics(coarse, mesh, surface, theta, eps)
     made = sheet_metrics(coarse, mesh, 0, theta, eps)
     result = simulate(

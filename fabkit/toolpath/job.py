@@ -189,11 +189,13 @@ class ChannelJob:
 
 @dataclass(frozen=True)
 class ChannelResult:
-    """The layout, its checks, and the files written."""
+    """The layout, its checks, the files written, and the design's scale (mm per design
+    unit; None for a director field)."""
 
     layout: ChannelLayout
     report: ChannelReport
     files: tuple[Path, ...]
+    mm_per_unit: float | None = None
 
 
 def run_channel_job(job: ChannelJob) -> ChannelResult:
@@ -211,7 +213,7 @@ def run_channel_job(job: ChannelJob) -> ChannelResult:
         tmp.write_text(json.dumps(_channels_json(layout, report)), encoding="utf-8")
     save_mould(mould_mesh(layout, settings), files[1])
     save_channel_preview(layout, list(files[2:]))
-    return ChannelResult(layout, report, files)
+    return ChannelResult(layout, report, files, fields[0].mm_per_unit)
 
 
 def _channels_json(layout: ChannelLayout, report: ChannelReport) -> dict:

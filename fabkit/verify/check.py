@@ -23,7 +23,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -33,16 +33,17 @@ from scipy import ndimage
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.fields import FlatField, field_from_design
+from fabkit.fields import FlatField, feature_names, field_from_design
 from fabkit.machines import MachineProfile, load_machine
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
 from fabkit.mechanics.simulate import Settings
-from fabkit.process import Process, Resolution
+from fabkit.process import Encode, Process, Resolution
 from fabkit.spec import spec_from_json
+from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.process import DEFAULT_MACHINE, load_process
 from fabkit.verify.raster import Readback, Roads, rasterise
-from fabkit.verify.read_dxf import read_dxf
+from fabkit.verify.read_dxf import read_channels, read_dxf
 from fabkit.verify.read_gcode import Placement, Printed, read_gcode
 from fabkit.verify.read_laser import read_laser
 
@@ -62,7 +63,8 @@ class VerifyOptions:
     ``cell_mm`` the grid (default w / 4, or the laser pixel); ``simulate`` runs the
     forward simulations, ``reference`` adds the sheet as designed; ``stride`` coarsens
     the design's grid for them (default: about :data:`TARGET_TRIANGLES` triangles),
-    ``trim`` as ``fabkit simulate --trim``.
+    ``trim`` as ``fabkit simulate --trim``; ``baromorph`` the channel settings of a
+    baromorph drawing (its channels are read instead of roads).
     """
 
     machine: str | None = None
@@ -77,6 +79,7 @@ class VerifyOptions:
     stride: int | None = None
     trim: int = 0
     max_iterations: int = 100
+    baromorph: str | None = None
 
 
 @dataclass(frozen=True)
@@ -185,13 +188,13 @@ def verify(
     """Read ``machine_file`` back and check it against the design (module docstring)."""
     started = time.perf_counter()
     design = Design.load(design_path)
-    names = spec_from_json(design.spec).material.features
+    names = feature_names(design, str(design_path))
     machine_file = Path(machine_file)
     if not machine_file.exists():
         raise FabkitError(f"machine file '{machine_file}' does not exist")
-    kind = _kind(machine_file)
+    kind = "channels" if options.baromorph else _kind(machine_file)
     machine = _machine(options, machine_file, kind)
-    process = load_process(options.process_file) if options.process_file else machine.process
+    process = _process(options, machine)
     resolution = process.resolve(names, options.ignore_features)
     readback, placement = _read(machine_file, kind, machine, process, resolution, options)
     flat = _flat_field(design_path, options, placement)
@@ -236,12 +239,32 @@ def _kind(path: Path) -> str:
 
 
 def _machine(options: VerifyOptions, path: Path, kind: str) -> MachineProfile:
-    """The profile named, else a laser pattern's own machine, else the default."""
+    """The profile named, else a laser pattern's own machine, else the default (the laser
+    cutter for baromorph channels)."""
     if options.machine:
         return load_machine(options.machine)
+    if kind == "channels":
+        return load_machine("laser_cutter")
     if kind == "laser":
         return load_machine(manifest_machine(path))
     return load_machine(DEFAULT_MACHINE)
+
+
+def _process(options: VerifyOptions, machine: MachineProfile) -> Process:
+    """The process the file was made with: --process, the baromorph channel settings (a
+    channel-width channel for the first feature), else the machine's."""
+    if options.baromorph:
+        settings = load_baromorph(options.baromorph)
+        channel = Encode((0,), settings.calibration)
+        return Process(
+            settings.pitch_mm,
+            settings.channel_depth_mm,
+            1.0,
+            1.0,
+            (channel,),
+            f"baromorph {options.baromorph}",
+        )
+    return load_process(options.process_file) if options.process_file else machine.process
 
 
 def manifest_machine(folder: Path) -> str:
@@ -266,9 +289,12 @@ def _read(
     options: VerifyOptions,
 ) -> tuple[Readback, Placement]:
     """The file on a grid of the sheet's frame, and where the placement came from."""
-    if kind == "laser":
-        readback, placement, _ = read_laser(path)
-        placement = _placement(options, placement)
+    if kind in ("laser", "channels"):
+        if kind == "laser":
+            readback, found, _ = read_laser(path)
+        else:
+            readback, found = _read_channels(path, options.baromorph)
+        placement = _placement(options, found)
         shift = np.asarray(placement.offset_mm)
         moved = (readback.origin[0] - shift[0], readback.origin[1] - shift[1])
         return _replace_origin(readback, moved), placement
@@ -286,16 +312,17 @@ def _read(
     return rasterise(roads.shifted(np.asarray(placement.offset_mm)), cell), placement
 
 
+def _read_channels(path: Path, baromorph: str) -> tuple[Readback, Placement]:
+    """A baromorph drawing's channels with the settings it was laid out with: the band
+    along the outline holding the manifold ring is left out."""
+    settings = load_baromorph(baromorph)
+    widest = max(settings.calibration.value)
+    band = settings.min_wall_mm + settings.manifold_width_mm + settings.pitch_mm / 2
+    return read_channels(path, settings.pitch_mm, widest, band)
+
+
 def _replace_origin(readback: Readback, origin: tuple[float, float]) -> Readback:
-    return Readback(
-        origin,
-        readback.cell_mm,
-        readback.hits,
-        readback.theta,
-        readback.values,
-        readback.width_mm,
-        readback.notes,
-    )
+    return replace(readback, origin=origin)
 
 
 def _placement(options: VerifyOptions, found: Placement) -> Placement:
@@ -377,6 +404,8 @@ class _Sheet:
     def of(cls, readback: Readback, flat: FlatField) -> _Sheet:
         x, y = readback.centres()
         inside = shapely.contains_xy(flat.outline, x, y)
+        if readback.region is not None:
+            inside &= readback.region
         if not inside.any():
             raise FabkitError(
                 "no cell of the machine file lies on the design's flat sheet: wrong "

@@ -74,7 +74,8 @@ class Readback:
     ``origin + cell_mm * (i + 1/2, j + 1/2)``; ``hits`` (nx, ny) the distinct roads or
     exposures covering it, ``theta`` (nx, ny) the director (rad, NaN where uncovered),
     ``values`` parameter -> (nx, ny) (NaN where unknown); ``width_mm`` the road width (or
-    the pixel pitch); ``notes`` what the reader saw fit to say."""
+    the pixel pitch, or the channel pitch); ``region`` (nx, ny) bool the cells the reading
+    speaks for (None: all); ``notes`` what the reader saw fit to say."""
 
     origin: tuple[float, float]
     cell_mm: float
@@ -83,6 +84,7 @@ class Readback:
     values: dict[str, np.ndarray]
     width_mm: float
     notes: tuple[str, ...] = ()
+    region: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:

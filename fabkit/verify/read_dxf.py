@@ -7,6 +7,9 @@ vertex): a segment takes the values of the vertex it ends at. Polylines that sta
 the previous one ended continue its road. The sheet's placement is read from the
 header's custom properties ``fabkit_offset_mm`` and ``fabkit_mm_per_unit`` when the
 drawing has them. Nothing of the writer is used.
+
+A baromorph drawing (:func:`read_channels`) is read by its channels instead: their
+direction is the director, their width the channel-width channel of the one feature.
 """
 
 from __future__ import annotations
@@ -15,8 +18,12 @@ import math
 from pathlib import Path
 
 import numpy as np
+import shapely
+from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from fabkit.errors import FabkitError
+from fabkit.verify.raster import Readback
 from fabkit.verify.read_gcode import Placement
 
 APP_ID = "FABKIT"
@@ -115,3 +122,124 @@ def _placement(document, path: Path) -> Placement:
     if scale is not None and not (math.isfinite(scale) and scale > 0):
         scale = None
     return Placement(offset, scale, f"{path.name} header")
+
+
+CHANNELS = "CHANNELS"
+OUTLINE = "OUTLINE"
+NEIGHBOURS = 24
+"""Nearest wall points whose direction (as a tensor) gives a channel cell's direction."""
+WIDEST_MARGIN = 0.05
+"""A cut wider than the widest calibrated channel by more than this share is a junction
+(channels merging, a connector, the manifold) and is not read."""
+
+
+def read_channels(
+    path: str | Path, pitch_mm: float, widest_mm: float, band_mm: float
+) -> tuple[Readback, Placement]:
+    """A baromorph drawing's channels on a grid of a sixth of a pitch (drawing frame, mm).
+
+    The closed polylines of ``CHANNELS`` bound the channels (even-odd: a ring inside a
+    ring is a hole, a wall). In every grid cell inside a channel, the channel direction
+    is the mean direction (as a tensor) of the nearest walls (:data:`NEIGHBOURS` points
+    a quarter cell apart), and the width the length of the cut through the cell
+    perpendicular to it, within the channel (exact, from the polygons; a cut wider than
+    the widest channel ``widest_mm``, at a junction, is not read).
+    Walls take the values of the nearest channel cell within half a ``pitch_mm``; cells
+    within ``band_mm`` of the ``OUTLINE`` (the manifold ring along the edge) are not read.
+    """
+    import ezdxf
+    from ezdxf.lldxf.const import DXFError
+
+    path = Path(path)
+    try:
+        document = ezdxf.readfile(path)
+    except (OSError, DXFError, UnicodeDecodeError, ValueError) as exc:
+        raise FabkitError(f"{path}: not a readable DXF ({exc})") from None
+    rings: dict[str, list[shapely.Polygon]] = {CHANNELS: [], OUTLINE: []}
+    for entity in document.modelspace():
+        layer = entity.dxf.get("layer")
+        if layer in rings and entity.dxftype() == "LWPOLYLINE" and entity.closed:
+            points = [(p[0], p[1]) for p in entity.get_points("xy")]
+            if len(points) >= 3:
+                rings[layer].append(shapely.make_valid(shapely.Polygon(points)))
+    if not rings[CHANNELS]:
+        raise FabkitError(f"{path}: no closed channel on layer {CHANNELS}")
+    network = _even_odd(rings[CHANNELS])
+    cell = pitch_mm / 6
+    x0, y0, x1, y1 = network.bounds
+    low = np.array([x0, y0]) - pitch_mm
+    shape = np.ceil((np.array([x1, y1]) + pitch_mm - low) / cell).astype(int)
+    if shape.prod() > 4_000_000:
+        raise FabkitError(f"{path}: the drawing spans too many cells of {cell:g} mm to read")
+    x = low[0] + cell * (np.arange(shape[0]) + 0.5)
+    y = low[1] + cell * (np.arange(shape[1]) + 0.5)
+    xx, yy = np.meshgrid(x, y, indexing="ij")
+    channel = shapely.contains_xy(network, xx, yy)
+    points = np.column_stack([xx[channel], yy[channel]])
+    direction, width = _cuts(network, points, 2 * widest_mm, cell)
+    width[width > widest_mm * (1 + WIDEST_MARGIN)] = np.nan  # a junction, not a channel
+    theta = np.full(shape, np.nan)
+    widths = np.full(shape, np.nan)
+    theta[channel], widths[channel] = direction, width
+    read = np.isfinite(widths)
+    distance, (near_i, near_j) = ndimage.distance_transform_edt(~read, return_indices=True)
+    reach = distance * cell <= pitch_mm / 2
+    region = None
+    if rings[OUTLINE]:
+        region = shapely.contains_xy(_even_odd(rings[OUTLINE]).buffer(-band_mm), xx, yy)
+        reach &= region
+    readback = Readback(
+        origin=(float(low[0]), float(low[1])),
+        cell_mm=cell,
+        hits=reach.astype(float),
+        theta=np.where(reach, theta[near_i, near_j], np.nan),
+        values={"channel_width_mm": np.where(reach, widths[near_i, near_j], np.nan)},
+        width_mm=pitch_mm,
+        region=region,
+        notes=(
+            "channels: width and direction from cuts across every channel cell; a wall "
+            "takes the values of the nearest channel cell within half a pitch; the "
+            f"{band_mm:g} mm band along the outline (manifold) is not read",
+        ),
+    )
+    return readback, _placement(document, path)
+
+
+def _even_odd(polygons: list[shapely.Geometry]) -> shapely.Geometry:
+    """The region inside an odd number of ``polygons``."""
+    region = polygons[0]
+    for polygon in polygons[1:]:
+        region = shapely.symmetric_difference(region, polygon)
+    return region
+
+
+def _cuts(
+    network: shapely.Geometry, points: np.ndarray, reach: float, step: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Channel direction (rad) and width (mm) at points inside the channels: the nearest
+    wall's direction, and the length of the cut perpendicular to it through the point."""
+    boundary = shapely.segmentize(shapely.boundary(network), step / 4)
+    lines = shapely.get_parts(boundary)
+    vertices, tangents = [], []
+    for line in lines:
+        coords = np.asarray(line.coords)[:, :2]
+        if len(coords) < 2:
+            continue
+        ahead = np.diff(coords, axis=0)
+        vertices.append(coords[:-1])
+        tangents.append(ahead)
+    vertices, tangents = np.concatenate(vertices), np.concatenate(tangents)
+    _, nearest = cKDTree(vertices).query(points, k=min(NEIGHBOURS, len(vertices)))
+    doubled = 2 * np.arctan2(tangents[:, 1], tangents[:, 0])[nearest]  # (n, k)
+    angle = 0.5 * np.arctan2(np.sin(doubled).sum(axis=1), np.cos(doubled).sum(axis=1))
+    normal = np.column_stack([-np.sin(angle), np.cos(angle)])
+    cuts = shapely.linestrings(np.stack([points - reach * normal, points + reach * normal], axis=1))
+    pieces = shapely.intersection(cuts, network)
+    width = np.full(len(points), np.nan)
+    probes = shapely.points(points)
+    for k, piece in enumerate(pieces):
+        for part in shapely.get_parts(piece):
+            if shapely.distance(part, probes[k]) < 1e-9:
+                width[k] = part.length if part.length < reach else np.nan
+                break
+    return angle, width

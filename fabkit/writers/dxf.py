@@ -95,6 +95,7 @@ def write_dxf(
     machine: MachineProfile | None = None,
     offset_mm: tuple[float, ...] | None = None,
     inlet_radius_mm: float = DEFAULT_INLET_RADIUS_MM,
+    mm_per_unit: float | None = None,
 ) -> DxfSummary:
     """Write the drawing at ``path`` atomically (see the module docstring)."""
     doc, summary = dxf_document(
@@ -105,6 +106,7 @@ def write_dxf(
         machine=machine,
         offset_mm=offset_mm,
         inlet_radius_mm=inlet_radius_mm,
+        mm_per_unit=mm_per_unit,
     )
     with atomic_path(path) as tmp:
         doc.saveas(tmp)
@@ -120,8 +122,13 @@ def dxf_document(
     machine: MachineProfile | None = None,
     offset_mm: tuple[float, ...] | None = None,
     inlet_radius_mm: float = DEFAULT_INLET_RADIUS_MM,
+    mm_per_unit: float | None = None,
 ) -> tuple[Drawing, DxfSummary]:
-    """The drawing (audited, no errors) and its summary; nothing is written."""
+    """The drawing (audited, no errors) and its summary; nothing is written.
+
+    ``mm_per_unit`` (the design's scale) is recorded in the header; a toolpath's own
+    (its ``meta``) is used when not given.
+    """
     if not inlet_radius_mm > 0:
         raise FabkitError(f"inlet radius must be > 0 mm, got {inlet_radius_mm}")
     shapes = {
@@ -143,7 +150,9 @@ def dxf_document(
     doc.units = units.MM
     doc.header["$MEASUREMENT"] = 1
     doc.header.custom_vars.append("fabkit_offset_mm", ",".join(f"{v:.6f}" for v in shift))
-    scale = toolpath.meta.get("mm_per_unit") if toolpath is not None else None
+    scale = mm_per_unit
+    if scale is None and toolpath is not None:
+        scale = toolpath.meta.get("mm_per_unit")
     if isinstance(scale, int | float) and not isinstance(scale, bool):
         doc.header.custom_vars.append("fabkit_mm_per_unit", f"{scale:.9g}")
     doc.appids.new(APP_ID)
