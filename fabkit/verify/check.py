@@ -40,6 +40,7 @@ from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_she
 from fabkit.mechanics.simulate import Settings
 from fabkit.process import Encode, Process, Resolution
 from fabkit.spec import spec_from_json
+from fabkit.surfaces.analytic import number
 from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.process import DEFAULT_MACHINE, load_process
 from fabkit.verify.raster import Readback, Roads, rasterise
@@ -187,6 +188,7 @@ def verify(
 ) -> Verification:
     """Read ``machine_file`` back and check it against the design (module docstring)."""
     started = time.perf_counter()
+    _check_options(options)
     design = Design.load(design_path)
     names = feature_names(design, str(design_path))
     machine_file = Path(machine_file)
@@ -230,6 +232,24 @@ def verify(
         notes=tuple(notes),
         seconds=time.perf_counter() - started,
     )
+
+
+def _check_options(options: VerifyOptions) -> None:
+    """Refuse options out of range before reading anything."""
+    for name, value in (
+        ("--cell", options.cell_mm),
+        ("--size", options.size_mm),
+        ("--scale", options.mm_per_unit),
+    ):
+        if value is not None:
+            number(value, name, positive=True)
+    for name, value, least in (
+        ("--stride", options.stride, 1),
+        ("--max-iterations", options.max_iterations, 1),
+        ("--trim", options.trim, 0),
+    ):
+        if value is not None and value < least:
+            raise FabkitError(f"{name} {value}: expected an integer >= {least}")
 
 
 def _kind(path: Path) -> str:
