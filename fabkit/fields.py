@@ -62,7 +62,9 @@ class FlatField:
     ``theta_fn(x, y)`` and every function of ``features`` (feature name -> eps(x, y), in
     the design's order) take broadcast arrays of mm coordinates and return arrays of
     their shape; theta is defined mod pi. ``mm_per_unit``: the scale of a design's field
-    (mm per design unit), None for fields given in mm.
+    (mm per design unit), None for fields given in mm. ``joint_fn`` (optional) gives
+    [theta, *features] at once, cheaper than one call each (a design locates each point
+    in its mesh once).
     """
 
     outline: shapely.Polygon | shapely.MultiPolygon
@@ -70,6 +72,7 @@ class FlatField:
     features: Mapping[str, PlaneFunction]
     source: str
     mm_per_unit: float | None = None
+    joint_fn: Callable[[np.ndarray, np.ndarray], list[np.ndarray]] | None = None
 
     def theta(self, points: np.ndarray) -> np.ndarray:
         """Director angle (n,) in (-pi/2, pi/2] at (n, 2) points; finite everywhere."""
@@ -99,6 +102,16 @@ class FlatField:
             raise FabkitError(f"{self.source}: has no feature '{name}' (features: {known})")
         points = np.asarray(points, dtype=float).reshape(-1, 2)
         return np.asarray(self.features[name](points[:, 0], points[:, 1]), dtype=float)
+
+    def sample(self, points: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Director angle (n,) (as :meth:`theta`) and every feature (n,) at (n, 2) points."""
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        if self.joint_fn is None:
+            return self.theta(points), {name: self.feature(name, points) for name in self.names}
+        theta, *values = self.joint_fn(points[:, 0], points[:, 1])
+        theta = np.where(np.isfinite(theta), theta, 0.0)
+        theta = np.pi / 2 - np.mod(np.pi / 2 - theta, np.pi)
+        return theta, dict(zip(self.names, values, strict=True))
 
     def eps(self, points: np.ndarray) -> np.ndarray:
         """The field's only feature (n,) at (n, 2) points; an error unless it has one."""
@@ -312,7 +325,7 @@ def field_from_design(
     mesh = _DesignMesh.build(arrays, scale, str(path))
     outline = shapely.affinity.scale(outline, scale, scale, origin=(0, 0))
     features = {name: mesh.feature_function(k) for k, name in enumerate(names)}
-    return FlatField(outline, mesh.theta, features, f"{path}", scale)
+    return FlatField(outline, mesh.theta, features, f"{path}", scale, mesh.everything)
 
 
 def feature_names(design: Design, where: str = "design") -> tuple[str, ...]:
@@ -406,6 +419,11 @@ class _DesignMesh:
     def theta(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         cos2, sin2 = self._interpolate(x, y, self.cos2, self.sin2)
         return 0.5 * np.arctan2(sin2, cos2)
+
+    def everything(self, x: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
+        """[theta, *features] at x, y (mm), each point located once."""
+        cos2, sin2, *values = self._interpolate(x, y, self.cos2, self.sin2, *self.eps_values)
+        return [0.5 * np.arctan2(sin2, cos2), *values]
 
     def feature_function(self, index: int) -> PlaneFunction:
         """Feature ``index`` as a function of x, y (mm)."""

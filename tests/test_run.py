@@ -10,7 +10,15 @@ from tests.conftest import EXAMPLES
 def test_run_writes_every_file(run_cli, tmp_path):
     out = tmp_path / "out"
     code, text, err = run_cli(
-        "run", EXAMPLES / "two_shapes.toml", "--out", out, "--format", "gcode", "--format", "dxf"
+        "run",
+        EXAMPLES / "two_shapes.toml",
+        "--out",
+        out,
+        "--format",
+        "gcode",
+        "--format",
+        "dxf",
+        "--no-verify",
     )
     assert code == 0, err
     expected = [
@@ -46,6 +54,7 @@ def test_run_writes_every_file(run_cli, tmp_path):
     page = (out / "report.html").read_text()
     # the key figures are tables: one row per surface with its residual columns
     assert "<th>length_u median</th>" in page and "<td>sphere</td>" in page
+    assert figures["verify"] is None  # --no-verify: tests/test_verify.py reads runs back
     assert page.count("data:image/png;base64,") == 5
 
 
@@ -70,8 +79,10 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
         out,
         "--baromorph",
         EXAMPLES / "baromorph_channels.toml",
+        "--no-verify",
     )
     assert code == 0, err
+    assert json.loads((out / "report.json").read_text())["verify"] is None
     channels = json.loads((out / "report.json").read_text())["channels"]
     assert channels["valid"] and channels["connected"]
     assert channels["max_width_error"] <= 0.01 and channels["min_wall_mm"] >= 0.6
@@ -104,6 +115,7 @@ def test_run_photoalignment_pattern(run_cli, tmp_path):
         "dmd_photoalign",
         "--size",
         "20",
+        "--no-verify",
     )
     assert code == 0, err
     manifest = json.loads((out / "laser" / "manifest.json").read_text())

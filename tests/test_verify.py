@@ -314,14 +314,45 @@ def test_joint_channel_through_the_planner_and_the_gcode(tmp_path):
 
 @pytest.fixture(scope="module")
 def fig1_run(tmp_path_factory):
-    """Fig. 1 on a coarse grid at 40 mm, run without its own verification."""
+    """Fig. 1 on a coarse grid at 40 mm, verified by the run itself."""
     from fabkit.cli import main
 
     out = tmp_path_factory.mktemp("fig1") / "run"
     spec = ROOT / "examples" / "two_shapes.toml"
-    arguments = ["run", str(spec), "--out", str(out), "--size", "40", "--no-verify"]
+    arguments = ["run", str(spec), "--out", str(out), "--size", "40"]
     assert main([*arguments, "--step", "0.1", "--diagonals", "60"]) == 0
     return out
+
+
+def test_run_reports_the_verification(fig1_run):
+    figures = json.loads((fig1_run / "report.json").read_text())
+    verified = figures["verify"]
+    assert verified["kind"] == "gcode" and verified["features"][0]["feature"] == "eps"
+    assert verified["features"][0]["rms_pct"] < 2.0 and verified["director_mean_deg"] < 3.0
+    assert [t["target"] for t in verified["targets"]] == ["sphere", "bump"]
+    assert figures["channels"] == {"print_speed_mm_s": "eps"}
+    page = (fig1_run / "report.html").read_text()
+    assert "<th>director_mean_deg</th>" in page and "<th>rms_pct</th>" in page
+    assert "NOT ENCODED" not in page
+
+
+def test_an_ignored_feature_is_the_reports_first_line(run_cli, tmp_path):
+    out = tmp_path / "fig3"
+    spec = ROOT / "examples" / "three_shapes.toml"
+    code, text, err = run_cli(
+        "run", spec, "--out", out, "--ignore-feature", "eps2",
+        "--step", "0.1", "--diagonals", "30", "--size", "30",
+    )  # fmt: skip
+    assert code == 0, err
+    assert text.splitlines()[0].strip().startswith("NOT ENCODED: feature eps2 left out")
+    figures = json.loads((out / "report.json").read_text())
+    assert next(iter(figures)) == "notice" and "eps2" in figures["notice"]
+    assert figures["channels"] == {"print_speed_mm_s": "eps1"}
+    assert figures["verify"]["ignored"] == ["eps2"] and figures["verify"]["targets"] == []
+    body = (out / "report.html").read_text().split("<body>", 1)[1]
+    assert body.lstrip().startswith('<p class="no">NOT ENCODED: feature eps2')
+    gcode = (out / "sheet.gcode").read_text()
+    assert ";fabkit channels: print_speed_mm_s (eps1)" in gcode
 
 
 def test_verify_reads_a_run_back_and_simulates_it(fig1_run, run_cli):

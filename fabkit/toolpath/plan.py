@@ -162,8 +162,9 @@ def _moves(
     points = np.concatenate(lines)
     values: dict[str, np.ndarray] = {p: np.full(len(points), np.nan) for p in parameters}
     clipped = []
+    sampled = flat.sample(points)[1] if resolution.channels else {}
     for channel in resolution.channels:
-        eps = {name: flat.feature(name, points) for name in channel.features}
+        eps = {name: sampled[name] for name in channel.features}
         coded = channel.encode(eps, f"{flat.source}: {channel.label}")
         values.update(coded.values)
         if coded.clipped_fraction:

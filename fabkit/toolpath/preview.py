@@ -2,8 +2,8 @@
 
 Print moves are drawn to scale at 60 % of their road width (so that neighbouring lines stay
 distinguishable and gaps show), over the domain outline in grey; travels are thin dark
-lines. Each encoded channel gets its own row of panels, the roads coloured by it (one
-colour when nothing is encoded).
+lines. The roads are coloured by the first encoded channel (one colour when nothing is
+encoded); the colour bar names it and the feature it encodes.
 """
 
 from __future__ import annotations
@@ -38,25 +38,21 @@ def save_preview(
     """Draw ``toolpath`` over the per-layer ``outlines`` (mm) and save to each of ``paths``
     (the suffix picks the format: .png, .svg, .pdf)."""
     shown = _shown_layers(len(toolpath.layers))
-    channels = list(toolpath.channels) or [None]
-    figure = Figure(figsize=(PANEL_INCHES * len(shown), PANEL_INCHES * len(channels)))
-    axes = figure.subplots(len(channels), len(shown), squeeze=False)
+    channel = next(iter(toolpath.channels), None)
+    figure = Figure(figsize=(PANEL_INCHES * len(shown), PANEL_INCHES))
+    axes = figure.subplots(1, len(shown), squeeze=False)[0]
     low, high = toolpath.bounds()
     extent = float(max(high[0] - low[0], high[1] - low[1], 1e-9)) * 1.04
-    for row, channel in zip(axes, channels, strict=True):
-        norm = _norm(toolpath, channel)
-        for ax, index in zip(row, shown, strict=True):
-            _draw_layer(ax, toolpath, index, outlines[index % len(outlines)], channel, norm, extent)
-            middle = 0.5 * (low + high)
-            ax.set_xlim(middle[0] - extent / 2, middle[0] + extent / 2)
-            ax.set_ylim(middle[1] - extent / 2, middle[1] + extent / 2)
-        if norm is not None:
-            label = LABELS.get(channel, channel)
-            features = toolpath.channels[channel]
-            mappable = ScalarMappable(norm=norm, cmap="viridis")
-            figure.colorbar(
-                mappable, ax=row.tolist(), shrink=0.8, label=f"{label}: {features or 'eps'}"
-            )
+    norm = _norm(toolpath, channel)
+    middle = 0.5 * (low + high)
+    for ax, index in zip(axes, shown, strict=True):
+        _draw_layer(ax, toolpath, index, outlines[index % len(outlines)], channel, norm, extent)
+        ax.set_xlim(middle[0] - extent / 2, middle[0] + extent / 2)
+        ax.set_ylim(middle[1] - extent / 2, middle[1] + extent / 2)
+    if norm is not None:
+        label = f"{LABELS.get(channel, channel)}: {toolpath.channels[channel] or 'eps'}"
+        mappable = ScalarMappable(norm=norm, cmap="viridis")
+        figure.colorbar(mappable, ax=axes.tolist(), shrink=0.8, label=label)
     for path in paths:
         with atomic_path(path) as tmp:
             figure.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip("."))

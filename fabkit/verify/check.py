@@ -202,7 +202,7 @@ def verify(
     flat = _flat_field(design_path, options, placement)
     scale = float(flat.mm_per_unit)
     sheet = _Sheet.of(readback, flat)
-    features = _features(readback, resolution, sheet, flat, design, names)
+    features = _features(readback, resolution, sheet, design, names)
     notes = list(readback.notes)
     missing = [f.feature for f in features if f.cells == 0]
     if missing:
@@ -409,12 +409,14 @@ def _gcode_roads(
 
 @dataclass(frozen=True, eq=False)
 class _Sheet:
-    """The read-back grid against the design: cells inside the outline, covered, and the
-    coverage and director figures."""
+    """The read-back grid against the design: cells inside the outline, covered (their
+    centres ``points``, mm, and the designed features there), and the coverage and
+    director figures."""
 
     inside: np.ndarray
     covered: np.ndarray
     points: np.ndarray
+    designed: dict[str, np.ndarray]
     empty: float
     overlap: float
     director_mean: float
@@ -433,7 +435,7 @@ class _Sheet:
             )
         covered = inside & (readback.hits > 0)
         points = np.column_stack([x[covered], y[covered]])
-        designed = flat.theta(points)
+        designed, features = flat.sample(points)
         error = np.abs(_wrap(readback.theta[covered] - designed))
         degrees = np.degrees(error) if len(error) else np.array([np.nan])
         hits = readback.hits[covered]
@@ -441,6 +443,7 @@ class _Sheet:
             inside=inside,
             covered=covered,
             points=points,
+            designed=features,
             empty=float(1.0 - covered.sum() / inside.sum()),
             overlap=float(np.mean(hits - 1)) if len(hits) else 0.0,
             director_mean=float(np.mean(degrees)),
@@ -467,7 +470,6 @@ def _features(
     readback: Readback,
     resolution: Resolution,
     sheet: _Sheet,
-    flat: FlatField,
     design: Design,
     names: tuple[str, ...],
 ) -> list[FeatureError]:
@@ -479,7 +481,7 @@ def _features(
             span = float(np.ptp(design.eps[names.index(name)][design.valid])) or 1.0
             read = decoded[name][sheet.covered]
             known = np.isfinite(read)
-            designed = flat.feature(name, sheet.points[known])
+            designed = sheet.designed[name][known]
             error = np.abs(read[known] - designed) / span * 100.0
             out.append(
                 FeatureError(

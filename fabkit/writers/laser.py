@@ -75,6 +75,8 @@ DEFAULT_BINS = 18
 DEFAULT_DOSE_MJ_CM2 = 1000.0
 """Dose when there is no eps-to-dose calibration (typical of azo-dye photoalignment)."""
 DEFAULT_DOSE_LEVELS = 4
+CHUNK = 1 << 16
+"""Pixels sampled at once."""
 LIGHT_CHANNELS = ("dose_mj_cm2", "cure_dose_mj_cm2")
 """The channels a light writer exposes."""
 PREVIEW_HEIGHT_IN = 5.0
@@ -92,9 +94,7 @@ class FieldLike(Protocol):
     outline: shapely.Geometry
     mm_per_unit: float | None
 
-    def theta(self, points: np.ndarray) -> np.ndarray: ...
-
-    def feature(self, name: str, points: np.ndarray) -> np.ndarray: ...
+    def sample(self, points: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]: ...
 
     @property
     def names(self) -> tuple[str, ...]: ...
@@ -170,17 +170,17 @@ def sample_field(field: FieldLike, pixel_mm: float) -> DirectorGrid:
         raise FabkitError(f"pixel pitch {pixel_mm} mm leaves no pixel inside the outline")
     points = np.column_stack([xx[mask], yy[mask]])
     theta = np.full(mask.shape, np.nan)
-    theta[mask] = _in_chunks(field.theta, points)
-    features = {}
+    features = {name: np.full(mask.shape, np.nan) for name in field.names}
+    angles, values = [], {name: [] for name in field.names}
+    for a in range(0, len(points), CHUNK):  # bounded memory
+        angle, sampled = field.sample(points[a : a + CHUNK])
+        angles.append(angle)
+        for name in field.names:
+            values[name].append(sampled[name])
+    theta[mask] = np.concatenate(angles)
     for name in field.names:
-        features[name] = np.full(mask.shape, np.nan)
-        features[name][mask] = _in_chunks(lambda p, n=name: field.feature(n, p), points)
+        features[name][mask] = np.concatenate(values[name])
     return DirectorGrid(theta, mask, features, pixel_mm, (x0, y0), field.mm_per_unit)
-
-
-def _in_chunks(function: Any, points: np.ndarray, size: int = 1 << 15) -> np.ndarray:
-    """``function(points)`` evaluated on slices of ``size`` points (bounded memory)."""
-    return np.concatenate([function(points[a : a + size]) for a in range(0, len(points), size)])
 
 
 @dataclass(frozen=True)
