@@ -19,10 +19,16 @@ accurate in the step; every diagonal of every quadrant is one vectorised update.
 A point that fails a check (alpha <= 0, lambda <= 0, isotropic point, det M ~ 0,
 leaving a chart, non-finite, too much strain) stops; only the points depending on
 it (its quarter-plane of influence) are removed, and the stop is reported.
+
+Error control: every point is solved twice, at step h and h/2; their relative difference
+(of the stretches alpha lambda1 and beta lambda2 on every surface, and of the directors)
+is the point's error estimate, kept in the design. A point whose estimate exceeds
+``solver.tolerance`` is dropped with its quarter-plane of influence, and reported.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -45,8 +51,9 @@ REASONS = (
     "det M near zero",
     "target point left its chart",
     "no neighbours for the cross derivative",
+    "error estimate beyond solver.tolerance",
 )
-NON_FINITE, ALPHA, BETA, LAMBDA, STRAIN, ISOTROPIC, DET_M, CHART, ISOLATED = range(1, 10)
+NON_FINITE, ALPHA, BETA, LAMBDA, STRAIN, ISOTROPIC, DET_M, CHART, ISOLATED, ERROR = range(1, 11)
 DET_TOLERANCE = 1e-8
 """|det M| below this times the product of M's row norms counts as singular."""
 ISOTROPIC_TOLERANCE = 1e-9
@@ -96,26 +103,132 @@ class _Problem:
 def solve(spec: Spec, progress: Callable[[int, int], None] | None = None) -> Solution:
     """Solve the design problem on the spec's grid; ``progress(done, total)`` per diagonal.
 
-    With ``solver.extrapolate`` (the default) the problem is also solved at half the step
-    and the two combined by Richardson extrapolation, (4 X_{h/2} - X_h) / 3, which removes
-    the leading h^2 error of the second-order march; the stops reported are the fine
-    march's, the more precise of the two.
+    The problem is solved at step h and at h/2. With ``solver.extrapolate`` (the default)
+    the two are combined by Richardson extrapolation, (4 X_{h/2} - X_h) / 3, which removes
+    the leading h^2 error of the second-order march; without it the design is the march at
+    step h. Either way their difference is every point's error estimate, and points over
+    ``solver.tolerance`` are dropped (:func:`_error_control`). The stops reported are the
+    fine march's, the more precise of the two, and the error control's.
     """
     started = time.perf_counter()
     settings = spec.solver
-    total = settings.diagonals * (3 if settings.extrapolate else 1)
+    total = settings.diagonals * 3
 
     def report(done: int) -> None:
         if progress:
             progress(done, total)
 
-    coarse, stops = _march(spec, settings.step, settings.diagonals, report, 0)
-    if settings.extrapolate:
-        fine, stops = _march(
-            spec, settings.step / 2, 2 * settings.diagonals, report, settings.diagonals, every=2
-        )
-        coarse = _extrapolate(spec, coarse, fine)
-    return Solution(coarse, stops, time.perf_counter() - started)
+    coarse, _ = _march(spec, settings.step, settings.diagonals, report, 0)
+    fine, stops = _march(
+        spec, settings.step / 2, 2 * settings.diagonals, report, settings.diagonals, every=2
+    )
+    design = _extrapolate(spec, coarse, fine) if settings.extrapolate else _common(coarse, fine)
+    error = error_estimate(spec, coarse, fine)
+    design, dropped = _error_control(design, error, settings.tolerance)
+    stops = tuple(sorted(stops + dropped, key=_stop_order))
+    return Solution(design, stops, time.perf_counter() - started)
+
+
+def _stop_order(stop: Stop) -> tuple[float, float, float]:
+    return (abs(stop.u) + abs(stop.v), stop.u, stop.v)
+
+
+def _common(coarse: Design, fine: Design) -> Design:
+    """The march at step h, kept only where the march at h/2 is solved too."""
+    return _restrict(coarse, coarse.valid & fine.valid)
+
+
+def _restrict(design: Design, keep: np.ndarray) -> Design:
+    """``design`` with only the points of ``keep`` (nu, nv) valid; NaN elsewhere."""
+
+    def mask(values: np.ndarray, grid_axes: int) -> np.ndarray:
+        shape = (1,) * grid_axes + keep.shape + (1,) * (values.ndim - grid_axes - 2)
+        return np.where(keep.reshape(shape), values, np.nan)
+
+    return dataclasses.replace(
+        design,
+        valid=keep,
+        alpha=mask(design.alpha, 0),
+        beta=mask(design.beta, 0),
+        eps=mask(design.eps, 1),
+        r=mask(design.r, 1),
+        n=mask(design.n, 1),
+        error=mask(design.error, 0),
+    )
+
+
+def error_estimate(spec: Spec, coarse: Design, fine: Design) -> np.ndarray:
+    """Error estimate (nu, nv) of every point solved at step h (coarse) and h/2 (fine).
+
+    The largest, over the surfaces, of the relative differences of the stretches
+    alpha lambda1 and beta lambda2 (the lengths ``fabkit check`` compares) and of the
+    director's difference in the surface's metric (a unit vector: its angle error). It is
+    3/4 of the step-h march's leading error and larger than the extrapolated design's.
+    Non-finite differences count as infinite; NaN where either march has no value.
+    """
+    valid = coarse.valid & fine.valid
+    responses = [
+        spec.material.response(np.where(valid, d.eps, 0.0), d.stimuli) for d in (coarse, fine)
+    ]
+    parts = []
+    for j, target in enumerate(spec.targets):
+        for scale, stretch in (("alpha", "lambda1"), ("beta", "lambda2")):
+            c, f = (
+                getattr(d, scale) * getattr(response, stretch)[j]
+                for d, response in zip((coarse, fine), responses, strict=True)
+            )
+            parts.append(np.abs(c - f) / np.abs(f))
+        metric = target.surface.metric(np.where(valid[..., None], fine.r[j], 0.0))
+        change = coarse.n[j] - fine.n[j]
+        parts.append(np.sqrt(np.abs(np.einsum("...i,...ij,...j->...", change, metric, change))))
+    with np.errstate(invalid="ignore"):
+        worst = np.max([np.where(np.isfinite(p), p, np.inf) for p in parts], axis=0)
+    return np.where(valid, worst, np.nan)
+
+
+def _error_control(design: Design, error: np.ndarray, tolerance: float):
+    """Keep the points whose error estimate is at most ``tolerance``.
+
+    A point over it is dropped with its quarter-plane of influence (every point further
+    from both axes in its quadrant: the points it is a source of). Returns the design,
+    with ``error`` set, and one stop per point over tolerance that no other such point
+    influences.
+    """
+    with np.errstate(invalid="ignore"):
+        over = design.valid & ~(error <= tolerance)
+    dropped, inherited = _influence(over)
+    design = _restrict(dataclasses.replace(design, error=error), design.valid & ~dropped)
+    stops = tuple(
+        Stop(REASONS[ERROR], float(design.u[i]), float(design.v[j]), None)
+        for i, j in zip(*np.nonzero(over & ~inherited), strict=True)
+    )
+    return design, stops
+
+
+def _influence(sources: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quarter-planes of influence of ``sources`` on a square grid centred on the origin.
+
+    Returns (every point influenced by a source or being one, every point influenced by a
+    source other than itself). Influence runs away from the axes in every quadrant; a
+    source on an axis influences the quadrants on both sides of it.
+    """
+    centre = sources.shape[0] // 2
+    reached = np.zeros_like(sources)
+    inherited = np.zeros_like(sources)
+    for flip_u in (False, True):
+        for flip_v in (False, True):
+            pick = (
+                slice(centre, None) if not flip_u else slice(centre, None, -1),
+                slice(centre, None) if not flip_v else slice(centre, None, -1),
+            )
+            quarter = sources[pick]
+            spread = np.logical_or.accumulate(np.logical_or.accumulate(quarter, 0), 1)
+            reached[pick] |= spread
+            below = np.zeros_like(spread)
+            below[1:] |= spread[:-1]
+            below[:, 1:] |= spread[:, :-1]
+            inherited[pick] |= below
+    return reached, inherited
 
 
 def _march(spec: Spec, step: float, diagonals: int, report, offset: int, every: int = 1):
@@ -158,6 +271,7 @@ def _extrapolate(spec: Spec, coarse: Design, fine: Design) -> Design:
         eps=combine(coarse.eps, fine.eps, 1),
         r=r,
         n=n,
+        error=coarse.error,
         stimuli=coarse.stimuli,
         spec=coarse.spec,
     )
@@ -699,7 +813,7 @@ class _Grid:
                 ]
                 surface = names[outside[0]] if outside else None
             stops.append(Stop(REASONS[code], u, v, surface))
-        return tuple(sorted(stops, key=lambda s: (abs(s.u) + abs(s.v), s.u, s.v)))
+        return tuple(sorted(stops, key=_stop_order))
 
     def assemble(self, every: int = 1) -> Design:
         """All quadrants on one grid of step ``every`` x h; shared axes are averaged.
@@ -737,6 +851,7 @@ class _Grid:
             eps=np.moveaxis(mean["eps"], -1, 0),
             r=np.moveaxis(mean["r"], -2, 0),
             n=np.moveaxis(mean["n"], -2, 0),
+            error=np.full(valid.shape, np.nan),  # estimated once both marches are done
             stimuli=problem.stimuli,
             spec=problem.spec.to_json(),
         )
