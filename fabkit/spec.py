@@ -61,7 +61,7 @@ class SolverSettings:
     """Grid step (design units), diagonals per quadrant, quadrants (sign of u, sign of v).
 
     ``tolerance``: largest accepted error estimate of a solved point (dimensionless, the
-    relative Richardson difference of its stretches and directors; see docs/solver.md).
+    relative Richardson difference of its designed lengths; see docs/solver.md).
     """
 
     step: float = 0.05

@@ -14,9 +14,9 @@ eps      (N, nu, nv)     designable features
 r        (S, nu, nv, 2)  chart coordinates on surface s; r[0] is the flat-sheet point
 n        (S, nu, nv, 2)  director image, chart components, unit in surface s's metric
 error    (nu, nv)        the solver's error estimate of every point (dimensionless): the
-                         largest relative difference of the stretches alpha lambda1, beta
-                         lambda2 and of the directors between the marches at step h and
-                         h/2; at most ``solver.tolerance`` (see docs/solver.md)
+                         largest relative difference of alpha lambda1 and beta lambda2 (on
+                         every surface) between the marches at step h and h/2; at most
+                         ``solver.tolerance`` (see docs/solver.md)
 stimuli  (S, k)          stimulus of every surface
 spec     0-d str         the normalised spec as JSON (a design file is self-describing)
 ======== =============== ===========================================================
