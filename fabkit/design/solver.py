@@ -321,20 +321,14 @@ def _problem(spec: Spec) -> _Problem:
 def _pairs(signs: np.ndarray, march: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Rows (first, second) of one march with the same sign: the two quadrants that share
     the half-axis on which the other coordinate has that sign."""
+    rows = range(len(signs))
     pairs = [
         (a, b)
-        for a in range(len(signs))
-        for b in range(a + 1, len(signs))
-        if signs[a] == signs[b] and march[a] == march[b]
+        for a in rows
+        for b in rows
+        if a < b and signs[a] == signs[b] and march[a] == march[b]
     ]
-    return (
-        tuple(np.array(side, dtype=int) for side in zip(*pairs, strict=True))
-        if pairs
-        else (
-            np.zeros(0, dtype=int),
-            np.zeros(0, dtype=int),
-        )
-    )
+    return np.array([a for a, _ in pairs], dtype=int), np.array([b for _, b in pairs], dtype=int)
 
 
 # --- initial data -------------------------------------------------------------------------
