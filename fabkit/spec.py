@@ -58,13 +58,18 @@ class InitialData:
 
 @dataclass(frozen=True)
 class SolverSettings:
-    """Grid step (design units), diagonals per quadrant, quadrants (sign of u, sign of v)."""
+    """Grid step (design units), diagonals per quadrant, quadrants (sign of u, sign of v).
+
+    ``tolerance``: largest accepted error estimate of a solved point (dimensionless, the
+    relative Richardson difference of its designed lengths; see docs/solver.md).
+    """
 
     step: float = 0.05
     diagonals: int = 200
     quadrants: tuple[tuple[int, int], ...] = ALL_QUADRANTS
     max_strain: float = 3.0
     extrapolate: bool = True
+    tolerance: float = 1e-2
 
 
 @dataclass(frozen=True)
@@ -321,7 +326,11 @@ def _check_curves(initial: InitialData) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _solver(table: Mapping[str, Any]) -> tuple[SolverSettings, dict[str, Any]]:
-    check_keys(table, {"step", "diagonals", "quadrants", "max_strain", "extrapolate"}, "solver")
+    check_keys(
+        table,
+        {"step", "diagonals", "quadrants", "max_strain", "extrapolate", "tolerance"},
+        "solver",
+    )
     defaults = SolverSettings()
     step = number(table.get("step", defaults.step), "solver.step", positive=True)
     diagonals = table.get("diagonals", defaults.diagonals)
@@ -331,12 +340,20 @@ def _solver(table: Mapping[str, Any]) -> tuple[SolverSettings, dict[str, Any]]:
     max_strain = number(
         table.get("max_strain", defaults.max_strain), "solver.max_strain", positive=True
     )
-    settings = SolverSettings(step, diagonals, quadrants, max_strain)
+    extrapolate = table.get("extrapolate", defaults.extrapolate)
+    if not isinstance(extrapolate, bool):
+        raise FabkitError("solver.extrapolate: expected true or false")
+    tolerance = number(
+        table.get("tolerance", defaults.tolerance), "solver.tolerance", positive=True
+    )
+    settings = SolverSettings(step, diagonals, quadrants, max_strain, extrapolate, tolerance)
     normalised = {
         "step": step,
         "diagonals": diagonals,
         "quadrants": [list(q) for q in quadrants],
         "max_strain": max_strain,
+        "extrapolate": extrapolate,
+        "tolerance": tolerance,
     }
     return settings, normalised
 

@@ -63,6 +63,7 @@ def write_design(
         eps=features,
         r=r,
         n=n,
+        error=np.where(valid, 0.0, np.nan),
         stimuli=np.array([[0.0], [1.0], [2.0]]),
         spec=np.array(json.dumps({"synthetic": True})),
     )

@@ -13,6 +13,10 @@ beta     (nu, nv)        arc-length scale of v-curves on the flat sheet
 eps      (N, nu, nv)     designable features
 r        (S, nu, nv, 2)  chart coordinates on surface s; r[0] is the flat-sheet point
 n        (S, nu, nv, 2)  director image, chart components, unit in surface s's metric
+error    (nu, nv)        the solver's error estimate of every point (dimensionless): the
+                         largest relative difference of alpha lambda1 and beta lambda2 (on
+                         every surface) between the marches at step h and h/2; at most
+                         ``solver.tolerance`` (see docs/solver.md)
 stimuli  (S, k)          stimulus of every surface
 spec     0-d str         the normalised spec as JSON (a design file is self-describing)
 ======== =============== ===========================================================
@@ -31,7 +35,7 @@ import numpy as np
 from fabkit.atomic import atomic_path
 from fabkit.errors import FabkitError
 
-KEYS = ("u", "v", "valid", "alpha", "beta", "eps", "r", "n", "stimuli", "spec")
+KEYS = ("u", "v", "valid", "alpha", "beta", "eps", "r", "n", "error", "stimuli", "spec")
 
 
 @dataclass(frozen=True)
@@ -46,6 +50,7 @@ class Design:
     eps: np.ndarray
     r: np.ndarray
     n: np.ndarray
+    error: np.ndarray
     stimuli: np.ndarray
     spec: str
 
@@ -93,6 +98,7 @@ class Design:
             "eps": (features, nu, nv),
             "r": (surfaces, nu, nv, 2),
             "n": (surfaces, nu, nv, 2),
+            "error": (nu, nv),
         }
         for key, shape in expected.items():
             if getattr(self, key).shape != shape:
@@ -104,7 +110,7 @@ class Design:
 
     def check_values(self, where: str | Path = "design") -> None:
         """Refuse non-numeric arrays, and non-finite values on the grid or at valid points."""
-        for key in ("u", "v", "alpha", "beta", "eps", "r", "n", "stimuli"):
+        for key in ("u", "v", "alpha", "beta", "eps", "r", "n", "error", "stimuli"):
             if not np.issubdtype(getattr(self, key).dtype, np.number):
                 raise FabkitError(f"{where}: '{key}' is not numeric")
         checks = {
@@ -116,6 +122,7 @@ class Design:
             "eps": self.eps[:, self.valid],
             "r": self.r[:, self.valid],
             "n": self.n[:, self.valid],
+            "error": self.error[self.valid],
         }
         for key, values in checks.items():
             if not np.isfinite(values).all():
