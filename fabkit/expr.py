@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import ast
 import math
+import sys
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -157,11 +158,14 @@ def _op(kind: str, *args: Node) -> Node:
 @dataclass(frozen=True)
 class Jet:
     """A value (shape P) with its gradient (k, *P) and Hessian (k, k, *P) with respect to
-    the k active variables; None stands for zero (a constant has neither)."""
+    the k active variables; None stands for zero (a constant has neither). ``used`` (k,)
+    marks the active variables the value depends on (None: all): the other rows of the
+    gradient and Hessian are zero by structure, and stay zero whatever they multiply."""
 
     value: Array
     grad: Array | None = None
     hess: Array | None = None
+    used: Array | None = None
 
 
 def _plus(a: Array | None, b: Array | None) -> Array | None:
@@ -170,14 +174,44 @@ def _plus(a: Array | None, b: Array | None) -> Array | None:
     return a if b is None else a + b
 
 
-def _times(a: Array | None, b: Array) -> Array | None:
-    return None if a is None else a * b
+def _keep(product: Array, mask: Array | None) -> Array:
+    """``product`` with the entries outside ``mask`` (k,) or (k, k) set to zero where they
+    are not finite: they are zero by structure, and 0 * inf must stay 0 (d/dy of
+    x * (1/y) at y = 0 is -x/y^2, not NaN)."""
+    if mask is None or mask.all() or np.isfinite(product).all():
+        return product
+    return np.where(mask.reshape(mask.shape + (1,) * (product.ndim - mask.ndim)), product, 0.0)
 
 
-def _outer(a: Array | None, b: Array | None) -> Array | None:
-    if a is None or b is None:
+def _pair(a: Jet, b: Jet) -> Array | None:
+    """The (k, k) mask of Hessian entries two jets can make non-zero together."""
+    if a.used is None and b.used is None:
         return None
-    return a[:, None] * b[None, :]
+    ua = np.ones(len(a.grad), dtype=bool) if a.used is None else a.used
+    ub = np.ones(len(b.grad), dtype=bool) if b.used is None else b.used
+    return ua[:, None] & ub[None, :]
+
+
+def _grad_times(jet: Jet, factor: Array) -> Array | None:
+    """The jet's gradient times ``factor``, its structural zeros kept."""
+    return None if jet.grad is None else _keep(jet.grad * factor, jet.used)
+
+
+def _hess_times(jet: Jet, factor: Array) -> Array | None:
+    """The jet's Hessian times ``factor``, its structural zeros kept."""
+    if jet.hess is None:
+        return None
+    return _keep(jet.hess * factor, None if jet.used is None else _pair(jet, jet))
+
+
+def _outer(a: Jet, b: Jet, factor: Array | None = None) -> Array | None:
+    """``factor`` a' b'^T (k, k, *P) of two jets' gradients, structural zeros kept."""
+    if a.grad is None or b.grad is None:
+        return None
+    product = a.grad[:, None] * b.grad[None, :]
+    if factor is not None:
+        product = product * factor
+    return _keep(product, _pair(a, b))
 
 
 @dataclass(frozen=True)
@@ -198,18 +232,14 @@ class _Evaluator:
         return self.structural(node, self.operation(node, [self.jet(a) for a in node.args]))
 
     def structural(self, node: Node, jet: Jet) -> Jet:
-        """Zero the derivatives by active variables the node does not depend on: exactly
-        zero, also where a factor is infinite (d/dx sqrt(y) is 0, not 0 * inf = NaN)."""
+        """The jet with ``used`` set from the node's variables, and the rows of the others
+        zeroed (they are zero by structure, also where a factor was infinite)."""
         if jet.grad is None or all(v in node.variables for v in self.active):
             return jet
         used = np.array([v in node.variables for v in self.active])
-        shape = (len(used),) + (1,) * (jet.grad.ndim - 1)
-        grad = np.where(used.reshape(shape), jet.grad, 0.0)
-        hess = jet.hess
-        if hess is not None:
-            both = (used[:, None] & used[None, :]).reshape((len(used), len(used), *shape[1:]))
-            hess = np.where(both, hess, 0.0)
-        return Jet(jet.value, grad, hess)
+        grad = _keep(jet.grad, used)
+        hess = None if jet.hess is None else _keep(jet.hess, used[:, None] & used[None, :])
+        return Jet(jet.value, grad, hess, used)
 
     def operation(self, node: Node, args: list[Jet]) -> Jet:
         kind = node.kind
@@ -230,7 +260,7 @@ class _Evaluator:
         if kind == "neg":
             (u,) = args
             grad = None if u.grad is None else -u.grad
-            return Jet(-u.value, grad, None if u.hess is None else -u.hess)
+            return Jet(-u.value, grad, None if u.hess is None else -u.hess, u.used)
         if kind == "recip":
             return self.chain(args[0], _RECIPROCAL)
         if kind == "pow":
@@ -245,16 +275,17 @@ class _Evaluator:
             return Jet(value)
         grad = np.zeros((len(self.active),) + (1,) * value.ndim)
         grad[self.active[index]] = 1.0
-        return Jet(value, grad)
+        return Jet(value, grad, None, np.arange(len(self.active)) == self.active[index])
 
     def multiply(self, a: Jet, b: Jet) -> Jet:
-        grad = _plus(_times(a.grad, b.value), _times(b.grad, a.value))
+        """(ab)' = a'b + ab' and (ab)'' = a''b + a'b'^T + b'a'^T + ab''."""
+        grad = _plus(_grad_times(a, b.value), _grad_times(b, a.value))
         hess = None
         if self.order == 2:
-            cross = _outer(a.grad, b.grad)
-            hess = _plus(_times(a.hess, b.value), _times(b.hess, a.value))
+            cross = _outer(a, b)
+            hess = _plus(_hess_times(a, b.value), _hess_times(b, a.value))
             hess = _plus(hess, _plus(cross, None if cross is None else np.swapaxes(cross, 0, 1)))
-        return Jet(a.value * b.value, grad, hess)
+        return Jet(a.value * b.value, grad, hess, _union(a.used, b.used, a, b))
 
     def chain(self, u: Jet, function: Unary) -> Jet:
         """f(u): f'(u) u' and f''(u) u' u'^T + f'(u) u''."""
@@ -264,37 +295,72 @@ class _Evaluator:
         f1 = first()
         hess = None
         if self.order == 2:
-            hess = _plus(_times(_outer(u.grad, u.grad), second()), _times(u.hess, f1))
-        return Jet(value, u.grad * f1, hess)
+            hess = _plus(_outer(u, u, second()), _hess_times(u, f1))
+        return Jet(value, _grad_times(u, f1), hess, u.used)
 
     def power(self, node: Node, base: Jet, exponent: Jet) -> Jet:
-        """base ** exponent; a constant exponent c by c u^(c-1), else as exp(v log u)."""
+        """u ** v: by c u^(c-1) for an exponent without derivative, else with both partials
+        v u^(v-1) and u^v log(u) (so 0 ** v has derivative 0 by u for v > 1)."""
         if exponent.grad is None:
             c = float(node.args[1].value) if node.args[1].kind == "const" else exponent.value
             return self.chain(base, _power(c))
-        value = np.power(base.value, exponent.value)
-        logarithm = self.chain(base, UNARY["log"])
-        result = self.chain(self.multiply(exponent, logarithm), UNARY["exp"])
-        return Jet(value, result.grad, result.hess)
+        u, v = base.value, exponent.value
+        value = np.power(u, v)
+        log = np.log(u)
+
+        def second() -> tuple[Array, Array, Array]:
+            return (
+                v * (v - 1) * np.power(u, v - 2),
+                np.power(u, v - 1) * (1 + v * log),
+                value * log**2,
+            )
+
+        return self.binary(base, exponent, value, (v * np.power(u, v - 1), value * log), second)
 
     def arctan2(self, y: Jet, x: Jet) -> Jet:
-        """The angle of (x, y) with its partial derivatives x/r^2, -y/r^2 and second ones."""
-        value = np.arctan2(y.value, x.value)
-        if y.grad is None and x.grad is None:
-            return Jet(value)
+        """The angle of (x, y): partials x/r^2 by y and -y/r^2 by x."""
         r2 = x.value**2 + y.value**2
-        fy, fx = x.value / r2, -y.value / r2
-        grad = _plus(_times(y.grad, fy), _times(x.grad, fx))
+
+        def second() -> tuple[Array, Array, Array]:
+            fyy = -2.0 * x.value * y.value / r2**2
+            return fyy, (y.value**2 - x.value**2) / r2**2, -fyy
+
+        value = np.arctan2(y.value, x.value)
+        return self.binary(y, x, value, (x.value / r2, -y.value / r2), second)
+
+    def binary(
+        self,
+        u: Jet,
+        v: Jet,
+        value: Array,
+        first: tuple[Array, Array],
+        second: Callable[[], tuple[Array, Array, Array]],
+    ) -> Jet:
+        """f(u, v) from its partials ``first`` = (f_u, f_v) and ``second()`` = (f_uu, f_uv,
+        f_vv): grad f_u u' + f_v v', Hessian f_uu u'u'^T + f_uv (u'v'^T + v'u'^T)
+        + f_vv v'v'^T + f_u u'' + f_v v''."""
+        if u.grad is None and v.grad is None:
+            return Jet(value)
+        fu, fv = first
+        grad = _plus(_grad_times(u, fu), _grad_times(v, fv))
         hess = None
         if self.order == 2:
-            fyy = -2.0 * x.value * y.value / r2**2
-            fxy = (y.value**2 - x.value**2) / r2**2
-            mixed = _outer(y.grad, x.grad)
-            hess = _plus(_times(_outer(y.grad, y.grad), fyy), _times(_outer(x.grad, x.grad), -fyy))
+            fuu, fuv, fvv = second()
+            mixed = _outer(u, v, fuv)
             if mixed is not None:
-                hess = _plus(hess, (mixed + np.swapaxes(mixed, 0, 1)) * fxy)
-            hess = _plus(hess, _plus(_times(y.hess, fy), _times(x.hess, fx)))
-        return Jet(value, grad, hess)
+                mixed = mixed + np.swapaxes(mixed, 0, 1)
+            hess = _plus(_outer(u, u, fuu), _outer(v, v, fvv))
+            hess = _plus(_plus(hess, mixed), _plus(_hess_times(u, fu), _hess_times(v, fv)))
+        return Jet(value, grad, hess, _union(u.used, v.used, u, v))
+
+
+def _union(a: Array | None, b: Array | None, jet_a: Jet, jet_b: Jet) -> Array | None:
+    """The variables two jets depend on together (None: all, or unknown)."""
+    if jet_a.grad is None:
+        return b
+    if jet_b.grad is None:
+        return a
+    return None if a is None or b is None else a | b
 
 
 _RECIPROCAL = _unary(lambda u: 1.0 / u, lambda u: -1.0 / u**2, lambda u: 2.0 / u**3)
@@ -416,7 +482,9 @@ def parse(text: str, names: Sequence[str], where: str = "expression") -> Express
             warnings.simplefilter("ignore", SyntaxWarning)
             tree = ast.parse(source, mode="eval")
     except (SyntaxError, ValueError, RecursionError, MemoryError) as exc:
-        raise FabkitError(f"{where}: cannot parse '{text}': {_syntax_reason(exc)}") from None
+        raise FabkitError(
+            f"{where}: cannot parse '{shorten(text)}': {_syntax_reason(exc)}"
+        ) from None
     _check_size(tree.body, where)
     builder = _Builder({n: i for i, n in enumerate(names)}, where, text, source)
     return Expression(text, names, builder.build(tree.body), where)
@@ -430,7 +498,8 @@ def _syntax_reason(exc: BaseException) -> str:
     return str(exc)
 
 
-def _shortened(text: str, length: int = 40) -> str:
+def shorten(text: str, length: int = 60) -> str:
+    """``text`` cut to ``length`` characters (ending in "...") for a one-line message."""
     return text if len(text) <= length else text[: length - 3] + "..."
 
 
@@ -453,7 +522,8 @@ def _check_size(root: ast.AST, where: str) -> None:
         deepest = max(deepest, depth)
         for child in ast.iter_child_nodes(node):
             chained = _family(node) is not None and _family(node) == _family(child)
-            stack.append((child, depth if chained else depth + 1))
+            level = chained or not isinstance(child, ast.expr)
+            stack.append((child, depth if level else depth + 1))
     if count > MAX_NODES:
         raise FabkitError(
             f"{where}: expression too large: {count} nodes (numbers, names, operations, "
@@ -493,22 +563,24 @@ class _Builder:
     def refuse(self, what: str) -> FabkitError:
         allowed = ", ".join([*self.variables, "pi", "e"])
         return FabkitError(
-            f"{self.where}: {what} is not allowed in '{self.text}' (names allowed: {allowed}; "
+            f"{self.where}: {what} is not allowed in '{shorten(self.text)}' (names allowed: "
+            f"{allowed}; "
             "see docs/spec.md#expressions)"
         )
 
     def constant(self, node: ast.AST, compute: Callable[[], complex | float]) -> Node:
         """A constant part computed in floating point; refused unless finite and real."""
-        part = _shortened(ast.get_source_segment(self.source, node) or self.text)
+        part = shorten(ast.get_source_segment(self.source, node) or self.text, 40)
+        text = shorten(self.text)
         try:
             with np.errstate(all="ignore"):
                 value = complex(compute())
         except (OverflowError, ZeroDivisionError):
             value = complex(math.inf)
         if not (math.isfinite(value.real) and math.isfinite(value.imag)):
-            raise FabkitError(f"{self.where}: {part} is not finite (in '{self.text}')")
+            raise FabkitError(f"{self.where}: {part} is not finite (in '{text}')")
         if abs(value.imag) > 1e-12 * max(1.0, abs(value.real)):
-            raise FabkitError(f"{self.where}: {part} is not a real number (in '{self.text}')")
+            raise FabkitError(f"{self.where}: {part} is not a real number (in '{text}')")
         return _const(value.real)
 
     def build(self, node: ast.AST) -> Node:
@@ -530,6 +602,11 @@ class _Builder:
             raise self.refuse(f"the literal {value!r}")
         if isinstance(value, float) and not math.isfinite(value):
             raise self.refuse(f"the number {value!r}")
+        if isinstance(value, int) and abs(value) > sys.float_info.max:
+            raise FabkitError(
+                f"{self.where}: the integer {shorten(str(value), 20)} ({len(str(value))} digits) "
+                f"is too large for a float (in '{shorten(self.text)}')"
+            )
         return self.constant(node, lambda: float(value))
 
     def name(self, identifier: str) -> Node:
@@ -565,9 +642,11 @@ class _Builder:
                 operand = _const(-operand.value) if operand.kind == "const" else _op("neg", operand)
             elif inverted:
                 if operand.kind == "const" and operand.value == 0:
-                    divisor = _shortened(ast.get_source_segment(self.source, item) or "")
+                    divisor = shorten(ast.get_source_segment(self.source, item) or "", 40)
                     what = "" if divisor == "0" else f" ({divisor} = 0)"
-                    raise FabkitError(f"{self.where}: division by zero{what} in '{self.text}'")
+                    raise FabkitError(
+                        f"{self.where}: division by zero{what} in '{shorten(self.text)}'"
+                    )
                 operand = self.inverse(item, operand)
             operands.append(operand)
         return self.combine(node, family, operands)

@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.expr import parse
+from fabkit.expr import parse, shorten
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -162,7 +162,7 @@ def check_finite_on_sheet(
         values = np.asarray(function(points[:, 0], points[:, 1]), dtype=float)
     bad = np.flatnonzero(~np.isfinite(values.reshape(len(points))))
     if len(bad):
-        shown = f": '{text}'" if text else ""
+        shown = f": '{shorten(text)}'" if text else ""
         raise FabkitError(
             f"{where}: not finite at {len(bad)} of {len(points)} points of the sheet (first at "
             f"x = {points[bad[0], 0]:.6g}, y = {points[bad[0], 1]:.6g} mm){shown}"

@@ -147,6 +147,7 @@ def check_unstretched(material: Material, stimulus: Sequence[float], where: str)
         if not np.allclose(values, 1.0, rtol=0, atol=1e-12):
             worst = values.flat[np.argmax(abs(values - 1))]
             raise FabkitError(
-                f"{where}: {label} must equal 1 at the flat sheet's stimulus {list(stimulus)} "
+                f"{where}: {label} must equal 1 at the flat sheet's stimulus "
+                f"{[float(s) for s in stimulus]} "
                 f"for every eps (it is {worst:.4g} somewhere): surfaces[0] is the sheet as made"
             )

@@ -17,7 +17,7 @@ import numpy as np
 
 from fabkit.atomic import check_name
 from fabkit.errors import FabkitError
-from fabkit.expr import Expression, parse
+from fabkit.expr import Expression, parse, shorten
 from fabkit.material import ALONG, Material, check_unstretched
 from fabkit.surfaces import Surface, build_surface
 from fabkit.surfaces.analytic import check_keys, number
@@ -274,7 +274,7 @@ def _check_geometry_at_start(surface: Surface, start: np.ndarray, where: str) ->
         if not all(np.all(np.isfinite(part)) for part in parts):
             raise FabkitError(
                 f"{where}.{key}: not finite at the start point ({at}): "
-                f"'{expression.text}' or its first or second derivatives"
+                f"'{shorten(expression.text)}' or its first or second derivatives"
             )
     raise FabkitError(f"{where}: the metric or curvature is not finite at the start point ({at})")
 
@@ -326,7 +326,7 @@ def _check_finite_initial(initial: InitialData, classes: tuple[str, ...]) -> Non
                 what = "it or its derivative is" if order else "it is"
                 raise FabkitError(
                     f"initial.{label}[{i}]: not finite at t = 0 on the {carrier} ({what} "
-                    f"not finite: '{expression.text}')"
+                    f"not finite: '{shorten(expression.text)}')"
                 )
 
 
@@ -352,9 +352,9 @@ def _check_material_at_start(
             values = [*eps[:, 0], *target.stimulus]
             at = ", ".join(f"{n} = {v:.6g}" for n, v in zip(names, values, strict=True))
             raise FabkitError(
-                f"material.{label}: not finite at the start point ({at}: the initial eps "
-                f"under the stimulus of surfaces[{index}] '{target.name}'), or its log-"
-                "derivatives by eps are not"
+                f"material.{label}: not finite at the start point, or its log-derivatives by "
+                f"eps are not, at {at} (the initial eps under the stimulus of "
+                f"surfaces[{index}] '{target.name}')"
             )
 
 
@@ -364,7 +364,8 @@ def _check_curves(initial: InitialData) -> tuple[np.ndarray, np.ndarray]:
         for expression in getattr(initial, key):
             if not all(np.all(np.isfinite(p)) for p in expression.jets(0.0, wrt=("t",))):
                 raise FabkitError(
-                    f"initial.{key}: not finite at t = 0: '{expression.text}' or its first or "
+                    f"initial.{key}: not finite at t = 0: '{shorten(expression.text)}' or its "
+                    "first or "
                     "second derivative (the curve, its tangent or its curvature)"
                 )
     u_point = np.array([c(0.0) for c in initial.u_curve])

@@ -109,12 +109,13 @@ def solve(spec: Spec, progress: Callable[[int, int], None] | None = None) -> Sol
         if progress:
             progress(done, total)
 
-    coarse, stops = _march(spec, settings.step, settings.diagonals, report, 0)
-    if settings.extrapolate:
-        fine, stops = _march(
-            spec, settings.step / 2, 2 * settings.diagonals, report, settings.diagonals, every=2
-        )
-        coarse = _extrapolate(spec, coarse, fine)
+    with np.errstate(all="ignore"):  # overflow and NaN are stops, checked point by point
+        coarse, stops = _march(spec, settings.step, settings.diagonals, report, 0)
+        if settings.extrapolate:
+            fine, stops = _march(
+                spec, settings.step / 2, 2 * settings.diagonals, report, settings.diagonals, every=2
+            )
+            coarse = _extrapolate(spec, coarse, fine)
     return Solution(coarse, stops, time.perf_counter() - started)
 
 

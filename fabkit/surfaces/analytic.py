@@ -142,6 +142,9 @@ class Graph(Surface):
             g, gamma, curvature = graph_geometry(derivatives)
         return _where_finite(f, g, gamma, curvature)
 
+    def expressions(self) -> dict[str, Expression]:
+        return {"z": self.height}
+
     def embed(self, r):
         r = np.asarray(r, dtype=float)
         z = self.height(r[..., 0], r[..., 1])
@@ -181,6 +184,9 @@ class Parametric(Surface):
         g, gamma, curvature = immersion_geometry(np.swapaxes(first, 0, 1), second.swapaxes(0, 1))
         return _where_finite(np.sum(position, axis=0), g, gamma, curvature)
 
+    def expressions(self) -> dict[str, Expression]:
+        return dict(zip("xyz", self.coordinates, strict=True))
+
     def embed(self, r):
         r = np.asarray(r, dtype=float)
         return np.stack([c(r[..., 0], r[..., 1]) for c in self.coordinates], axis=-1)
@@ -211,6 +217,9 @@ class Metric(Surface):
             parse(table.get(k, "0"), ("a", "b"), f"{where}.{k}") for k in ("g11", "g12", "g22")
         )
         return cls(name, components, domain_bounds(table, where))
+
+    def expressions(self) -> dict[str, Expression]:
+        return dict(zip(("g11", "g12", "g22"), self.components, strict=True))
 
     def geometry(self, r):
         """Christoffel symbols and K (Brioschi) from the components' derivatives."""

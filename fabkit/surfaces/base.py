@@ -16,8 +16,12 @@ Lengths are in the chart's own units (design units; millimetres once scaled).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from fabkit.expr import Expression
 
 Bounds = tuple[tuple[float, float], tuple[float, float]]
 """Chart domain as ((r1_min, r1_max), (r2_min, r2_max)); infinite bounds allowed."""
@@ -58,6 +62,10 @@ class Surface(ABC):
             with np.errstate(invalid="ignore"):
                 inside &= (r[..., axis] > low) & (r[..., axis] < high)
         return inside
+
+    def expressions(self) -> dict[str, Expression]:
+        """The user expressions the surface is made of, by spec key (none for most kinds)."""
+        return {}
 
     def describe(self) -> str:
         """One line for summaries."""

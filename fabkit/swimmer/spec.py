@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.expr import Expression, parse
+from fabkit.expr import Expression, parse, shorten
 from fabkit.fields import PlaneFunction, check_finite_on_sheet, parse_shape, planar_expression
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
@@ -203,7 +203,7 @@ def _layer(
             shown = ", ".join(f"{n} = {v:.6g}" for n, v in zip(stimuli, at, strict=True))
             raise FabkitError(
                 f"{where}.{key}: not finite at the stimulus ({shown}) on stimuli.path: "
-                f"'{stretch.text}'"
+                f"'{shorten(stretch.text)}'"
             )
         stretches.append(stretch)
     return Layer(name, str(table["director"]), theta, *stretches)
