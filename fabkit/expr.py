@@ -570,18 +570,26 @@ class _Builder:
 
     def constant(self, node: ast.AST, compute: Callable[[], complex | float]) -> Node:
         """A constant part computed in floating point; refused unless finite and real."""
-        part = shorten(ast.get_source_segment(self.source, node) or self.text, 40)
-        text = shorten(self.text)
         try:
             with np.errstate(all="ignore"):
                 value = complex(compute())
         except (OverflowError, ZeroDivisionError):
             value = complex(math.inf)
         if not (math.isfinite(value.real) and math.isfinite(value.imag)):
-            raise FabkitError(f"{self.where}: {part} is not finite (in '{text}')")
+            raise FabkitError(f"{self.where}: {self.part(node)} is not finite (in '{self.short}')")
         if abs(value.imag) > 1e-12 * max(1.0, abs(value.real)):
-            raise FabkitError(f"{self.where}: {part} is not a real number (in '{text}')")
+            raise FabkitError(
+                f"{self.where}: {self.part(node)} is not a real number (in '{self.short}')"
+            )
         return _const(value.real)
+
+    def part(self, node: ast.AST) -> str:
+        """The text of ``node``, shortened for a message."""
+        return shorten(ast.get_source_segment(self.source, node) or self.text, 40)
+
+    @property
+    def short(self) -> str:
+        return shorten(self.text)
 
     def build(self, node: ast.AST) -> Node:
         if isinstance(node, ast.Constant):
@@ -642,7 +650,7 @@ class _Builder:
                 operand = _const(-operand.value) if operand.kind == "const" else _op("neg", operand)
             elif inverted:
                 if operand.kind == "const" and operand.value == 0:
-                    divisor = shorten(ast.get_source_segment(self.source, item) or "", 40)
+                    divisor = self.part(item)
                     what = "" if divisor == "0" else f" ({divisor} = 0)"
                     raise FabkitError(
                         f"{self.where}: division by zero{what} in '{shorten(self.text)}'"

@@ -424,18 +424,26 @@ def _solver(
 
 
 def solver_memory(settings: SolverSettings, features: int) -> int:
-    """Bytes the solver needs at most for ``settings`` and N = ``features``: every point
-    of every diagonal it marches is kept until the design is assembled.
+    """Bytes the solver needs at most for ``settings`` and N = ``features`` (S = N + 2
+    surfaces), estimated before anything is allocated.
 
-    A point holds alpha, beta, b, s, eps, p, q (N each) and r, n (2 per surface, N + 2
-    surfaces): 12 + 7N floats, plus its valid flag and failure code (9 bytes). The march
-    of D diagonals holds Q (D + 1)(D + 2) / 2 points over Q quadrants; with
-    ``extrapolate`` the second march at half the step has 2D diagonals and dominates.
-    Half as much again is counted for the assembled designs and temporaries.
+    Every point of every diagonal marched is kept until the design is assembled: alpha,
+    beta, b, s, eps, p, q (N each), r and n (2 per surface), 12 + 7N floats, with its
+    valid flag and failure code (9 bytes). A march of M diagonals holds
+    Q (M + 1)(M + 2) / 2 points over Q quadrants; with ``extrapolate`` the second march at
+    half the step (M = 2D) dominates. Three designs of (2D + 1)^2 nodes (2 + N + 4S floats
+    and a flag each) exist at the end, and assembling a design needs the stored r (2S
+    floats per point) twice more. The total, plus a quarter for temporaries, was 1.0 to
+    1.3 times the peak traced by tracemalloc for Fig. 1 grids of 40 to 160 diagonals.
     """
-    marched = 2 * settings.diagonals if settings.extrapolate else settings.diagonals
+    n, surfaces, d = features, features + 2, settings.diagonals
+    marched = 2 * d if settings.extrapolate else d
     points = len(settings.quadrants) * (marched + 1) * (marched + 2) // 2
-    return int(1.5 * points * (8 * (12 + 7 * features) + 9))
+    nodes = (2 * d + 1) ** 2
+    stored = points * (8 * (12 + 7 * n) + 9)
+    designs = 3 * nodes * (8 * (2 + n + 4 * surfaces) + 1)
+    assembling = 8 * 2 * surfaces * (points + 2 * nodes)
+    return int(1.25 * (stored + designs + assembling))
 
 
 def _check_grid(settings: SolverSettings, features: int, labels: Mapping[str, str]) -> None:
@@ -461,7 +469,7 @@ def _check_grid(settings: SolverSettings, features: int, labels: Mapping[str, st
             most = int(most * 0.95)
         raise FabkitError(
             f"{labels['diagonals']} {settings.diagonals}: the solver would need about "
-            f"{needed / 2**30:.3g} GiB ({len(settings.quadrants)} quadrants, {features} "
+            f"{needed / 2**30:,.0f} GiB ({len(settings.quadrants)} quadrants, {features} "
             f"feature(s), a second march at half the step), more than the "
             f"{MAX_SOLVER_BYTES / 2**30:g} GiB limit; use at most about {most} diagonals "
             "(and a larger step for the same reach)"
