@@ -66,7 +66,7 @@ class FlatField:
     eps_fn: PlaneFunction | None
     source: str
     keys: tuple[str, str] = ("theta", "eps")
-    """What theta_fn and eps_fn came from (an option or spec key), for error messages."""
+    """What theta_fn and eps_fn came from (an option, a key, a file), for error messages."""
 
     def theta(self, points: np.ndarray) -> np.ndarray:
         """Director angle (n,) in (-pi/2, pi/2] at (n, 2) points.
@@ -288,7 +288,7 @@ def field_from_grid(
     outline = _mask_outline(mask.astype(float), xs, ys)
     if outline.is_empty:
         raise FabkitError(f"{source}: the mask has no area (needs 2 x 2 neighbouring points)")
-    return FlatField(outline, theta_fn, eps_fn, source)
+    return FlatField(outline, theta_fn, eps_fn, source, (f"{source}: theta", f"{source}: eps"))
 
 
 def _fill_nearest(mask: np.ndarray, *grids: np.ndarray) -> list[np.ndarray]:
@@ -359,7 +359,7 @@ def field_from_design(
     scale = number(mm_per_unit, "--scale", positive=True)
     mesh = _DesignMesh.build(arrays, feature, scale, str(path))
     outline = shapely.affinity.scale(outline, scale, scale, origin=(0, 0))
-    return FlatField(outline, mesh.theta, mesh.eps, f"{path}")
+    return FlatField(outline, mesh.theta, mesh.eps, f"{path}", (f"{path}: theta", f"{path}: eps"))
 
 
 @dataclass(frozen=True, eq=False)
