@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.expr import parse
+from fabkit.expr import parse, shorten
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -65,12 +65,18 @@ class FlatField:
     theta_fn: PlaneFunction
     eps_fn: PlaneFunction | None
     source: str
+    keys: tuple[str, str] = ("theta", "eps")
+    """What theta_fn and eps_fn came from (an option, a key, a file), for error messages."""
 
     def theta(self, points: np.ndarray) -> np.ndarray:
-        """Director angle (n,) in (-pi/2, pi/2] at (n, 2) points; finite everywhere."""
+        """Director angle (n,) in (-pi/2, pi/2] at (n, 2) points.
+
+        Finite everywhere: theta is an error where it is not finite on the sheet, and
+        continued from the nearest edge point of the sheet where it is not finite beyond
+        it (see :func:`_finite_values`).
+        """
         points = np.asarray(points, dtype=float).reshape(-1, 2)
-        angles = np.asarray(self.theta_fn(points[:, 0], points[:, 1]), dtype=float)
-        angles = np.where(np.isfinite(angles), angles, 0.0)
+        angles = _finite_values(self.theta_fn, points, self.outline, self.keys[0])
         return np.pi / 2 - np.mod(np.pi / 2 - angles, np.pi)
 
     def director(self, points: np.ndarray) -> np.ndarray:
@@ -83,7 +89,7 @@ class FlatField:
         if self.eps_fn is None:
             raise FabkitError(f"{self.source}: has no eps field to encode")
         points = np.asarray(points, dtype=float).reshape(-1, 2)
-        return np.asarray(self.eps_fn(points[:, 0], points[:, 1]), dtype=float)
+        return _finite_values(self.eps_fn, points, self.outline, self.keys[1])
 
     @property
     def has_eps(self) -> bool:
@@ -98,6 +104,69 @@ class FlatField:
 
 
 # --------------------------------------------------------------------------- expressions
+
+
+def _finite_values(
+    function: PlaneFunction, points: np.ndarray, outline: shapely.Geometry, where: str
+) -> np.ndarray:
+    """``function`` at (n, 2) points (mm), all finite, or a FabkitError naming ``where``.
+
+    A point where the value is not finite is an error if it lies on the sheet (inside
+    the outline or on its edge). Beyond the sheet (line planning looks a little past
+    the edge) it takes the value at the nearest point of the sheet, nudged inside by
+    1e-9 of the sheet's size; if that is not finite either, it is an error too.
+    """
+    values = np.asarray(function(points[:, 0], points[:, 1]), dtype=float).reshape(len(points))
+    bad = np.flatnonzero(~np.isfinite(values))
+    if len(bad) == 0:
+        return values
+    distance = shapely.distance(outline, shapely.points(points[bad]))
+    on_sheet = bad[~(distance > 0)]
+    if len(on_sheet):
+        raise FabkitError(
+            f"{where}: not finite at {len(on_sheet)} of {len(points)} points on the sheet "
+            f"(first at x = {points[on_sheet[0], 0]:.6g}, y = {points[on_sheet[0], 1]:.6g} mm)"
+        )
+    lines = shapely.shortest_line(outline, shapely.points(points[bad]))
+    edge = shapely.get_coordinates(lines).reshape(-1, 2, 2)[:, 0]
+    low_x, low_y, high_x, high_y = outline.bounds
+    inward = edge - points[bad]
+    inward *= 1e-9 * max(high_x - low_x, high_y - low_y) / np.linalg.norm(inward, axis=1)[:, None]
+    nearest = np.asarray(function(*(edge + inward).T), dtype=float).reshape(len(bad))
+    if not np.all(np.isfinite(nearest)):
+        first = points[bad[np.argmin(np.isfinite(nearest))]]
+        raise FabkitError(
+            f"{where}: not finite at the edge of the sheet near x = {first[0]:.6g}, "
+            f"y = {first[1]:.6g} mm"
+        )
+    values[bad] = nearest
+    return values
+
+
+def check_finite_on_sheet(
+    function: PlaneFunction, outline: shapely.Geometry, where: str, text: str = ""
+) -> None:
+    """Refuse a field that is not finite somewhere on the sheet, before anything uses it.
+
+    Samples the outline's bounding box on a 101 x 101 grid (points inside the outline)
+    and the outline's vertices moved 1e-9 of its size inwards; a value that is NaN or
+    infinite at any of them is a FabkitError naming ``where``, the count and a point.
+    """
+    low_x, low_y, high_x, high_y = outline.bounds
+    xs, ys = np.meshgrid(np.linspace(low_x, high_x, 101), np.linspace(low_y, high_y, 101))
+    inside = shapely.contains_xy(outline, xs, ys)
+    size = max(high_x - low_x, high_y - low_y)
+    edge = shapely.get_coordinates(outline.buffer(-1e-9 * size, quad_segs=2).boundary)
+    points = np.concatenate([np.column_stack([xs[inside], ys[inside]]), edge])
+    with np.errstate(all="ignore"):
+        values = np.asarray(function(points[:, 0], points[:, 1]), dtype=float)
+    bad = np.flatnonzero(~np.isfinite(values.reshape(len(points))))
+    if len(bad):
+        shown = f": '{shorten(text)}'" if text else ""
+        raise FabkitError(
+            f"{where}: not finite at {len(bad)} of {len(points)} points of the sheet (first at "
+            f"x = {points[bad[0], 0]:.6g}, y = {points[bad[0], 1]:.6g} mm){shown}"
+        )
 
 
 def planar_expression(text: Any, where: str) -> PlaneFunction:
@@ -149,15 +218,27 @@ def parse_shape(text: Any, where: str = "shape") -> shapely.Polygon:
 
 
 def field_from_expression(
-    theta: str, outline: shapely.Geometry, eps: str | float | None = None, where: str = "director"
+    theta: str,
+    outline: shapely.Geometry,
+    eps: str | float | None = None,
+    where: str | None = None,
 ) -> FlatField:
-    """A director field ``theta(x, y)`` (radians) on ``outline`` (mm), optional eps(x, y)."""
-    theta_fn = planar_expression(theta, f"{where}.theta")
-    eps_fn = None if eps is None else planar_expression(eps, f"{where}.eps")
+    """A director field ``theta(x, y)`` (radians) on ``outline`` (mm), optional eps(x, y).
+
+    ``where`` names the table they come from (errors name ``<where>.theta`` and
+    ``<where>.eps``); None means the command-line options ``--director`` and ``--eps``.
+    Both must be finite on the whole sheet (:func:`check_finite_on_sheet`).
+    """
+    keys = ("--director", "--eps") if where is None else (f"{where}.theta", f"{where}.eps")
+    theta_fn = planar_expression(theta, keys[0])
+    eps_fn = None if eps is None else planar_expression(eps, keys[1])
     outline = _polygonal(outline)
     if outline.is_empty or outline.area <= 0:
-        raise FabkitError(f"{where}: the outline is empty")
-    return FlatField(outline, theta_fn, eps_fn, f"theta = {theta}")
+        raise FabkitError(f"{where or '--shape'}: the outline is empty")
+    check_finite_on_sheet(theta_fn, outline, keys[0], str(theta))
+    if eps_fn is not None:
+        check_finite_on_sheet(eps_fn, outline, keys[1], str(eps))
+    return FlatField(outline, theta_fn, eps_fn, f"theta = {theta}", keys)
 
 
 # --------------------------------------------------------------------------- grids
@@ -183,9 +264,17 @@ def field_from_grid(
         raise FabkitError(f"{source}: theta and mask must be 2-D arrays of one shape (>= 2 x 2)")
     if eps is not None and np.shape(eps) != theta.shape:
         raise FabkitError(f"{source}: eps must have the shape of theta {theta.shape}")
-    mask = mask & np.isfinite(theta)
     if not mask.any():
         raise FabkitError(f"{source}: the mask selects no point")
+    for label, values in (("theta", theta), ("eps", eps)):
+        if values is None:
+            continue
+        bad = np.argwhere(mask & ~np.isfinite(np.asarray(values, dtype=float)))
+        if len(bad):
+            raise FabkitError(
+                f"{source}: {label} is not finite at {len(bad)} of {int(mask.sum())} nodes of "
+                f"the mask (first at node {tuple(int(i) for i in bad[0])}); mask them out"
+            )
     pixel_mm = number(pixel_mm, f"{source}: pixel_mm", positive=True)
     xs = origin[0] + pixel_mm * np.arange(theta.shape[0])
     ys = origin[1] + pixel_mm * np.arange(theta.shape[1])
@@ -199,7 +288,7 @@ def field_from_grid(
     outline = _mask_outline(mask.astype(float), xs, ys)
     if outline.is_empty:
         raise FabkitError(f"{source}: the mask has no area (needs 2 x 2 neighbouring points)")
-    return FlatField(outline, theta_fn, eps_fn, source)
+    return FlatField(outline, theta_fn, eps_fn, source, (f"{source}: theta", f"{source}: eps"))
 
 
 def _fill_nearest(mask: np.ndarray, *grids: np.ndarray) -> list[np.ndarray]:
@@ -270,7 +359,7 @@ def field_from_design(
     scale = number(mm_per_unit, "--scale", positive=True)
     mesh = _DesignMesh.build(arrays, feature, scale, str(path))
     outline = shapely.affinity.scale(outline, scale, scale, origin=(0, 0))
-    return FlatField(outline, mesh.theta, mesh.eps, f"{path}")
+    return FlatField(outline, mesh.theta, mesh.eps, f"{path}", (f"{path}: theta", f"{path}: eps"))
 
 
 @dataclass(frozen=True, eq=False)
@@ -479,26 +568,66 @@ def _outline_points(value: Any, where: str) -> shapely.Polygon:
     return polygon
 
 
+GRID_ARRAYS = {"theta": 2, "mask": 2, "pixel_mm": 0, "eps": 2, "origin": 1}
+"""Arrays of a director grid file (.npz) by name, with their number of dimensions."""
+MAX_GRID_NODES = 25_000_000
+"""Most nodes of a director grid file's theta (5000 x 5000)."""
+
+
 def _grid_file(path: Path, where: str) -> FlatField:
+    """A director grid file: theta (nx, ny) rad, mask (nx, ny), pixel_mm, optional eps
+    (nx, ny) and origin (2,) mm; every array is checked before it is used."""
     if not path.is_file():
         raise FabkitError(f"{where}.grid: file '{path}' does not exist")
     try:
-        with np.load(path, allow_pickle=False) as data:
+        data = np.load(path, allow_pickle=False)
+        if not isinstance(data, np.lib.npyio.NpzFile):
+            raise FabkitError(f"{where}.grid: '{path}' is not an .npz archive of arrays")
+        with data:
             missing = [k for k in ("theta", "mask", "pixel_mm") if k not in data.files]
             if missing:
                 raise FabkitError(f"{where}.grid: '{path}' has no '{missing[0]}' array")
-            arrays = {k: data[k] for k in data.files}
+            arrays = {k: _grid_array(data, k, f"{where}.grid: '{path}'") for k in GRID_ARRAYS}
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
         raise FabkitError(f"{where}.grid: cannot read '{path}' ({exc})") from None
-    origin = tuple(np.asarray(arrays.get("origin", (0.0, 0.0)), dtype=float).reshape(2))
+    origin = arrays["origin"] if arrays["origin"] is not None else np.zeros(2)
+    if origin.shape != (2,) or not np.all(np.isfinite(origin)):
+        raise FabkitError(f"{where}.grid: '{path}': origin must be 2 finite numbers (mm)")
     return field_from_grid(
         arrays["theta"],
         arrays["mask"],
         float(arrays["pixel_mm"]),
-        origin,
-        arrays.get("eps"),
+        (float(origin[0]), float(origin[1])),
+        arrays["eps"],
         str(path),
     )
+
+
+def _grid_array(data: np.lib.npyio.NpzFile, key: str, where: str) -> np.ndarray | None:
+    """One array of a grid file, real or boolean and of the expected dimensions, or None."""
+    if key not in data.files:
+        return None
+    member = f"{key}.npy" if f"{key}.npy" in data.zip.namelist() else key
+    with data.zip.open(member) as header:  # the shape and type, read before the data
+        version = np.lib.format.read_magic(header)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(header)
+        else:
+            shape, _, dtype = np.lib.format.read_array_header_2_0(header)
+    if len(shape) != GRID_ARRAYS[key] or not (
+        np.issubdtype(dtype, np.number) or np.issubdtype(dtype, np.bool_)
+    ):
+        raise FabkitError(
+            f"{where}: '{key}' must be a {GRID_ARRAYS[key]}-D array of numbers, got "
+            f"shape {shape} of {dtype}"
+        )
+    if np.issubdtype(dtype, np.complexfloating):
+        raise FabkitError(f"{where}: '{key}' must be real, got {dtype}")
+    if int(np.prod(shape)) > MAX_GRID_NODES:
+        raise FabkitError(
+            f"{where}: '{key}' has {int(np.prod(shape))} nodes, more than {MAX_GRID_NODES}"
+        )
+    return np.asarray(data[key])
 
 
 def _polygonal(geometry: shapely.Geometry) -> shapely.Polygon | shapely.MultiPolygon:

@@ -127,15 +127,16 @@ def solve(spec: Spec, progress: Callable[[int, int], None] | None = None) -> Sol
         if progress:
             progress(done, total)
 
-    problem = _problem(spec)
-    coarse, fine, stops = _march(problem, report)
-    common, in_coarse, in_fine = np.intersect1d(coarse.index, fine.index, return_indices=True)
-    coarse, fine = coarse.take(in_coarse), fine.take(in_fine)
-    points = _extrapolate(spec, coarse, fine) if settings.extrapolate else coarse
-    error = error_estimate(spec, coarse, fine)
-    keep, dropped = _error_control(problem, common, error)
-    design = _design(problem, points.take(keep), error[keep])
-    stops = tuple(sorted(stops + dropped, key=_stop_order))
+    with np.errstate(all="ignore"):  # overflow and NaN are stops, checked point by point
+        problem = _problem(spec)
+        coarse, fine, stops = _march(problem, report)
+        common, in_coarse, in_fine = np.intersect1d(coarse.index, fine.index, return_indices=True)
+        coarse, fine = coarse.take(in_coarse), fine.take(in_fine)
+        points = _extrapolate(spec, coarse, fine) if settings.extrapolate else coarse
+        error = error_estimate(spec, coarse, fine)
+        keep, dropped = _error_control(problem, common, error)
+        design = _design(problem, points.take(keep), error[keep])
+        stops = tuple(sorted(stops + dropped, key=_stop_order))
     return Solution(design, stops, time.perf_counter() - started)
 
 
@@ -370,7 +371,9 @@ def arc_length_parameters(curve: _Curve, lengths: np.ndarray, where: str) -> np.
     """Curve parameters t at which the arc length from t = 0 equals ``lengths`` (signed).
 
     The u- and v-coordinates are arc length along the initial curves (alpha = beta = 1
-    there), whatever parameter t the spec writes them in.
+    there), whatever parameter t the spec writes them in. Where the curve's speed is not
+    finite (``sqrt(1 - t)`` beyond t = 1), the curve ends: lengths beyond get t = NaN, and
+    the solver stops there.
     """
     speed = curve.speed
     lengths = np.asarray(lengths, dtype=float)
@@ -387,23 +390,25 @@ def arc_length_parameters(curve: _Curve, lengths: np.ndarray, where: str) -> np.
             continue
         for _ in range(40):
             edges = sign * np.linspace(0.0, span, PANELS + 1)
-            cumulative = np.concatenate(
-                [[0.0], np.cumsum(_panel_lengths(speed, edges[:-1], edges[1:]))]
-            )
-            if cumulative[-1] >= reach:
+            pieces = _panel_lengths(speed, edges[:-1], edges[1:])
+            finite = np.isfinite(pieces)
+            defined = PANELS if finite.all() else int(np.argmin(finite))
+            cumulative = np.concatenate([[0.0], np.cumsum(pieces[:defined])])
+            if defined < PANELS or cumulative[-1] >= reach:
                 break
             span *= 2
         else:
             raise FabkitError(f"{where}: the curve is shorter than the grid needs ({reach:g})")
         target = np.abs(lengths[pick])
-        panel = np.clip(np.searchsorted(cumulative, target) - 1, 0, PANELS - 1)
+        beyond = target > cumulative[-1]
+        panel = np.clip(np.searchsorted(cumulative, target) - 1, 0, max(defined - 1, 0))
         t = edges[panel] + sign * (target - cumulative[panel]) / np.maximum(
             speed(edges[panel]), 1e-300
         )
         for _ in range(4):
             measured = cumulative[panel] + _panel_lengths(speed, edges[panel], t)
             t = t - sign * (measured - target) / speed(t)
-        result[pick] = t
+        result[pick] = np.where(beyond, np.nan, t)
     return result
 
 
@@ -437,6 +442,7 @@ def _curve_data(problem: _Problem) -> tuple[State, State]:
         eps = np.stack([e(t) for e in initial.eps], -1)
         eps_s = np.stack([e(t) for e in slopes], -1) / speed[..., None]
         slope = np.stack([e(t) for e in initial.slope], -1)
+        _refuse_first_step(problem, name, t, (point, curvature), eps, eps_s, slope)
         data.append(tuple(_both_marches(x) for x in (point, tangent, curvature, eps, eps_s, slope)))
     point, tangent, curvature, eps, eps_s, slope = data[0]
     ones = np.ones_like(curvature)
@@ -469,6 +475,30 @@ def _both_marches(fine: np.ndarray) -> np.ndarray:
     every_other = fine[:, ::2]
     coarse[:, : every_other.shape[1]] = every_other
     return np.concatenate([coarse, fine])
+
+
+def _refuse_first_step(problem: _Problem, name: str, t, curve_parts, eps, eps_s, slope) -> None:
+    """Refuse initial data that is not finite one grid step from the start in some
+    quadrant: that quadrant could not begin. Beyond the first step, non-finite data is the
+    end of the data (the solver stops there, a "non-finite values" stop)."""
+    carrier = name.removeprefix("initial.")
+    for quadrant in range(t.shape[0]):
+        culprit = None
+        if not all(np.all(np.isfinite(part[quadrant, 1])) for part in curve_parts):
+            culprit = name
+        for i, along in enumerate(problem.along):
+            if culprit is None and (carrier == "u_curve") == bool(along):
+                if not np.isfinite(eps[quadrant, 1, i]) or not np.isfinite(eps_s[quadrant, 1, i]):
+                    culprit = f"initial.eps[{i}]"
+                elif not np.isfinite(slope[quadrant, 1, i]):
+                    culprit = f"initial.slope[{i}]"
+        if culprit is not None:
+            signs = [int(problem.sign_u[quadrant, 0]), int(problem.sign_v[quadrant, 0])]
+            raise FabkitError(
+                f"{culprit}: not finite at the first grid step along the {carrier} "
+                f"(t = {t[quadrant, 1]:.4g}, quadrant {signs}): that quadrant cannot start; "
+                "change the expression or leave the quadrant out (solver.quadrants)"
+            )
 
 
 def _origin(problem: _Problem, u_data: State, v_data: State) -> State:

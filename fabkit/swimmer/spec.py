@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.expr import Expression, parse
-from fabkit.fields import PlaneFunction, planar_expression
+from fabkit.expr import Expression, parse, shorten
+from fabkit.fields import PlaneFunction, check_finite_on_sheet, parse_shape, planar_expression
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -125,7 +125,10 @@ def build_swimmer(table: Mapping[str, Any]) -> SwimmerSpec:
     layers = table["layers"]
     if not isinstance(layers, list) or not layers:
         raise FabkitError("layers: expected one or more [[layers]] tables, bottom first")
-    built = tuple(_layer(_table(layer, f"layers[{i}]"), names, i) for i, layer in enumerate(layers))
+    built = tuple(
+        _layer(_table(layer, f"layers[{i}]"), names, i, radius, path)
+        for i, layer in enumerate(layers)
+    )
     mechanics = _settings(table.get("mechanics", {}), Mechanics, "mechanics")
     hydrodynamics = _settings(table.get("hydrodynamics", {}), Hydrodynamics, "hydrodynamics")
     fabrication = _table(table.get("fabrication", {}), "fabrication")
@@ -169,7 +172,15 @@ def _count(value: Any, where: str) -> int:
     return value
 
 
-def _layer(table: Mapping[str, Any], stimuli: tuple[str, ...], index: int) -> Layer:
+PATH_SAMPLES = 64
+"""Points per leg of the stimulus path at which the layers' stretches must be finite."""
+
+
+def _layer(
+    table: Mapping[str, Any], stimuli: tuple[str, ...], index: int, radius: float, path: np.ndarray
+) -> Layer:
+    """One layer; its director must be finite on the disc of ``radius`` (mm) and its
+    stretches finite along the stimulus ``path`` (P, k), vertices and legs."""
     where = f"layers[{index}]"
     check_keys(table, {"name", "director", "lambda1", "lambda2"}, where)
     for key in ("director", "lambda1", "lambda2"):
@@ -179,9 +190,23 @@ def _layer(table: Mapping[str, Any], stimuli: tuple[str, ...], index: int) -> La
     if not isinstance(name, str):
         raise FabkitError(f"{where}.name: expected a string")
     theta = planar_expression(table["director"], f"{where}.director")
-    lambda1 = parse(table["lambda1"], stimuli, f"{where}.lambda1")
-    lambda2 = parse(table["lambda2"], stimuli, f"{where}.lambda2")
-    return Layer(name, str(table["director"]), theta, lambda1, lambda2)
+    disc = parse_shape(f"disc:{radius:.12g}", "sheet.radius")
+    check_finite_on_sheet(theta, disc, f"{where}.director", str(table["director"]))
+    fractions = np.linspace(0.0, 1.0, PATH_SAMPLES + 1)[:, None, None]
+    samples = (path[:-1] + fractions * np.diff(path, axis=0)).reshape(-1, len(stimuli))
+    stretches = []
+    for key in ("lambda1", "lambda2"):
+        stretch = parse(table[key], stimuli, f"{where}.{key}")
+        values = stretch(*samples.T)
+        if not np.all(np.isfinite(values)):
+            at = samples[np.argmin(np.isfinite(values))]
+            shown = ", ".join(f"{n} = {v:.6g}" for n, v in zip(stimuli, at, strict=True))
+            raise FabkitError(
+                f"{where}.{key}: not finite at the stimulus ({shown}) on stimuli.path: "
+                f"'{shorten(stretch.text)}'"
+            )
+        stretches.append(stretch)
+    return Layer(name, str(table["director"]), theta, *stretches)
 
 
 def _settings(value: Any, kind: type, where: str) -> Any:
