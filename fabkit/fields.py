@@ -23,7 +23,6 @@ head-tail symmetry of the director is respected.
 
 from __future__ import annotations
 
-import zipfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -40,6 +39,7 @@ from scipy.spatial import cKDTree
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.expr import parse
+from fabkit.npzfile import read_npz
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -482,14 +482,10 @@ def _outline_points(value: Any, where: str) -> shapely.Polygon:
 def _grid_file(path: Path, where: str) -> FlatField:
     if not path.is_file():
         raise FabkitError(f"{where}.grid: file '{path}' does not exist")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in ("theta", "mask", "pixel_mm") if k not in data.files]
-            if missing:
-                raise FabkitError(f"{where}.grid: '{path}' has no '{missing[0]}' array")
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise FabkitError(f"{where}.grid: cannot read '{path}' ({exc})") from None
+    arrays = read_npz(path, f"{where}.grid: cannot read '{path}'")
+    missing = [k for k in ("theta", "mask", "pixel_mm") if k not in arrays]
+    if missing:
+        raise FabkitError(f"{where}.grid: '{path}' has no '{missing[0]}' array")
     origin = tuple(np.asarray(arrays.get("origin", (0.0, 0.0)), dtype=float).reshape(2))
     return field_from_grid(
         arrays["theta"],

@@ -116,7 +116,7 @@ def _check_extent(fields: list[FlatField], road_width_mm: float) -> None:
     across = max(x1.max() - x0.min(), y1.max() - y0.min())
     if across / road_width_mm > MAX_ROADS_ACROSS:
         raise FabkitError(
-            f"the sheet is {across:.4g} mm across, {across / road_width_mm:.0f} road widths of "
+            f"the sheet is {across:.4g} mm across, {across / road_width_mm:.4g} road widths of "
             f"{road_width_mm:g} mm, more than {MAX_ROADS_ACROSS}: give a smaller --size "
             "(or a wider --road-width)"
         )
