@@ -236,8 +236,11 @@ def _read_header(handle: BinaryIO, key: str, text: Collection[str], where: str) 
             shape, _, dtype = np.lib.format.read_array_header_2_0(handle)
         else:
             raise ValueError("an .npy format version fabkit does not read")
-    except (ValueError, EOFError, SyntaxError, TypeError):
-        # numpy's messages quote the file's bytes; say what is wrong without them
+    # numpy parses the header text with tokenize and ast.literal_eval, which raise many
+    # exception types on garbage (ValueError, SyntaxError, tokenize.TokenError,
+    # RecursionError, ...); all mean a bad header. Their messages quote the file's bytes,
+    # so say what is wrong without them.
+    except Exception:  # noqa: BLE001
         what = f"{_name(key)} is not an .npy array" if key else "not an .npy file"
         raise FabkitError(f"{where}: {what} (bad or missing header)") from None
     _check_dtype(key, dtype, key in text, where)

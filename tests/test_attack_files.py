@@ -88,7 +88,7 @@ def _toolpath_rows() -> list:
         ("t_1e300", ("beyond the plausible", "'xyz'"), "1e300"),
         ("t_complex", ("expected real numbers",), "complex"),
         ("t_meta_deep", ("nested deeper than",), "meta-deep"),
-        ("t_kind", ("unknown kind",), "kind-negative"),
+        ("t_kind", ("refers to a missing layer or an unknown kind",), "kind-negative"),
         ("t_lying", ("declares", "but holds"), "lying-header"),
         ("t_json_deep", ("nested deeper than",), "json-deep"),
         ("t_json_huge", ("more than the limit of",), "json-huge"),
@@ -225,6 +225,7 @@ def _other_rows() -> list:
         ),
         case(
             "channels {director_eps} --baromorph {baromorph_pitch} --out {out}",
+            "leaves walls of",
             "pitch_mm",
             id="files-baromorph-pitch",
         ),

@@ -354,7 +354,10 @@ def _read_csv(path: Path, where: str) -> np.ndarray:
     what = f"{where}.file: height map"
     text = decode_utf8(read_limited(path, what, CSV_BYTES), what, path.name)
     try:
-        return np.loadtxt(io.StringIO(text), delimiter=",", ndmin=2, comments="#")
+        with warnings.catch_warnings():
+            # an empty grid is refused by the side check, not announced by numpy
+            warnings.simplefilter("ignore", UserWarning)
+            return np.loadtxt(io.StringIO(text), delimiter=",", ndmin=2, comments="#")
     except ValueError as exc:
         found = re.search(r"at row (\d+)(?:, column (\d+))?", str(exc))
         place = ""
