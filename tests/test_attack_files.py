@@ -63,6 +63,12 @@ def _design_rows() -> list:
         ("check {d_spec_deep}", ("nested deeper than",), "spec-deep"),
         ("check {d_spec_text}", ("not valid JSON", "embedded spec"), "spec-not-json"),
         ("plot {d_names} --out {out}", ("must be 1-64 letters", "x/../../name"), "name-up"),
+        (
+            "solve {spec} --out {out}.npz --diagonals 5000",
+            ("a design file may hold",),
+            "solve-grid",
+        ),
+        ("run {spec} --out {out} --diagonals 20000", ("a design file may hold",), "run-grid"),
         ("run {spec_name_up} --out {out}", ("must be 1-64 letters", "x/../../name"), "run-name"),
         ("check {d_names_abs} ", ("must be 1-64 letters", "/tmp/fabkit"), "name-absolute"),
         (
@@ -173,14 +179,18 @@ def _profile_rows() -> list:
         ("m_conversion", ("write plain",), "template-conversion"),
         ("m_long", ("characters, more than the limit of",), "template-long"),
     ]
+    send = "send {gcode} --port sim://marlin?baud=0&time_scale=0 --machine {m_width}"
     return [
-        case(
-            f"export {{toolpath}} --machine {{{key}}} --format gcode -o {{out}}.gcode",
-            *says,
-            outputs=("{out}.gcode",),
-            id=f"files-profile-{name}",
-        )
-        for key, says, name in rows
+        case(send, "write plain", outputs=(), id="files-profile-send"),
+        *[
+            case(
+                f"export {{toolpath}} --machine {{{key}}} --format gcode -o {{out}}.gcode",
+                *says,
+                outputs=("{out}.gcode",),
+                id=f"files-profile-{name}",
+            )
+            for key, says, name in rows
+        ],
     ]
 
 
@@ -482,7 +492,8 @@ def _profile_files(folder) -> dict:
         "m_conversion": "M140 S{bed_c!r}",
         "m_long": "G4 P0 ; " + "x" * 200_000,
     }
-    paths = {}
+    (folder / "sheet.gcode").write_text("G90\nG1 X10 Y10 F600\n")
+    paths = {"gcode": folder / "sheet.gcode"}
     for key, text in variants.items():
         (folder / f"{key}.toml").write_text(base.replace(line, text, 1))
         paths[key] = folder / f"{key}.toml"
@@ -559,5 +570,10 @@ def places(tmp_path_factory) -> dict[str, str]:
 
 @pytest.mark.parametrize("bad", CASES)
 def test_a_hostile_file_is_refused_in_one_line(bad, places, run_cli, tmp_path):
-    err = assert_refused(bad, places, tmp_path, run_cli)
+    """...and prints no warning (on the command line, a second line on stderr) and never
+    quotes another file."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        err = assert_refused(bad, places, tmp_path, run_cli)
     assert SECRET not in err
+    assert [f"{w.category.__name__}: {w.message}" for w in caught] == []

@@ -350,3 +350,55 @@ def test_a_mutated_mesh_is_read_or_refused(data, suffix, folder):
         trimesh.load(folder / "grid_source.stl", force="mesh").export(source)
     path = written(folder, f"mutated{suffix}", data.draw(mutated(source.read_bytes())))
     refused_or(lambda: read_mesh(path, "surfaces[1].geometry"), tuple)
+
+
+coordinates = st.one_of(
+    st.floats(-10, 10, allow_nan=False),
+    st.sampled_from([0.0, 1.0, 1e300, -1e300, float("nan"), float("inf"), 1e-300]),
+)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    triangles=hnp.arrays(
+        np.float64, st.tuples(st.integers(1, 30), st.just(3), st.just(3)), elements=coordinates
+    )
+)
+def test_any_triangles_make_a_mesh_surface_or_a_one_line_error(triangles, folder):
+    from fabkit.surfaces.data import MeshSurface
+
+    path = h.ascii_stl(folder / "random.stl", triangles)
+    table = {"kind": "mesh", "file": path.name}
+    refused_or(
+        lambda: MeshSurface.from_table("m", table, "surfaces[1].geometry", folder), MeshSurface
+    )
+
+
+heights = st.one_of(
+    st.floats(-10, 10, allow_nan=False),
+    st.floats(-10, 10, allow_nan=False),
+    st.sampled_from([0.0, 1e6, -1e6, 1e300, float("nan"), float("inf"), 1e-300]),
+)
+
+
+@st.composite
+def extents(draw) -> list[float]:
+    """[x0, x1, y0, y1], mostly increasing, of any scale."""
+    x0, y0 = (draw(st.floats(-1e3, 1e3)) for _ in range(2))
+    scale = draw(st.sampled_from([1e-9, 1e-3, 1.0, 1e3, 1e7]))
+    width, height = (scale * draw(st.floats(0.25, 4)) for _ in range(2))
+    return [x0, x0 + width, y0, y0 + height]
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    z=hnp.arrays(np.float64, st.tuples(st.integers(8, 14), st.integers(8, 14)), elements=heights),
+    extent=extents(),
+    z_scale=st.sampled_from([1.0, -2.0, 1e-300, 1e300]),
+)
+def test_any_height_grid_makes_a_surface_or_a_one_line_error(z, extent, z_scale, folder):
+    from fabkit.surfaces.data import HeightMap
+
+    np.save(folder / "random_h.npy", z)
+    table = {"kind": "heightmap", "file": "random_h.npy", "extent": extent, "z_scale": z_scale}
+    refused_or(lambda: HeightMap.from_table("h", table, "surfaces[1].geometry", folder), HeightMap)

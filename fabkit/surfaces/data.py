@@ -500,7 +500,10 @@ def read_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
 
     check_size(path, f"{where}.file: mesh", MESH_BYTES)
     try:
-        mesh = trimesh.load(path, force="mesh")
+        # trimesh warns (overflow, invalid casts) on absurd coordinates; they are refused below
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mesh = trimesh.load(path, force="mesh")
     # trimesh's loaders raise many exception types on corrupt input (struct, index, key,
     # value and unicode errors among them; an ImportError when it tries to guess the text
     # encoding of binary garbage); all of them mean the same to the user.
@@ -537,6 +540,17 @@ def mesh_grid(vertices: np.ndarray, faces: np.ndarray, axis: str, where: str) ->
     plane = triangles[..., :2]
     edges = plane[:, 1:] - plane[:, :1]
     doubled_area = edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]
+    if not np.abs(doubled_area).max() > 0:
+        raise FabkitError(
+            f"{where}.file: the mesh covers no area over the plane normal to {axis} (its "
+            "triangles are degenerate or edge-on)"
+        )
+    span = np.ptp(plane.reshape(-1, 2), axis=0)
+    if span.min() <= 1e-6 * span.max():
+        raise FabkitError(
+            f"{where}.file: the mesh spans {span[0]:.3g} x {span[1]:.3g} over the plane normal "
+            f"to {axis}: too thin to be a surface"
+        )
     orientation = 1.0 if doubled_area.sum() >= 0 else -1.0
     flipped = int(np.sum(doubled_area * orientation < -1e-9 * np.abs(doubled_area).max()))
     if flipped:
