@@ -12,7 +12,7 @@ from __future__ import annotations
 MIB = 1 << 20
 GIB = 1 << 30
 
-TEXT_BYTES = 4 * MIB
+TEXT_BYTES = 1 * MIB
 """Largest TOML file: spec, process, machine profile, baromorph, swimmer, director."""
 JSON_BYTES = 64 * MIB
 """Largest JSON file: toolpath.json, GeoJSON geometry."""

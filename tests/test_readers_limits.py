@@ -82,7 +82,7 @@ def test_the_depth_scan_is_linear_on_hostile_text(text):
 
 def test_text_over_the_size_limit_is_refused_before_it_is_read(tmp_path):
     path = h.sparse(tmp_path / "big.toml", limits.TEXT_BYTES + 1)
-    with pytest.raises(FabkitError, match="more than the limit of 4.0 MB"):
+    with pytest.raises(FabkitError, match="more than the limit of 1.0 MB"):
         read_toml(path, "spec")
     path = h.sparse(tmp_path / "fits.toml", limits.TEXT_BYTES, b"# ")
     with pytest.raises(FabkitError, match="not valid TOML"):  # read whole: NUL bytes

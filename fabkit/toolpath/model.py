@@ -72,7 +72,9 @@ class Move:
             raise FabkitError("toolpath: a move has non-finite coordinates")
         object.__setattr__(self, "xyz", xyz)
         for name in _VERTEX_FIELDS:
-            values = np.broadcast_to(np.asarray(getattr(self, name), dtype=float), (len(xyz),))
+            values = np.asarray(getattr(self, name), dtype=float)
+            if values.shape != (len(xyz),):  # broadcast_to is slow; skip it when not needed
+                values = np.broadcast_to(values, (len(xyz),))
             object.__setattr__(self, name, values.copy())
 
     @classmethod
