@@ -223,3 +223,37 @@ def test_a_template_with_a_format_spec_is_refused(tmp_path):
         path.write_text(text.replace("{bed_c}", field, 1))
         with pytest.raises(FabkitError, match=re.escape("write plain {bed_c}")):
             load_machine(path)
+
+
+# ----------------------------------------------------------------------------- meshes
+
+
+def test_a_mesh_never_opens_the_files_it_names(tmp_path, monkeypatch, capsys):
+    """An OBJ's material library and a PLY's TextureFile may name a decompression bomb
+    (or any file): the mesh is read from its own bytes, nothing else is opened."""
+    import PIL.Image
+    import trimesh
+
+    from fabkit.surfaces.data import read_mesh
+
+    h.png_bomb(tmp_path / "texture.png", 12_000)
+    (tmp_path / "m.mtl").write_text("newmtl a\nmap_Kd texture.png\n")
+    grid = trimesh.load(h.grid_stl(tmp_path / "grid.stl", side=6), force="mesh")
+    obj = grid.export(file_type="obj").replace("v ", "mtllib m.mtl\nusemtl a\nv ", 1)
+    (tmp_path / "m.obj").write_text(obj)
+    ply = grid.export(file_type="ply", encoding="ascii").decode()
+    texture = "format ascii 1.0\ncomment TextureFile texture.png\n"
+    (tmp_path / "m.ply").write_text(ply.replace("format ascii 1.0\n", texture, 1))
+
+    opened = []
+
+    def refuse(*args, **kwargs):
+        opened.append(args)
+        raise OSError("no image may be opened")
+
+    monkeypatch.setattr(PIL.Image, "open", refuse)
+    for name in ("m.obj", "m.ply"):
+        vertices, faces = read_mesh(tmp_path / name, "surfaces[1].geometry")
+        assert len(faces) == len(grid.faces) and np.isfinite(vertices).all()
+    assert opened == []
+    assert capsys.readouterr().err == ""

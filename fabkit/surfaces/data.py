@@ -24,10 +24,12 @@ solver stop (``contains`` is False).
 
 from __future__ import annotations
 
+import contextlib
 import io
+import logging
 import re
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -39,7 +41,7 @@ from scipy import ndimage
 from fabkit.errors import FabkitError
 from fabkit.limits import CSV_BYTES, MAGNITUDE, MESH_BYTES, MESH_FACES, RASTER_HITS
 from fabkit.npzfile import ArrayHeader, Check, check_magnitude, npz_keys, read_npy, read_npz
-from fabkit.readfile import check_size, decode_utf8, read_limited
+from fabkit.readfile import decode_utf8, read_limited
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.surfaces.base import Surface, graph_geometry
 from fabkit.surfaces.fit import SurfaceFit, fit_grid
@@ -495,15 +497,21 @@ def _coordinate_extent(
 
 def read_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
     """The mesh's vertices (V, 3) and triangles (T, 3) as vertex indices, checked finite and
-    non-empty."""
+    non-empty.
+
+    The file (at most MESH_BYTES) is handed to trimesh as bytes without a name, so that no
+    other file it names is opened (an OBJ's material library, a texture image that may be
+    a decompression bomb, a PLY's ``TextureFile``), and trimesh's warnings and log lines
+    are held back (the command line prints one line).
+    """
     import trimesh
 
-    check_size(path, f"{where}.file: mesh", MESH_BYTES)
+    data = read_limited(path, f"{where}.file: mesh", MESH_BYTES)
+    kind = path.suffix.lower().lstrip(".")
     try:
-        # trimesh warns (overflow, invalid casts) on absurd coordinates; they are refused below
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore", RuntimeWarning)
-            mesh = trimesh.load(path, force="mesh")
+        with _quiet("trimesh"), warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            mesh = trimesh.load(io.BytesIO(data), file_type=kind, force="mesh", skip_materials=True)
     # trimesh's loaders raise many exception types on corrupt input (struct, index, key,
     # value and unicode errors among them; an ImportError when it tries to guess the text
     # encoding of binary garbage); all of them mean the same to the user.
@@ -525,6 +533,18 @@ def read_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
         raise FabkitError(f"{where}.file: '{path.name}' has non-finite vertex coordinates")
     check_magnitude(vertices, "vertices", f"{where}.file: '{path.name}'")
     return vertices, np.asarray(faces)
+
+
+@contextlib.contextmanager
+def _quiet(logger_name: str) -> Iterator[None]:
+    """The named logger silenced for the duration (a library's log lines would be extra
+    lines on stderr)."""
+    logger = logging.getLogger(logger_name)
+    disabled, logger.disabled = logger.disabled, True
+    try:
+        yield
+    finally:
+        logger.disabled = disabled
 
 
 def mesh_grid(vertices: np.ndarray, faces: np.ndarray, axis: str, where: str) -> HeightGrid:
