@@ -240,6 +240,12 @@ def _other_rows() -> list:
             id="files-baromorph-pitch",
         ),
         case(
+            "toolpath --director phi --shape disc:10 --layers 100000 --out {out}",
+            "a toolpath file holds",
+            "--layers 100000",
+            id="files-toolpath-layers",
+        ),
+        case(
             f"toolpath {{design}} {SIZE} --process {{process_tiny}} --out {{out}}",
             "road widths of",
             id="files-process-tiny-road",
