@@ -23,7 +23,6 @@ head-tail symmetry of the director is respected.
 
 from __future__ import annotations
 
-import zipfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -40,6 +39,7 @@ from scipy.spatial import cKDTree
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.expr import parse, shorten
+from fabkit.npzfile import ArrayHeader, read_npz
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -579,55 +579,42 @@ def _grid_file(path: Path, where: str) -> FlatField:
     (nx, ny) and origin (2,) mm; every array is checked before it is used."""
     if not path.is_file():
         raise FabkitError(f"{where}.grid: file '{path}' does not exist")
-    try:
-        data = np.load(path, allow_pickle=False)
-        if not isinstance(data, np.lib.npyio.NpzFile):
-            raise FabkitError(f"{where}.grid: '{path}' is not an .npz archive of arrays")
-        with data:
-            missing = [k for k in ("theta", "mask", "pixel_mm") if k not in data.files]
-            if missing:
-                raise FabkitError(f"{where}.grid: '{path}' has no '{missing[0]}' array")
-            arrays = {k: _grid_array(data, k, f"{where}.grid: '{path}'") for k in GRID_ARRAYS}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise FabkitError(f"{where}.grid: cannot read '{path}' ({exc})") from None
-    origin = arrays["origin"] if arrays["origin"] is not None else np.zeros(2)
+    label = f"{where}.grid: '{path}'"
+    arrays = read_npz(
+        path,
+        f"{where}.grid: cannot read '{path}'",
+        check=lambda headers: _check_grid_headers(headers, label),
+    )
+    missing = [k for k in ("theta", "mask", "pixel_mm") if k not in arrays]
+    if missing:
+        raise FabkitError(f"{label} has no '{missing[0]}' array")
+    origin = np.asarray(arrays.get("origin", np.zeros(2)), dtype=float)
     if origin.shape != (2,) or not np.all(np.isfinite(origin)):
-        raise FabkitError(f"{where}.grid: '{path}': origin must be 2 finite numbers (mm)")
+        raise FabkitError(f"{label}: origin must be 2 finite numbers (mm)")
     return field_from_grid(
         arrays["theta"],
         arrays["mask"],
         float(arrays["pixel_mm"]),
         (float(origin[0]), float(origin[1])),
-        arrays["eps"],
+        arrays.get("eps"),
         str(path),
     )
 
 
-def _grid_array(data: np.lib.npyio.NpzFile, key: str, where: str) -> np.ndarray | None:
-    """One array of a grid file, real or boolean and of the expected dimensions, or None."""
-    if key not in data.files:
-        return None
-    member = f"{key}.npy" if f"{key}.npy" in data.zip.namelist() else key
-    with data.zip.open(member) as header:  # the shape and type, read before the data
-        version = np.lib.format.read_magic(header)
-        if version == (1, 0):
-            shape, _, dtype = np.lib.format.read_array_header_1_0(header)
-        else:
-            shape, _, dtype = np.lib.format.read_array_header_2_0(header)
-    if len(shape) != GRID_ARRAYS[key] or not (
-        np.issubdtype(dtype, np.number) or np.issubdtype(dtype, np.bool_)
-    ):
-        raise FabkitError(
-            f"{where}: '{key}' must be a {GRID_ARRAYS[key]}-D array of numbers, got "
-            f"shape {shape} of {dtype}"
-        )
-    if np.issubdtype(dtype, np.complexfloating):
-        raise FabkitError(f"{where}: '{key}' must be real, got {dtype}")
-    if int(np.prod(shape)) > MAX_GRID_NODES:
-        raise FabkitError(
-            f"{where}: '{key}' has {int(np.prod(shape))} nodes, more than {MAX_GRID_NODES}"
-        )
-    return np.asarray(data[key])
+def _check_grid_headers(headers: Mapping[str, ArrayHeader], where: str) -> None:
+    """Refuse a director grid file from its headers: known arrays only, each real or
+    boolean, of the expected dimensions, and at most MAX_GRID_NODES nodes."""
+    for key, header in headers.items():
+        if key not in GRID_ARRAYS:
+            raise FabkitError(f"{where}: unknown array '{key}' (expected {', '.join(GRID_ARRAYS)})")
+        if len(header.shape) != GRID_ARRAYS[key] or header.dtype.kind not in "biuf":
+            raise FabkitError(
+                f"{where}: '{key}' must be a {GRID_ARRAYS[key]}-D array of real numbers, got "
+                f"shape {header.shape} of {header.dtype}"
+            )
+        nodes = int(np.prod(header.shape))
+        if nodes > MAX_GRID_NODES:
+            raise FabkitError(f"{where}: '{key}' has {nodes} nodes, more than {MAX_GRID_NODES}")
 
 
 def _polygonal(geometry: shapely.Geometry) -> shapely.Polygon | shapely.MultiPolygon:

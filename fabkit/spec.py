@@ -446,13 +446,13 @@ def solver_memory(settings: SolverSettings, features: int) -> int:
 
     Every point of every diagonal marched is kept until the design is assembled: alpha,
     beta, b, s, eps, p, q (N each), r and n (2 per surface), 12 + 7N floats, with its
-    valid flag and failure code (9 bytes). A march of M diagonals holds
-    Q (M + 1)(M + 2) / 2 points over Q quadrants; the march at h (M = D) and the one at h/2
-    (M = 2D) always run together (their difference is the error estimate). Three designs of (2D + 1)^2 nodes (2 + N + 4S floats
-    and a flag each) exist at the end, and assembling a design needs the stored r (2S
-    floats per point) twice more. The total, plus 20 % for temporaries, was 1.02 to 1.19
-    times the peak traced by tracemalloc for Fig. 1 grids of 40 to 320 diagonals whose
-    points are all solved (the worst case; the march at h and h/2 run together).
+    valid flag and failure code (9 bytes). A march of M diagonals holds Q (M + 1)(M + 2) / 2
+    points over Q quadrants; the march at h (M = D) and the one at h/2 (M = 2D) always run
+    together (their difference is the error estimate). Three designs of (2D + 1)^2 nodes
+    (2 + N + 4S floats and a flag each) are budgeted at the end, and assembling a design
+    needs the stored r (2S floats per point) twice more. The total, plus 20 % for
+    temporaries, was 1.02 to 1.19 times the peak traced by tracemalloc for Fig. 1 grids of
+    40 to 320 diagonals whose points are all solved (the worst case).
     """
     n, surfaces, d = features, features + 2, settings.diagonals
     points = len(settings.quadrants) * sum((m + 1) * (m + 2) // 2 for m in (d, 2 * d))

@@ -406,8 +406,12 @@ CASES = [
     case("toolpath {dir_grid_nan} --out {out}", "theta is not finite at", id="expr-grid-file-nan"),
     case("toolpath {dir_grid_3d} --out {out}", "must be a 2-D array", id="expr-grid-file-3d"),
     case("toolpath {dir_grid_pixel} --out {out}", "must be a 0-D array", id="expr-grid-file-pixel"),
-    case("toolpath {dir_grid_complex} --out {out}", "must be real", id="expr-grid-file-complex"),
-    case("toolpath {dir_grid_npy} --out {out}", "is not an .npz archive", id="expr-grid-file-npy"),
+    case(
+        "toolpath {dir_grid_complex} --out {out}",
+        "expected real numbers",
+        id="expr-grid-file-complex",
+    ),
+    case("toolpath {dir_grid_npy} --out {out}", "not an .npz archive", id="expr-grid-file-npy"),
     # ------------------------------------------------------------------ swimmer
     case(
         "swimmer {swim_director} --out {out}",

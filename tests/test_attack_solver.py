@@ -41,18 +41,10 @@ CASES = [
         id="solver-extrapolate-text",
     ),
     case(
-        "check {no_error}",
-        "not a fabkit design file",
-        "no 'error' array",
+        "check {inf_error}",
+        "'error' must be a non-negative estimate or NaN",
         outputs=(),
-        id="solver-design-without-error-key",
-    ),
-    case(
-        "check {nan_error}",
-        "has non-finite values",
-        "'error'",
-        outputs=(),
-        id="solver-design-nan-error",
+        id="solver-design-infinite-error",
     ),
 ]
 
@@ -80,11 +72,9 @@ def places(tmp_path_factory) -> dict[str, str]:
     design = solve(build_spec(table, EXAMPLES)).design
     design.save(folder / "design.npz")
     arrays = dict(np.load(folder / "design.npz"))
-    np.savez(folder / "no_error.npz", **{k: v for k, v in arrays.items() if k != "error"})
-    arrays["error"] = np.where(arrays["valid"], np.nan, arrays["error"])
-    np.savez(folder / "nan_error.npz", **arrays)
-    paths["no_error"] = str(folder / "no_error.npz")
-    paths["nan_error"] = str(folder / "nan_error.npz")
+    arrays["error"] = np.where(arrays["valid"], np.inf, arrays["error"])
+    np.savez(folder / "inf_error.npz", **arrays)
+    paths["inf_error"] = str(folder / "inf_error.npz")
     return paths
 
 

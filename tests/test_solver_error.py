@@ -176,3 +176,18 @@ def test_fabkit_check_passes_on_what_fabkit_solve_writes(run_cli, tmp_path, exam
     assert code == 0, text
     summary = json.loads(out.with_suffix(".json").read_text())
     assert summary["check"]["passed"]
+
+
+def test_a_design_file_from_before_the_error_key_still_reads(tmp_path, run_cli):
+    """design.npz written before the solver kept its error estimate: 'error' reads as NaN
+    (not estimated) and the file checks as before."""
+    table = example_table("two_shapes.toml")
+    table["solver"].update(step=0.1, diagonals=20)
+    solve(build_spec(table, EXAMPLES)).design.save(tmp_path / "new.npz")
+    with np.load(tmp_path / "new.npz", allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files if k != "error"}
+    np.savez_compressed(tmp_path / "old.npz", **arrays)
+    design = Design.load(tmp_path / "old.npz")
+    assert np.isnan(design.error).all() and design.valid.any()
+    code, out, err = run_cli("check", tmp_path / "old.npz")
+    assert code == 0, err

@@ -8,6 +8,7 @@ problem is a one-line :class:`FabkitError` naming the key.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +19,8 @@ import numpy as np
 from fabkit.errors import FabkitError
 from fabkit.expr import Expression, parse, shorten
 from fabkit.fields import PlaneFunction, check_finite_on_sheet, parse_shape, planar_expression
+from fabkit.limits import MAGNITUDE, SWIMMER_MESH_RINGS, SWIMMER_SHAPES, WORK_BYTES
+from fabkit.readfile import size_text
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -86,6 +89,7 @@ class SwimmerSpec:
         """The same swimmer walking another polygon (P, k), optionally with other stations."""
         path = _path(np.asarray(path, dtype=float).tolist(), len(self.stimuli))
         stations = self.stations if stations is None else _count(stations, "stations")
+        _check_shapes(stations, path)
         return SwimmerSpec(
             self.radius,
             self.thickness,
@@ -113,8 +117,8 @@ def build_swimmer(table: Mapping[str, Any]) -> SwimmerSpec:
             raise FabkitError(f"swimmer: missing section [{key}]")
     sheet = _table(table["sheet"], "sheet")
     check_keys(sheet, {"radius", "thickness"}, "sheet")
-    radius = number(sheet.get("radius"), "sheet.radius", positive=True)
-    thickness = number(sheet.get("thickness"), "sheet.thickness", positive=True)
+    radius = _length(sheet.get("radius"), "sheet.radius")
+    thickness = _length(sheet.get("thickness"), "sheet.thickness")
     if thickness >= radius:
         raise FabkitError("sheet.thickness: a sheet must be much thinner than its radius")
     stimuli_table = _table(table["stimuli"], "stimuli")
@@ -122,6 +126,7 @@ def build_swimmer(table: Mapping[str, Any]) -> SwimmerSpec:
     names = _names(stimuli_table.get("names"))
     path = _path(stimuli_table.get("path"), len(names))
     stations = _count(stimuli_table.get("stations", 6), "stimuli.stations")
+    _check_shapes(stations, path)
     layers = table["layers"]
     if not isinstance(layers, list) or not layers:
         raise FabkitError("layers: expected one or more [[layers]] tables, bottom first")
@@ -131,6 +136,7 @@ def build_swimmer(table: Mapping[str, Any]) -> SwimmerSpec:
     )
     mechanics = _settings(table.get("mechanics", {}), Mechanics, "mechanics")
     hydrodynamics = _settings(table.get("hydrodynamics", {}), Hydrodynamics, "hydrodynamics")
+    _check_rings(mechanics.rings, hydrodynamics.rings)
     fabrication = _table(table.get("fabrication", {}), "fabrication")
     return SwimmerSpec(
         radius, thickness, names, path, stations, built, mechanics, hydrodynamics, fabrication
@@ -164,6 +170,40 @@ def _path(value: Any, count: int) -> np.ndarray:
     if np.any(np.all(np.diff(path, axis=0) == 0, axis=1)):
         raise FabkitError(f"{where}: two consecutive vertices are equal")
     return path
+
+
+def _length(value: Any, where: str) -> float:
+    """A positive length (mm) within +-MAGNITUDE."""
+    length = number(value, where, positive=True)
+    if length > MAGNITUDE:
+        raise FabkitError(f"{where}: {length:g} is beyond the plausible {MAGNITUDE:g} mm")
+    return length
+
+
+def _check_shapes(stations: int, path: np.ndarray) -> None:
+    """At most SWIMMER_SHAPES equilibrium shapes along the cycle (stations per leg)."""
+    shapes = stations * (len(path) - 1)
+    if shapes > SWIMMER_SHAPES:
+        raise FabkitError(
+            f"stimuli.stations: {stations} stations on {len(path) - 1} legs make {shapes} "
+            f"shapes, more than the limit of {SWIMMER_SHAPES}"
+        )
+
+
+def _check_rings(mesh_rings: int, stokes_rings: int) -> None:
+    """The elastic mesh at most SWIMMER_MESH_RINGS rings; the dense Stokeslet matrix of
+    about 1 + pi R (R + 1) points (112 N^2 bytes with its work arrays) within WORK_BYTES."""
+    if mesh_rings > SWIMMER_MESH_RINGS:
+        raise FabkitError(
+            f"mechanics.rings: {mesh_rings} is more than the limit of {SWIMMER_MESH_RINGS}"
+        )
+    points = 1 + math.pi * stokes_rings * (stokes_rings + 1)
+    need = 112 * points**2
+    if need > WORK_BYTES:
+        raise FabkitError(
+            f"hydrodynamics.rings: {stokes_rings} rings make about {points:.3g} Stokeslet points "
+            f"whose matrix needs {size_text(need)}, more than the limit of {size_text(WORK_BYTES)}"
+        )
 
 
 def _count(value: Any, where: str) -> int:

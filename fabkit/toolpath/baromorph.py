@@ -34,6 +34,7 @@ from scipy.spatial import cKDTree
 
 from fabkit.errors import FabkitError
 from fabkit.fields import FlatField
+from fabkit.limits import MAGNITUDE
 from fabkit.tomlfile import read_toml
 from fabkit.toolpath.lines import (
     LineSettings,
@@ -169,6 +170,8 @@ def _channel_calibration(table: Any) -> Calibration:
 def _finite(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise FabkitError(f"{where} must be a finite number, got {value!r}")
+    if abs(value) > MAGNITUDE:
+        raise FabkitError(f"{where} = {value:g} is beyond the plausible +-{MAGNITUDE:g}")
     return float(value)
 
 
