@@ -40,6 +40,7 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.expr import parse, shorten
 from fabkit.npzfile import ArrayHeader, read_npz
+from fabkit.shipped import user_or_example
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -533,7 +534,7 @@ def load_director_file(path: str | Path) -> FlatField:
     eps = "0.3"               # optional
     # or, instead of theta/eps: grid = "theta.npz" with theta, mask, pixel_mm (, eps)
     """
-    path = Path(path)
+    path = user_or_example(path)
     table = read_toml(path, "director")
     check_keys(table, {"director"}, str(path))
     director = table.get("director")

@@ -23,10 +23,11 @@ import numpy as np
 
 from fabkit.errors import FabkitError
 from fabkit.limits import MAGNITUDE, TEMPLATE_CHARS, TEMPLATE_LINE_CHARS
+from fabkit.shipped import PROFILES_DIR
 from fabkit.tomlfile import read_toml
 
-MACHINES_DIR = Path(__file__).resolve().parent.parent / "machines"
-"""The shipped profiles (the repository's ``machines/`` folder)."""
+MACHINES_DIR = PROFILES_DIR
+"""The shipped profiles (see :mod:`fabkit.shipped`)."""
 
 KINDS = ("extrusion_printer", "pneumatic_diw", "laser_writer", "cutter_plotter")
 FLAVOURS = ("marlin", "klipper", "reprap", "grbl", "hyrel", "none")
@@ -278,8 +279,8 @@ def machine_table(profiles: list[MachineProfile]) -> str:
 def _machines_dir() -> Path:
     if not MACHINES_DIR.is_dir():
         raise FabkitError(
-            f"the machine profiles folder {MACHINES_DIR} is missing; install fabkit from a "
-            "source checkout (pip install -e .) or pass a profile path"
+            f"the machine profiles folder {MACHINES_DIR} is missing: reinstall fabkit "
+            "(pip install .) or pass a profile path"
         )
     return MACHINES_DIR
 

@@ -19,6 +19,7 @@ from fabkit.atomic import check_name
 from fabkit.errors import FabkitError
 from fabkit.expr import Expression, parse, shorten
 from fabkit.material import ALONG, Material, check_unstretched
+from fabkit.shipped import user_or_example
 from fabkit.surfaces import Surface, build_surface
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.surfaces.base import UNBOUNDED
@@ -114,8 +115,9 @@ class Spec:
 
 
 def load_spec(path: str | Path) -> Spec:
-    """Read and validate a TOML spec file."""
-    path = Path(path)
+    """Read and validate a TOML spec file (or a shipped example, see
+    :func:`fabkit.shipped.user_or_example`)."""
+    path = user_or_example(path)
     return build_spec(read_toml(path, "spec"), path.resolve().parent)
 
 

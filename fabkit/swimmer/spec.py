@@ -21,6 +21,7 @@ from fabkit.expr import Expression, parse, shorten
 from fabkit.fields import PlaneFunction, check_finite_on_sheet, parse_shape, planar_expression
 from fabkit.limits import MAGNITUDE, SWIMMER_MESH_RINGS, SWIMMER_SHAPES, WORK_BYTES
 from fabkit.readfile import size_text
+from fabkit.shipped import user_or_example
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -105,7 +106,7 @@ class SwimmerSpec:
 
 def load_swimmer(path: str | Path) -> SwimmerSpec:
     """Read and validate a swimmer TOML file."""
-    return build_swimmer(read_toml(path, "swimmer"))
+    return build_swimmer(read_toml(user_or_example(path), "swimmer"))
 
 
 def build_swimmer(table: Mapping[str, Any]) -> SwimmerSpec:

@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 from fabkit.errors import FabkitError
 from fabkit.fields import FlatField
 from fabkit.limits import MAGNITUDE
+from fabkit.shipped import user_or_example
 from fabkit.tomlfile import read_toml
 from fabkit.toolpath.lines import (
     LineSettings,
@@ -115,7 +116,7 @@ class ChannelReport:
 
 def load_baromorph(path: str | Path) -> BaromorphSettings:
     """Read the ``[baromorph]`` table of a TOML file (see ``docs/toolpath.md``)."""
-    path = Path(path)
+    path = user_or_example(path)
     table = read_toml(path, "baromorph")
     try:
         return _settings(table.get("baromorph"))
