@@ -25,9 +25,8 @@ head-tail symmetry of the director is respected.
 from __future__ import annotations
 
 import json
-import zipfile
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +40,9 @@ from scipy.spatial import cKDTree
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.expr import parse
+from fabkit.expr import parse, shorten
+from fabkit.npzfile import ArrayHeader, read_npz
+from fabkit.shipped import user_or_example
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -61,30 +62,40 @@ class FlatField:
 
     ``theta_fn(x, y)`` and every function of ``features`` (feature name -> eps(x, y), in
     the design's order) take broadcast arrays of mm coordinates and return arrays of
-    their shape; theta is defined mod pi. ``mm_per_unit``: the scale of a design's field
-    (mm per design unit), None for fields given in mm. ``joint_fn`` (optional) gives
-    [theta, *features] at once, cheaper than one call each (a design locates each point
-    in its mesh once).
+    their shape; theta is defined mod pi. ``keys`` names where theta (key ``"theta"``)
+    and each feature came from (an option, a key, a file), for error messages.
+    ``mm_per_unit``: the scale of a design's field (mm per design unit), None for fields
+    given in mm. ``joint_fn`` (optional) gives [theta, *features] at once, cheaper than
+    one call each (a design locates each point in its mesh once).
     """
 
     outline: shapely.Polygon | shapely.MultiPolygon
     theta_fn: PlaneFunction
     features: Mapping[str, PlaneFunction]
     source: str
+    keys: Mapping[str, str] = field(default_factory=dict)
     mm_per_unit: float | None = None
     joint_fn: Callable[[np.ndarray, np.ndarray], list[np.ndarray]] | None = None
 
     def theta(self, points: np.ndarray) -> np.ndarray:
-        """Director angle (n,) in (-pi/2, pi/2] at (n, 2) points; finite everywhere."""
+        """Director angle (n,) in (-pi/2, pi/2] at (n, 2) points.
+
+        Finite everywhere: theta is an error where it is not finite on the sheet, and
+        continued from the nearest edge point of the sheet where it is not finite beyond
+        it (see :func:`_finite_values`).
+        """
         points = np.asarray(points, dtype=float).reshape(-1, 2)
-        angles = np.asarray(self.theta_fn(points[:, 0], points[:, 1]), dtype=float)
-        angles = np.where(np.isfinite(angles), angles, 0.0)
+        angles = _finite_values(self.theta_fn, points, self.outline, self.key("theta"))
         return np.pi / 2 - np.mod(np.pi / 2 - angles, np.pi)
 
     def director(self, points: np.ndarray) -> np.ndarray:
         """Unit director (n, 2) at (n, 2) points (sign arbitrary)."""
         angles = self.theta(points)
         return np.column_stack([np.cos(angles), np.sin(angles)])
+
+    def key(self, name: str) -> str:
+        """Where theta (``"theta"``) or a feature came from, for messages."""
+        return self.keys.get(name, name)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -96,12 +107,12 @@ class FlatField:
         return bool(self.features)
 
     def feature(self, name: str, points: np.ndarray) -> np.ndarray:
-        """Feature ``name`` (n,) at (n, 2) points."""
+        """Feature ``name`` (n,) at (n, 2) points, finite as theta is (see :meth:`theta`)."""
         if name not in self.features:
             known = ", ".join(self.features) or "none"
             raise FabkitError(f"{self.source}: has no feature '{name}' (features: {known})")
         points = np.asarray(points, dtype=float).reshape(-1, 2)
-        return np.asarray(self.features[name](points[:, 0], points[:, 1]), dtype=float)
+        return _finite_values(self.features[name], points, self.outline, self.key(name))
 
     def sample(self, points: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Director angle (n,) (as :meth:`theta`) and every feature (n,) at (n, 2) points."""
@@ -109,7 +120,6 @@ class FlatField:
         if self.joint_fn is None:
             return self.theta(points), {name: self.feature(name, points) for name in self.names}
         theta, *values = self.joint_fn(points[:, 0], points[:, 1])
-        theta = np.where(np.isfinite(theta), theta, 0.0)
         theta = np.pi / 2 - np.mod(np.pi / 2 - theta, np.pi)
         return theta, dict(zip(self.names, values, strict=True))
 
@@ -131,6 +141,69 @@ class FlatField:
 
 
 # --------------------------------------------------------------------------- expressions
+
+
+def _finite_values(
+    function: PlaneFunction, points: np.ndarray, outline: shapely.Geometry, where: str
+) -> np.ndarray:
+    """``function`` at (n, 2) points (mm), all finite, or a FabkitError naming ``where``.
+
+    A point where the value is not finite is an error if it lies on the sheet (inside
+    the outline or on its edge). Beyond the sheet (line planning looks a little past
+    the edge) it takes the value at the nearest point of the sheet, nudged inside by
+    1e-9 of the sheet's size; if that is not finite either, it is an error too.
+    """
+    values = np.asarray(function(points[:, 0], points[:, 1]), dtype=float).reshape(len(points))
+    bad = np.flatnonzero(~np.isfinite(values))
+    if len(bad) == 0:
+        return values
+    distance = shapely.distance(outline, shapely.points(points[bad]))
+    on_sheet = bad[~(distance > 0)]
+    if len(on_sheet):
+        raise FabkitError(
+            f"{where}: not finite at {len(on_sheet)} of {len(points)} points on the sheet "
+            f"(first at x = {points[on_sheet[0], 0]:.6g}, y = {points[on_sheet[0], 1]:.6g} mm)"
+        )
+    lines = shapely.shortest_line(outline, shapely.points(points[bad]))
+    edge = shapely.get_coordinates(lines).reshape(-1, 2, 2)[:, 0]
+    low_x, low_y, high_x, high_y = outline.bounds
+    inward = edge - points[bad]
+    inward *= 1e-9 * max(high_x - low_x, high_y - low_y) / np.linalg.norm(inward, axis=1)[:, None]
+    nearest = np.asarray(function(*(edge + inward).T), dtype=float).reshape(len(bad))
+    if not np.all(np.isfinite(nearest)):
+        first = points[bad[np.argmin(np.isfinite(nearest))]]
+        raise FabkitError(
+            f"{where}: not finite at the edge of the sheet near x = {first[0]:.6g}, "
+            f"y = {first[1]:.6g} mm"
+        )
+    values[bad] = nearest
+    return values
+
+
+def check_finite_on_sheet(
+    function: PlaneFunction, outline: shapely.Geometry, where: str, text: str = ""
+) -> None:
+    """Refuse a field that is not finite somewhere on the sheet, before anything uses it.
+
+    Samples the outline's bounding box on a 101 x 101 grid (points inside the outline)
+    and the outline's vertices moved 1e-9 of its size inwards; a value that is NaN or
+    infinite at any of them is a FabkitError naming ``where``, the count and a point.
+    """
+    low_x, low_y, high_x, high_y = outline.bounds
+    xs, ys = np.meshgrid(np.linspace(low_x, high_x, 101), np.linspace(low_y, high_y, 101))
+    inside = shapely.contains_xy(outline, xs, ys)
+    size = max(high_x - low_x, high_y - low_y)
+    edge = shapely.get_coordinates(outline.buffer(-1e-9 * size, quad_segs=2).boundary)
+    points = np.concatenate([np.column_stack([xs[inside], ys[inside]]), edge])
+    with np.errstate(all="ignore"):
+        values = np.asarray(function(points[:, 0], points[:, 1]), dtype=float)
+    bad = np.flatnonzero(~np.isfinite(values.reshape(len(points))))
+    if len(bad):
+        shown = f": '{shorten(text)}'" if text else ""
+        raise FabkitError(
+            f"{where}: not finite at {len(bad)} of {len(points)} points of the sheet (first at "
+            f"x = {points[bad[0], 0]:.6g}, y = {points[bad[0], 1]:.6g} mm){shown}"
+        )
 
 
 def planar_expression(text: Any, where: str) -> PlaneFunction:
@@ -185,25 +258,36 @@ def field_from_expression(
     theta: str,
     outline: shapely.Geometry,
     eps: str | float | Mapping[str, Any] | None = None,
-    where: str = "director",
+    where: str | None = None,
 ) -> FlatField:
     """A director field ``theta(x, y)`` (radians) on ``outline`` (mm), with features:
-    ``eps`` one expression (the feature ``eps``), a mapping name -> expression, or None."""
-    theta_fn = planar_expression(theta, f"{where}.theta")
-    if eps is None:
-        features = {}
-    elif isinstance(eps, Mapping):
+    ``eps`` one expression (the feature ``eps``), a mapping name -> expression, or None.
+
+    ``where`` names the table they come from (errors name ``<where>.theta`` and
+    ``<where>.eps``); None means the command-line options ``--director`` and ``--eps``.
+    Every field must be finite on the whole sheet (:func:`check_finite_on_sheet`).
+    """
+    theta_key = "--director" if where is None else f"{where}.theta"
+    eps_key = "--eps" if where is None else f"{where}.eps"
+    theta_fn = planar_expression(theta, theta_key)
+    texts: dict[str, Any] = {}
+    keys = {"theta": theta_key}
+    if isinstance(eps, Mapping):
         if not eps:
-            raise FabkitError(f"{where}.eps: give at least one feature = expression")
+            raise FabkitError(f"{eps_key}: give at least one feature = expression")
         for name in eps:
-            check_feature_name(name, f"{where}.eps")
-        features = {str(k): planar_expression(v, f"{where}.eps.{k}") for k, v in eps.items()}
-    else:
-        features = {"eps": planar_expression(eps, f"{where}.eps")}
+            check_feature_name(name, eps_key)
+            texts[str(name)], keys[str(name)] = eps[name], f"{eps_key}.{name}"
+    elif eps is not None:
+        texts["eps"], keys["eps"] = eps, eps_key
+    features = {name: planar_expression(text, keys[name]) for name, text in texts.items()}
     outline = _polygonal(outline)
     if outline.is_empty or outline.area <= 0:
-        raise FabkitError(f"{where}: the outline is empty")
-    return FlatField(outline, theta_fn, features, f"theta = {theta}")
+        raise FabkitError(f"{where or '--shape'}: the outline is empty")
+    check_finite_on_sheet(theta_fn, outline, theta_key, str(theta))
+    for name, function in features.items():
+        check_finite_on_sheet(function, outline, keys[name], str(texts[name]))
+    return FlatField(outline, theta_fn, features, f"theta = {theta}", keys)
 
 
 def check_feature_name(name: Any, where: str) -> None:
@@ -238,9 +322,15 @@ def field_from_grid(
     for name, grid in grids.items():
         if np.shape(grid) != theta.shape:
             raise FabkitError(f"{source}: {name} must have the shape of theta {theta.shape}")
-    mask = mask & np.isfinite(theta)
     if not mask.any():
         raise FabkitError(f"{source}: the mask selects no point")
+    for label, values in (("theta", theta), *grids.items()):
+        bad = np.argwhere(mask & ~np.isfinite(np.asarray(values, dtype=float)))
+        if len(bad):
+            raise FabkitError(
+                f"{source}: {label} is not finite at {len(bad)} of {int(mask.sum())} nodes of "
+                f"the mask (first at node {tuple(int(i) for i in bad[0])}); mask them out"
+            )
     pixel_mm = number(pixel_mm, f"{source}: pixel_mm", positive=True)
     xs = origin[0] + pixel_mm * np.arange(theta.shape[0])
     ys = origin[1] + pixel_mm * np.arange(theta.shape[1])
@@ -249,12 +339,13 @@ def field_from_grid(
     theta_fn = _tensor_angle(cos2, sin2, xs, ys)
     features = {}
     for name, grid in grids.items():
-        (filled,) = _fill_nearest(mask, np.asarray(grid, dtype=float))
-        features[name] = _clamped(RegularGridInterpolator((xs, ys), filled), xs, ys)
+        (filled_grid,) = _fill_nearest(mask, np.asarray(grid, dtype=float))
+        features[name] = _clamped(RegularGridInterpolator((xs, ys), filled_grid), xs, ys)
     outline = _mask_outline(mask.astype(float), xs, ys)
     if outline.is_empty:
         raise FabkitError(f"{source}: the mask has no area (needs 2 x 2 neighbouring points)")
-    return FlatField(outline, theta_fn, features, source)
+    keys = {"theta": f"{source}: theta", **{name: f"{source}: {name}" for name in features}}
+    return FlatField(outline, theta_fn, features, source, keys)
 
 
 def _fill_nearest(mask: np.ndarray, *grids: np.ndarray) -> list[np.ndarray]:
@@ -325,7 +416,8 @@ def field_from_design(
     mesh = _DesignMesh.build(arrays, scale, str(path))
     outline = shapely.affinity.scale(outline, scale, scale, origin=(0, 0))
     features = {name: mesh.feature_function(k) for k, name in enumerate(names)}
-    return FlatField(outline, mesh.theta, features, f"{path}", scale, mesh.everything)
+    keys = {"theta": f"{path}: theta", **{name: f"{path}: {name}" for name in names}}
+    return FlatField(outline, mesh.theta, features, f"{path}", keys, scale, mesh.everything)
 
 
 def feature_names(design: Design, where: str = "design") -> tuple[str, ...]:
@@ -524,7 +616,7 @@ def load_director_file(path: str | Path) -> FlatField:
     eps = "0.3"               # optional: the feature eps; or { eps1 = "...", eps2 = "..." }
     # or, instead of theta/eps: grid = "theta.npz" with theta, mask, pixel_mm (, eps)
     """
-    path = Path(path)
+    path = user_or_example(path)
     table = read_toml(path, "director")
     check_keys(table, {"director"}, str(path))
     director = table.get("director")
@@ -559,26 +651,53 @@ def _outline_points(value: Any, where: str) -> shapely.Polygon:
     return polygon
 
 
+GRID_ARRAYS = {"theta": 2, "mask": 2, "pixel_mm": 0, "eps": 2, "origin": 1}
+"""Arrays of a director grid file (.npz) by name, with their number of dimensions."""
+MAX_GRID_NODES = 25_000_000
+"""Most nodes of a director grid file's theta (5000 x 5000)."""
+
+
 def _grid_file(path: Path, where: str) -> FlatField:
+    """A director grid file: theta (nx, ny) rad, mask (nx, ny), pixel_mm, optional eps
+    (nx, ny) and origin (2,) mm; every array is checked before it is used."""
     if not path.is_file():
         raise FabkitError(f"{where}.grid: file '{path}' does not exist")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in ("theta", "mask", "pixel_mm") if k not in data.files]
-            if missing:
-                raise FabkitError(f"{where}.grid: '{path}' has no '{missing[0]}' array")
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise FabkitError(f"{where}.grid: cannot read '{path}' ({exc})") from None
-    origin = tuple(np.asarray(arrays.get("origin", (0.0, 0.0)), dtype=float).reshape(2))
+    label = f"{where}.grid: '{path}'"
+    arrays = read_npz(
+        path,
+        f"{where}.grid: cannot read '{path}'",
+        check=lambda headers: _check_grid_headers(headers, label),
+    )
+    missing = [k for k in ("theta", "mask", "pixel_mm") if k not in arrays]
+    if missing:
+        raise FabkitError(f"{label} has no '{missing[0]}' array")
+    origin = np.asarray(arrays.get("origin", np.zeros(2)), dtype=float)
+    if origin.shape != (2,) or not np.all(np.isfinite(origin)):
+        raise FabkitError(f"{label}: origin must be 2 finite numbers (mm)")
     return field_from_grid(
         arrays["theta"],
         arrays["mask"],
         float(arrays["pixel_mm"]),
-        origin,
+        (float(origin[0]), float(origin[1])),
         arrays.get("eps"),
         str(path),
     )
+
+
+def _check_grid_headers(headers: Mapping[str, ArrayHeader], where: str) -> None:
+    """Refuse a director grid file from its headers: known arrays only, each real or
+    boolean, of the expected dimensions, and at most MAX_GRID_NODES nodes."""
+    for key, header in headers.items():
+        if key not in GRID_ARRAYS:
+            raise FabkitError(f"{where}: unknown array '{key}' (expected {', '.join(GRID_ARRAYS)})")
+        if len(header.shape) != GRID_ARRAYS[key] or header.dtype.kind not in "biuf":
+            raise FabkitError(
+                f"{where}: '{key}' must be a {GRID_ARRAYS[key]}-D array of real numbers, got "
+                f"shape {header.shape} of {header.dtype}"
+            )
+        nodes = int(np.prod(header.shape))
+        if nodes > MAX_GRID_NODES:
+            raise FabkitError(f"{where}: '{key}' has {nodes} nodes, more than {MAX_GRID_NODES}")
 
 
 def _polygonal(geometry: shapely.Geometry) -> shapely.Polygon | shapely.MultiPolygon:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 import string
-import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.limits import MAGNITUDE, TEMPLATE_CHARS, TEMPLATE_LINE_CHARS
 from fabkit.process import (
     LIGHT_PARAMETERS,
     PRINT_PARAMETERS,
@@ -32,9 +32,11 @@ from fabkit.process import (
     JointCalibration,
     Process,
 )
+from fabkit.shipped import PROFILES_DIR
+from fabkit.tomlfile import read_toml
 
-MACHINES_DIR = Path(__file__).resolve().parent.parent / "machines"
-"""The shipped profiles (the repository's ``machines/`` folder)."""
+MACHINES_DIR = PROFILES_DIR
+"""The shipped profiles (see :mod:`fabkit.shipped`)."""
 
 KINDS = ("extrusion_printer", "pneumatic_diw", "laser_writer", "cutter_plotter")
 FLAVOURS = ("marlin", "klipper", "reprap", "grbl", "hyrel", "none")
@@ -287,14 +289,7 @@ class MachineProfile:
 def load_machine(name_or_path: str | Path) -> MachineProfile:
     """Load a profile by name (from ``machines/``) or from a ``.toml`` path."""
     path = _resolve(str(name_or_path))
-    try:
-        with path.open("rb") as handle:
-            data = tomllib.load(handle)
-    except tomllib.TOMLDecodeError as exc:
-        raise FabkitError(f"{_display(path)}: not valid TOML ({exc})") from None
-    except OSError as exc:
-        raise FabkitError(f"{_display(path)}: cannot read ({exc.strerror})") from None
-    return _parse(data, path)
+    return _parse(read_toml(path, "machine", shown=_display(path)), path)
 
 
 def list_machines() -> list[MachineProfile]:
@@ -323,8 +318,8 @@ def machine_table(profiles: list[MachineProfile]) -> str:
 def _machines_dir() -> Path:
     if not MACHINES_DIR.is_dir():
         raise FabkitError(
-            f"the machine profiles folder {MACHINES_DIR} is missing; install fabkit from a "
-            "source checkout (pip install -e .) or pass a profile path"
+            f"the machine profiles folder {MACHINES_DIR} is missing: reinstall fabkit "
+            "(pip install .) or pass a profile path"
         )
     return MACHINES_DIR
 
@@ -407,6 +402,8 @@ class _Table:
             self.fail(f"{self._name(key)} must be > 0, got {value}")
         if value < 0:
             self.fail(f"{self._name(key)} must not be negative, got {value}")
+        if value > MAGNITUDE:
+            self.fail(f"{self._name(key)} = {value:g} is beyond the plausible {MAGNITUDE:g}")
         return float(value)
 
     def flag(self, key: str) -> bool:
@@ -433,6 +430,8 @@ class _Table:
                 self.fail(f"{self._name(key)} must hold numbers only, got {_type(item)}")
             if not math.isfinite(item):
                 self.fail(f"{self._name(key)} must hold finite numbers, got {item}")
+            if abs(item) > MAGNITUDE:
+                self.fail(f"{self._name(key)} holds {item:g}, beyond the plausible +-{MAGNITUDE:g}")
             out.append(float(item))
         return tuple(out)
 
@@ -494,6 +493,10 @@ class _Table:
                     self.fail(f"{self._name(key)} must hold numbers only, got {_type(item)}")
                 if not math.isfinite(item):
                     self.fail(f"{self._name(key)} must hold finite numbers, got {item}")
+                if abs(item) > MAGNITUDE:
+                    self.fail(
+                        f"{self._name(key)} holds {item:g}, beyond the plausible +-{MAGNITUDE:g}"
+                    )
             rows.append(tuple(float(item) for item in row))
         return tuple(rows)
 
@@ -549,6 +552,7 @@ def _parse(data: dict[str, Any], path: Path) -> MachineProfile:
     top.finish()
     if profile.gcode is not None:
         _check_placeholders(profile.gcode, path)
+        _check_rendered(profile)
     _check_outputs(profile, top)
     return profile
 
@@ -614,7 +618,11 @@ def _pressure(t: _Table) -> PressureOutput:
         max_kpa=t.number("max_kpa", positive=True),
     )
     t.finish()
-    if not out.command.strip() or any(c in out.command for c in ";(\n"):
+    if (
+        not out.command.strip()
+        or any(c in out.command for c in ";(\n")
+        or len(out.command) > TEMPLATE_LINE_CHARS
+    ):
         t.fail(f"[pressure] command must be one G-code command, got {out.command!r}")
     if out.max_kpa > out.full_scale_kpa:
         t.fail(
@@ -742,14 +750,43 @@ def _laser(t: _Table) -> LaserOptics:
 
 
 def _check_placeholders(gcode: GcodeTemplates, path: Path) -> None:
+    """Every template at most TEMPLATE_CHARS long, its fields plain known placeholders
+    (``{bed_c}``: a format spec such as ``{bed_c:>100000000}`` or a conversion such as
+    ``{bed_c!r}`` could make a line of any length)."""
     for key in GCODE_KEYS:
+        template = getattr(gcode, key)
+        if len(template) > TEMPLATE_CHARS:
+            raise FabkitError(
+                f"{_display(path)}: [gcode] {key} is {len(template)} characters, more than the "
+                f"limit of {TEMPLATE_CHARS}"
+            )
         try:
-            fields = [name for _, name, _, _ in string.Formatter().parse(getattr(gcode, key))]
+            fields = list(string.Formatter().parse(template))
         except ValueError as exc:
             raise FabkitError(f"{_display(path)}: [gcode] {key}: {exc}") from None
-        for name in fields:
+        for _, name, spec, conversion in fields:
             if name is not None and name not in PLACEHOLDERS:
                 raise FabkitError(
                     f"{_display(path)}: [gcode] {key} uses unknown placeholder {{{name}}}; "
                     f"known: {', '.join(PLACEHOLDERS)}"
                 )
+            if name is not None and (spec or conversion):
+                raise FabkitError(
+                    f"{_display(path)}: [gcode] {key}: placeholder {{{name}}} carries a format "
+                    f"spec or conversion; write plain {{{name}}}"
+                )
+
+
+def _check_rendered(profile: MachineProfile) -> None:
+    """Every template, rendered, at most TEMPLATE_CHARS long in lines of at most
+    TEMPLATE_LINE_CHARS."""
+    for key in GCODE_KEYS:
+        lines = profile.render(key)
+        size = sum(len(line) + 1 for line in lines)
+        longest = max((len(line) for line in lines), default=0)
+        if size > TEMPLATE_CHARS or longest > TEMPLATE_LINE_CHARS:
+            raise FabkitError(
+                f"{_display(profile.path)}: [gcode] {key} renders {size} characters with a "
+                f"line of {longest}, more than the limit of {TEMPLATE_CHARS} characters in lines "
+                f"of {TEMPLATE_LINE_CHARS}"
+            )

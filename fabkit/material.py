@@ -10,16 +10,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
-import sympy as sp
 
 from fabkit.errors import FabkitError
 from fabkit.expr import Expression
 
 ALONG = "along"
 ACROSS = "across"
+CLASSIFY_SAMPLES = 64
+"""Random eps points (beside 13 round ones) at which a feature's effect is tested."""
 
 
 @dataclass(frozen=True)
@@ -53,11 +53,12 @@ class Material:
         return self.features + self.stimuli
 
     def classify(self, stimuli: np.ndarray) -> tuple[str, ...]:
-        """``along``/``across`` per feature, exactly from the symbolic derivatives.
+        """``along``/``across`` per feature, from the derivatives of the stretches.
 
         ``stimuli`` (S, k) are the stimuli at which the sheet is used; a feature acts
-        along the director if d lambda1/d eps_i is not identically zero at one of them.
-        Raises :class:`FabkitError` for a feature acting both ways or neither.
+        along the director if d lambda1/d eps_i is not zero at one of them (see
+        :meth:`_acts`). Raises :class:`FabkitError` for a feature acting both ways or
+        neither.
         """
         classes = []
         for index, feature in enumerate(self.features):
@@ -78,52 +79,62 @@ class Material:
         return tuple(classes)
 
     def _acts(self, stretch: Expression, index: int, stimuli: np.ndarray) -> bool:
-        symbols = stretch.symbols
-        derivative = sp.diff(stretch.sympy, symbols[index])
-        stimulus_symbols = symbols[len(self.features) :]
-        for row in np.atleast_2d(stimuli):
-            values = dict(zip(stimulus_symbols, (sp.nsimplify(v) for v in row), strict=True))
-            if sp.simplify(derivative.subs(values)) != 0:
-                return True
-        return False
+        """Whether d stretch / d eps_index is not zero at one of the ``stimuli`` (S, k).
 
-    @cached_property
-    def _compiled(self):
-        """numpy function of (eps..., Lambda...) -> lambda1, lambda2 and their log-derivatives."""
-        symbols = self.lambda1.symbols
-        eps = symbols[: len(self.features)]
-        outputs = []
-        for stretch in (self.lambda1, self.lambda2):
-            log = sp.log(stretch.sympy)
-            gradient = [sp.diff(log, e) for e in eps]
-            hessian = [sp.diff(d, e) for d in gradient for e in eps]
-            outputs.append([stretch.sympy, *gradient, *hessian])
-        return sp.lambdify(symbols, outputs, modules="numpy", cse=True)
+        Exactly zero when eps_index does not occur in the expression; otherwise the
+        derivative (exact, by automatic differentiation) is evaluated at
+        :data:`CLASSIFY_SAMPLES` eps points for every stimulus and counts as zero where
+        ``|d stretch / d eps| <= 1e-9 (1 + |stretch|)`` at every finite sample. No computer
+        algebra runs: ``simplify`` on a law like ``(1 + L*eps)**1000`` took minutes.
+        """
+        if not stretch.depends_on(self.features[index]):
+            return False
+        eps = _classify_samples(len(self.features))  # (N, M)
+        stimuli = np.atleast_2d(np.asarray(stimuli, dtype=float))
+        arguments = [e[None, :] for e in eps] + [s[:, None] for s in stimuli.T]
+        value, grad, _ = stretch.jets(*arguments, wrt=(self.features[index],), order=1)
+        finite = np.isfinite(value) & np.isfinite(grad[0])
+        if not finite.any():
+            raise FabkitError(
+                f"{stretch.where}: not finite at any of {eps.shape[1]} sample values of "
+                f"{', '.join(self.features)} in [-2, 2] at the target stimuli"
+            )
+        return bool(np.any(np.abs(grad[0][finite]) > 1e-9 * (1 + np.abs(value[finite]))))
 
     def response(self, eps: np.ndarray, stimuli: np.ndarray) -> Response:
-        """Evaluate at features ``eps`` (N, *P) for every stimulus row of ``stimuli`` (S, k)."""
+        """Evaluate at features ``eps`` (N, *P) for every stimulus row of ``stimuli`` (S, k).
+
+        lambda by evaluation, the log-derivatives from its exact gradient and Hessian:
+        (log lambda)' = lambda' / lambda and
+        (log lambda)'' = lambda'' / lambda - lambda' lambda'^T / lambda^2.
+        """
         eps = np.asarray(eps, dtype=float)
         stimuli = np.atleast_2d(np.asarray(stimuli, dtype=float))
-        count, point_shape = len(self.features), eps.shape[1:]
+        point_shape = eps.shape[1:]
         expand = (slice(None),) + (None,) * len(point_shape)
         arguments = [e[None] for e in eps] + [
             stimuli[:, c][expand] for c in range(stimuli.shape[1])
         ]
-        shape = (stimuli.shape[0], *point_shape)
+        logs = []
         with np.errstate(all="ignore"):
-            blocks = self._compiled(*arguments)
-        stacked = []
-        for block in blocks:
-            values = np.stack([np.broadcast_to(v, shape) for v in block])
-            stacked.append(
-                (
-                    values[0],
-                    np.moveaxis(values[1 : 1 + count], 0, 1),
-                    np.moveaxis(values[1 + count :].reshape(count, count, *shape), (0, 1), (1, 2)),
+            for stretch in (self.lambda1, self.lambda2):
+                value, grad, hess = stretch.jets(*arguments, wrt=self.features)
+                log_grad = grad / value
+                log_hess = hess / value - log_grad[:, None] * log_grad[None, :]
+                logs.append(
+                    (value, np.moveaxis(log_grad, 0, 1), np.moveaxis(log_hess, (0, 1), (1, 2)))
                 )
-            )
-        (lam1, l1_e, l1_ee), (lam2, l2_e, l2_ee) = stacked
+        (lam1, l1_e, l1_ee), (lam2, l2_e, l2_ee) = logs
         return Response(lam1, lam2, l1_e, l2_e, l1_ee, l2_ee)
+
+
+def _classify_samples(count: int) -> np.ndarray:
+    """(count, M) eps sample points for :meth:`Material._acts`: round values from -2 to 2
+    on every axis, plus seeded random points in [-2, 2]^count."""
+    axis = np.array([0.0, 0.01, -0.01, 0.1, -0.1, 0.3, -0.3, 0.5, -0.5, 1.0, -1.0, 2.0, -2.0])
+    rounded = np.repeat(axis[None, :], count, axis=0)
+    scattered = np.random.default_rng(0).uniform(-2.0, 2.0, (count, CLASSIFY_SAMPLES))
+    return np.concatenate([rounded, scattered], axis=1)
 
 
 def check_unstretched(material: Material, stimulus: Sequence[float], where: str) -> None:
@@ -136,6 +147,7 @@ def check_unstretched(material: Material, stimulus: Sequence[float], where: str)
         if not np.allclose(values, 1.0, rtol=0, atol=1e-12):
             worst = values.flat[np.argmax(abs(values - 1))]
             raise FabkitError(
-                f"{where}: {label} must equal 1 at the flat sheet's stimulus {list(stimulus)} "
+                f"{where}: {label} must equal 1 at the flat sheet's stimulus "
+                f"{[float(s) for s in stimulus]} "
                 f"for every eps (it is {worst:.4g} somewhere): surfaces[0] is the sheet as made"
             )

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from fabkit.atomic import atomic_path, check_folder
-from fabkit.design.patches import MESH_TYPES, write_patch_meshes
+from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
 from fabkit.design.report import solve_to_file
 from fabkit.errors import FabkitError
 from fabkit.machines import load_machine
@@ -167,6 +167,7 @@ def _check_inputs(options: RunOptions) -> Spec:
         raise FabkitError(f"--size {options.size_mm:g}: expected a positive finite number")
     check_folder(options.out, f"--out {options.out}")
     spec = load_spec(options.spec)
+    patch_paths(spec.targets, Path(options.out) / "patches", options.mesh_format)
     if options.step is not None or options.diagonals is not None:
         spec = spec.with_solver(step=options.step, diagonals=options.diagonals)
     machine = load_machine(options.machine)

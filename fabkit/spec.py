@@ -8,15 +8,18 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
+from fabkit.atomic import check_name
 from fabkit.errors import FabkitError
-from fabkit.expr import Expression, parse
+from fabkit.expr import Expression, parse, shorten
 from fabkit.material import ALONG, Material, check_unstretched
+from fabkit.shipped import user_or_example
 from fabkit.surfaces import Surface, build_surface
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.surfaces.base import UNBOUNDED
@@ -25,6 +28,12 @@ from fabkit.tomlfile import read_toml
 ALL_QUADRANTS = ((1, 1), (-1, 1), (-1, -1), (1, -1))
 PERPENDICULAR_TOLERANCE = 1e-6
 """Largest |cos| between the initial curves' tangents at t = 0 accepted as perpendicular."""
+MAX_SOLVER_BYTES = 4 * 2**30
+"""Largest memory the solver's grid may need (bytes, see :func:`solver_memory`)."""
+MIN_STEP = 1e-6
+"""Smallest grid step (design units): below, rounding dominates the cross derivatives."""
+MAX_REACH = 1e6
+"""Largest step x diagonals (design units): the grid's reach |u| + |v|."""
 
 
 @dataclass(frozen=True)
@@ -58,13 +67,18 @@ class InitialData:
 
 @dataclass(frozen=True)
 class SolverSettings:
-    """Grid step (design units), diagonals per quadrant, quadrants (sign of u, sign of v)."""
+    """Grid step (design units), diagonals per quadrant, quadrants (sign of u, sign of v).
+
+    ``tolerance``: largest accepted error estimate of a solved point (dimensionless, the
+    relative Richardson difference of its designed lengths; see docs/solver.md).
+    """
 
     step: float = 0.05
     diagonals: int = 200
     quadrants: tuple[tuple[int, int], ...] = ALL_QUADRANTS
     max_strain: float = 3.0
     extrapolate: bool = True
+    tolerance: float = 1e-2
 
 
 @dataclass(frozen=True)
@@ -88,17 +102,22 @@ class Spec:
         return json.dumps(self.normalised, sort_keys=True)
 
     def with_solver(self, **changes: Any) -> Spec:
-        """A copy with some solver settings replaced (e.g. from command-line options)."""
+        """A copy with some solver settings replaced by command-line options (``step=``,
+        ``diagonals=``, ``quadrants=``; None keeps the spec's); errors name the option."""
         solver_table = dict(self.normalised["solver"])
+        labels = {}
         for key, value in changes.items():
             if value is not None:
                 solver_table[key] = [list(q) for q in value] if key == "quadrants" else value
-        return build_spec({**self.normalised, "solver": solver_table}, Path("."))
+                labels[key] = f"--{key}"
+        solver, normalised = _solver(solver_table, len(self.material.features), labels)
+        return replace(self, solver=solver, normalised={**self.normalised, "solver": normalised})
 
 
 def load_spec(path: str | Path) -> Spec:
-    """Read and validate a TOML spec file."""
-    path = Path(path)
+    """Read and validate a TOML spec file (or a shipped example, see
+    :func:`fabkit.shipped.user_or_example`)."""
+    path = user_or_example(path)
     return build_spec(read_toml(path, "spec"), path.resolve().parent)
 
 
@@ -125,7 +144,10 @@ def build_spec(table: Mapping[str, Any], base_dir: Path) -> Spec:
     u_start, director = _check_curves(initial)
     flat = targets[0]
     targets = (Target(flat.name, flat.surface, flat.stimulus, u_start, director), *targets[1:])
-    solver, solver_table = _solver(_table(table.get("solver", {}), "solver"))
+    _check_material_at_start(material, initial, targets)
+    solver, solver_table = _solver(
+        _table(table.get("solver", {}), "solver"), len(material.features)
+    )
     normalised = {
         "material": material_table,
         "surfaces": surface_tables,
@@ -210,9 +232,7 @@ def _target(index: int, table: Mapping[str, Any], material: Material, base_dir: 
     where = f"surfaces[{index}]"
     allowed = {"name", "stimulus", "geometry"} | ({"start", "director"} if index else set())
     check_keys(table, allowed, where)
-    name = table.get("name", f"surface{index}")
-    if not isinstance(name, str) or not name:
-        raise FabkitError(f"{where}.name: expected a non-empty string")
+    name = check_name(table.get("name", f"surface{index}"), f"{where}.name")
     if "stimulus" not in table:
         raise FabkitError(f"{where}: missing key 'stimulus'")
     stimulus = _vector(
@@ -235,6 +255,7 @@ def _target(index: int, table: Mapping[str, Any], material: Material, base_dir: 
             raise FabkitError(f"{where}: missing key '{key}' (a 2-vector in chart coordinates)")
     start = _vector(table["start"], 2, f"{where}.start", "a chart point")
     direction = _vector(table["director"], 2, f"{where}.director", "chart components")
+    _check_geometry_at_start(surface, start, f"{where}.geometry")
     if not surface.contains(start[None])[0]:
         raise FabkitError(f"{where}.start: {start.tolist()} lies outside the {surface.kind} chart")
     g = surface.metric(start)
@@ -244,6 +265,25 @@ def _target(index: int, table: Mapping[str, Any], material: Material, base_dir: 
     director = direction / np.sqrt(length_squared)
     normalised |= {"start": start.tolist(), "director": direction.tolist()}
     return Target(name, surface, tuple(stimulus), start, director), normalised
+
+
+def _check_geometry_at_start(surface: Surface, start: np.ndarray, where: str) -> None:
+    """Refuse a surface whose metric, Christoffel symbols or curvature are not finite at
+    the start point, naming the expression (e.g. ``surfaces[2].geometry.z``) if it has one.
+
+    Elsewhere a non-finite geometry is the edge of the surface: the solver stops there.
+    """
+    if all(np.all(np.isfinite(part)) for part in surface.geometry(start[None])):
+        return
+    at = ", ".join(f"{c} = {v:.6g}" for c, v in zip(surface.chart, start, strict=True))
+    for key, expression in surface.expressions().items():
+        parts = expression.jets(start[0], start[1], wrt=expression.names)
+        if not all(np.all(np.isfinite(part)) for part in parts):
+            raise FabkitError(
+                f"{where}.{key}: not finite at the start point ({at}): "
+                f"'{shorten(expression.text)}' or its first or second derivatives"
+            )
+    raise FabkitError(f"{where}: the metric or curvature is not finite at the start point ({at})")
 
 
 def _absolute_files(geometry: dict[str, Any], base_dir: Path) -> dict[str, Any]:
@@ -283,21 +323,62 @@ def _initial(table: Mapping[str, Any], material: Material, classes: tuple[str, .
 
 
 def _check_finite_initial(initial: InitialData, classes: tuple[str, ...]) -> None:
+    """eps, its derivative along its curve and the slope must be finite at t = 0."""
     for i, kind in enumerate(classes):
         carrier = "u_curve" if kind == ALONG else "v_curve"
-        for label, expression in (("eps", initial.eps[i]), ("slope", initial.slope[i])):
-            if not np.isfinite(expression(0.0)):
-                raise FabkitError(f"initial.{label}[{i}]: not finite at t = 0 on the {carrier}")
+        checks = (("eps", initial.eps[i], 1), ("slope", initial.slope[i], 0))
+        for label, expression, order in checks:
+            value, grad, _ = expression.jets(0.0, wrt=("t",), order=order)
+            if not np.isfinite(value) or (order and not np.isfinite(grad[0])):
+                what = "it or its derivative is" if order else "it is"
+                raise FabkitError(
+                    f"initial.{label}[{i}]: not finite at t = 0 on the {carrier} ({what} "
+                    f"not finite: '{shorten(expression.text)}')"
+                )
+
+
+def _check_material_at_start(
+    material: Material, initial: InitialData, targets: tuple[Target, ...]
+) -> None:
+    """lambda1, lambda2 and (where lambda > 0) their log-derivatives by eps must be finite
+    at the start point's eps (the initial eps at t = 0) under every surface's stimulus."""
+    eps = np.array([[e(0.0)] for e in initial.eps])  # (N, 1)
+    for index, target in enumerate(targets):
+        response = material.response(eps, np.array([target.stimulus]))
+        for label, parts in (
+            ("lambda1", (response.lambda1, response.l1_e, response.l1_ee)),
+            ("lambda2", (response.lambda2, response.l2_e, response.l2_ee)),
+        ):
+            stretch, log_derivatives = parts[0], parts[1:]
+            if np.isfinite(stretch).all() and (
+                not (stretch > 0).all()  # lambda <= 0 is the solver's to report
+                or all(np.isfinite(part).all() for part in log_derivatives)
+            ):
+                continue
+            names = material.features + material.stimuli
+            values = [*eps[:, 0], *target.stimulus]
+            at = ", ".join(f"{n} = {v:.6g}" for n, v in zip(names, values, strict=True))
+            raise FabkitError(
+                f"material.{label}: not finite at the start point, or its log-derivatives by "
+                f"eps are not, at {at} (the initial eps under the stimulus of "
+                f"surfaces[{index}] '{target.name}')"
+            )
 
 
 def _check_curves(initial: InitialData) -> tuple[np.ndarray, np.ndarray]:
     """The common start point and the flat-sheet director (unit u-curve tangent) at t = 0."""
+    for key in ("u_curve", "v_curve"):
+        for expression in getattr(initial, key):
+            if not all(np.all(np.isfinite(p)) for p in expression.jets(0.0, wrt=("t",))):
+                raise FabkitError(
+                    f"initial.{key}: not finite at t = 0: '{shorten(expression.text)}' or its "
+                    "first or "
+                    "second derivative (the curve, its tangent or its curvature)"
+                )
     u_point = np.array([c(0.0) for c in initial.u_curve])
     v_point = np.array([c(0.0) for c in initial.v_curve])
     u_tangent = np.array([c.diff("t")(0.0) for c in initial.u_curve])
     v_tangent = np.array([c.diff("t")(0.0) for c in initial.v_curve])
-    if not (np.all(np.isfinite(u_point)) and np.all(np.isfinite(v_point))):
-        raise FabkitError("initial: the u- and v-curves must be finite at t = 0")
     if np.linalg.norm(u_point - v_point) > 1e-9 * (1 + np.linalg.norm(u_point)):
         raise FabkitError(
             f"initial: the u-curve starts at {u_point.tolist()} but the v-curve at "
@@ -320,25 +401,98 @@ def _check_curves(initial: InitialData) -> tuple[np.ndarray, np.ndarray]:
     return u_point, u_tangent / u_speed
 
 
-def _solver(table: Mapping[str, Any]) -> tuple[SolverSettings, dict[str, Any]]:
-    check_keys(table, {"step", "diagonals", "quadrants", "max_strain", "extrapolate"}, "solver")
+def _solver(
+    table: Mapping[str, Any], features: int, labels: Mapping[str, str] = MappingProxyType({})
+) -> tuple[SolverSettings, dict[str, Any]]:
+    """Solver settings for ``features`` designable features; ``labels`` name the
+    command-line options that gave some keys (``{"step": "--step"}``) in the grid's
+    bounds (:func:`_check_grid`)."""
+    check_keys(
+        table,
+        {"step", "diagonals", "quadrants", "max_strain", "extrapolate", "tolerance"},
+        "solver",
+    )
     defaults = SolverSettings()
     step = number(table.get("step", defaults.step), "solver.step", positive=True)
     diagonals = table.get("diagonals", defaults.diagonals)
-    if isinstance(diagonals, bool) or not isinstance(diagonals, int) or not 1 <= diagonals <= 20000:
-        raise FabkitError("solver.diagonals: expected an integer from 1 to 20000")
+    if isinstance(diagonals, bool) or not isinstance(diagonals, int) or diagonals < 1:
+        raise FabkitError("solver.diagonals: expected a positive integer")
     quadrants = _quadrants(table.get("quadrants", "all"))
     max_strain = number(
         table.get("max_strain", defaults.max_strain), "solver.max_strain", positive=True
     )
-    settings = SolverSettings(step, diagonals, quadrants, max_strain)
+    extrapolate = table.get("extrapolate", defaults.extrapolate)
+    if not isinstance(extrapolate, bool):
+        raise FabkitError("solver.extrapolate: expected true or false")
+    tolerance = number(
+        table.get("tolerance", defaults.tolerance), "solver.tolerance", positive=True
+    )
+    settings = SolverSettings(step, diagonals, quadrants, max_strain, extrapolate, tolerance)
+    _check_grid(
+        settings, features, {"step": "solver.step", "diagonals": "solver.diagonals"} | labels
+    )
     normalised = {
         "step": step,
         "diagonals": diagonals,
         "quadrants": [list(q) for q in quadrants],
         "max_strain": max_strain,
+        "extrapolate": extrapolate,
+        "tolerance": tolerance,
     }
     return settings, normalised
+
+
+def solver_memory(settings: SolverSettings, features: int) -> int:
+    """Bytes the solver needs at most for ``settings`` and N = ``features`` (S = N + 2
+    surfaces), estimated before anything is allocated.
+
+    Every point of every diagonal marched is kept until the design is assembled: alpha,
+    beta, b, s, eps, p, q (N each), r and n (2 per surface), 12 + 7N floats, with its
+    valid flag and failure code (9 bytes). A march of M diagonals holds Q (M + 1)(M + 2) / 2
+    points over Q quadrants; the march at h (M = D) and the one at h/2 (M = 2D) always run
+    together (their difference is the error estimate). Three designs of (2D + 1)^2 nodes
+    (2 + N + 4S floats and a flag each) are budgeted at the end, and assembling a design
+    needs the stored r (2S floats per point) twice more. The total, plus 20 % for
+    temporaries, was 1.02 to 1.19 times the peak traced by tracemalloc for Fig. 1 grids of
+    40 to 320 diagonals whose points are all solved (the worst case).
+    """
+    n, surfaces, d = features, features + 2, settings.diagonals
+    points = len(settings.quadrants) * sum((m + 1) * (m + 2) // 2 for m in (d, 2 * d))
+    nodes = (2 * d + 1) ** 2
+    stored = points * (8 * (12 + 7 * n) + 9)
+    designs = 3 * nodes * (8 * (2 + n + 4 * surfaces) + 1)
+    assembling = 8 * 2 * surfaces * (points + 2 * nodes)
+    return int(1.2 * (stored + designs + assembling))
+
+
+def _check_grid(settings: SolverSettings, features: int, labels: Mapping[str, str]) -> None:
+    """Refuse a grid the solver cannot march: too fine a step, too long a reach, or more
+    memory than :data:`MAX_SOLVER_BYTES` (estimated before anything is allocated)."""
+    if settings.step < MIN_STEP:
+        raise FabkitError(
+            f"{labels['step']} {settings.step:g}: below {MIN_STEP:g}, rounding error swamps "
+            "the cross derivatives; give a larger step (design units)"
+        )
+    if settings.step * settings.diagonals > MAX_REACH:
+        raise FabkitError(
+            f"{labels['step']} {settings.step:g} x {labels['diagonals']} {settings.diagonals}: "
+            f"the grid would reach {settings.step * settings.diagonals:.3g} design units, more "
+            f"than {MAX_REACH:g}; give a smaller step or fewer diagonals"
+        )
+    needed = solver_memory(settings, features)
+    if needed > MAX_SOLVER_BYTES:
+        most = settings.diagonals
+        while most > 1 and solver_memory(replace(settings, diagonals=most), features) > (
+            MAX_SOLVER_BYTES
+        ):
+            most = int(most * 0.95)
+        raise FabkitError(
+            f"{labels['diagonals']} {settings.diagonals}: the solver would need about "
+            f"{needed / 2**30:,.0f} GiB ({len(settings.quadrants)} quadrants, {features} "
+            f"feature(s), a second march at half the step), more than the "
+            f"{MAX_SOLVER_BYTES / 2**30:g} GiB limit; use at most about {most} diagonals "
+            "(and a larger step for the same reach)"
+        )
 
 
 def _quadrants(value: Any) -> tuple[tuple[int, int], ...]:

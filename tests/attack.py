@@ -6,7 +6,7 @@ for bad input:
 
 * exit code 2 (or ``code`` for a row that expects another, e.g. 130);
 * exactly one line on stderr, starting with ``fabkit: error:``, naming every phrase;
-* no traceback;
+* no traceback, and no Python warning (on the command line it would be a second line);
 * none of the row's outputs created, and (rows whose outputs are ``{out}``) nothing at
   all created in the test's folder: no ``*.part``, nothing beside or above ``--out``;
 * a file that was in the way (``{blocker}``) left untouched;
@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import signal
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,7 +91,10 @@ def assert_refused(bad: Case, places: dict[str, str], tmp_path: Path, run_cli) -
     places["blocker"] = str(blocker)
     before = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
     args = [arg.format(**places) for arg in bad.args.split()]
-    (code, _, err), _ = run_bounded(lambda: run_cli(*args), bad.seconds)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        (code, _, err), _ = run_bounded(lambda: run_cli(*args), bad.seconds)
+    assert not caught, [str(w.message) for w in caught]
     assert code == bad.code, err
     prefix = "fabkit: error: " if bad.code == 2 else "fabkit: "
     assert err.startswith(prefix) and err.count("\n") == 1, err

@@ -338,13 +338,13 @@ REFUSALS = [
         "corrupt npy",
         write_bytes("c.npy", b"\x93NUMPY garbage" * 10),
         {"file": "c.npy", "extent": [0, 1, 0, 1]},
-        "not a valid .npy",
+        "not an .npy file",
     ),
     (
         "corrupt npz",
         write_bytes("c.npz", b"PK\x03\x04 not a zip" * 10),
         {"file": "c.npz", "extent": [0, 1, 0, 1]},
-        "not a valid .npz",
+        "not an .npz archive",
     ),
     (
         "corrupt png",

@@ -63,6 +63,7 @@ def write_design(
         eps=features,
         r=r,
         n=n,
+        error=np.where(valid, 0.0, np.nan),
         stimuli=np.array([[0.0], [1.0], [2.0]]),
         spec=np.array(json.dumps({"synthetic": True, "material": {"features": ["eps"]}})),
     )
@@ -212,3 +213,76 @@ def test_director_files_and_clipping(tmp_path):
     outline = tmp_path / "outline.toml"
     outline.write_text('[director]\ntheta = "0"\noutline = [[0, 0], [4, 0], [4, 3]]\n')
     assert load_director_file(outline).outline.area == pytest.approx(6)
+
+
+@pytest.mark.parametrize(
+    ("theta", "eps", "message"),
+    [
+        ("sqrt(x - 100)", None, r"--director: not finite at (\d+) of \1 points of the sheet"),
+        ("log(r)", None, r"--director: not finite at 1 of \d+ points .*x = 0, y = 0 mm"),
+        ("1/(x - x)", None, "--director: not finite at"),
+        ("phi", "log(x)", r"--eps: not finite at \d+ of \d+ points of the sheet"),
+        ("phi", "log(0)", r"--eps: log\(0\) is not finite"),
+    ],
+)
+def test_fields_must_be_finite_on_the_whole_sheet(theta, eps, message):
+    with pytest.raises(FabkitError, match=message):
+        field_from_expression(theta, parse_shape("disc:10"), eps)
+
+
+def test_a_field_singular_between_the_samples_is_refused_where_it_is_evaluated():
+    field = field_from_expression("0.1/(x - 0.123456789)", parse_shape("disc:10"))
+    assert np.isfinite(field.theta(np.array([[1.0, 2.0]]))).all()
+    with pytest.raises(FabkitError, match=r"--director: not finite at 1 of 2 points on the"):
+        field.theta(np.array([[1.0, 2.0], [0.123456789, 0.0]]))
+
+
+def test_a_field_undefined_beyond_the_edge_takes_the_nearest_edge_value():
+    field = field_from_expression("arccos(r/10)", parse_shape("disc:10"), eps="sqrt(10 - r)")
+    outside = np.array([[12.0, 0.0], [0.0, -15.0]])
+    assert field.theta(outside) == pytest.approx(0.0, abs=1e-4)
+    assert field.eps(outside) == pytest.approx(0.0, abs=1e-2)
+    inside = np.array([[5.0, 0.0]])
+    assert field.theta(inside) == pytest.approx(np.arccos(0.5))
+
+
+def test_fields_from_files_name_their_keys(tmp_path):
+    path = tmp_path / "d.toml"
+    path.write_text('[director]\ntheta = "phi"\nshape = "disc:5"\neps = "1/(x - 1)"\n')
+    with pytest.raises(FabkitError, match=r"d.toml: director.eps: not finite at"):
+        load_director_file(path)
+
+
+def test_grid_fields_must_be_finite_on_their_mask(tmp_path):
+    theta, mask = np.zeros((6, 6)), np.ones((6, 6), dtype=bool)
+    theta[2, 3] = np.nan
+    with pytest.raises(FabkitError, match=r"theta is not finite at 1 of 36 nodes .*\(2, 3\)"):
+        field_from_grid(theta, mask, 1.0)
+    mask[2, 3] = False
+    assert field_from_grid(theta, mask, 1.0).theta(np.array([[2.0, 3.0]])).shape == (1,)
+    with pytest.raises(FabkitError, match="eps is not finite at 35 of 35"):
+        field_from_grid(theta, mask, 1.0, eps=np.full((6, 6), np.inf))
+
+
+@pytest.mark.parametrize(
+    ("arrays", "message"),
+    [
+        ({"theta": np.zeros((3, 3, 3))}, "'theta' must be a 2-D array of real numbers"),
+        ({"pixel_mm": np.ones(2)}, "'pixel_mm' must be a 0-D array"),
+        ({"theta": np.zeros((4, 4)) + 1j}, "'theta' holds complex128 values; expected real"),
+        ({"mask": np.array([["a"] * 4] * 4)}, "'mask' holds <U1 values; expected real"),
+        ({"origin": np.zeros(3)}, "origin must be 2 finite numbers"),
+        ({"origin": np.array([np.nan, 0.0])}, "origin must be 2 finite numbers"),
+        (
+            {"theta": np.random.default_rng(0).integers(0, 9, (5001, 5001), np.int8)},
+            "more than 25000000",
+        ),
+    ],
+)
+def test_bad_director_grid_files_are_one_line_errors(tmp_path, arrays, message):
+    base = {"theta": np.zeros((4, 4)), "mask": np.ones((4, 4), dtype=bool), "pixel_mm": 0.5}
+    np.savez_compressed(tmp_path / "grid.npz", **{**base, **arrays})
+    (tmp_path / "d.toml").write_text('[director]\ngrid = "grid.npz"\n')
+    with pytest.raises(FabkitError, match=message) as info:
+        load_director_file(tmp_path / "d.toml")
+    assert "\n" not in str(info.value)

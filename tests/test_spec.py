@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from fabkit.errors import FabkitError
 from fabkit.material import ACROSS, ALONG
-from fabkit.spec import build_spec, load_spec
+from fabkit.spec import MAX_SOLVER_BYTES, build_spec, load_spec, solver_memory
+from tests.attack import run_bounded
 from tests.conftest import EXAMPLES
 
 
@@ -160,3 +162,94 @@ def test_version(run_cli):
     with pytest.raises(SystemExit) as info:
         run_cli("--version")
     assert info.value.code == 0
+
+
+def test_surface_names_must_be_safe_file_names(fig1):
+    fig1["surfaces"][1]["name"] = "x/../../name"
+    refuse(fig1, r"surfaces\[1\].name: name 'x/../../name' must be")
+
+
+@pytest.mark.parametrize(
+    ("geometry", "key"),
+    [
+        ({"kind": "graph", "z": "log(x)"}, r"surfaces\[2\].geometry.z"),
+        ({"kind": "graph", "z": "sqrt(x - 100)"}, r"surfaces\[2\].geometry.z"),
+        ({"kind": "metric", "g11": "1", "g22": "1/a"}, r"surfaces\[2\].geometry.g22"),
+        ({"kind": "parametric", "x": "a", "y": "b", "z": "a*log(b)"}, r"geometry.z"),
+    ],
+)
+def test_geometry_must_be_finite_at_the_start(fig1, geometry, key):
+    fig1["surfaces"][2]["geometry"] = geometry
+    message = refuse(fig1, key + r": not finite at the start point \(\w+ = 0, \w+ = 0\)")
+    assert geometry.get("z", geometry.get("g22")) in message
+
+
+def test_a_height_defined_on_part_of_the_plane_ends_the_design_there(fig1):
+    """NaN away from the start is the edge of the surface: the solver stops there."""
+    fig1["surfaces"][2]["geometry"] = {"kind": "graph", "z": "sqrt(0.09 - x**2 - y**2)"}
+    fig1["solver"].update(step=0.02, diagonals=30)
+    from fabkit.design.solver import solve
+
+    solution = solve(build_spec(fig1, EXAMPLES))
+    assert solution.design.valid.sum() > 100
+    assert any(stop.reason == "non-finite values" for stop in solution.stops)
+    r = solution.design.r[2][solution.design.valid]
+    assert np.all(np.hypot(r[:, 0], r[:, 1]) < 0.3)
+
+
+def test_material_must_be_finite_at_the_start_point(fig1):
+    fig1["material"]["lambda2"] = "exp(L*eps) + log(1 - L/2)"
+    refuse(fig1, r"material.lambda2: not finite at the start point.*eps = 0.5, L = 2")
+
+
+def test_initial_data_must_be_finite_at_t_0(fig1):
+    fig1["initial"]["u_curve"] = ["t", "sqrt(-t**2)"]
+    refuse(fig1, r"initial.u_curve: not finite at t = 0")
+    fig1["initial"]["u_curve"] = ["t", "0"]
+    fig1["initial"]["eps"] = ["0.5 + sqrt(t)"]
+    refuse(fig1, r"initial.eps\[0\]: not finite at t = 0 on the v_curve")
+
+
+def test_classification_needs_no_computer_algebra(fig1):
+    """Identically zero derivatives are recognised by value, in milliseconds (simplify
+    took seconds to minutes on such laws)."""
+    fig1["material"]["lambda1"] = "1 + L*(sin(eps)**2 + cos(eps)**2 - 1)"
+    fig1["material"]["lambda2"] = "(1 + L*eps)**1000"
+    (spec, seconds) = run_bounded(lambda: build_spec(fig1, EXAMPLES), seconds=5)
+    assert spec.classes == (ACROSS,)
+    fig1["material"]["lambda2"] = "1 + L*((1 + eps)**2 - 1 - 2*eps - eps**2)"
+    refuse(fig1, "changes neither lambda1 nor lambda2")
+
+
+def test_solver_memory_is_estimated_before_solving(fig1):
+    import tracemalloc
+
+    from fabkit.design.solver import solve
+
+    fig1["solver"].update(step=0.002, diagonals=40)
+    spec = build_spec(fig1, EXAMPLES)
+    tracemalloc.start()
+    try:
+        solve(spec)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    estimate = solver_memory(spec.solver, 1)
+    assert peak <= estimate <= 1.5 * peak
+
+
+def test_grid_bounds_name_the_option(fig1):
+    fig1["solver"]["diagonals"] = 20000
+    message = refuse(fig1, r"solver.diagonals 20000: the solver would need about [\d,]+ GiB")
+    assert f"more than the {MAX_SOLVER_BYTES / 2**30:g} GiB limit" in message
+    most = int(message.split("use at most about ")[1].split()[0])
+    fig1["solver"]["diagonals"] = most
+    spec = build_spec(fig1, EXAMPLES)
+    assert solver_memory(spec.solver, 1) <= MAX_SOLVER_BYTES
+    with pytest.raises(FabkitError, match="--diagonals 20000: the solver would need"):
+        spec.with_solver(diagonals=20000)
+    with pytest.raises(FabkitError, match="--step 1e-09: below 1e-06"):
+        spec.with_solver(step=1e-9)
+    with pytest.raises(FabkitError, match="the grid would reach 2e"):
+        spec.with_solver(step=1e5, diagonals=20)
+    assert spec.with_solver(step=0.1, diagonals=30).solver.diagonals == 30

@@ -173,7 +173,7 @@ def test_laser_for_both_examples(run_cli, tmp_path):
         (["FIG1", "--format", "gcode", "--machine", "no_such_machine"], "unknown machine"),
         (["FIG1", "--format", "gcode", "--offset", "215,215"], "outside the envelope"),
         (["MISSING", "--format", "gcode"], "does not exist"),
-        (["FIG1", "--format", "dxf", "--geometry", "MISSING"], "not GeoJSON"),
+        (["FIG1", "--format", "dxf", "--geometry", "MISSING"], "does not exist"),
     ],
 )
 def test_bad_requests_are_one_line_errors(run_cli, tmp_path, toolpaths, args, message):

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from fabkit.atomic import atomic_path
+from fabkit.atomic import atomic_path, check_name, inside
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.spec import spec_from_json
+from fabkit.spec import Target, spec_from_json
 
 MESH_FORMATS = (".ply", ".stl", ".glb", ".obj")
 MESH_TYPES = tuple(suffix.lstrip(".") for suffix in MESH_FORMATS)
@@ -68,19 +69,29 @@ def write_patch_mesh(design: Design, surface: int, path: str | Path) -> None:
         mesh.export(tmp, file_type=path.suffix.lower().lstrip("."))
 
 
+def patch_paths(
+    targets: Sequence[Target], folder: str | Path, mesh_format: str = "ply", prefix: str = ""
+) -> list[tuple[int, Path]]:
+    """(surface index, mesh file) of every target with a 3D embedding, in ``folder``.
+
+    Files are ``folder / f"{prefix}{index}_{name}.{mesh_format}"``; a name that could not
+    safely be part of a file name (:func:`fabkit.atomic.check_name`), or a file that would
+    land outside ``folder``, is a one-line error, so callers check before any work.
+    """
+    paths = []
+    for index, target in enumerate(targets):
+        if target.surface.embed(target.start[None]) is not None:
+            name = check_name(target.name, f"surfaces[{index}].name")
+            paths.append((index, inside(folder, f"{prefix}{index}_{name}.{mesh_format}")))
+    return paths
+
+
 def write_patch_meshes(
     design: Design, folder: str | Path, mesh_format: str = "ply", prefix: str = ""
 ) -> list[Path]:
-    """Write the patch on every surface with a 3D embedding; returns the paths written.
-
-    Files are ``folder / f"{prefix}{index}_{name}.{mesh_format}"``; surfaces given only by
-    their metric are skipped.
-    """
-    spec = spec_from_json(design.spec)
-    paths = []
-    for index, target in enumerate(spec.targets):
-        if target.surface.embed(target.start[None]) is not None:
-            path = Path(folder) / f"{prefix}{index}_{target.name}.{mesh_format}"
-            write_patch_mesh(design, index, path)
-            paths.append(path)
-    return paths
+    """Write the patch on every surface with a 3D embedding (see :func:`patch_paths`);
+    returns the paths written. Surfaces given only by their metric are skipped."""
+    paths = patch_paths(spec_from_json(design.spec).targets, folder, mesh_format, prefix)
+    for index, path in paths:
+        write_patch_mesh(design, index, path)
+    return [path for _, path in paths]

@@ -14,6 +14,8 @@ from fabkit.atomic import atomic_path
 from fabkit.design.check import CheckReport, check_design
 from fabkit.design.design import Design
 from fabkit.design.solver import Solution, solve
+from fabkit.errors import FabkitError
+from fabkit.limits import DESIGN_NODES
 from fabkit.progress import ProgressBar
 from fabkit.spec import Spec, spec_from_json
 
@@ -65,9 +67,26 @@ class Solved:
     summary: dict[str, Any]
 
 
+def check_grid_size(spec: Spec) -> None:
+    """Refuse solver settings whose design grid would exceed DESIGN_NODES: the design grid
+    is (2 diagonals + 1) nodes each way, whichever quadrants are solved."""
+    settings = spec.solver
+    nu = nv = 2 * settings.diagonals + 1
+    if nu * nv > DESIGN_NODES:
+        raise FabkitError(
+            f"solver.diagonals {settings.diagonals}: the design grid would be {nu} x {nv} = "
+            f"{nu * nv} nodes, more than the limit of {DESIGN_NODES} a design file may hold; "
+            "give fewer --diagonals (and a larger --step)"
+        )
+
+
 def solve_to_file(spec: Spec, out: str | Path, label: str = "solving") -> Solved:
-    """Solve with a progress bar, check, and write ``out`` (.npz) and its .json summary."""
+    """Solve with a progress bar, check, and write ``out`` (.npz) and its .json summary.
+
+    A grid larger than a design file may hold (DESIGN_NODES) is refused before solving.
+    """
     out = Path(out)
+    check_grid_size(spec)
     bar = ProgressBar(label)
     try:
         solution = solve(spec, progress=bar)

@@ -19,6 +19,11 @@ accurate in the step; every diagonal of every quadrant is one vectorised update.
 A point that fails a check (alpha <= 0, lambda <= 0, isotropic point, det M ~ 0,
 leaving a chart, non-finite, too much strain) stops; only the points depending on
 it (its quarter-plane of influence) are removed, and the stop is reported.
+
+Error control: every point is solved twice, at step h and h/2; their relative difference
+(of the designed lengths alpha lambda1 and beta lambda2 on every surface) is the point's
+error estimate, kept in the design. A point whose estimate exceeds
+``solver.tolerance`` is dropped with its quarter-plane of influence, and reported.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ import numpy as np
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
+from fabkit.expr import Expression
 from fabkit.material import ALONG
 from fabkit.spec import Spec
 
@@ -45,8 +51,9 @@ REASONS = (
     "det M near zero",
     "target point left its chart",
     "no neighbours for the cross derivative",
+    "error estimate beyond solver.tolerance",
 )
-NON_FINITE, ALPHA, BETA, LAMBDA, STRAIN, ISOTROPIC, DET_M, CHART, ISOLATED = range(1, 10)
+NON_FINITE, ALPHA, BETA, LAMBDA, STRAIN, ISOTROPIC, DET_M, CHART, ISOLATED, ERROR = range(1, 11)
 DET_TOLERANCE = 1e-8
 """|det M| below this times the product of M's row norms counts as singular."""
 ISOTROPIC_TOLERANCE = 1e-9
@@ -73,20 +80,29 @@ class Solution:
 
 
 State = dict[str, np.ndarray]
-"""Values on one diagonal of every quadrant: arrays (Q, L, ...) by variable name."""
+"""Values on one diagonal of every row: arrays (R, L, ...) by variable name."""
+
+COARSE, FINE = 0, 1
+"""The two marches, at step h and h/2, solved together: rows 0..Q-1 and Q..2Q-1."""
 
 
 @dataclass(frozen=True)
 class _Problem:
-    """Constants of one solve, derived once from the spec."""
+    """Constants of one solve, derived once from the spec.
+
+    Row k of every array is one quadrant of one march: march ``k // Q`` (COARSE, FINE),
+    quadrant ``k % Q``. Both marches advance together, diagonal d of each at once.
+    """
 
     spec: Spec
     along: np.ndarray  # (N,) bool: feature acts along the director
     stimuli: np.ndarray  # (S, k)
-    sign_u: np.ndarray  # (Q, 1) quadrant sign of u
-    sign_v: np.ndarray  # (Q, 1) quadrant sign of v
-    step: float
-    diagonals: int
+    sign_u: np.ndarray  # (R, 1) quadrant sign of u
+    sign_v: np.ndarray  # (R, 1) quadrant sign of v
+    step: np.ndarray  # (R, 1) grid step of the row's march (design units)
+    march: np.ndarray  # (R,) COARSE or FINE
+    diagonals: tuple[int, int]  # diagonals of the coarse and the fine march
+    axis_pairs: tuple[tuple[np.ndarray, np.ndarray], ...]  # rows sharing u = 0, v = 0
 
     @property
     def surfaces(self):
@@ -96,94 +112,251 @@ class _Problem:
 def solve(spec: Spec, progress: Callable[[int, int], None] | None = None) -> Solution:
     """Solve the design problem on the spec's grid; ``progress(done, total)`` per diagonal.
 
-    With ``solver.extrapolate`` (the default) the problem is also solved at half the step
-    and the two combined by Richardson extrapolation, (4 X_{h/2} - X_h) / 3, which removes
-    the leading h^2 error of the second-order march; the stops reported are the fine
-    march's, the more precise of the two.
+    The problem is solved at step h and at h/2. With ``solver.extrapolate`` (the default)
+    the two are combined by Richardson extrapolation, (4 X_{h/2} - X_h) / 3, which removes
+    the leading h^2 error of the second-order march; without it the design is the march at
+    step h. Either way their difference is every point's error estimate, and points over
+    ``solver.tolerance`` are dropped (:func:`_error_control`). The stops reported are the
+    fine march's, the more precise of the two, and the error control's.
     """
     started = time.perf_counter()
     settings = spec.solver
-    total = settings.diagonals * (3 if settings.extrapolate else 1)
+    total = settings.diagonals * 3
 
     def report(done: int) -> None:
         if progress:
             progress(done, total)
 
-    coarse, stops = _march(spec, settings.step, settings.diagonals, report, 0)
-    if settings.extrapolate:
-        fine, stops = _march(
-            spec, settings.step / 2, 2 * settings.diagonals, report, settings.diagonals, every=2
-        )
-        coarse = _extrapolate(spec, coarse, fine)
-    return Solution(coarse, stops, time.perf_counter() - started)
+    with np.errstate(all="ignore"):  # overflow and NaN are stops, checked point by point
+        problem = _problem(spec)
+        coarse, fine, stops = _march(problem, report)
+        common, in_coarse, in_fine = np.intersect1d(coarse.index, fine.index, return_indices=True)
+        coarse, fine = coarse.take(in_coarse), fine.take(in_fine)
+        points = _extrapolate(spec, coarse, fine) if settings.extrapolate else coarse
+        error = error_estimate(spec, coarse, fine)
+        keep, dropped = _error_control(problem, common, error)
+        design = _design(problem, points.take(keep), error[keep])
+        stops = tuple(sorted(stops + dropped, key=_stop_order))
+    return Solution(design, stops, time.perf_counter() - started)
 
 
-def _march(spec: Spec, step: float, diagonals: int, report, offset: int, every: int = 1):
-    """March every quadrant out to ``diagonals`` diagonals of width ``step``; the design
-    keeps every ``every``-th grid line."""
-    problem = _problem(spec, step, diagonals)
+def _stop_order(stop: Stop) -> tuple[float, float, float]:
+    return (abs(stop.u) + abs(stop.v), stop.u, stop.v)
+
+
+DESIGN_KEYS = ("alpha", "beta", "eps", "r", "n")
+"""The variables a design keeps (b, s, p and q are only needed while marching)."""
+
+
+@dataclass(frozen=True)
+class _Points:
+    """Solved points of one march on the design grid: ``index`` (P,) flat indices into
+    the (n, n) grid, ascending, and ``values`` by variable: alpha, beta (P,), eps (P, N),
+    r and n (P, S, 2)."""
+
+    index: np.ndarray
+    values: State
+
+    def take(self, pick: np.ndarray) -> _Points:
+        """The points ``pick`` (indices or a boolean mask over the P points)."""
+        return _Points(self.index[pick], {k: v[pick] for k, v in self.values.items()})
+
+
+def _extrapolate(spec: Spec, coarse: _Points, fine: _Points) -> _Points:
+    """Richardson combination of a march at step h and one at h/2, at common points."""
+    values = {k: (4 * fine.values[k] - coarse.values[k]) / 3 for k in DESIGN_KEYS}
+    r, n = values["r"], values["n"]
+    for j, target in enumerate(spec.targets):
+        g = target.surface.metric(r[:, j])
+        n[:, j] /= np.sqrt(np.einsum("...i,...ij,...j->...", n[:, j], g, n[:, j]))[..., None]
+    return _Points(coarse.index, values)
+
+
+def error_estimate(spec: Spec, coarse: _Points, fine: _Points) -> np.ndarray:
+    """Error estimate (P,) of every point solved at step h (coarse) and h/2 (fine).
+
+    The largest, over the surfaces j, of the relative differences of the designed lengths
+    alpha lambda1_j and beta lambda2_j (what ``fabkit check`` compares with the solved
+    chart map) between the two marches. It is 3/4 of the step-h march's leading error and
+    larger than the extrapolated design's. Non-finite differences count as infinite.
+    """
+    c, f = coarse.values, fine.values
+    responses = [spec.material.response(x["eps"].T, spec.stimuli) for x in (c, f)]
+    parts = []
+    for scale, stretch in (("alpha", "lambda1"), ("beta", "lambda2")):
+        lengths = [
+            x[scale] * getattr(response, stretch)
+            for x, response in zip((c, f), responses, strict=True)
+        ]
+        parts.append(np.abs(lengths[0] - lengths[1]) / np.abs(lengths[1]))
+    with np.errstate(invalid="ignore"):
+        return np.max([np.where(np.isfinite(p), p, np.inf) for p in parts], axis=(0, 1))
+
+
+def _error_control(problem: _Problem, index: np.ndarray, error: np.ndarray):
+    """Which points (P,) to keep: those whose error estimate is at most solver.tolerance.
+
+    A point over it is dropped with its quarter-plane of influence (every point further
+    from both axes in its quadrant: the points it is a source of). Returns the mask and
+    one stop per point over tolerance that no other such point influences.
+    """
+    size = problem.diagonals[COARSE]
+    shape = (2 * size + 1, 2 * size + 1)
+    with np.errstate(invalid="ignore"):
+        over = np.zeros(shape, dtype=bool)
+        over.flat[index] = ~(error <= problem.spec.solver.tolerance)
+    dropped, inherited = _influence(over)
+    step = problem.spec.solver.step
+    stops = tuple(
+        Stop(REASONS[ERROR], float((i - size) * step), float((j - size) * step), None)
+        for i, j in zip(*np.nonzero(over & ~inherited), strict=True)
+    )
+    return ~dropped.flat[index], stops
+
+
+def _influence(sources: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quarter-planes of influence of ``sources`` on a square grid centred on the origin.
+
+    Returns (every point influenced by a source or being one, every point influenced by a
+    source other than itself). Influence runs away from the axes in every quadrant; a
+    source on an axis influences the quadrants on both sides of it.
+    """
+    centre = sources.shape[0] // 2
+    reached = np.zeros_like(sources)
+    inherited = np.zeros_like(sources)
+    for flip_u in (False, True):
+        for flip_v in (False, True):
+            pick = (
+                slice(centre, None) if not flip_u else slice(centre, None, -1),
+                slice(centre, None) if not flip_v else slice(centre, None, -1),
+            )
+            quarter = sources[pick]
+            spread = np.logical_or.accumulate(np.logical_or.accumulate(quarter, 0), 1)
+            reached[pick] |= spread
+            below = np.zeros_like(spread)
+            below[1:] |= spread[:-1]
+            below[:, 1:] |= spread[:, :-1]
+            inherited[pick] |= below
+    return reached, inherited
+
+
+def _design(problem: _Problem, points: _Points, error: np.ndarray) -> Design:
+    """The design file's arrays: the points on the full grid, NaN elsewhere."""
+    size = problem.diagonals[COARSE]
+    full = 2 * size + 1
+    axis = problem.spec.solver.step * np.arange(-size, size + 1)
+    valid = np.zeros(full * full, dtype=bool)
+    valid[points.index] = True
+
+    def spread(values: np.ndarray) -> np.ndarray:
+        """(P, *rest) at the points -> (*rest[:1], full, full, *rest[1:])."""
+        out = np.full((full * full,) + values.shape[1:], np.nan)
+        out[points.index] = values
+        out = out.reshape((full, full) + values.shape[1:])
+        return np.moveaxis(out, 2, 0) if values.ndim > 1 else out
+
+    v = points.values
+    return Design(
+        u=axis,
+        v=axis.copy(),
+        valid=valid.reshape(full, full),
+        alpha=spread(v["alpha"]),
+        beta=spread(v["beta"]),
+        eps=spread(v["eps"]),
+        r=spread(v["r"]),
+        n=spread(v["n"]),
+        error=spread(error),
+        stimuli=problem.stimuli,
+        spec=problem.spec.to_json(),
+    )
+
+
+def _march(problem: _Problem, report):
+    """March both marches out to their diagonals; returns the coarse and the fine march
+    on the coarse grid, and the fine march's stops.
+
+    A march ends early once a diagonal has no solved interior point in any of its
+    quadrants: beyond, only the bare initial curves could go on, no area of design.
+    """
     u_data, v_data = _curve_data(problem)
     origin = _origin(problem, u_data, v_data)
     grid = _Grid(problem, origin)
     old = origin
     rates_old, failed = _rates(problem, old)
     _refuse_bad_start(failed)
-    for d in range(diagonals):
-        old, rates_old = _advance(problem, grid, old, rates_old, d, u_data, v_data)
-        report(offset + d + 1)
-        if d >= 1 and not grid.valid_diagonal(d + 1)[:, 1:-1].any():
-            break  # beyond, only the bare initial curves could go on: no area of design
-    return grid.assemble(every), grid.stops()
+    last = list(problem.diagonals)
+    live = np.ones(len(problem.march), dtype=bool)
+    for d in range(max(problem.diagonals)):
+        old, rates_old = _advance(problem, grid, old, rates_old, d, u_data, v_data, live)
+        report(min(d + 1, last[COARSE]) + d + 1)
+        for march in (COARSE, FINE):
+            rows = problem.march == march
+            done = d + 1 == last[march] or (
+                d >= 1 and not grid.valid_diagonal(d + 1)[rows, 1:-1].any()
+            )
+            if live[rows].any() and done:
+                live[rows], last[march] = False, d + 1
+        if not live.any():
+            break
+    return grid.assemble(COARSE), grid.assemble(FINE), grid.stops()
 
 
-def _extrapolate(spec: Spec, coarse: Design, fine: Design) -> Design:
-    """Richardson combination of a march at step h and one at h/2, on the coarse grid."""
-    valid = coarse.valid & fine.valid
-
-    def combine(c: np.ndarray, f: np.ndarray, grid_axes: int) -> np.ndarray:
-        mask = valid.reshape((1,) * grid_axes + valid.shape + (1,) * (c.ndim - grid_axes - 2))
-        return np.where(mask, (4 * f - c) / 3, np.nan)
-
-    r = combine(coarse.r, fine.r, 1)
-    n = combine(coarse.n, fine.n, 1)
-    for j, target in enumerate(spec.targets):
-        g = target.surface.metric(np.where(valid[..., None], r[j], 0.0))
-        n[j] /= np.sqrt(np.einsum("...i,...ij,...j->...", n[j], g, n[j]))[..., None]
-    return Design(
-        u=coarse.u,
-        v=coarse.v,
-        valid=valid,
-        alpha=combine(coarse.alpha, fine.alpha, 0),
-        beta=combine(coarse.beta, fine.beta, 0),
-        eps=combine(coarse.eps, fine.eps, 1),
-        r=r,
-        n=n,
-        stimuli=coarse.stimuli,
-        spec=coarse.spec,
-    )
-
-
-def _problem(spec: Spec, step: float, diagonals: int) -> _Problem:
-    quadrants = np.array(spec.solver.quadrants, dtype=float)
+def _problem(spec: Spec) -> _Problem:
+    quadrants = np.tile(np.array(spec.solver.quadrants, dtype=float), (2, 1))
+    count = len(spec.solver.quadrants)
+    step = spec.solver.step
+    march = np.repeat([COARSE, FINE], count)
     return _Problem(
         spec=spec,
         along=np.array([c == ALONG for c in spec.classes]),
         stimuli=spec.stimuli,
         sign_u=quadrants[:, :1],
         sign_v=quadrants[:, 1:],
-        step=step,
-        diagonals=diagonals,
+        step=np.repeat([step, step / 2], count)[:, None],
+        march=march,
+        diagonals=(spec.solver.diagonals, 2 * spec.solver.diagonals),
+        axis_pairs=(_pairs(quadrants[:, 1], march), _pairs(quadrants[:, 0], march)),
     )
+
+
+def _pairs(signs: np.ndarray, march: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (first, second) of one march with the same sign: the two quadrants that share
+    the half-axis on which the other coordinate has that sign."""
+    rows = range(len(signs))
+    pairs = [
+        (a, b)
+        for a in rows
+        for b in rows
+        if a < b and signs[a] == signs[b] and march[a] == march[b]
+    ]
+    return np.array([a for a, _ in pairs], dtype=int), np.array([b for _, b in pairs], dtype=int)
 
 
 # --- initial data -------------------------------------------------------------------------
 
 
-def _curve(curve, t: np.ndarray):
+@dataclass(frozen=True)
+class _Curve:
+    """A plane curve of t and its first two derivatives, each differentiated once."""
+
+    point: tuple[Expression, Expression]
+    first: tuple[Expression, Expression]
+    second: tuple[Expression, Expression]
+
+    @classmethod
+    def of(cls, curve: tuple[Expression, Expression]) -> _Curve:
+        first = tuple(c.diff("t") for c in curve)
+        return cls(curve, first, tuple(c.diff("t") for c in first))
+
+    def speed(self, t: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(np.stack([c(t) for c in self.first], -1), axis=-1)
+
+
+def _curve(curve: _Curve, t: np.ndarray):
     """Point, speed, unit tangent and signed curvature of a plane curve at parameters t."""
-    point = np.stack([c(t) for c in curve], -1)
-    first = np.stack([c.diff("t")(t) for c in curve], -1)
-    second = np.stack([c.diff("t").diff("t")(t) for c in curve], -1)
+    point = np.stack([c(t) for c in curve.point], -1)
+    first = np.stack([c(t) for c in curve.first], -1)
+    second = np.stack([c(t) for c in curve.second], -1)
     speed = np.linalg.norm(first, axis=-1)
     cross = first[..., 0] * second[..., 1] - first[..., 1] * second[..., 0]
     return point, speed, first / speed[..., None], cross / speed**3
@@ -194,16 +367,15 @@ PANELS = 4096
 """Panels of the composite Gauss-Legendre rule that measures arc length along initial curves."""
 
 
-def arc_length_parameters(curve, lengths: np.ndarray, where: str) -> np.ndarray:
+def arc_length_parameters(curve: _Curve, lengths: np.ndarray, where: str) -> np.ndarray:
     """Curve parameters t at which the arc length from t = 0 equals ``lengths`` (signed).
 
     The u- and v-coordinates are arc length along the initial curves (alpha = beta = 1
-    there), whatever parameter t the spec writes them in.
+    there), whatever parameter t the spec writes them in. Where the curve's speed is not
+    finite (``sqrt(1 - t)`` beyond t = 1), the curve ends: lengths beyond get t = NaN, and
+    the solver stops there.
     """
-
-    def speed(t: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(np.stack([c.diff("t")(t) for c in curve], -1), axis=-1)
-
+    speed = curve.speed
     lengths = np.asarray(lengths, dtype=float)
     reach = float(np.max(np.abs(lengths), initial=0.0))
     direction = np.where(lengths < 0, -1.0, 1.0)
@@ -218,23 +390,25 @@ def arc_length_parameters(curve, lengths: np.ndarray, where: str) -> np.ndarray:
             continue
         for _ in range(40):
             edges = sign * np.linspace(0.0, span, PANELS + 1)
-            cumulative = np.concatenate(
-                [[0.0], np.cumsum(_panel_lengths(speed, edges[:-1], edges[1:]))]
-            )
-            if cumulative[-1] >= reach:
+            pieces = _panel_lengths(speed, edges[:-1], edges[1:])
+            finite = np.isfinite(pieces)
+            defined = PANELS if finite.all() else int(np.argmin(finite))
+            cumulative = np.concatenate([[0.0], np.cumsum(pieces[:defined])])
+            if defined < PANELS or cumulative[-1] >= reach:
                 break
             span *= 2
         else:
             raise FabkitError(f"{where}: the curve is shorter than the grid needs ({reach:g})")
         target = np.abs(lengths[pick])
-        panel = np.clip(np.searchsorted(cumulative, target) - 1, 0, PANELS - 1)
+        beyond = target > cumulative[-1]
+        panel = np.clip(np.searchsorted(cumulative, target) - 1, 0, max(defined - 1, 0))
         t = edges[panel] + sign * (target - cumulative[panel]) / np.maximum(
             speed(edges[panel]), 1e-300
         )
         for _ in range(4):
             measured = cumulative[panel] + _panel_lengths(speed, edges[panel], t)
             t = t - sign * (measured - target) / speed(t)
-        result[pick] = t
+        result[pick] = np.where(beyond, np.nan, t)
     return result
 
 
@@ -246,24 +420,30 @@ def _panel_lengths(speed, start: np.ndarray, end: np.ndarray) -> np.ndarray:
 
 
 def _curve_data(problem: _Problem) -> tuple[State, State]:
-    """Exact data along the initial u-curve (index i) and v-curve (index j), (Q, D+1, ...).
+    """Exact data along the initial u-curve (index i) and v-curve (index j), (R, 2D+1, ...).
 
     Grid coordinates are arc length along the curves, so alpha = 1 on the u-curve and
-    beta = 1 on the v-curve.
+    beta = 1 on the v-curve. The data is computed once at the fine step; the coarse rows
+    take every other point (the same arc lengths), NaN past their last diagonal.
     """
-    h, initial = problem.step, problem.spec.initial
-    index = np.arange(problem.diagonals + 1)
+    initial = problem.spec.initial
+    fine = problem.march == FINE
+    h, diagonals = problem.step[fine][0, 0], problem.diagonals[FINE]
+    index = np.arange(diagonals + 1)
+    slopes = [e.diff("t") for e in initial.eps]
     data = []
     for curve, sign, name in (
-        (initial.u_curve, problem.sign_u, "initial.u_curve"),
-        (initial.v_curve, problem.sign_v, "initial.v_curve"),
+        (initial.u_curve, problem.sign_u[fine], "initial.u_curve"),
+        (initial.v_curve, problem.sign_v[fine], "initial.v_curve"),
     ):
+        curve = _Curve.of(curve)
         t = arc_length_parameters(curve, sign * index * h, name)
         point, speed, tangent, curvature = _curve(curve, t)
         eps = np.stack([e(t) for e in initial.eps], -1)
-        eps_s = np.stack([e.diff("t")(t) for e in initial.eps], -1) / speed[..., None]
+        eps_s = np.stack([e(t) for e in slopes], -1) / speed[..., None]
         slope = np.stack([e(t) for e in initial.slope], -1)
-        data.append((point, tangent, curvature, eps, eps_s, slope))
+        _refuse_first_step(problem, name, t, (point, curvature), eps, eps_s, slope)
+        data.append(tuple(_both_marches(x) for x in (point, tangent, curvature, eps, eps_s, slope)))
     point, tangent, curvature, eps, eps_s, slope = data[0]
     ones = np.ones_like(curvature)
     u_data = {
@@ -286,6 +466,39 @@ def _curve_data(problem: _Problem) -> tuple[State, State]:
         "n0": np.stack([tangent[..., 1], -tangent[..., 0]], -1),
     }
     return u_data, v_data
+
+
+def _both_marches(fine: np.ndarray) -> np.ndarray:
+    """Rows of both marches from the fine march's curve data (Q, 2D+1, ...): the coarse
+    rows take every other point, NaN past their last one."""
+    coarse = np.full_like(fine, np.nan)
+    every_other = fine[:, ::2]
+    coarse[:, : every_other.shape[1]] = every_other
+    return np.concatenate([coarse, fine])
+
+
+def _refuse_first_step(problem: _Problem, name: str, t, curve_parts, eps, eps_s, slope) -> None:
+    """Refuse initial data that is not finite one grid step from the start in some
+    quadrant: that quadrant could not begin. Beyond the first step, non-finite data is the
+    end of the data (the solver stops there, a "non-finite values" stop)."""
+    carrier = name.removeprefix("initial.")
+    for quadrant in range(t.shape[0]):
+        culprit = None
+        if not all(np.all(np.isfinite(part[quadrant, 1])) for part in curve_parts):
+            culprit = name
+        for i, along in enumerate(problem.along):
+            if culprit is None and (carrier == "u_curve") == bool(along):
+                if not np.isfinite(eps[quadrant, 1, i]) or not np.isfinite(eps_s[quadrant, 1, i]):
+                    culprit = f"initial.eps[{i}]"
+                elif not np.isfinite(slope[quadrant, 1, i]):
+                    culprit = f"initial.slope[{i}]"
+        if culprit is not None:
+            signs = [int(problem.sign_u[quadrant, 0]), int(problem.sign_v[quadrant, 0])]
+            raise FabkitError(
+                f"{culprit}: not finite at the first grid step along the {carrier} "
+                f"(t = {t[quadrant, 1]:.4g}, quadrant {signs}): that quadrant cannot start; "
+                "change the expression or leave the quadrant out (solver.quadrants)"
+            )
 
 
 def _origin(problem: _Problem, u_data: State, v_data: State) -> State:
@@ -436,11 +649,10 @@ def _singular(matrix: np.ndarray) -> np.ndarray:
 
 def _failures(problem, state, lam1, lam2, inside, singular, du, dv) -> np.ndarray:
     """First failure reason per point (Q, L); 0 where the point is fine."""
-    scalars = [state["alpha"], state["beta"], state["b"], state["s"]]
-    arrays = [state["eps"], state["p"], state["q"], state["r"], state["n"]]
-    finite = np.all([np.isfinite(x) for x in scalars], axis=0)
-    for x in arrays + [du["n"], dv["n"], du["s"], dv["b"], du["p"], dv["q"]]:
-        finite &= np.all(np.isfinite(x.reshape(*x.shape[:2], -1)), axis=-1)
+    values = [state[k] for k in ("alpha", "beta", "b", "s", "eps", "p", "q", "r", "n")]
+    values += [du["n"], dv["n"], du["s"], dv["b"], du["p"], dv["q"]]
+    shape = state["alpha"].shape
+    finite = np.isfinite(np.concatenate([x.reshape(*shape, -1) for x in values], -1)).all(-1)
     targets = slice(1, None)
     with np.errstate(invalid="ignore"):
         checks = [
@@ -466,10 +678,7 @@ def _failures(problem, state, lam1, lam2, inside, singular, du, dv) -> np.ndarra
             (DET_M, singular),
             (CHART, np.any(~inside, axis=-1)),
         ]
-    failed = np.zeros(state["alpha"].shape, dtype=int)
-    for code, bad in reversed(checks):
-        failed = np.where(bad, code, failed)
-    return failed
+    return np.select([bad for _, bad in checks], [code for code, _ in checks], 0)
 
 
 # --- marching -----------------------------------------------------------------------------
@@ -478,9 +687,9 @@ U_SET = ("beta", "s")
 V_SET = ("alpha", "b")
 
 
-def _advance(problem, grid, old, rates_old, d, u_data, v_data):
-    """One Heun step from diagonal d to d+1 in every quadrant; stores and returns the result."""
-    sources = grid.valid_diagonal(d)
+def _advance(problem, grid, old, rates_old, d, u_data, v_data, live):
+    """One Heun step from diagonal d to d+1 in every live row; stores and returns the result."""
+    sources = grid.valid_diagonal(d) & live[:, None]
     ok_new = np.concatenate([sources[:, :1], sources[:, 1:] & sources[:, :-1], sources[:, -1:]], 1)
     predicted = _propagate(problem, old, rates_old, None, d, u_data, v_data)
     fail_predicted = _cross_derive(problem, predicted, ok_new, d, u_data, v_data)
@@ -533,18 +742,20 @@ def _share_axes(problem: _Problem, state: State, ok: np.ndarray) -> None:
     Each quadrant's one-sided cross derivatives differ at O(h^2) on the axes; without this,
     the assembled design would have a small kink along u = 0 and v = 0.
     """
-    for position, signs in ((0, problem.sign_v[:, 0]), (-1, problem.sign_u[:, 0])):
-        for sign in (-1.0, 1.0):
-            group = (signs == sign) & ok[:, position]
-            if group.sum() < 2:
-                continue
-            for value in state.values():
-                value[group, position] = value[group, position].mean(axis=0)
+    for position, (first, second) in zip((0, -1), problem.axis_pairs, strict=True):
+        both = ok[first, position] & ok[second, position]
+        if not both.any():
+            continue
+        first, second = first[both], second[both]
+        for value in state.values():
+            mean = (value[first, position] + value[second, position]) / 2
+            value[first, position] = value[second, position] = mean
 
 
 def _propagate(problem, old, rates_old, rates_new, d, u_data, v_data) -> State:
     """Values on diagonal d+1 from diagonal d: Euler (rates_new None) or trapezoidal."""
-    h, along = problem.step, problem.along
+    along = problem.along
+    step_u, step_v = problem.step * problem.sign_u, problem.step * problem.sign_v
 
     def rate(kind: int, key: str) -> np.ndarray:
         """Effective slope for the step: (Q, d+1, ...) along u (kind 0) or v (kind 1)."""
@@ -557,11 +768,11 @@ def _propagate(problem, old, rates_old, rates_new, d, u_data, v_data) -> State:
 
     def from_west(key: str) -> np.ndarray:
         slope = rate(0, key)
-        return old[key] + h * _expand(problem.sign_u, slope.ndim) * slope
+        return old[key] + _expand(step_u, slope.ndim) * slope
 
     def from_south(key: str) -> np.ndarray:
         slope = rate(1, key)
-        return old[key] + h * _expand(problem.sign_v, slope.ndim) * slope
+        return old[key] + _expand(step_v, slope.ndim) * slope
 
     v_end = {k: val[:, d + 1 : d + 2] for k, val in v_data.items()}
     u_end = {k: val[:, d + 1 : d + 2] for k, val in u_data.items()}
@@ -587,7 +798,7 @@ def _propagate(problem, old, rates_old, rates_new, d, u_data, v_data) -> State:
 
 
 def _expand(sign: np.ndarray, ndim: int) -> np.ndarray:
-    """Quadrant signs (Q, 1) shaped to broadcast against an array of ndim dimensions."""
+    """Per-row values (R, 1) shaped to broadcast against an array of ndim dimensions."""
     return sign.reshape(sign.shape + (1,) * (ndim - 2))
 
 
@@ -598,7 +809,7 @@ def _cross_derive(problem, state, ok, d, u_data, v_data) -> np.ndarray:
     derivative known, the other one follows. Returns a failure code per point (Q, L)
     where no valid neighbour exists for the difference.
     """
-    h, along = problem.step, problem.along
+    h, along = problem.step[..., None], problem.along
     su, sv = problem.sign_u[..., None], problem.sign_v[..., None]
     slope, has = _diagonal_difference(state["eps"], ok)
     alpha, beta = state["alpha"][..., None], state["beta"][..., None]
@@ -654,89 +865,74 @@ def _diagonal_difference(values: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray
 
 
 class _Grid:
-    """The solution, diagonal by diagonal, for every quadrant (local indices i, j >= 0)."""
+    """The solution, diagonal by diagonal, for every row (local indices i, j >= 0)."""
 
     def __init__(self, problem: _Problem, origin: State):
         self.problem = problem
         self.diagonals: list[tuple[State, np.ndarray, np.ndarray]] = []
-        quadrants = origin["alpha"].shape[0]
-        self.store(0, origin, np.ones((quadrants, 1), dtype=bool), np.zeros((quadrants, 1), int))
+        rows = origin["alpha"].shape[0]
+        self.store(0, origin, np.ones((rows, 1), dtype=bool), np.zeros((rows, 1), int))
 
     def store(self, d: int, state: State, valid: np.ndarray, failed: np.ndarray) -> None:
         """Keep diagonal d (must be the next one) with its valid mask and failure codes."""
         assert d == len(self.diagonals)
-        self.diagonals.append(({k: v.copy() for k, v in state.items()}, valid, failed))
+        self.diagonals.append((dict(state), valid, failed))
 
     def valid_diagonal(self, d: int) -> np.ndarray:
         return self.diagonals[d][1]
 
-    def _points(self, pick: int):
-        """(quadrant, i, j) of stored points whose mask (valid: 1, failed: 2) is set."""
-        quadrants, rows, cols, diagonals = [], [], [], []
+    def _points(self, pick: int, march: int):
+        """(row, i, j, diagonal) of the march's points whose mask (valid: 1, failed: 2) is set."""
+        mine = self.problem.march == march
+        found = []
         for d, (_, valid, failed) in enumerate(self.diagonals):
-            mask = valid if pick == 1 else failed > 0
-            q, k = np.nonzero(mask)
-            quadrants.append(q)
-            rows.append(k)
-            cols.append(d - k)
-            diagonals.append(np.full(len(k), d))
-        return tuple(np.concatenate(x) for x in (quadrants, rows, cols, diagonals))
+            mask = (valid if pick == 1 else failed > 0) & mine[:, None]
+            row, k = np.nonzero(mask)
+            found.append((row, k, d - k, np.full(len(k), d)))
+        return tuple(np.concatenate(x) for x in zip(*found, strict=True))
 
     def stops(self) -> tuple[Stop, ...]:
+        """Every failed point of the fine march, nearest the origin first."""
         names = [t.name for t in self.problem.spec.targets]
-        quadrants, rows, cols, diagonals = self._points(2)
+        problem = self.problem
         stops = []
-        for quadrant, i, j, d in zip(quadrants, rows, cols, diagonals, strict=True):
+        for row, i, j, d in zip(*self._points(2, FINE), strict=True):
             state, _, failed = self.diagonals[d]
-            code = int(failed[quadrant, i])
-            u = float(self.problem.sign_u[quadrant, 0] * i * self.problem.step)
-            v = float(self.problem.sign_v[quadrant, 0] * j * self.problem.step)
+            code = int(failed[row, i])
+            u = float(problem.sign_u[row, 0] * i * problem.step[row, 0])
+            v = float(problem.sign_v[row, 0] * j * problem.step[row, 0])
             surface = None
             if code == CHART:
-                r = state["r"][quadrant, i]
+                r = state["r"][row, i]
                 outside = [
-                    k for k, t in enumerate(self.problem.surfaces) if not t.contains(r[k][None])[0]
+                    k for k, t in enumerate(problem.surfaces) if not t.contains(r[k][None])[0]
                 ]
                 surface = names[outside[0]] if outside else None
             stops.append(Stop(REASONS[code], u, v, surface))
-        return tuple(sorted(stops, key=lambda s: (abs(s.u) + abs(s.v), s.u, s.v)))
+        return tuple(sorted(stops, key=_stop_order))
 
-    def assemble(self, every: int = 1) -> Design:
-        """All quadrants on one grid of step ``every`` x h; shared axes are averaged.
-
-        ``every = 2`` keeps every other grid line (the fine march of the Richardson step
-        is only needed on the coarse grid).
-        """
+    def assemble(self, march: int) -> _Points:
+        """The march's quadrants on the design grid of step h (the fine march keeps every
+        other grid line: it is only needed there); quadrants sharing an axis point give it
+        the mean of their values."""
         problem = self.problem
-        size = problem.diagonals // every
-        full = 2 * size + 1
-        axis = every * problem.step * np.arange(-size, size + 1)
-        quadrants, rows, cols, _ = self._points(1)
-        keep = (rows % every == 0) & (cols % every == 0)
-        quadrants, rows, cols = quadrants[keep], rows[keep] // every, cols[keep] // every
-        g_rows = size + (problem.sign_u[quadrants, 0] * rows).astype(int)
-        g_cols = size + (problem.sign_v[quadrants, 0] * cols).astype(int)
-        counts = np.zeros((full, full))
-        np.add.at(counts, (g_rows, g_cols), 1.0)
-        valid = counts > 0
+        every = 1 if march == COARSE else 2
+        size = problem.diagonals[COARSE]
+        rows, i, j, _ = self._points(1, march)
+        keep = (i % every == 0) & (j % every == 0)
+        rows, i, j = rows[keep], i[keep] // every, j[keep] // every
+        g_rows = size + (problem.sign_u[rows, 0] * i).astype(int)
+        g_cols = size + (problem.sign_v[rows, 0] * j).astype(int)
+        index, where = np.unique(g_rows * (2 * size + 1) + g_cols, return_inverse=True)
+        counts = np.zeros(len(index))
+        np.add.at(counts, where, 1.0)
+        mine = problem.march == march
         mean = {}
-        for key in self.diagonals[0][0]:
-            values = np.concatenate([state[key][valid_d] for state, valid_d, _ in self.diagonals])
-            values = values[keep]
-            sums = np.zeros((full, full) + values.shape[1:])
-            np.add.at(sums, (g_rows, g_cols), values)
-            out = np.full_like(sums, np.nan)
-            out[valid] = sums[valid] / counts[valid].reshape((-1,) + (1,) * (values.ndim - 1))
-            mean[key] = out
-        return Design(
-            u=axis,
-            v=axis.copy(),
-            valid=valid,
-            alpha=mean["alpha"],
-            beta=mean["beta"],
-            eps=np.moveaxis(mean["eps"], -1, 0),
-            r=np.moveaxis(mean["r"], -2, 0),
-            n=np.moveaxis(mean["n"], -2, 0),
-            stimuli=problem.stimuli,
-            spec=problem.spec.to_json(),
-        )
+        for key in DESIGN_KEYS:
+            values = np.concatenate(
+                [state[key][valid & mine[:, None]] for state, valid, _ in self.diagonals]
+            )[keep]
+            sums = np.zeros((len(index),) + values.shape[1:])
+            np.add.at(sums, where, values)
+            mean[key] = sums / counts.reshape((-1,) + (1,) * (values.ndim - 1))
+        return _Points(index, mean)

@@ -6,11 +6,17 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-import sympy as sp
 
 from fabkit.errors import FabkitError
 from fabkit.expr import Expression, parse
-from fabkit.surfaces.base import UNBOUNDED, Bounds, Surface, SymbolicGeometry, graph_geometry
+from fabkit.surfaces.base import (
+    UNBOUNDED,
+    Bounds,
+    Surface,
+    graph_geometry,
+    immersion_geometry,
+    metric_geometry,
+)
 
 
 def check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
@@ -119,16 +125,7 @@ class Graph(Surface):
 
     def __init__(self, name: str, height: Expression, bounds: Bounds = UNBOUNDED):
         self.name, self.height, self.bounds = name, height, bounds
-        x, y = height.symbols
-        f = height.sympy
-        derivatives = [
-            sp.diff(f, x),
-            sp.diff(f, y),
-            sp.diff(f, x, 2),
-            sp.diff(f, x, y),
-            sp.diff(f, y, 2),
-        ]
-        self._derivatives = sp.lambdify((x, y), derivatives, modules="numpy", cse=True)
+        self._derivatives = _jets((height,))
 
     @classmethod
     def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir) -> Graph:
@@ -138,16 +135,15 @@ class Graph(Surface):
         return cls(name, parse(table["z"], ("x", "y"), f"{where}.z"), domain_bounds(table, where))
 
     def geometry(self, r):
-        r = np.asarray(r, dtype=float)
-        shape = r.shape[:-1]
+        """Closed forms from f's derivatives; NaN wherever f itself is not finite."""
+        (f,), first, second = self._derivatives(r)
+        derivatives = np.stack([first[0, 0], first[0, 1], *second[0]])
         with np.errstate(all="ignore"):
-            derivatives = np.stack(
-                [
-                    np.broadcast_to(np.asarray(d, dtype=float), shape)
-                    for d in self._derivatives(r[..., 0], r[..., 1])
-                ]
-            )
-            return graph_geometry(derivatives)
+            g, gamma, curvature = graph_geometry(derivatives)
+        return _where_finite(f, g, gamma, curvature)
+
+    def expressions(self) -> dict[str, Expression]:
+        return {"z": self.height}
 
     def embed(self, r):
         r = np.asarray(r, dtype=float)
@@ -171,10 +167,7 @@ class Parametric(Surface):
         bounds: Bounds = UNBOUNDED,
     ):
         self.name, self.coordinates, self.bounds = name, coordinates, bounds
-        a, b = coordinates[0].symbols
-        position = sp.Matrix([c.sympy for c in coordinates])
-        jacobian = position.jacobian([a, b])
-        self._geometry = SymbolicGeometry((a, b), jacobian.T * jacobian).compile()
+        self._derivatives = _jets(coordinates)
 
     @classmethod
     def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir) -> Parametric:
@@ -186,7 +179,13 @@ class Parametric(Surface):
         return cls(name, coordinates, domain_bounds(table, where))
 
     def geometry(self, r):
-        return self._geometry(r)
+        """g = J^T J and K from X's first and second derivatives; NaN where X is not finite."""
+        position, first, second = self._derivatives(r)
+        g, gamma, curvature = immersion_geometry(np.swapaxes(first, 0, 1), second.swapaxes(0, 1))
+        return _where_finite(np.sum(position, axis=0), g, gamma, curvature)
+
+    def expressions(self) -> dict[str, Expression]:
+        return dict(zip("xyz", self.coordinates, strict=True))
 
     def embed(self, r):
         r = np.asarray(r, dtype=float)
@@ -206,9 +205,7 @@ class Metric(Surface):
         bounds: Bounds = UNBOUNDED,
     ):
         self.name, self.components, self.bounds = name, components, bounds
-        a, b = components[0].symbols
-        g11, g12, g22 = (c.sympy for c in components)
-        self._geometry = SymbolicGeometry((a, b), sp.Matrix([[g11, g12], [g12, g22]])).compile()
+        self._derivatives = _jets(components)
 
     @classmethod
     def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir) -> Metric:
@@ -221,8 +218,12 @@ class Metric(Surface):
         )
         return cls(name, components, domain_bounds(table, where))
 
+    def expressions(self) -> dict[str, Expression]:
+        return dict(zip(("g11", "g12", "g22"), self.components, strict=True))
+
     def geometry(self, r):
-        return self._geometry(r)
+        """Christoffel symbols and K (Brioschi) from the components' derivatives."""
+        return metric_geometry(*self._derivatives(r))
 
     def contains(self, r):
         inside = super().contains(r)
@@ -230,3 +231,32 @@ class Metric(Surface):
         with np.errstate(invalid="ignore"):
             regular = (g[..., 0, 0] > 0) & (np.linalg.det(g) > 0)
         return inside & regular
+
+
+def _jets(expressions: tuple[Expression, ...]):
+    """numpy function r (..., 2) -> values (C, ...), first (C, 2, ...) and second (C, 3, ...)
+    derivatives (by aa, ab, bb) of C expressions in the two chart coordinates, by
+    automatic differentiation (fabkit.expr): no symbolic work, cost linear in their size."""
+
+    def evaluate(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        r = np.asarray(r, dtype=float)
+        parts = [e.jets(r[..., 0], r[..., 1], wrt=e.names) for e in expressions]
+        values = np.stack([value for value, _, _ in parts])
+        first = np.stack([grad for _, grad, _ in parts])
+        second = np.stack([np.stack([h[0, 0], h[0, 1], h[1, 1]]) for _, _, h in parts])
+        return values, first, second
+
+    return evaluate
+
+
+def _where_finite(values: np.ndarray, g: np.ndarray, gamma: np.ndarray, curvature: np.ndarray):
+    """(g, gamma, K) set to NaN wherever ``values`` (...) is not finite: the surface is not
+    defined there (the solver stops at such a point, see docs/solver.md#stops)."""
+    bad = ~np.isfinite(values)
+    if not bad.any():
+        return g, gamma, curvature
+    return (
+        np.where(bad[..., None, None], np.nan, g),
+        np.where(bad[..., None, None, None], np.nan, gamma),
+        np.where(bad, np.nan, curvature),
+    )

@@ -16,10 +16,12 @@ Lengths are in the chart's own units (design units; millimetres once scaled).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import sympy as sp
+
+if TYPE_CHECKING:
+    from fabkit.expr import Expression
 
 Bounds = tuple[tuple[float, float], tuple[float, float]]
 """Chart domain as ((r1_min, r1_max), (r2_min, r2_max)); infinite bounds allowed."""
@@ -61,89 +63,85 @@ class Surface(ABC):
                 inside &= (r[..., axis] > low) & (r[..., axis] < high)
         return inside
 
+    def expressions(self) -> dict[str, Expression]:
+        """The user expressions the surface is made of, by spec key (none for most kinds)."""
+        return {}
+
     def describe(self) -> str:
         """One line for summaries."""
         return f"{self.kind} (chart {self.chart[0]}, {self.chart[1]})"
 
 
-@dataclass(frozen=True)
-class SymbolicGeometry:
-    """Metric, Christoffel symbols and K derived symbolically from a metric in (a, b)."""
+def metric_geometry(
+    components: np.ndarray, first: np.ndarray, second: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Metric (..., 2, 2), Christoffel symbols (..., 2, 2, 2) and K (...) of a metric given
+    by its components and their derivatives in the chart (a, b).
 
-    variables: tuple[sp.Symbol, sp.Symbol]
-    metric: sp.Matrix
-
-    def christoffel(self) -> list[list[list[sp.Expr]]]:
-        """Gamma^i_jk = 1/2 g^il (d_j g_lk + d_k g_lj - d_l g_jk), as nested lists [i][j][k]."""
-        g, x = self.metric, self.variables
-        inverse = _inverse_2x2(g)
-        gamma = [[[sp.Integer(0)] * 2 for _ in range(2)] for _ in range(2)]
-        for i in range(2):
-            for j in range(2):
-                for k in range(j, 2):
-                    term = sum(
-                        inverse[i, m]
-                        * (sp.diff(g[m, k], x[j]) + sp.diff(g[m, j], x[k]) - sp.diff(g[j, k], x[m]))
-                        for m in range(2)
-                    )
-                    gamma[i][j][k] = gamma[i][k][j] = term / 2
-        return gamma
-
-    def gaussian_curvature(self) -> sp.Expr:
-        """K by Brioschi's formula, from the metric and its first and second derivatives."""
-        (a, b), g = self.variables, self.metric
-        E, F, G = g[0, 0], g[0, 1], g[1, 1]
-        Ea, Eb, Fa, Fb, Ga, Gb = (sp.diff(f, v) for f in (E, F, G) for v in (a, b))
-        first = sp.Matrix(
-            [
-                [
-                    -sp.diff(E, b, 2) / 2 + sp.diff(F, a, b) - sp.diff(G, a, 2) / 2,
-                    Ea / 2,
-                    Fa - Eb / 2,
-                ],
-                [Fb - Ga / 2, E, F],
-                [Gb / 2, F, G],
-            ]
-        )
-        second = sp.Matrix([[0, Eb / 2, Ga / 2], [Eb / 2, E, F], [Ga / 2, F, G]])
-        return (first.det(method="berkowitz") - second.det(method="berkowitz")) / (
-            E * G - F**2
-        ) ** 2
-
-    def compile(self):
-        """numpy function (a, b) -> (g, gamma, K), compiled once with common subexpressions."""
-        gamma = self.christoffel()
-        outputs = [
-            self.metric[0, 0],
-            self.metric[0, 1],
-            self.metric[1, 1],
-            *(gamma[i][j][k] for i in range(2) for j, k in ((0, 0), (0, 1), (1, 1))),
-            self.gaussian_curvature(),
-        ]
-        function = sp.lambdify(self.variables, outputs, modules="numpy", cse=True)
-        return _packer(function)
+    ``components`` (3, ...) are (E, F, G) = (g11, g12, g22); ``first`` (3, 2, ...) their
+    derivatives by (a, b); ``second`` (3, 3, ...) their second derivatives by (aa, ab, bb).
+    Gamma^i_jk = 1/2 g^il (d_j g_lk + d_k g_lj - d_l g_jk); K by Brioschi's formula.
+    Computed in floating point from the derivatives, so no symbolic product of user
+    expressions is ever formed (see docs/spec.md#limits).
+    """
+    E, F, G = components
+    g = np.stack([np.stack([E, F], -1), np.stack([F, G], -1)], -2)
+    component = np.array([[0, 1], [1, 2]])  # component[l, k]: E, F or G of g_lk
+    derivative = np.moveaxis(first[component], (0, 1, 2), (-3, -2, -1))  # [..., l, k, j]
+    with np.errstate(all="ignore"):
+        lowered = 0.5 * (
+            derivative + np.swapaxes(derivative, -1, -2) - np.swapaxes(derivative, -3, -1)
+        )  # lowered[..., l, k, j] = 1/2 (d_j g_lk + d_k g_lj - d_l g_kj)
+        gamma = np.einsum("...il,...lkj->...ijk", _inverse(g), lowered)
+        (Ea, Eb), (Fa, Fb), (Ga, Gb) = first
+        E_bb, F_ab, G_aa = second[0, 2], second[1, 1], second[2, 0]
+        brioschi = _det3(
+            (
+                (-E_bb / 2 + F_ab - G_aa / 2, Ea / 2, Fa - Eb / 2),
+                (Fb - Ga / 2, E, F),
+                (Gb / 2, F, G),
+            )
+        ) - _det3(((0 * E, Eb / 2, Ga / 2), (Eb / 2, E, F), (Ga / 2, F, G)))
+        curvature = brioschi / (E * G - F**2) ** 2
+    return g, gamma, curvature
 
 
-def _inverse_2x2(g: sp.Matrix) -> sp.Matrix:
-    det = g[0, 0] * g[1, 1] - g[0, 1] ** 2
-    return sp.Matrix([[g[1, 1], -g[0, 1]], [-g[0, 1], g[0, 0]]]) / det
+def immersion_geometry(
+    first: np.ndarray, second: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Metric, Christoffel symbols and K of an immersion X(a, b) into 3D.
+
+    ``first`` (2, 3, ...) are X_a, X_b; ``second`` (3, 3, ...) X_aa, X_ab, X_bb.
+    g = J^T J, Gamma^i_jk = g^il X_l . X_jk, and K = (L N - M^2) / det(g)^2 with L, M, N
+    the second derivatives dotted with the unnormalised normal X_a x X_b.
+    """
+    tangent = np.moveaxis(first, (0, 1), (-2, -1))  # (..., 2, 3)
+    xaa, xab, xbb = (np.moveaxis(s, 0, -1) for s in second)  # (..., 3)
+    hessian = np.stack([np.stack([xaa, xab], -2), np.stack([xab, xbb], -2)], -3)
+    g = np.einsum("...ic,...jc->...ij", tangent, tangent)
+    with np.errstate(all="ignore"):
+        lowered = np.einsum("...lc,...jkc->...ljk", tangent, hessian)
+        gamma = np.einsum("...il,...ljk->...ijk", _inverse(g), lowered)
+        normal = np.cross(tangent[..., 0, :], tangent[..., 1, :])
+        L, M, N = (np.einsum("...c,...c->...", s, normal) for s in (xaa, xab, xbb))
+        curvature = (L * N - M**2) / (g[..., 0, 0] * g[..., 1, 1] - g[..., 0, 1] ** 2) ** 2
+    return g, gamma, curvature
 
 
-def _packer(function):
-    """Wrap a lambdified list of 10 scalars into (g, gamma, K) arrays broadcast to r's shape."""
+def _inverse(g: np.ndarray) -> np.ndarray:
+    """Inverse of 2 x 2 matrices (..., 2, 2); inf or NaN where singular (no exception)."""
+    det = g[..., 0, 0] * g[..., 1, 1] - g[..., 0, 1] * g[..., 1, 0]
+    adjugate = np.stack(
+        [np.stack([g[..., 1, 1], -g[..., 0, 1]], -1), np.stack([-g[..., 1, 0], g[..., 0, 0]], -1)],
+        -2,
+    )
+    return adjugate / det[..., None, None]
 
-    def geometry(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        r = np.asarray(r, dtype=float)
-        shape = r.shape[:-1]
-        with np.errstate(all="ignore"):
-            values = [np.broadcast_to(v, shape) for v in function(r[..., 0], r[..., 1])]
-        g11, g12, g22, c100, c101, c111, c200, c201, c211, k = values
-        g = np.stack([np.stack([g11, g12], -1), np.stack([g12, g22], -1)], -2)
-        first = np.stack([np.stack([c100, c101], -1), np.stack([c101, c111], -1)], -2)
-        second = np.stack([np.stack([c200, c201], -1), np.stack([c201, c211], -1)], -2)
-        return g, np.stack([first, second], -3), np.array(k, dtype=float)
 
-    return geometry
+def _det3(rows) -> np.ndarray:
+    """Determinant of a 3 x 3 matrix given as nested tuples of arrays (broadcast)."""
+    (a, b, c), (d, e, f), (g, h, i) = rows
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def graph_geometry(derivatives: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

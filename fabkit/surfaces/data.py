@@ -24,8 +24,12 @@ solver stop (``contains`` is False).
 
 from __future__ import annotations
 
-import zipfile
-from collections.abc import Mapping
+import contextlib
+import io
+import logging
+import re
+import warnings
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -35,6 +39,9 @@ import numpy as np
 from scipy import ndimage
 
 from fabkit.errors import FabkitError
+from fabkit.limits import CSV_BYTES, MAGNITUDE, MESH_BYTES, MESH_FACES, RASTER_HITS
+from fabkit.npzfile import ArrayHeader, Check, check_magnitude, npz_keys, read_npy, read_npz
+from fabkit.readfile import decode_utf8, read_limited
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.surfaces.base import Surface, graph_geometry
 from fabkit.surfaces.fit import SurfaceFit, fit_grid
@@ -219,8 +226,10 @@ def _smoothing(table: Mapping[str, Any], where: str) -> tuple[float, float] | No
     if len(values) != 2:
         raise FabkitError(f"{where}.smoothing: expected a length or two, like 0.5 or [0.5, 1]")
     lengths = tuple(number(v, f"{where}.smoothing") for v in values)
-    if min(lengths) < 0:
-        raise FabkitError(f"{where}.smoothing: lengths must be zero or positive")
+    if min(lengths) < 0 or max(lengths) > MAGNITUDE:
+        raise FabkitError(
+            f"{where}.smoothing: lengths must be zero or positive, at most {MAGNITUDE:g}"
+        )
     return lengths
 
 
@@ -228,6 +237,7 @@ def _extent(value: Any, where: str) -> tuple[float, float, float, float]:
     if not isinstance(value, list) or len(value) != 4:
         raise FabkitError(f"{where}: expected [x0, x1, y0, y1]")
     x0, x1, y0, y1 = (number(v, where) for v in value)
+    check_magnitude(np.array([x0, x1, y0, y1]), "extent", where)
     if not (x0 < x1 and y0 < y1):
         raise FabkitError(f"{where}: expected x0 < x1 and y0 < y1, got {value}")
     return x0, x1, y0, y1
@@ -247,7 +257,10 @@ def _heightmap_fit(
     values, coordinates = read_grid(Path(path), where)
     if nodata is not None:
         values = np.where(values == nodata, np.nan, values)
-    grid = _place(values * z_scale, coordinates, extent, where)
+    with np.errstate(over="ignore"):
+        heights = values * z_scale
+    _check_heights(heights, Path(path).name, where)
+    grid = _place(heights, coordinates, extent, where)
     return grid, _fit(grid, smoothing, where)
 
 
@@ -291,28 +304,26 @@ def read_grid(path: Path, where: str) -> tuple[np.ndarray, tuple[np.ndarray, np.
 
 
 def _read_npy(path: Path, where: str) -> np.ndarray:
-    try:
-        return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as exc:
-        raise FabkitError(
-            f"{where}.file: '{path.name}' is not a valid .npy array ({exc})"
-        ) from None
+    """The array of an .npy file, its header checked (a 2D grid within the side limits)
+    before the data is read."""
+    return read_npy(path, f"{where}.file: '{path.name}'", _grid_header_check(path, where, ""))
 
 
 def _read_npz(path: Path, where: str) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
     """Heights from key ``z`` (or the only array), holes from ``mask``, coordinates ``x``, ``y``."""
-    try:
-        with np.load(path, allow_pickle=False) as archive:
-            arrays = {key: archive[key] for key in archive.files}
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+    keys = npz_keys(path, f"{where}.file: '{path.name}'")
+    if "z" not in keys and len(keys) != 1:
         raise FabkitError(
-            f"{where}.file: '{path.name}' is not a valid .npz archive ({exc})"
-        ) from None
-    if "z" not in arrays and len(arrays) != 1:
-        raise FabkitError(
-            f"{where}.file: '{path.name}' needs an array named 'z' (has {sorted(arrays)})"
+            f"{where}.file: '{path.name}' needs an array named 'z' (has {sorted(keys)})"
         )
-    values = _numeric(arrays.get("z", next(iter(arrays.values()))), path, where)
+    unknown = sorted(keys - {"z", "mask", "x", "y"}) if "z" in keys else []
+    if unknown:
+        raise FabkitError(f"{where}.file: '{path.name}' holds an unknown array '{unknown[0]}'")
+    heights = "z" if "z" in keys else next(iter(keys))
+    arrays = read_npz(
+        path, f"{where}.file: '{path.name}'", check=_grid_header_check(path, where, heights)
+    )
+    values = arrays[heights]
     if "mask" in arrays:
         mask = np.asarray(arrays["mask"], dtype=bool)
         if mask.shape != values.shape:
@@ -325,26 +336,68 @@ def _read_npz(path: Path, where: str) -> tuple[np.ndarray, tuple[np.ndarray, np.
     return values, (np.ravel(arrays["x"]).astype(float), np.ravel(arrays["y"]).astype(float))
 
 
+def _grid_header_check(path: Path, where: str, key: str) -> Check:
+    """A check of .npy headers: array ``key`` is a 2D grid within the side limits."""
+
+    def check(headers: Mapping[str, ArrayHeader]) -> None:
+        shape = headers[key].shape
+        if len(shape) != 2:
+            raise FabkitError(
+                f"{where}.file: '{path.name}' holds a {len(shape)}D array; a height grid is 2D"
+            )
+        _check_shape(shape, path.name, where)
+
+    return check
+
+
 def _read_csv(path: Path, where: str) -> np.ndarray:
+    """A CSV grid of numbers (at most CSV_BYTES). Errors never quote the file's text (it
+    may be a link to another file): they name the row and column."""
+    what = f"{where}.file: height map"
+    text = decode_utf8(read_limited(path, what, CSV_BYTES), what, path.name)
     try:
-        return np.loadtxt(path, delimiter=",", ndmin=2, comments="#")
-    except (ValueError, UnicodeDecodeError) as exc:
-        reason = str(exc).splitlines()[0]
+        with warnings.catch_warnings():
+            # an empty grid is refused by the side check, not announced by numpy
+            warnings.simplefilter("ignore", UserWarning)
+            return np.loadtxt(io.StringIO(text), delimiter=",", ndmin=2, comments="#")
+    except ValueError as exc:
+        found = re.search(r"at row (\d+)(?:, column (\d+))?", str(exc))
+        place = ""
+        if found:
+            place = f"row {int(found[1]) + 1}" + (f", column {found[2]}" if found[2] else "")
+            place = f" at {place}"
         raise FabkitError(
-            f"{where}.file: '{path.name}' is not a grid of numbers ({reason}); write holes as nan"
+            f"{where}.file: '{path.name}' is not a grid of numbers{place} (a value that is not "
+            "a number, or rows of different lengths); write holes as nan"
         ) from None
 
 
 def _read_image(path: Path, where: str) -> np.ndarray:
-    """Single-channel image as an array, flipped so that row 0 is the bottom (y0)."""
+    """Single-channel image as an array, flipped so that row 0 is the bottom (y0); its
+    size is checked from its header before its pixels are decoded."""
     from PIL import Image, UnidentifiedImageError
 
+    formats = ["PNG"] if path.suffix.lower() == ".png" else ["TIFF"]
     try:
-        with Image.open(path) as image:
+        with warnings.catch_warnings():
+            # Pillow warns of images over MAX_IMAGE_PIXELS; the side check refuses them
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            image = Image.open(path, formats=formats)
+        with image:
+            width, height = image.size
+            _check_shape((height, width), path.name, where)
             image.load()
             mode, values = image.mode, np.array(image)
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise FabkitError(f"{where}.file: '{path.name}' is not a readable image ({exc})") from None
+    except Image.DecompressionBombError:
+        raise FabkitError(
+            f"{where}.file: '{path.name}' is an image of more than {2 * Image.MAX_IMAGE_PIXELS} "
+            f"pixels; need {MIN_SIDE} to {MAX_SIDE} nodes per side"
+        ) from None
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError, EOFError) as exc:
+        reason = str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+        raise FabkitError(
+            f"{where}.file: '{path.name}' is not a readable image ({reason})"
+        ) from None
     if mode not in IMAGE_MODES:
         raise FabkitError(
             f"{where}.file: '{path.name}' is a {mode} image; save heights as a single-channel "
@@ -360,18 +413,24 @@ def _numeric(array: np.ndarray, path: Path, where: str) -> np.ndarray:
 
 
 def _check_values(values: np.ndarray, path: Path, where: str) -> np.ndarray:
-    """Float heights (ny, nx): 2D, numeric, no infinities, some finite, sides within limits."""
+    """Float heights (ny, nx): 2D, numeric, sides within limits."""
     values = _numeric(np.asarray(values), path, where).astype(float)
     if values.ndim != 2:
         raise FabkitError(
             f"{where}.file: '{path.name}' holds a {values.ndim}D array; a height grid is 2D"
         )
-    if np.isinf(values).any():
-        raise FabkitError(f"{where}.file: '{path.name}' contains infinite heights")
-    if not np.isfinite(values).any():
-        raise FabkitError(f"{where}.file: '{path.name}' has no finite heights")
     _check_shape(values.shape, path.name, where)
     return values
+
+
+def _check_heights(heights: np.ndarray, name: str, where: str) -> None:
+    """Heights (raw values times z_scale): no infinities, some finite, all within
+    +-MAGNITUDE."""
+    if np.isinf(heights).any():
+        raise FabkitError(f"{where}.file: '{name}' contains infinite heights (after z_scale)")
+    if not np.isfinite(heights).any():
+        raise FabkitError(f"{where}.file: '{name}' has no finite heights")
+    check_magnitude(heights, "heights", f"{where}.file: '{name}'")
 
 
 def _check_shape(shape: tuple[int, int], name: str, where: str) -> None:
@@ -438,11 +497,21 @@ def _coordinate_extent(
 
 def read_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
     """The mesh's vertices (V, 3) and triangles (T, 3) as vertex indices, checked finite and
-    non-empty."""
+    non-empty.
+
+    The file (at most MESH_BYTES) is handed to trimesh as bytes without a name, so that no
+    other file it names is opened (an OBJ's material library, a texture image that may be
+    a decompression bomb, a PLY's ``TextureFile``), and trimesh's warnings and log lines
+    are held back (the command line prints one line).
+    """
     import trimesh
 
+    data = read_limited(path, f"{where}.file: mesh", MESH_BYTES)
+    kind = path.suffix.lower().lstrip(".")
     try:
-        mesh = trimesh.load(path, force="mesh")
+        with _quiet("trimesh"), warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            mesh = trimesh.load(io.BytesIO(data), file_type=kind, force="mesh", skip_materials=True)
     # trimesh's loaders raise many exception types on corrupt input (struct, index, key,
     # value and unicode errors among them; an ImportError when it tries to guess the text
     # encoding of binary garbage); all of them mean the same to the user.
@@ -454,10 +523,28 @@ def read_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
     faces = getattr(mesh, "faces", None)
     if faces is None or len(faces) == 0:
         raise FabkitError(f"{where}.file: '{path.name}' contains no triangles (empty or corrupt)")
+    if len(faces) > MESH_FACES:
+        raise FabkitError(
+            f"{where}.file: '{path.name}' has {len(faces)} triangles, more than the limit of "
+            f"{MESH_FACES}"
+        )
     vertices = np.asarray(mesh.vertices, dtype=float)
     if not np.all(np.isfinite(vertices)):
         raise FabkitError(f"{where}.file: '{path.name}' has non-finite vertex coordinates")
+    check_magnitude(vertices, "vertices", f"{where}.file: '{path.name}'")
     return vertices, np.asarray(faces)
+
+
+@contextlib.contextmanager
+def _quiet(logger_name: str) -> Iterator[None]:
+    """The named logger silenced for the duration (a library's log lines would be extra
+    lines on stderr)."""
+    logger = logging.getLogger(logger_name)
+    disabled, logger.disabled = logger.disabled, True
+    try:
+        yield
+    finally:
+        logger.disabled = disabled
 
 
 def mesh_grid(vertices: np.ndarray, faces: np.ndarray, axis: str, where: str) -> HeightGrid:
@@ -473,6 +560,17 @@ def mesh_grid(vertices: np.ndarray, faces: np.ndarray, axis: str, where: str) ->
     plane = triangles[..., :2]
     edges = plane[:, 1:] - plane[:, :1]
     doubled_area = edges[:, 0, 0] * edges[:, 1, 1] - edges[:, 0, 1] * edges[:, 1, 0]
+    if not np.abs(doubled_area).max() > 0:
+        raise FabkitError(
+            f"{where}.file: the mesh covers no area over the plane normal to {axis} (its "
+            "triangles are degenerate or edge-on)"
+        )
+    span = np.ptp(plane.reshape(-1, 2), axis=0)
+    if span.min() <= 1e-6 * span.max():
+        raise FabkitError(
+            f"{where}.file: the mesh spans {span[0]:.3g} x {span[1]:.3g} over the plane normal "
+            f"to {axis}: too thin to be a surface"
+        )
     orientation = 1.0 if doubled_area.sum() >= 0 else -1.0
     flipped = int(np.sum(doubled_area * orientation < -1e-9 * np.abs(doubled_area).max()))
     if flipped:
@@ -565,7 +663,7 @@ def _rasterise(
 ) -> np.ndarray:
     """Heights (ny, nx) of triangles (T, 3, 3) at grid nodes by linear interpolation in each
     triangle; NaN where no triangle covers a node. Refuses nodes covered at two heights."""
-    node, height = _node_hits(triangles, origin, spacing, shape)
+    node, height = _node_hits(triangles, origin, spacing, shape, where)
     size = shape[0] * shape[1]
     low, high = np.full(size, np.inf), np.full(size, -np.inf)
     np.minimum.at(low, node, height)
@@ -592,9 +690,11 @@ def _node_hits(
     origin: tuple[float, float],
     spacing: tuple[float, float],
     shape: tuple[int, int],
+    where: str,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every (flat node index, interpolated height) pair with the node inside a
-    triangle (within rounding), vectorised over the nodes of each triangle's bounding box."""
+    triangle (within rounding), vectorised over the nodes of each triangle's bounding box
+    (at most RASTER_HITS of them, counted before the work arrays are made)."""
     ny, nx = shape
     scale = np.asarray(spacing)
     local = (triangles[..., :2] - np.asarray(origin)) / scale
@@ -602,6 +702,11 @@ def _node_hits(
     last = np.clip(np.floor(local.max(1) + 1e-6), -1, [nx - 1, ny - 1]).astype(np.intp)
     width = np.maximum(last - first + 1, 0)
     counts = width[:, 0] * width[:, 1]
+    if counts.sum() > RASTER_HITS:
+        raise FabkitError(
+            f"{where}.file: resampling the mesh would test {counts.sum()} (triangle, grid node) "
+            f"pairs, more than the limit of {RASTER_HITS} (overlapping or very long triangles?)"
+        )
     triangle = np.repeat(np.arange(len(triangles)), counts)
     offset = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
     i = first[triangle, 0] + offset % width[triangle, 0]

@@ -8,6 +8,7 @@ problem is a one-line :class:`FabkitError` naming the key.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,8 +17,11 @@ from typing import Any
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.expr import Expression, parse
-from fabkit.fields import PlaneFunction, planar_expression
+from fabkit.expr import Expression, parse, shorten
+from fabkit.fields import PlaneFunction, check_finite_on_sheet, parse_shape, planar_expression
+from fabkit.limits import MAGNITUDE, SWIMMER_MESH_RINGS, SWIMMER_SHAPES, WORK_BYTES
+from fabkit.readfile import size_text
+from fabkit.shipped import user_or_example
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
 
@@ -86,6 +90,7 @@ class SwimmerSpec:
         """The same swimmer walking another polygon (P, k), optionally with other stations."""
         path = _path(np.asarray(path, dtype=float).tolist(), len(self.stimuli))
         stations = self.stations if stations is None else _count(stations, "stations")
+        _check_shapes(stations, path)
         return SwimmerSpec(
             self.radius,
             self.thickness,
@@ -101,7 +106,7 @@ class SwimmerSpec:
 
 def load_swimmer(path: str | Path) -> SwimmerSpec:
     """Read and validate a swimmer TOML file."""
-    return build_swimmer(read_toml(path, "swimmer"))
+    return build_swimmer(read_toml(user_or_example(path), "swimmer"))
 
 
 def build_swimmer(table: Mapping[str, Any]) -> SwimmerSpec:
@@ -113,8 +118,8 @@ def build_swimmer(table: Mapping[str, Any]) -> SwimmerSpec:
             raise FabkitError(f"swimmer: missing section [{key}]")
     sheet = _table(table["sheet"], "sheet")
     check_keys(sheet, {"radius", "thickness"}, "sheet")
-    radius = number(sheet.get("radius"), "sheet.radius", positive=True)
-    thickness = number(sheet.get("thickness"), "sheet.thickness", positive=True)
+    radius = _length(sheet.get("radius"), "sheet.radius")
+    thickness = _length(sheet.get("thickness"), "sheet.thickness")
     if thickness >= radius:
         raise FabkitError("sheet.thickness: a sheet must be much thinner than its radius")
     stimuli_table = _table(table["stimuli"], "stimuli")
@@ -122,12 +127,17 @@ def build_swimmer(table: Mapping[str, Any]) -> SwimmerSpec:
     names = _names(stimuli_table.get("names"))
     path = _path(stimuli_table.get("path"), len(names))
     stations = _count(stimuli_table.get("stations", 6), "stimuli.stations")
+    _check_shapes(stations, path)
     layers = table["layers"]
     if not isinstance(layers, list) or not layers:
         raise FabkitError("layers: expected one or more [[layers]] tables, bottom first")
-    built = tuple(_layer(_table(layer, f"layers[{i}]"), names, i) for i, layer in enumerate(layers))
+    built = tuple(
+        _layer(_table(layer, f"layers[{i}]"), names, i, radius, path)
+        for i, layer in enumerate(layers)
+    )
     mechanics = _settings(table.get("mechanics", {}), Mechanics, "mechanics")
     hydrodynamics = _settings(table.get("hydrodynamics", {}), Hydrodynamics, "hydrodynamics")
+    _check_rings(mechanics.rings, hydrodynamics.rings)
     fabrication = _table(table.get("fabrication", {}), "fabrication")
     return SwimmerSpec(
         radius, thickness, names, path, stations, built, mechanics, hydrodynamics, fabrication
@@ -163,13 +173,55 @@ def _path(value: Any, count: int) -> np.ndarray:
     return path
 
 
+def _length(value: Any, where: str) -> float:
+    """A positive length (mm) within +-MAGNITUDE."""
+    length = number(value, where, positive=True)
+    if length > MAGNITUDE:
+        raise FabkitError(f"{where}: {length:g} is beyond the plausible {MAGNITUDE:g} mm")
+    return length
+
+
+def _check_shapes(stations: int, path: np.ndarray) -> None:
+    """At most SWIMMER_SHAPES equilibrium shapes along the cycle (stations per leg)."""
+    shapes = stations * (len(path) - 1)
+    if shapes > SWIMMER_SHAPES:
+        raise FabkitError(
+            f"stimuli.stations: {stations} stations on {len(path) - 1} legs make {shapes} "
+            f"shapes, more than the limit of {SWIMMER_SHAPES}"
+        )
+
+
+def _check_rings(mesh_rings: int, stokes_rings: int) -> None:
+    """The elastic mesh at most SWIMMER_MESH_RINGS rings; the dense Stokeslet matrix of
+    about 1 + pi R (R + 1) points (112 N^2 bytes with its work arrays) within WORK_BYTES."""
+    if mesh_rings > SWIMMER_MESH_RINGS:
+        raise FabkitError(
+            f"mechanics.rings: {mesh_rings} is more than the limit of {SWIMMER_MESH_RINGS}"
+        )
+    points = 1 + math.pi * stokes_rings * (stokes_rings + 1)
+    need = 112 * points**2
+    if need > WORK_BYTES:
+        raise FabkitError(
+            f"hydrodynamics.rings: {stokes_rings} rings make about {points:.3g} Stokeslet points "
+            f"whose matrix needs {size_text(need)}, more than the limit of {size_text(WORK_BYTES)}"
+        )
+
+
 def _count(value: Any, where: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise FabkitError(f"{where}: expected a positive integer, got {value!r}")
     return value
 
 
-def _layer(table: Mapping[str, Any], stimuli: tuple[str, ...], index: int) -> Layer:
+PATH_SAMPLES = 64
+"""Points per leg of the stimulus path at which the layers' stretches must be finite."""
+
+
+def _layer(
+    table: Mapping[str, Any], stimuli: tuple[str, ...], index: int, radius: float, path: np.ndarray
+) -> Layer:
+    """One layer; its director must be finite on the disc of ``radius`` (mm) and its
+    stretches finite along the stimulus ``path`` (P, k), vertices and legs."""
     where = f"layers[{index}]"
     check_keys(table, {"name", "director", "lambda1", "lambda2"}, where)
     for key in ("director", "lambda1", "lambda2"):
@@ -179,9 +231,23 @@ def _layer(table: Mapping[str, Any], stimuli: tuple[str, ...], index: int) -> La
     if not isinstance(name, str):
         raise FabkitError(f"{where}.name: expected a string")
     theta = planar_expression(table["director"], f"{where}.director")
-    lambda1 = parse(table["lambda1"], stimuli, f"{where}.lambda1")
-    lambda2 = parse(table["lambda2"], stimuli, f"{where}.lambda2")
-    return Layer(name, str(table["director"]), theta, lambda1, lambda2)
+    disc = parse_shape(f"disc:{radius:.12g}", "sheet.radius")
+    check_finite_on_sheet(theta, disc, f"{where}.director", str(table["director"]))
+    fractions = np.linspace(0.0, 1.0, PATH_SAMPLES + 1)[:, None, None]
+    samples = (path[:-1] + fractions * np.diff(path, axis=0)).reshape(-1, len(stimuli))
+    stretches = []
+    for key in ("lambda1", "lambda2"):
+        stretch = parse(table[key], stimuli, f"{where}.{key}")
+        values = stretch(*samples.T)
+        if not np.all(np.isfinite(values)):
+            at = samples[np.argmin(np.isfinite(values))]
+            shown = ", ".join(f"{n} = {v:.6g}" for n, v in zip(stimuli, at, strict=True))
+            raise FabkitError(
+                f"{where}.{key}: not finite at the stimulus ({shown}) on stimuli.path: "
+                f"'{shorten(stretch.text)}'"
+            )
+        stretches.append(stretch)
+    return Layer(name, str(table["director"]), theta, *stretches)
 
 
 def _settings(value: Any, kind: type, where: str) -> Any:

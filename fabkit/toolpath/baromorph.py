@@ -34,7 +34,9 @@ from scipy.spatial import cKDTree
 
 from fabkit.errors import FabkitError
 from fabkit.fields import FlatField
+from fabkit.limits import MAGNITUDE
 from fabkit.process import CHANNEL_WIDTH, Calibration
+from fabkit.shipped import user_or_example
 from fabkit.tomlfile import read_toml
 from fabkit.toolpath.lines import (
     LineSettings,
@@ -114,7 +116,7 @@ class ChannelReport:
 
 def load_baromorph(path: str | Path) -> BaromorphSettings:
     """Read the ``[baromorph]`` table of a TOML file (see ``docs/toolpath.md``)."""
-    path = Path(path)
+    path = user_or_example(path)
     table = read_toml(path, "baromorph")
     try:
         return _settings(table.get("baromorph"))
@@ -169,6 +171,8 @@ def _channel_calibration(table: Any) -> Calibration:
 def _finite(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise FabkitError(f"{where} must be a finite number, got {value!r}")
+    if abs(value) > MAGNITUDE:
+        raise FabkitError(f"{where} = {value:g} is beyond the plausible +-{MAGNITUDE:g}")
     return float(value)
 
 

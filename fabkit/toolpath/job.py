@@ -32,6 +32,7 @@ from fabkit.fields import (
     load_director_file,
     parse_shape,
 )
+from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES
 from fabkit.process import Process
 from fabkit.toolpath.baromorph import (
     ChannelLayout,
@@ -88,7 +89,7 @@ def run_job(job: ToolpathJob) -> JobResult:
     check_folder(job.out, f"--out {job.out}")
     fields = load_fields(job)
     process = job_process(job)
-    _check_extent(fields, process.road_width_mm)
+    _check_extent(fields, process.road_width_mm, job.layers)
     settings = PlanSettings(
         layers=job.layers,
         pattern=job.pattern,
@@ -112,15 +113,25 @@ MAX_ROADS_ACROSS = 5000
 """Road widths across the sheet beyond which planning would take hours and many GB."""
 
 
-def _check_extent(fields: list[FlatField], road_width_mm: float) -> None:
-    """Refuse a sheet too many road widths across (e.g. a mistyped --size) before planning."""
+def _check_extent(fields: list[FlatField], road_width_mm: float, layers: int) -> None:
+    """Refuse, before planning, a sheet too many road widths across (e.g. a mistyped
+    --size), or so many layers of it that the toolpath would hold more moves than a
+    toolpath file may (about two moves, a line and a travel, per road width per layer)."""
     x0, y0, x1, y1 = np.array([f.outline.bounds for f in fields]).T
     across = max(x1.max() - x0.min(), y1.max() - y0.min())
-    if across / road_width_mm > MAX_ROADS_ACROSS:
+    roads = across / road_width_mm
+    if roads > MAX_ROADS_ACROSS:
         raise FabkitError(
-            f"the sheet is {across:.4g} mm across, {across / road_width_mm:.0f} road widths of "
+            f"the sheet is {across:.4g} mm across, {roads:.4g} road widths of "
             f"{road_width_mm:g} mm, more than {MAX_ROADS_ACROSS}: give a smaller --size "
             "(or a wider --road-width)"
+        )
+    moves = 2 * roads * max(layers, 1)
+    if layers > TOOLPATH_LAYERS or moves > TOOLPATH_MOVES:
+        raise FabkitError(
+            f"--layers {layers} of a sheet {roads:.0f} road widths across make about "
+            f"{moves:.3g} moves, more than the limit of {TOOLPATH_MOVES} moves (or "
+            f"{TOOLPATH_LAYERS} layers) a toolpath file holds: give fewer --layers"
         )
 
 

@@ -32,8 +32,7 @@ from __future__ import annotations
 
 import json
 import math
-import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,7 +41,10 @@ import numpy as np
 
 from fabkit.atomic import atomic_path
 from fabkit.errors import FabkitError
+from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES, TOOLPATH_VERTICES
+from fabkit.npzfile import ArrayHeader, check_magnitude, read_npz
 from fabkit.process import PARAMETERS
+from fabkit.readfile import parse_json, read_json
 
 FORMAT = "fabkit-toolpath/2"
 """Format tag stored in every saved toolpath."""
@@ -112,7 +114,10 @@ class Move:
 
 
 def _per_vertex(values: Any, count: int) -> np.ndarray:
-    return np.broadcast_to(np.asarray(values, dtype=float), (count,)).copy()
+    values = np.asarray(values, dtype=float)
+    if values.shape != (count,):  # broadcast_to is slow; skip it when not needed
+        values = np.broadcast_to(values, (count,))
+    return values.copy()
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,21 +204,100 @@ def save_toolpath(toolpath: Toolpath, path: str | Path) -> None:
 
 
 def load_toolpath(path: str | Path) -> Toolpath:
-    """Read a toolpath written by :func:`save_toolpath`; a bad file is a one-line error."""
+    """Read a toolpath written by :func:`save_toolpath`; a bad file is a one-line error.
+
+    An ``.npz`` is checked from its zip directory and array headers before any array is
+    read (:mod:`fabkit.npzfile`; at most TOOLPATH_MOVES moves, TOOLPATH_VERTICES vertices,
+    TOOLPATH_LAYERS layers); a ``.json`` is at most JSON_BYTES and NESTING_DEPTH deep.
+    Coordinates, widths, speeds and flows must be finite, and every number (channels
+    included) within +-MAGNITUDE. Files of format 1 are read with their one ``parameter``
+    as a channel.
+    """
     path = Path(path)
     if not path.is_file():
         raise FabkitError(f"toolpath file '{path}' does not exist")
+    if path.suffix == ".npz":
+        where = f"{path}: cannot read toolpath file"
+        arrays = read_npz(
+            path,
+            where,
+            text=_TEXT_KEYS,
+            keys=lambda found: _check_keys(found, path),
+            check=lambda headers: _check_headers(headers, path),
+        )
+        return _loaded(path, lambda: _from_arrays(arrays))
+    if path.suffix == ".json":
+        table = read_json(path, "toolpath file")
+        return _loaded(path, lambda: _from_json(table))
+    raise FabkitError(f"toolpath file '{path}': use a .npz or .json suffix")
+
+
+def _loaded(path: Path, build: Callable[[], Toolpath]) -> Toolpath:
+    """``build()``, its errors one line naming ``path``."""
     try:
-        if path.suffix == ".npz":
-            with np.load(path, allow_pickle=False) as data:
-                return _from_arrays({k: data[k] for k in data.files})
-        if path.suffix == ".json":
-            return _from_json(json.loads(path.read_text(encoding="utf-8")))
+        return build()
     except FabkitError as exc:
         raise FabkitError(f"{path}: {exc}") from None
-    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError) as exc:
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as exc:
         raise FabkitError(f"{path}: not a fabkit toolpath ({type(exc).__name__}: {exc})") from None
-    raise FabkitError(f"toolpath file '{path}': use a .npz or .json suffix")
+
+
+_INDEX_KEYS = ("move_start", "move_kind", "move_layer")
+_BASE_KEYS = ("format", "meta", "layer_z", "layer_height", *_INDEX_KEYS, "xyz", *_VERTEX_FIELDS)
+_TEXT_KEYS = ("format", "meta", "channels", "parameter")
+_OLD_KEYS = ("parameter", "value")
+"""Format 1's arrays beyond the base ones: the one encoded parameter and its values."""
+
+
+def _check_keys(found: set[str], path: Path) -> None:
+    """Refuse a file that is not a toolpath from its member names alone: the base arrays,
+    then ``channels`` and one ``channel_<parameter>`` array per channel (format 2), or
+    ``parameter`` and ``value`` (format 1)."""
+    if "format" not in found:
+        raise FabkitError(f"{path}: not a toolpath file of format {FORMAT}")
+    if "channels" in found or "parameter" not in found:  # format 2
+        extra: tuple[str, ...] = ("channels",)
+        named = {key for key in found if key.removeprefix(_CHANNEL_KEY) in PARAMETERS}
+        channel_arrays = {key for key in named if key.startswith(_CHANNEL_KEY)}
+    else:  # format 1
+        extra, channel_arrays = _OLD_KEYS, set()
+    missing = [key for key in (*_BASE_KEYS, *extra) if key not in found]
+    unknown = sorted(found - {*_BASE_KEYS, *extra} - channel_arrays)
+    if missing or unknown:
+        which = f"no '{missing[0]}' array" if missing else f"unknown array '{unknown[0]}'"
+        raise FabkitError(f"{path}: not a toolpath file of format {FORMAT} ({which})")
+
+
+def _check_headers(headers: Mapping[str, ArrayHeader], path: Path) -> None:
+    """Refuse a toolpath .npz from its array headers: index dtypes, shapes, counts."""
+    for key in _INDEX_KEYS:
+        if headers[key].dtype.kind not in "iu":
+            raise FabkitError(f"{path}: '{key}' holds {headers[key].dtype} values, not integers")
+    shapes = {key: header.shape for key, header in headers.items()}
+    # a 0-d array counts -1 items, so that no expected shape matches it
+    layers, moves, vertices = (
+        shapes[key][0] if shapes[key] else -1 for key in ("layer_z", "move_kind", "xyz")
+    )
+    per_vertex = [key for key in shapes if key.startswith(_CHANNEL_KEY) or key == "value"]
+    expected = {
+        "layer_z": (layers,),
+        "layer_height": (layers,),
+        "move_start": (moves + 1,),
+        "move_kind": (moves,),
+        "move_layer": (moves,),
+        "xyz": (vertices, 3),
+        **{name: (vertices,) for name in (*_VERTEX_FIELDS, *per_vertex)},
+    }
+    for key, shape in expected.items():
+        if shapes[key] != shape:
+            raise FabkitError(f"{path}: '{key}' has shape {shapes[key]}, expected {shape}")
+    for count, name, limit in (
+        (layers, "layers", TOOLPATH_LAYERS),
+        (moves, "moves", TOOLPATH_MOVES),
+        (vertices, "vertices", TOOLPATH_VERTICES),
+    ):
+        if count > limit:
+            raise FabkitError(f"{path}: {count} {name}, more than the limit of {limit}")
 
 
 def _to_arrays(toolpath: Toolpath) -> dict[str, np.ndarray]:
@@ -240,22 +324,43 @@ def _to_arrays(toolpath: Toolpath) -> dict[str, np.ndarray]:
 
 
 def _from_arrays(data: Mapping[str, np.ndarray]) -> Toolpath:
-    tag = str(data.get("format", ""))
+    """The toolpath of checked arrays (:func:`_check_headers`); values checked here."""
+    tag = str(data["format"])
     if tag != FORMAT and tag not in OLD_FORMATS:
         raise FabkitError(f"not a toolpath file of format {FORMAT}")
-    if tag == FORMAT:
-        channels = dict(_channel_pairs(json.loads(str(data["channels"]))))
+    if "channels" in data:
+        if tag != FORMAT:
+            raise FabkitError(f"a file of format {tag} holds no channels")
+        channels = dict(_channel_pairs(parse_json(str(data["channels"]), "channels")))
+        present = {key.removeprefix(_CHANNEL_KEY) for key in data if key.startswith(_CHANNEL_KEY)}
+        if present != set(channels):
+            raise FabkitError("the channel arrays do not match the channels listed")
         vertex_channels = {name: data[_CHANNEL_KEY + name] for name in channels}
     else:  # format 1: one parameter, its values in "value"
+        if tag == FORMAT:
+            raise FabkitError("no 'channels' array")
         parameter = str(data["parameter"])
         channels = {parameter: ""} if parameter else {}
         vertex_channels = {parameter: data["value"]} if parameter else {}
-    start, kinds, owners = data["move_start"], data["move_kind"], data["move_layer"]
+    start, kinds, owners = (data[key].astype(np.int64) for key in _INDEX_KEYS)
     n_layers = len(data["layer_z"])
-    if len(start) != len(kinds) + 1 or len(owners) != len(kinds) or start[-1] != len(data["xyz"]):
+    steps = np.diff(start)
+    if len(start) == 0 or start[0] != 0 or start[-1] != len(data["xyz"]) or (steps < 2).any():
         raise FabkitError("move index arrays do not match the vertex arrays")
-    if len(kinds) and (owners.min() < 0 or owners.max() >= n_layers or kinds.max() >= 2):
+    if len(kinds) and (owners.min() < 0 or owners.max() >= n_layers or kinds.min() < 0):
         raise FabkitError("a move refers to a missing layer or an unknown kind")
+    if len(kinds) and kinds.max() >= len(KINDS):
+        raise FabkitError("a move refers to a missing layer or an unknown kind")
+    for key in ("layer_z", "layer_height", "xyz", *_VERTEX_FIELDS):
+        values = data[key].astype(float)
+        if not np.isfinite(values).all():
+            raise FabkitError(f"'{key}' has non-finite values")
+        check_magnitude(values, key)
+    for name, values in vertex_channels.items():
+        check_magnitude(values.astype(float), name)
+    meta = parse_json(str(data["meta"]), "meta")
+    if not isinstance(meta, dict):
+        raise FabkitError("meta: expected a JSON object")
     per_layer: list[list[Move]] = [[] for _ in range(n_layers)]
     for k, (a, b) in enumerate(zip(start[:-1], start[1:], strict=True)):
         fields = {name: data[name][a:b] for name in _VERTEX_FIELDS}
@@ -267,7 +372,7 @@ def _from_arrays(data: Mapping[str, np.ndarray]) -> Toolpath:
         Layer(float(z), float(h), tuple(moves))
         for z, h, moves in zip(data["layer_z"], data["layer_height"], per_layer, strict=True)
     )
-    return Toolpath(layers, channels, json.loads(str(data["meta"])))
+    return Toolpath(layers, channels, meta)
 
 
 def _channel_pairs(pairs: Any) -> list[tuple[str, str]]:
@@ -326,6 +431,9 @@ def _from_json(table: Mapping[str, Any]) -> Toolpath:
             return {name: array(values) for name, values in m["channels"].items()}
         return {name: array(m["value"]) for name in channels}
 
+    count = sum(len(layer["moves"]) for layer in table["layers"])
+    if count > TOOLPATH_MOVES:
+        raise FabkitError(f"{count} moves, more than the limit of {TOOLPATH_MOVES}")
     layers = []
     for layer in table["layers"]:
         moves = tuple(
@@ -338,4 +446,23 @@ def _from_json(table: Mapping[str, Any]) -> Toolpath:
             for m in layer["moves"]
         )
         layers.append(Layer(float(layer["z_mm"]), float(layer["height_mm"]), moves))
-    return Toolpath(tuple(layers), channels, table["meta"])
+    toolpath = Toolpath(tuple(layers), channels, dict(table["meta"]))
+    _check_values(toolpath)
+    return toolpath
+
+
+def _check_values(toolpath: Toolpath) -> None:
+    """Finite widths, speeds and flows, and every number (channels included) within
+    +-MAGNITUDE."""
+    layers = np.array([(layer.z_mm, layer.height_mm) for layer in toolpath.layers], float)
+    if not np.isfinite(layers).all():
+        raise FabkitError("layer heights must be finite")
+    check_magnitude(layers, "layers")
+    for _, move in toolpath.moves():
+        for name in ("xyz", *_VERTEX_FIELDS):
+            values = getattr(move, name)
+            if not np.isfinite(values).all():
+                raise FabkitError(f"'{name}' has non-finite values")
+            check_magnitude(values, name)
+        for name, values in move.channels.items():
+            check_magnitude(values, name)

@@ -178,14 +178,15 @@ def _moves(
             hop = np.vstack([lines[k - 1][-1], line[0]])
             moves.append(Move.make(TRAVEL, hop, z, 0.0, process.travel_speed_mm_s, 0.0, nothing))
         channels = {p: per_line[p][k] for p in parameters}
+        own = {p: channels[p] for p in resolution.parameters}  # this field's channels
         moves.append(
             Move.make(
                 PRINT,
                 line,
                 z,
                 w,
-                channels.get("print_speed_mm_s", speed),
-                channels.get("extrusion_multiplier", 1.0),
+                own.get("print_speed_mm_s", speed),
+                own.get("extrusion_multiplier", 1.0),
                 channels,
             )
         )

@@ -18,20 +18,19 @@ features carry ``"layer": "outline" | "channels" | "inlet"`` in their properties
 
 from __future__ import annotations
 
-import json
-import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import shapely
 import shapely.geometry
 
 from fabkit.errors import FabkitError
 from fabkit.fields import FlatField, field_from_design, load_director_file
 from fabkit.machines import load_machine
+from fabkit.npzfile import npz_keys
 from fabkit.process import Process
+from fabkit.readfile import read_json
 from fabkit.toolpath.model import Toolpath, load_toolpath
 from fabkit.writers.common import FORMATS
 from fabkit.writers.dxf import DEFAULT_INLET_RADIUS_MM, write_dxf
@@ -93,11 +92,7 @@ def read_input(path: Path) -> tuple[str, Any]:
         return "toolpath", load_toolpath(path)
     if path.suffix != ".npz":
         raise FabkitError(f"input '{path}': expected a toolpath or design .npz, or a .toml")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            names = set(data.files)
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise FabkitError(f"{path}: cannot read ({exc})") from None
+    names = npz_keys(path, f"{path}: cannot read")
     if "format" in names:
         return "toolpath", load_toolpath(path)
     if {"valid", "r", "n", "eps"} <= names:
@@ -182,10 +177,10 @@ def _laser(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptio
 
 def load_geometry(path: Path) -> dict[str, shapely.Geometry]:
     """The outline/channels/inlet layers of a GeoJSON FeatureCollection (mm)."""
+    data = read_json(path, "geometry file")
     try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
         features = data["features"] if data.get("type") == "FeatureCollection" else None
-    except (OSError, ValueError, AttributeError, KeyError) as exc:
+    except (AttributeError, KeyError, TypeError) as exc:
         raise FabkitError(f"geometry file '{path}': not GeoJSON ({exc})") from None
     if not isinstance(features, list):
         raise FabkitError(f"geometry file '{path}': expected a GeoJSON FeatureCollection")
