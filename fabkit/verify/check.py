@@ -20,7 +20,6 @@ patch diameter); ``reference`` adds the sheet as designed on the same mesh.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -39,6 +38,7 @@ from fabkit.mechanics.compare import compare
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
 from fabkit.mechanics.simulate import Settings
 from fabkit.process import Encode, Process, Resolution
+from fabkit.readfile import read_json
 from fabkit.spec import spec_from_json
 from fabkit.surfaces.analytic import number
 from fabkit.toolpath.baromorph import load_baromorph
@@ -290,10 +290,7 @@ def _process(options: VerifyOptions, machine: MachineProfile) -> Process:
 def manifest_machine(folder: Path) -> str:
     """The machine a laser pattern folder was written for (its manifest's ``machine``)."""
     path = folder / "manifest.json"
-    try:
-        manifest = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise FabkitError(f"{path}: cannot read a laser manifest ({exc})") from None
+    manifest = read_json(path, "laser manifest")
     name = manifest.get("machine") if isinstance(manifest, dict) else None
     if not isinstance(name, str) or not name:
         raise FabkitError(f"{path}: names no machine; give --machine")

@@ -23,11 +23,14 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from fabkit.errors import FabkitError
+from fabkit.readfile import check_size
 from fabkit.verify.raster import Readback
 from fabkit.verify.read_gcode import Placement
 
 APP_ID = "FABKIT"
 PATHS = "PATHS"
+DXF_BYTES = 256 << 20
+"""Largest DXF verify reads."""
 
 
 def read_dxf(
@@ -36,14 +39,8 @@ def read_dxf(
     """Segments of the drawing's roads (drawing frame, mm): start (n, 2), end (n, 2),
     width (n,) (``road_width_mm`` where a polyline has none), road (n,), values name ->
     (n,), and the placement its header records."""
-    import ezdxf
-    from ezdxf.lldxf.const import DXFError
-
+    document = _document(path)
     path = Path(path)
-    try:
-        document = ezdxf.readfile(path)
-    except (OSError, DXFError, UnicodeDecodeError, ValueError) as exc:
-        raise FabkitError(f"{path}: not a readable DXF ({exc})") from None
     parts: list[tuple[np.ndarray, float, dict[str, np.ndarray]]] = []
     for entity in document.modelspace():
         if entity.dxf.get("layer") != PATHS or entity.dxftype() not in ("LWPOLYLINE", "POLYLINE"):
@@ -82,6 +79,18 @@ def read_dxf(
         {name: np.concatenate(parts_) for name, parts_ in values.items()},
         _placement(document, path),
     )
+
+
+def _document(path: str | Path):
+    """The DXF document at ``path`` (at most DXF_BYTES); one-line errors."""
+    import ezdxf
+    from ezdxf.lldxf.const import DXFError
+
+    check_size(path, "DXF file", DXF_BYTES)
+    try:
+        return ezdxf.readfile(path)
+    except (OSError, DXFError, UnicodeDecodeError, ValueError) as exc:
+        raise FabkitError(f"{path}: not a readable DXF ({exc})") from None
 
 
 def _channels(entity, count: int, path: Path) -> dict[str, np.ndarray]:
@@ -147,14 +156,9 @@ def read_channels(
     Walls take the values of the nearest channel cell within half a ``pitch_mm``; cells
     within ``band_mm`` of the ``OUTLINE`` (the manifold ring along the edge) are not read.
     """
-    import ezdxf
-    from ezdxf.lldxf.const import DXFError
 
+    document = _document(path)
     path = Path(path)
-    try:
-        document = ezdxf.readfile(path)
-    except (OSError, DXFError, UnicodeDecodeError, ValueError) as exc:
-        raise FabkitError(f"{path}: not a readable DXF ({exc})") from None
     rings: dict[str, list[shapely.Polygon]] = {CHANNELS: [], OUTLINE: []}
     for entity in document.modelspace():
         layer = entity.dxf.get("layer")

@@ -17,7 +17,6 @@ covered.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ import numpy as np
 from PIL import Image
 
 from fabkit.errors import FabkitError
+from fabkit.readfile import read_json
 from fabkit.verify.raster import Readback
 from fabkit.verify.read_gcode import Placement
 
@@ -33,6 +33,9 @@ FORMATS = ("fabkit-laser-manifest/1", "fabkit-laser-manifest/2")
 MAX_SIDE = 600
 """Cells along the longer side of a laser read-back."""
 MAX_PIXELS = 100_000_000
+"""Most pixels of a laser pattern verify reads."""
+MAX_MASKS = 10_000
+"""Most exposure masks of a laser pattern verify reads."""
 
 
 def read_laser(folder: str | Path) -> tuple[Readback, Placement, dict[str, Any]]:
@@ -41,7 +44,7 @@ def read_laser(folder: str | Path) -> tuple[Readback, Placement, dict[str, Any]]
     folder = Path(folder)
     manifest = _manifest(folder)
     width, height = _pair(manifest, "image_size_px", int)
-    if width * height > MAX_PIXELS:
+    if not (width > 0 and height > 0) or width * height > MAX_PIXELS:
         raise FabkitError(f"{folder}: {width} x {height} pixels is more than verify reads")
     pitch = _number(manifest, "pixel_pitch_mm")
     hits = np.zeros((height, width), dtype=np.int32)
@@ -50,6 +53,8 @@ def read_laser(folder: str | Path) -> tuple[Readback, Placement, dict[str, Any]]
     dose = np.zeros((height, width))
     p0 = _number(manifest, "input_polarisation_deg", positive=False)
     turn = 90.0 if manifest.get("director_relation") == "perpendicular" else 0.0
+    if len(_list(manifest, "exposures")) + len(manifest.get("cure_exposures") or []) > MAX_MASKS:
+        raise FabkitError(f"{folder}/manifest.json: more than {MAX_MASKS} exposures")
     for exposure in _list(manifest, "exposures"):
         mask = _mask(folder, exposure, (height, width))
         plate = _number(exposure, "half_wave_plate_deg", positive=False)
@@ -119,10 +124,7 @@ def _manifest(folder: Path) -> dict[str, Any]:
     path = folder / "manifest.json"
     if not path.is_file():
         raise FabkitError(f"{folder}: no manifest.json (not a laser pattern folder)")
-    try:
-        manifest = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise FabkitError(f"{path}: not valid JSON ({exc})") from None
+    manifest = read_json(path, "laser manifest")
     if not isinstance(manifest, dict) or manifest.get("format") not in FORMATS:
         raise FabkitError(f"{path}: not a fabkit laser manifest ({', '.join(FORMATS)})")
     return manifest
@@ -135,11 +137,11 @@ def _mask(folder: Path, exposure: dict[str, Any], shape: tuple[int, int]) -> np.
     path = folder / name
     try:
         with Image.open(path) as image:
+            if image.size != shape[::-1]:  # checked before the pixels are decoded
+                raise FabkitError(f"{path}: the mask is {image.size} pixels, not {shape[::-1]}")
             mask = np.asarray(image.convert("L")) > 0
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, Image.DecompressionBombError) as exc:
         raise FabkitError(f"{path}: cannot read the mask ({exc})") from None
-    if mask.shape != shape:
-        raise FabkitError(f"{path}: the mask is {mask.shape[::-1]} pixels, not {shape[::-1]}")
     return mask
 
 
