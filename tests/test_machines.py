@@ -151,8 +151,8 @@ DIW = (MACHINES_DIR / "marlin_diw_pneumatic.toml").read_text()
             "parameter = 'dose_mj_cm2' is not one of",
         ),
         (
-            "value = [0.0, 0.22, 0.47, 0.74, 1.0]",
-            "value = [0, 0.2, 0.5, 0.7, 1.2]",
+            "value = [0.0, 0.3, 0.65, 1.0]",
+            "value = [0, 0.3, 0.6, 1.2]",
             "in \\[0, 1\\]",
         ),
     ],
