@@ -225,8 +225,9 @@ class LaserOptics:
     width; ``relation``: the aligned director lies perpendicular (azo dyes such as SD1) or
     parallel to the polarisation; ``input_polarisation_deg``: the polarisation entering
     the half-wave plate, degrees from +x in [0, 180); ``intensity_mw_cm2`` (exposure
-    times) and ``max_power_mw`` (scan power limit), None = unknown; ``dose_levels``: dose
-    levels of the exposures (None = the writer's default).
+    times) and ``max_power_mw`` (scan power limit), None = unknown; ``dose_levels`` and
+    ``bins``: dose levels and director angle bins of the exposures (None = the writer's
+    defaults).
     """
 
     pixel_pitch_mm: float | None = None
@@ -235,6 +236,7 @@ class LaserOptics:
     intensity_mw_cm2: float | None = None
     max_power_mw: float | None = None
     dose_levels: int | None = None
+    bins: int | None = None
 
 
 @dataclass(frozen=True)
@@ -741,6 +743,7 @@ def _laser(t: _Table) -> LaserOptics:
         intensity_mw_cm2=t.optional("intensity_mw_cm2", _positive(t), None),
         max_power_mw=t.optional("max_power_mw", _positive(t), None),
         dose_levels=t.optional("dose_levels", t.integer, None),
+        bins=t.optional("bins", t.integer, None),
     )
     t.finish()
     if not out.input_polarisation_deg < 180:

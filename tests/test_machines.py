@@ -112,7 +112,7 @@ def test_laser_writer_reads_its_light_table():
         ("dose_mj_cm2",),
         ("cure_dose_mj_cm2",),
     ]
-    assert laser.laser.dose_levels == 24
+    assert laser.laser.dose_levels == 24 and laser.laser.bins == 90
 
 
 def test_the_default_diw_profile_encodes_two_features_with_two_inks_and_a_pressure():

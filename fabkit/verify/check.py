@@ -111,6 +111,7 @@ class TargetDistance:
     seconds: float
     designed_rms_pct: float | None = None
     designed_max_pct: float | None = None
+    designed_converged: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -167,17 +168,19 @@ class Verification:
                 f"% of its range {f.design_range:.4g} ({f.cells} cells)"
             )
         for t in self.targets:
-            designed = (
-                f"; as designed RMS {t.designed_rms_pct:.2f} %, max {t.designed_max_pct:.2f} %"
-                if t.designed_rms_pct is not None
-                else ""
-            )
             mirror = " (mirror image)" if t.mirrored else ""
-            lines.append(
+            moving = "" if t.converged else " (not converged)"
+            line = (
                 f"  as fabricated vs {t.target}: RMS {t.rms_pct:.2f} %, max {t.max_pct:.2f} % "
-                f"of the patch diameter{mirror}{designed}"
-                + ("" if t.converged else " (not converged)")
+                f"of the patch diameter{mirror}{moving}"
             )
+            if t.designed_rms_pct is not None:
+                moving = "" if t.designed_converged else " (not converged)"
+                line += (
+                    f"; as designed RMS {t.designed_rms_pct:.2f} %, max "
+                    f"{t.designed_max_pct:.2f} %{moving}"
+                )
+            lines.append(line)
         lines += [f"  note: {note}" for note in self.notes]
         lines.append(f"  {self.seconds:.1f} s")
         return "\n".join(lines)
@@ -585,6 +588,7 @@ def _simulate(
                 seconds=seconds,
                 designed_rms_pct=100 * designed.rms if designed else None,
                 designed_max_pct=100 * designed.max if designed else None,
+                designed_converged=designed.converged if designed else None,
             )
         )
     return tuple(out)

@@ -230,6 +230,7 @@ class LaserSettings:
             "max_power_mw": optics.max_power_mw,
             "scan_speed_mm_s": machine.process.print_speed_mm_s,
             "dose_levels": optics.dose_levels or DEFAULT_DOSE_LEVELS,
+            "bins": optics.bins or DEFAULT_BINS,
             "process": machine.process,
         }
         values.update({k: v for k, v in overrides.items() if v is not None})
