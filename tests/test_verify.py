@@ -341,7 +341,7 @@ def test_an_ignored_feature_is_the_reports_first_line(run_cli, tmp_path):
     spec = ROOT / "examples" / "three_shapes.toml"
     code, text, err = run_cli(
         "run", spec, "--out", out, "--ignore-feature", "eps2",
-        "--step", "0.1", "--diagonals", "30", "--size", "30",
+        "--step", "0.1", "--diagonals", "30", "--size", "20",
     )  # fmt: skip
     assert code == 0, err
     assert text.splitlines()[0].strip().startswith("NOT ENCODED: feature eps2 left out")
