@@ -43,7 +43,7 @@ from fabkit.plot.report import html_report
 from fabkit.spec import Spec, load_spec
 from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
-from fabkit.toolpath.process import load_process
+from fabkit.toolpath.process import load_process, resolve_channels
 from fabkit.writers.dxf import layout_layers, write_dxf
 from fabkit.writers.export import ExportOptions, export
 
@@ -181,7 +181,7 @@ def _check_inputs(options: RunOptions) -> Spec:
         )
     if not options.baromorph:
         process = load_process(options.process_file) if options.process_file else machine.process
-        process.resolve(spec.material.features, options.ignore_features)
+        resolve_channels(process, spec.material.features, options.ignore_features)
     elif options.ignore_features:
         raise FabkitError("--ignore-feature: a baromorph run encodes one feature as the width")
     spans = [hi - lo for lo, hi in (machine.envelope.x_mm, machine.envelope.y_mm)]

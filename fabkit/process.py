@@ -497,11 +497,14 @@ class Process:
         """A copy whose every table clips eps to its range instead of refusing."""
         return replace(self, encodes=tuple(e.with_clip() for e in self.encodes))
 
-    def resolve(self, features: Sequence[str], ignore: Sequence[str] = ()) -> Resolution:
+    def resolve(
+        self, features: Sequence[str], ignore: Sequence[str] = (), hint: str = ""
+    ) -> Resolution:
         """The channels for a design with ``features``, leaving ``ignore`` out.
 
         Raises a one-line error for an ignored name that is not a feature, a feature or a
-        parameter encoded twice, and a feature no channel encodes (naming every one).
+        parameter encoded twice, and a feature no channel encodes (naming every one, and
+        ending with ``hint``, e.g. the machines that could).
         """
         features = tuple(features)
         for name in ignore:
@@ -527,7 +530,7 @@ class Process:
         encoded = {name for channel in channels for name in channel.features}
         missing = [name for name in features if name not in encoded and name not in ignore]
         if missing:
-            raise FabkitError(missing_message(self, missing, channels))
+            raise FabkitError(missing_message(self, missing, channels) + hint)
         return Resolution(tuple(channels), tuple(unused), tuple(ignore))
 
 

@@ -51,6 +51,7 @@ CASES = [
         "run {spec} --out {out} --machine klipper_generic",
         "encodes no channel for feature",
         "machine klipper_generic",
+        "machines whose process encodes every feature: ",
         id="features-run-machine-without-channels",
     ),
     case(

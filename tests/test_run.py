@@ -79,10 +79,13 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
         out,
         "--baromorph",
         EXAMPLES / "baromorph_channels.toml",
-        "--no-verify",
     )
     assert code == 0, err
-    assert json.loads((out / "report.json").read_text())["verify"] is None
+    verified = json.loads((out / "report.json").read_text())["verify"]
+    assert verified["kind"] == "channels"  # read back by the channels' widths and directions
+    (width,) = verified["features"]
+    assert width["channel"] == "channel_width_mm" and width["rms_pct"] < 3.0
+    assert verified["director_mean_deg"] < 4.0
     channels = json.loads((out / "report.json").read_text())["channels"]
     assert channels["valid"] and channels["connected"]
     assert channels["max_width_error"] <= 0.01 and channels["min_wall_mm"] >= 0.6

@@ -137,6 +137,20 @@ def test_gcode_round_trip(tmp_path, base, edits, parameters):
         assert np.ptp(wanted) > 5 * TOLERANCE[name]  # the channel really varies
 
 
+def test_flow_without_an_e_axis_is_read_from_the_feed(tmp_path):
+    """A pneumatic machine writes the multiplier f as the feed speed / f: read back as the
+    nominal speed over the feed."""
+    machine = load_machine("marlin_diw_pneumatic")
+    process = _process(("extrusion_multiplier", "pressure_kpa"))
+    toolpath = plan_toolpath([_field()], process, PlanSettings()).toolpath
+    summary = write_gcode(toolpath, machine, tmp_path / "sheet.gcode")
+    printed = read_gcode(tmp_path / "sheet.gcode", machine)
+    points, wanted = _vertex_values(toolpath, "extrusion_multiplier")
+    _, nearest = cKDTree(points).query(printed.end[:, :2] - np.array(summary.offset_mm[:2]))
+    flow = process.print_speed_mm_s / printed.feed
+    np.testing.assert_allclose(flow, wanted[nearest], rtol=2e-4)
+
+
 def test_alternating_inks_make_the_encoded_share(tmp_path):
     machine = load_machine("marlin_diw_pneumatic")
     toolpath = _plan(("print_speed_mm_s", "ink_fraction"), road_width=0.41)

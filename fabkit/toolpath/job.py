@@ -46,7 +46,7 @@ from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.mould import POLARITY, mould_mesh, save_mould
 from fabkit.toolpath.plan import Plan, PlanSettings, plan_toolpath
 from fabkit.toolpath.preview import save_channel_preview, save_preview
-from fabkit.toolpath.process import load_process, machine_process
+from fabkit.toolpath.process import load_process, machine_process, resolve_channels
 
 
 @dataclass(frozen=True)
@@ -89,6 +89,10 @@ def run_job(job: ToolpathJob) -> JobResult:
     check_folder(job.out, f"--out {job.out}")
     fields = load_fields(job)
     process = job_process(job)
+    if job.encode:
+        for flat in fields:  # a feature without a channel is refused before planning
+            ignore = tuple(name for name in job.ignore_features if name in flat.names)
+            resolve_channels(process, flat.names, ignore)
     _check_extent(fields, process.road_width_mm, job.layers)
     settings = PlanSettings(
         layers=job.layers,

@@ -28,8 +28,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from fabkit.errors import FabkitError
-from fabkit.machines import load_machine, parse_process
-from fabkit.process import Process
+from fabkit.machines import list_machines, load_machine, parse_process
+from fabkit.process import Process, Resolution
 from fabkit.tomlfile import read_toml
 
 DEFAULT_MACHINE = "marlin_diw_pneumatic"
@@ -49,3 +49,25 @@ def load_process(path: str | Path) -> Process:
     if "process" not in table:
         raise FabkitError(f"{path}: missing table [process]")
     return parse_process(table["process"], path)
+
+
+def resolve_channels(
+    process: Process, features: tuple[str, ...], ignore: tuple[str, ...] = ()
+) -> Resolution:
+    """``process.resolve``, whose refusal of a feature without a channel also names the
+    shipped machines whose own process encodes every feature (when the process is a
+    machine's)."""
+    hint = ""
+    if process.source.startswith("machine "):
+        able = [m.name for m in list_machines() if _encodes_all(m.process, features, ignore)]
+        if able:
+            hint = f"; machines whose process encodes every feature: {', '.join(able)}"
+    return process.resolve(features, ignore, hint)
+
+
+def _encodes_all(process: Process, features: tuple[str, ...], ignore: tuple[str, ...]) -> bool:
+    try:
+        process.resolve(features, ignore)
+    except FabkitError:
+        return False
+    return True
