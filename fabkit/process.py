@@ -32,9 +32,6 @@ from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
-import shapely
-from scipy.interpolate import PchipInterpolator
-from scipy.spatial import cKDTree
 
 from fabkit.errors import FabkitError
 
@@ -133,7 +130,11 @@ class Calibration:
         return min(self.value), max(self.value)
 
     @cached_property
-    def _curve(self) -> PchipInterpolator:
+    def _curve(self):
+        """The PCHIP interpolant of the table (scipy imported here: machine profiles are
+        read by every command, most of which never encode)."""
+        from scipy.interpolate import PchipInterpolator
+
         return PchipInterpolator(np.asarray(self.eps), np.asarray(self.value))
 
     @cached_property
@@ -240,6 +241,8 @@ class JointCalibration:
                 f"{second[j]:g} (the map folds there); measure a grid on which every "
                 "parameter pair gives its own eps pair"
             )
+        import shapely
+
         ring = np.concatenate([eps[:, 0], eps[-1, 1:], eps[-2::-1, -1], eps[0, -2:0:-1]])
         if not shapely.LinearRing(ring).is_simple:
             raise FabkitError(
@@ -324,6 +327,8 @@ class JointCalibration:
         table = np.array(edges)
         cells = table[:, :2].astype(int)
         points = _bilinear(eps, cells[:, 0], cells[:, 1], table[:, 2], table[:, 3])
+        from scipy.spatial import cKDTree
+
         _, nearest = cKDTree(points).query(target)
         return table[nearest, 2:], cells[nearest]
 
