@@ -11,7 +11,7 @@ from fabkit.link.send import stream_job
 from fabkit.link.session import LinkOptions, SendReport
 from fabkit.machines import load_machine
 
-HOUSEKEEPING = ("M110 N0", "M105")  # lines the Marlin sender adds (handshake, probes)
+HOUSEKEEPING = ("M110 N0", "M115", "M105", "M114")  # lines the Marlin sender adds
 
 
 def marlin_job(n: int, seed: int = 1) -> list[Command]:
@@ -40,6 +40,19 @@ def grbl_job(n: int, seed: int = 1) -> list[Command]:
 def executed(emulator: Emulator) -> list[str]:
     """The executed job commands, in order (the sender's own M110/M105 left out)."""
     return [e.command for e in emulator.trace if e.command not in HOUSEKEEPING]
+
+
+def runs_the_file(emulator: Emulator, job: list[Command]) -> bool:
+    """The trace is the file, command for command, nothing lost or repeated.
+
+    The one allowed difference is not the link's: Repetier, Smoothieware and
+    RepRapFirmware without ``M575 P0 S1`` run a numbered line that arrives without a
+    checksum, so a corrupted ``*`` or a ``;`` made of another byte lets a damaged line
+    run; the emulator marks those lines unchecked."""
+    trace = [e for e in emulator.trace if e.command not in HOUSEKEEPING]
+    return len(trace) == len(job) and all(
+        e.command == c.text or not e.checked for e, c in zip(trace, job, strict=True)
+    )
 
 
 def numbers_are_contiguous(emulator: Emulator) -> bool:

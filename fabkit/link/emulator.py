@@ -15,7 +15,10 @@ time_scale         factor on move, dwell and heating times (default 1; 0 = insta
 latency_ms         extra one-way delay, e.g. a USB adapter (default 0)
 rx                 receive buffer bytes (default 128; one stays empty: 127 usable)
 planner            planner blocks (default 16); slots: Marlin command queue (4)
-resend_ok, drain   Marlin variant, 0/1 each (default 1, 1 = Marlin 2.1.x)
+dialect            Marlin-protocol firmware: marlin-2.1 (default), marlin-2.0,
+                   marlin-1.1, prusa, repetier, smoothieware, reprapfirmware
+                   (:mod:`fabkit.link.sim_dialects`)
+resend_ok, drain   override the dialect: ok after a resend request, drain on error (0/1)
 keepalive_s        Marlin busy: interval (default 2); heat_tau_s heater constant (20)
 corrupt            probability that a host line gets one bit flipped on the way
 drop_ok            probability that an ``ok`` is lost
@@ -41,6 +44,7 @@ import tty
 from dataclasses import replace
 from urllib.parse import parse_qs, urlsplit
 
+from fabkit.link.sim_dialects import DIALECTS
 from fabkit.link.sim_grbl import REALTIME, GrblFirmware
 from fabkit.link.sim_machine import (
     INF,
@@ -78,6 +82,12 @@ def _count(text: str) -> int:
     return value
 
 
+def _dialect(text: str) -> str:
+    if text not in DIALECTS:
+        raise ValueError(f"must be one of {', '.join(DIALECTS)}")
+    return text
+
+
 def _flag(text: str) -> bool:
     if text not in ("0", "1"):
         raise ValueError("must be 0 or 1")
@@ -91,6 +101,7 @@ _OPTIONS = {
     "rx": ("rx_buffer_bytes", _count),
     "planner": ("planner_depth", _count),
     "slots": ("command_slots", _count),
+    "dialect": ("dialect", _dialect),
     "resend_ok": ("resend_ok", _flag),
     "drain": ("drain", _flag),
     "keepalive_s": ("keepalive_s", _non_negative),
@@ -153,7 +164,7 @@ class Emulator:
         self.output = Output(
             byte_s,
             config.latency_s,
-            firmware_class.eol,
+            GrblFirmware.eol if grbl else MarlinFirmware.eol_for(config),
             config.faults,
             self.rng,
             self.counters,

@@ -23,7 +23,9 @@ class TraceEntry:
     ``n`` is the Marlin line number (None for unnumbered lines and GRBL), ``command``
     the text as parsed (line number and checksum removed); the position (mm) is the
     logical tool position after the command, as the firmware would report it;
-    ``t_s`` is the emulator time at which it was executed.
+    ``t_s`` is the emulator time at which it was executed; ``checked``: False for a
+    numbered line the firmware ran without a checksum (Repetier, Smoothieware and
+    RepRapFirmware accept one, so a corrupted ``*`` or ``;`` lets a damaged line run).
     """
 
     n: int | None
@@ -33,6 +35,7 @@ class TraceEntry:
     z_mm: float
     e_mm: float
     t_s: float
+    checked: bool = True
 
 
 @dataclass
@@ -48,6 +51,7 @@ class Counters:
     drained_bytes: int = 0
     overflow_bytes: int = 0
     unknown_commands: int = 0
+    unchecked_lines: int = 0  # numbered lines run without a checksum (a corrupted '*')
     max_rx_bytes: int = 0
     resets: int = 0
 
@@ -403,10 +407,10 @@ class EmulatorConfig:
     """Everything that defines one emulated machine (see ``docs/link.md`` for the URL).
 
     ``baud`` sets the byte timing (10 bits per byte; 0 = instantaneous). ``time_scale``
-    multiplies move, dwell and heating times (0 = instantaneous). ``resend_ok`` and
-    ``drain`` select the Marlin variant: 2.1.x sends ``ok`` after ``Resend:`` and empties
-    its receive buffer on a line error (the defaults); 2.0.x drains without ``ok``;
-    1.1.x sends ``ok`` without draining.
+    multiplies move, dwell and heating times (0 = instantaneous). ``dialect`` names the
+    Marlin-protocol firmware (:data:`fabkit.link.sim_dialects.DIALECTS`); ``resend_ok``
+    and ``drain``, when not None, override whether it sends ``ok`` after a resend
+    request and empties its receive buffer on a line error.
     """
 
     personality: str = "marlin"
@@ -416,8 +420,9 @@ class EmulatorConfig:
     rx_buffer_bytes: int = 128
     planner_depth: int = 16
     command_slots: int = 4
-    resend_ok: bool = True
-    drain: bool = True
+    dialect: str = "marlin-2.1"
+    resend_ok: bool | None = None
+    drain: bool | None = None
     keepalive_s: float = 2.0
     heater_tau_s: float = 20.0
     rapid_mm_s: float = 50.0
