@@ -53,8 +53,10 @@ Silence
     With lines in flight and no answer for a while (adapting to the recent pace), a
     numbered M105 probes the machine. After ``assume_idle_s`` the ring is assumed empty;
     no answer at all for ``dead_s`` (``wait_dead_s`` while a heat-up, homing or dwell is
-    in flight) is a lost connection. ``busy:`` and temperature reports count as answers;
-    ``wait`` (an idle firmware whose ``ok`` may be lost) triggers a probe.
+    in flight) is a lost connection. ``busy:`` and temperature reports count as answers
+    (a firmware that sends ``busy:`` is probed only after a silence of 1.5 of its
+    ``busy:`` intervals); ``wait`` (an idle firmware whose ``ok`` may be lost) triggers a
+    probe.
 """
 
 from __future__ import annotations
@@ -76,10 +78,10 @@ _PROBE = "M105"
 _HANDSHAKE = ("M110 N0", "M115", _PROBE)
 PROBE_LINE, SAFE_STOP, HOUSEKEEPING, DROPPED = -1, -2, -3, -4  # job_index of other lines
 DRAINING_MAX_LINES = 2
-SYNC_EVERY = 20  # most job lines between probes on draining firmwares at first
-SYNC_EVERY_MAX = 200  # ... and after many probes that found no lost answer
-REGROW_LINES = 200  # clean lines before a byte window shrunk by an overflow grows again
-SUSPECT_LINES = 40  # two line errors this close together suggest an overflow
+SYNC_EVERY = 200  # most job lines between probes on draining firmwares at first
+SYNC_EVERY_MAX = 800  # ... after probes that found no lost answer (each costs a line)
+SYNC_EVERY_MIN = 10  # ... after probes that did
+REGROW_LINES = 500  # clean lines before a byte window shrunk by an overflow grows again
 
 
 class MarlinProtocol(Session):
@@ -104,7 +106,6 @@ class MarlinProtocol(Session):
         self.byte_cap = self.job_window
         self.regrow_after = REGROW_LINES
         self.clean_lines = 0
-        self.last_suspect: int | None = None
         self.max_lines = self.options.window_lines or self.serial.planner_depth
         self.texts: list[str] = list(_HANDSHAKE)
         self.job_index: list[int] = [HOUSEKEEPING, HOUSEKEEPING, PROBE_LINE]
@@ -138,6 +139,8 @@ class MarlinProtocol(Session):
         self.ok_gap_s = 0.05
         self.last_ok_s = time.monotonic()
         self.last_probe_s = 0.0
+        self.last_busy_s = -1e9
+        self.busy_gap_s: float | None = None  # the firmware's busy: interval, once seen
         self.heating_note = ""
 
     # -- public ----------------------------------------------------------------------------
@@ -351,6 +354,12 @@ class MarlinProtocol(Session):
             if " W:" in line or any(code_of(e[3]) in ("M109", "M190") for e in self.inflight):
                 self.heating_note = "heating " + line.strip().split(" W:")[0]
                 self.show(self.done_lines, self.heating_note)
+        elif kind == dialects.BUSY:  # its pace: a silence shorter than that is a busy command
+            now = time.monotonic()
+            gap = now - self.last_busy_s
+            if gap < 10.0:
+                self.busy_gap_s = gap if self.busy_gap_s is None else min(self.busy_gap_s, gap)
+            self.last_busy_s = now
         elif kind == dialects.OTHER and self.inflight:
             self.probes += 1  # perhaps a garbled answer: find out now, before another
             self._queue_probe()
@@ -465,7 +474,9 @@ class MarlinProtocol(Session):
         # answers were lost: probe more often (on draining firmwares), else less often
         lost = bound > self.answers
         self.sync_every = (
-            max(5, self.sync_every // 2) if lost else min(SYNC_EVERY_MAX, 2 * self.sync_every)
+            max(SYNC_EVERY_MIN, self.sync_every // 2)
+            if lost
+            else min(SYNC_EVERY_MAX, 2 * self.sync_every)
         )
         self.answers = max(self.answers, bound)
         # a line sent after the last resend request: that request's ok (if any) came already
@@ -566,19 +577,16 @@ class MarlinProtocol(Session):
         return len(copies) == 1 and (self.checksum_error or self.inflight[0][0] == x)
 
     def _suspect_overflow(self, x: int) -> None:
-        """Two rejected lines, each sent behind others, within ``SUSPECT_LINES`` lines: the
-        receive buffer may be smaller than the profile says (a lone error is more likely
-        a corrupted byte), so shrink the window below what was unanswered then; it grows
-        back after ``regrow_after`` clean lines, later each time it had to shrink."""
+        """A line rejected while others were unanswered before it: the receive buffer may
+        be smaller than the profile says (bytes that do not fit are lost, the line
+        garbled), so the byte window shrinks below what was unanswered then. It grows
+        back after ``regrow_after`` clean lines, which doubles each time it shrinks: a
+        buffer that really is smaller costs a few resends, a corrupted byte little."""
         entry = next((e for e in reversed(self.inflight) if e[0] == x), None)
         if entry is None or entry[4] <= entry[1]:
             return
-        recent = self.last_suspect is not None and x - self.last_suspect < SUSPECT_LINES
-        self.last_suspect = x
-        if not recent:
-            return
         self.byte_cap = max(self.longest_frame, min(self.byte_cap, entry[4] * 3 // 4))
-        self.regrow_after = min(8 * REGROW_LINES, 2 * self.regrow_after)
+        self.regrow_after = min(16 * REGROW_LINES, 2 * self.regrow_after)
         self.clean_lines = 0
 
     # -- silence ---------------------------------------------------------------------------
@@ -595,6 +603,8 @@ class MarlinProtocol(Session):
         probe_after = min(max(8 * self.ok_gap_s, options.probe_min_s), options.probe_max_s)
         if waiting:  # heat-ups report every 1 s, busy: comes every 2 s
             probe_after = max(probe_after, WAIT_PROBE_S)
+        if self.busy_gap_s is not None:  # a firmware that says busy: would have said so
+            probe_after = max(probe_after, 1.5 * self.busy_gap_s)
         quiet = now - max(self.last_rx_s, self.last_tx_s)
         if quiet < probe_after or now - self.last_probe_s < probe_after:
             return
