@@ -21,10 +21,10 @@ for the send-ahead (``benchmarks/link_throughput.py`` prints the ratios).
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import re
 import select
-import multiprocessing
 import time
 import tty
 from collections import deque
