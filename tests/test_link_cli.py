@@ -34,7 +34,10 @@ def test_send_streams_and_reports(tmp_path, capsys):
     path = marlin_file(tmp_path)
     assert main(["send", path, "--port", f"{SIM}&corrupt=0.01&seed=1"]) == 0
     captured = capsys.readouterr()
-    assert re.match(r"sent 305 lines \(file lines 2-306\) to sim://marlin", captured.out)
+    lines = captured.out.splitlines()
+    assert lines[0].startswith("machine marlin_generic (the default:")
+    assert lines[1].startswith("estimated duration: ")
+    assert re.match(r"sent 305 lines \(file lines 2-306\) to sim://marlin", lines[2])
     assert "100.0%  305/305 lines" in captured.err  # the progress bar is on stderr
 
 

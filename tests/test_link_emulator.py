@@ -148,7 +148,8 @@ def test_grbl_answers_ok_error_and_status():
     assert talk(g, b"G1 X1\n") == ["error:22"]  # no feed rate yet
     assert talk(g, b"G1 X1 F600\nM99\n") == ["ok", "error:20"]
     assert talk(g, b"G0 X5\r\n") == ["ok", "ok"]  # \r and \n each end a line
-    assert talk(g, b"?")[0].startswith("<Idle|MPos:5.000,0.000,0.000|Bf:16,127")
+    # grbl/report.c: Bf is free planner blocks (BLOCK_BUFFER_SIZE - 1 of 16) and rx bytes (128)
+    assert talk(g, b"?")[0].startswith("<Idle|MPos:5.000,0.000,0.000|Bf:15,128")
     assert [e.command for e in g.trace] == ["G1 X1 F600", "G0 X5"]
 
 

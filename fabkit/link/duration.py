@@ -93,6 +93,24 @@ class Estimate:
             return self.total_s
         return self.total_s - self.end_s[min(done, len(self.end_s)) - 1]
 
+    def stopped_in(
+        self, point: tuple[float, float, float], last: int, window: int, tol_mm: float = 0.05
+    ) -> int | None:
+        """The first command the machine had not finished when it stopped at ``point``
+        (X, Y, Z, mm), looking at the moves among the ``window`` commands up to index
+        ``last`` (the planner holds at most that many): the move whose path passes through
+        the point (the next one if the point is its end), the earliest if several do;
+        None if none does."""
+        for index in range(max(0, last - window), last + 1):
+            start = self.positions[index - 1][:3] if index > 0 else (None,) * 3
+            end = self.positions[index][:3]
+            if None in start or None in end or start == end:
+                continue
+            if _off_segment(point, start, end) <= tol_mm:
+                at_end = math.dist(point, end) <= tol_mm
+                return index + 1 if at_end else index
+        return None
+
     def summary(self) -> str:
         """One line for the user."""
         text = f"estimated duration: {clock(self.total_s)} (moves and dwells"
@@ -100,6 +118,15 @@ class Estimate:
             kinds = ", ".join(sorted(set(self.waits)))
             text += f"; not counted: {len(self.waits)} waits for {kinds}"
         return text + ")"
+
+
+def _off_segment(point: Sequence[float], start: Sequence[float], end: Sequence[float]) -> float:
+    """The distance (mm) from ``point`` to the segment ``start``-``end``."""
+    d = [b - a for a, b in zip(start, end, strict=True)]
+    length2 = sum(c * c for c in d)
+    along = sum((p - a) * c for p, a, c in zip(point, start, d, strict=True)) / length2
+    along = min(1.0, max(0.0, along))
+    return math.dist(point, [a + along * c for a, c in zip(start, d, strict=True)])
 
 
 def clock(seconds: float) -> str:
@@ -200,7 +227,7 @@ def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
     for segment in segments:
         _plan(segment, kinematics)
         exits = [block.entry for block in segment[1:]] + [0.0]
-        for block, exit_speed in zip(segment, exits, strict=True):
+        for block, exit_speed in zip(segment, exits, strict=False):
             finish[block.index] += trapezoid_time(
                 block.length, block.entry, exit_speed, block.nominal, block.accel
             )

@@ -26,6 +26,10 @@ garble             probability that a machine line gets one bit flipped
 noise              probability of a spurious line before a machine line
 reset_after        the machine resets after executing this many commands
 disconnect_after   the line goes dead after this many commands (their ok delivered)
+accel, z_accel,    planner accelerations, mm/s^2: X/Y, Z, E (default 0: none, every
+e_accel, jd        move at its feed; Z and E default to X/Y's) and junction deviation,
+                   mm (0.013)
+bf, opt            GRBL: Bf: in status reports, buffer sizes in $I (0/1, default 1)
 seed               random seed of the faults (default 0)
 =================  ===================================================================
 """
@@ -106,6 +110,12 @@ _OPTIONS = {
     "drain": ("drain", _flag),
     "keepalive_s": ("keepalive_s", _non_negative),
     "heat_tau_s": ("heater_tau_s", _non_negative),
+    "accel": ("accel_mm_s2", _non_negative),
+    "z_accel": ("z_accel_mm_s2", _non_negative),
+    "e_accel": ("e_accel_mm_s2", _non_negative),
+    "jd": ("junction_deviation_mm", _non_negative),
+    "bf": ("grbl_bf", _flag),
+    "opt": ("grbl_opt", _flag),
     "seed": ("seed", int),
 }
 _FAULT_OPTIONS = {

@@ -75,6 +75,7 @@ WAIT_CODES = frozenset({"M109", "M190", "G28", "G29", "G4", "M400", "M0", "M1", 
 WAIT_PROBE_S = 2.5  # longer than Marlin's default busy: interval
 ERROR_GRACE_S = 0.5  # an unknown Error: is fatal unless a resend request follows by then
 _PROBE = "M105"
+_WHERE = "M114"
 _HANDSHAKE = ("M110 N0", "M115", _PROBE)
 PROBE_LINE, SAFE_STOP, HOUSEKEEPING, DROPPED = -1, -2, -3, -4  # job_index of other lines
 DRAINING_MAX_LINES = 2
@@ -142,6 +143,7 @@ class MarlinProtocol(Session):
         self.last_busy_s = -1e9
         self.busy_gap_s: float | None = None  # the firmware's busy: interval, once seen
         self.heating_note = ""
+        self.stop_point: tuple[float, float, float] | None = None
 
     # -- public ----------------------------------------------------------------------------
 
@@ -155,7 +157,8 @@ class MarlinProtocol(Session):
         self.show(self.done_lines, force=True)
         if self.aborting:
             stopped = "safe-stop sent" if not self.tail else "safe-stop not confirmed"
-            raise self.aborted_error(self.done_lines, stopped)
+            sent = [i for n, i in enumerate(self.job_index) if i >= 0 and n <= self.highest_sent]
+            raise self.stopped_error(stopped, self.stop_point, max(sent, default=-1))
         return self.report()
 
     def _stream(self) -> None:
@@ -313,8 +316,13 @@ class MarlinProtocol(Session):
         return self.executed >= last
 
     def _begin_abort(self) -> None:
+        """The safe-stop snippet follows the lines in flight, with an ``M114`` after its
+        ``M410`` (which drops the planned moves): where the tool stopped says which line
+        to resume from."""
         self.aborting = True
         self.tail = self.machine.render("safe_stop_gcode")
+        at = next((i + 1 for i, text in enumerate(self.tail) if code_of(text) == "M410"), 0)
+        self.tail.insert(at, _WHERE)
         self.warnings.append("aborted by the user: safe-stop snippet sent")
 
     # -- answers ---------------------------------------------------------------------------
@@ -360,6 +368,10 @@ class MarlinProtocol(Session):
             if gap < 10.0:
                 self.busy_gap_s = gap if self.busy_gap_s is None else min(self.busy_gap_s, gap)
             self.last_busy_s = now
+        elif kind == dialects.POSITION and self.aborting and self.stop_point is None:
+            where = dialects.position(line)
+            if all(axis in where for axis in "XYZ"):
+                self.stop_point = (where["X"], where["Y"], where["Z"])
         elif kind == dialects.OTHER and self.inflight:
             self.probes += 1  # perhaps a garbled answer: find out now, before another
             self._queue_probe()

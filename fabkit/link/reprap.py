@@ -100,7 +100,10 @@ class OneByOne:
         if answer.kind == dialects.OK:
             self._on_ok()
         elif answer.kind == dialects.POSITION:
-            self._on_position(dialects.position(line))
+            seen = dialects.position(line)
+            if proto.aborting and not self.probes and all(axis in seen for axis in "XYZ"):
+                proto.stop_point = (seen["X"], seen["Y"], seen["Z"])
+            self._on_position(seen)
         elif answer.kind == dialects.RESEND and self.current is not None:
             proto.pending_error = None
             self._finish(ran=False)  # RepRapFirmware 2: "rs" instead of an ok

@@ -28,7 +28,6 @@ from fabkit.link.sim_machine import (
     EmulatorConfig,
     Heater,
     Input,
-    Motion,
     Output,
     TraceEntry,
 )
@@ -152,7 +151,7 @@ class MarlinFirmware:
 
     def _reset_state(self) -> None:
         config = self.config
-        self.motion = Motion(config.planner_depth, config.time_scale, config.rapid_mm_s)
+        self.motion = config.motion()
         tau = config.heater_tau_s * config.time_scale
         self.hotend = Heater(tau)
         self.bed = Heater(tau)
@@ -247,7 +246,7 @@ class MarlinFirmware:
             if self.dialect.strict_star and "*" in command:
                 return self._line_error(_ERR_NO_LINE_NO, t)
             if command.startswith("M410"):
-                self.motion.clear()  # processed early, as Marlin does for unnumbered M410
+                self.motion.clear(t)  # processed early, as Marlin does for unnumbered M410
             return self._queue(None, command, t)
         npos = command
         m110 = "M110" in command
@@ -402,7 +401,8 @@ class MarlinFirmware:
             self._unknown(text, t)
             return
         if code in _MOVES:
-            motion.move(values, t, rapid=False, arc=int(code[1]) if code in ("G2", "G3") else 0)
+            arc = int(code[1]) if code in ("G2", "G3") else 0
+            motion.move(values, t, rapid=False, arc=arc, tag=len(self.trace))
         elif code in ("G90", "G91"):
             motion.absolute = motion.absolute_e = code == "G90"
         elif code in ("M82", "M83"):
@@ -415,7 +415,7 @@ class MarlinFirmware:
             heater = self.hotend if code == "M104" else self.bed
             heater.set_target(values.get("S", heater.target_c), t)
         elif code == "M410":
-            motion.clear()
+            motion.clear(t)
         elif code == "M110" and n is None and "N" in values:
             self.last_n = int(values["N"])
         self._record(n, command, text, t)
