@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+import time
 
 from fabkit.link.emulator import Emulator
 from fabkit.link.gcode import Command, commands_from_lines
@@ -62,9 +63,11 @@ def numbers_are_contiguous(emulator: Emulator) -> bool:
 
 
 def run_sim(url: str, job: list[Command], machine: str, **options) -> tuple[SendReport, Emulator]:
-    """Stream ``job`` to a ``sim://`` URL; the report and the emulator."""
+    """Stream ``job`` to a ``sim://`` URL; the report and the emulator, which has then run
+    what it acknowledged (Repetier acknowledges a line when it queues it)."""
     port = open_port(url, 115200)
     report = stream_job(port, job, load_machine(machine), port_name=url, **options)
+    port.emulator.poll(time.monotonic() + 600)
     return report, port.emulator
 
 

@@ -149,7 +149,10 @@ def _error(line: str, lowered: str) -> Answer:
 def position(line: str) -> dict[str, float]:
     """The axis values of an ``M114`` answer (``X:1.00 Y:2.00 Z:0.30 E:4.00 Count ...``)."""
     head = line.split("Count", 1)[0]
-    return {axis: float(value) for axis, value in re.findall(r"([XYZE]):(-?\d+\.?\d*)", head)}
+    found: dict[str, float] = {}
+    for axis, value in re.findall(r"([XYZE]):(-?\d+\.?\d*)", head):
+        found.setdefault(axis, float(value))  # the first: a garbled "Count" must not win
+    return found
 
 
 @dataclass(frozen=True)

@@ -127,7 +127,9 @@ class OneByOne:
             return  # a probe given up for lost after all: it says nothing about this line
         self.probes.pop(0)
         if self.current is not None:
-            self._finish(ran=self._ran(self.current, seen))
+            ran = self._ran(self.current, seen)
+            if ran is not None:  # else a garbled answer: the next probe decides
+                self._finish(ran=ran)
 
     def _finish(self, *, ran: bool) -> None:
         proto = self.proto
@@ -145,8 +147,9 @@ class OneByOne:
                 proto.tail.insert(0, proto.texts[n])
         proto.show(proto.done_lines, proto.heating_note)
 
-    def _ran(self, n: int, seen: dict[str, float]) -> bool:
-        """Whether line ``n`` ran, judged by the reported position ``seen``."""
+    def _ran(self, n: int, seen: dict[str, float]) -> bool | None:
+        """Whether line ``n`` ran, judged by the reported position ``seen``: the position
+        after it (True) or before it (False); None if it is neither (a garbled answer)."""
         proto = self.proto
         index = proto.job_index[n]
         if index < 0:
@@ -154,7 +157,7 @@ class OneByOne:
         after = self.positions[index]
         before = self.positions[index - 1] if index > 0 else (None,) * 4
         moved = [
-            (axis, a)
+            (axis, a, b)
             for axis, a, b in zip("XYZE", after, before, strict=True)
             if a is not None and b is not None and abs(a - b) > POSITION_TOL_MM and axis in seen
         ]
@@ -164,7 +167,11 @@ class OneByOne:
                 "moves nothing, so whether it ran is unknown"
             )
             return False
-        return all(abs(seen[axis] - value) <= POSITION_TOL_MM for axis, value in moved)
+        if all(abs(seen[axis] - a) <= POSITION_TOL_MM for axis, a, _ in moved):
+            return True
+        if all(abs(seen[axis] - b) <= POSITION_TOL_MM for axis, _, b in moved):
+            return False
+        return None
 
     # -- silence ---------------------------------------------------------------------------
 

@@ -159,6 +159,8 @@ class MarlinFirmware:
         self.queue: deque[tuple[int | None, str]] = deque()
         self.blocked: _Block | None = None
         self.waiting_for_resend = -1  # Repetier: lines still answered with "skip"
+        self.acked = 0  # lines acknowledged when queued (Repetier)
+        self.deaf = False  # the line is dead: nothing more is read
         self.wait_at = INF  # Repetier: when "wait" is due
 
     def boot(self, t: float) -> None:
@@ -223,7 +225,7 @@ class MarlinFirmware:
     # -- reading ---------------------------------------------------------------------------
 
     def _get_serial_commands(self, t: float) -> None:
-        while len(self.queue) < self.config.command_slots:
+        while len(self.queue) < self.config.command_slots and not self.deaf:
             raw = self.inp.take_line(t)
             if raw is None:
                 return
@@ -271,6 +273,8 @@ class MarlinFirmware:
         self.queue.append((n, command))
         if self.dialect.ack_on_queue:
             self.out.line(f"ok {n}" if n is not None and self.dialect.ack_numbered else "ok", t)
+            self.acked += 1
+            self._faults(t)
         return True
 
     def _line_error(self, message: str, t: float) -> bool:
@@ -472,11 +476,17 @@ class MarlinFirmware:
         self.counters.executed += 1
 
     def _faults(self, t: float) -> None:
+        """``disconnect_after``: the line goes dead after that many acknowledged commands,
+        and the machine runs exactly what it acknowledged (for a firmware that
+        acknowledges when it queues, the queue is run first)."""
         faults = self.config.faults
         executed = self.counters.executed
-        if faults.disconnect_after is not None and executed == faults.disconnect_after:
-            self.halted = True
-            self.on_disconnect(t)
+        acked = self.acked if self.dialect.ack_on_queue else executed
+        if faults.disconnect_after is not None and acked >= faults.disconnect_after:
+            self.deaf = True
+            if not self.queue or not self.dialect.ack_on_queue:
+                self.halted = True
+                self.on_disconnect(t)
         elif faults.reset_after is not None and executed == faults.reset_after:
             self.counters.resets += 1
             self._reset_state()
