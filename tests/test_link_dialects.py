@@ -37,7 +37,7 @@ def test_corruption_and_lost_oks_in_every_dialect(dialect):
 def test_noisy_answers_and_a_busy_machine_in_every_dialect(dialect):
     # lines pile up behind moves that take time, answers are garbled or interleaved with
     # noise: the link must neither lose nor repeat a line
-    job = marlin_job(600, seed=7)
+    job = marlin_job(300, seed=7)
     url = (
         "sim://marlin?time_scale=0.002&baud=1000000&corrupt=0.01&drop_ok=0.002&garble=0.005"
         f"&noise=0.005&seed=7&dialect={dialect}"
