@@ -15,19 +15,22 @@ DIW_HEADER = ";Generated with fabkit 0.1.0 for machine marlin_diw_pneumatic"
 CASES = [
     case(
         f"send {{diw}} --machine marlin_generic --port {SIM}",
-        "was written for machine marlin_diw_pneumatic (its header), not marlin_generic",
+        "was written for machine",
+        "marlin_diw_pneumatic (its header), not marlin_generic",
         "--force",
         outputs=(),
         id="link-header-names-another-machine",
     ),
     case(
         "send {diw} --machine grbl_diw --dry-run",
-        "was written for machine marlin_diw_pneumatic",
+        "was written for machine",
+        "marlin_diw_pneumatic",
         outputs=(),
         id="link-header-names-another-machine-dry-run",
     ),
     case(
         f"send {{grbl}} --port {GRBL}&rx=64",
+        "byte receive buffer",
         "reports a 64-byte receive buffer ([OPT:V,15,64])",
         "rx_buffer_bytes = 128: set it to 64",
         outputs=(),
@@ -35,6 +38,7 @@ CASES = [
     ),
     case(
         f"send {{grbl}} --port {GRBL}&rx=64&opt=0",
+        "byte receive buffer",
         "reports a 64-byte receive buffer (Bf:15,64)",
         outputs=(),
         id="link-grbl-buffer-smaller-than-the-profile-bf",
@@ -55,6 +59,7 @@ CASES = [
     ),
     case(
         f"send {{diw}} --port {SIM} --resume-from 999",
+        "is outside",
         "--resume-from 999 is outside",
         outputs=(),
         id="link-resume-from-past-the-end",
