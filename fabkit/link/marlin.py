@@ -150,19 +150,17 @@ class MarlinProtocol(Session):
     def run(self) -> SendReport:
         """Handshake, stream the whole job, return the report (FabkitError on failure)."""
         self._handshake()
-        if self.firmware.sequenced:
-            self._stream()
-        else:
-            OneByOne(self).run()
+        finished = self._stream() if self.firmware.sequenced else OneByOne(self).run()
         self.show(self.done_lines, force=True)
         if self.aborting:
-            stopped = "safe-stop sent" if not self.tail else "safe-stop not confirmed"
+            stopped = "safe-stop sent" if finished else "safe-stop not confirmed"
             sent = [i for n, i in enumerate(self.job_index) if i >= 0 and n <= self.highest_sent]
             raise self.stopped_error(stopped, self.stop_point, max(sent, default=-1))
         return self.report()
 
-    def _stream(self) -> None:
-        """Send the job ahead within the window (see the module docstring)."""
+    def _stream(self) -> bool:
+        """Send the job ahead within the window (see the module docstring); False if an
+        abort's safe stop was not confirmed in time."""
         deadline = None
         while not self._done():
             if self.control.aborted and not self.aborting:
@@ -178,6 +176,7 @@ class MarlinProtocol(Session):
                 self._on_silence()
             else:
                 self._on_line(line)
+        return self._done()
 
     @property
     def executed(self) -> int:
@@ -569,10 +568,10 @@ class MarlinProtocol(Session):
         elif self._no_copy_pending(x):
             self.texts.insert(x, _PROBE)
             self.job_index.insert(x, PROBE_LINE)
+            for n in range(x, self.highest_sent + 1):  # these numbers get other lines now
+                for table in (self.first_tx, self.copies, self.rejected_until):
+                    table.pop(n, None)
             self.highest_sent = x - 1
-            self.first_tx = {n: tx for n, tx in self.first_tx.items() if n < x}
-            self.copies = {n: txs for n, txs in self.copies.items() if n < x}
-            self.rejected_until = {n: a for n, a in self.rejected_until.items() if n < x}
             self.sync_probe = x
         else:
             later = [n for n in range(x, len(self.texts)) if self.texts[n] == _PROBE]

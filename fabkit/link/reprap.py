@@ -43,7 +43,8 @@ class OneByOne:
         self.absorb = 0  # oks still owed by answered probes
         self.next_job = 0
 
-    def run(self) -> None:
+    def run(self) -> bool:
+        """Stream the job; False if an abort's safe stop was not confirmed in time."""
         proto = self.proto
         deadline = None
         while not self._done():
@@ -60,6 +61,7 @@ class OneByOne:
                 self._on_silence()
             else:
                 self._on_line(line)
+        return self._done()
 
     # -- sending ---------------------------------------------------------------------------
 
