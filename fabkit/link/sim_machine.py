@@ -281,6 +281,7 @@ class Heater:
 
 
 _AXES = "XYZE"
+FIRST_MOVE_DELAY_S = 0.1  # Marlin's BLOCK_DELAY_FOR_1ST_MOVE: a first move waits for company
 
 
 @dataclass
@@ -313,7 +314,8 @@ class Motion:
     (``junction_deviation_mm``), and every time a block is added the blocks not yet
     started are re-planned backwards from a stop after the newest one and forwards
     from the running block's fixed exit speed; a planner that runs dry makes the
-    machine stop. Durations are multiplied by ``time_scale``. ``pos`` is the logical
+    machine stop; a move into an empty planner waits ``FIRST_MOVE_DELAY_S`` for others
+    to plan with it. Durations are multiplied by ``time_scale``. ``pos`` is the logical
     position after the last planned move (what M114 reports); :meth:`position_at` is
     where the tool really is. A feed hold (GRBL ``!``) freezes the timeline until
     resumed; :meth:`clear` stops at once (M410, a reset). ``finished`` lists the tags
@@ -467,7 +469,12 @@ class Motion:
             reach = math.sqrt(exit_speed * exit_speed + 2 * block.accel * block.length)
             block.entry = min(block.max_entry, reach)
             exit_speed = block.entry
-        begin = running.end_t if running is not None else t
+        if running is not None:
+            begin = running.end_t
+        elif first < newest:  # waiting for its delay: it keeps its start
+            begin = blocks[first].begin_t
+        else:
+            begin = t + FIRST_MOVE_DELAY_S * self.time_scale
         entry = running.exit if running is not None else 0.0
         for i in range(first, len(blocks)):
             block = blocks[i]
