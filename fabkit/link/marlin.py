@@ -51,9 +51,11 @@ Resends
 
 Silence
     With lines in flight and no answer for a while (adapting to the recent pace), a
-    numbered M105 probes the machine. After ``assume_idle_s`` the ring is assumed empty;
-    no answer at all for ``dead_s`` (``wait_dead_s`` while a heat-up, homing or dwell is
-    in flight) is a lost connection. ``busy:`` and temperature reports count as answers
+    numbered M105 probes the machine. After ``assume_idle_s`` of silence, or of
+    answered probes but no job line done (lost answers can leave the probes' answers
+    unplaced), the ring is assumed empty; no answer at all for ``dead_s``
+    (``wait_dead_s`` while a heat-up, homing or dwell is in flight) is a lost
+    connection. ``busy:`` and temperature reports count as answers
     (a firmware that sends ``busy:`` is probed only after a silence of 1.5 of its
     ``busy:`` intervals); ``wait`` (an idle firmware whose ``ok`` may be lost) triggers a
     probe.
@@ -107,6 +109,7 @@ class MarlinProtocol(Session):
         self.byte_cap = self.job_window
         self.regrow_after = REGROW_LINES
         self.clean_lines = 0
+        self.next_cap: int | None = None  # the byte window after the current recovery
         self.max_lines = self.options.window_lines or self.serial.planner_depth
         self.texts: list[str] = list(_HANDSHAKE)
         self.job_index: list[int] = [HOUSEKEEPING, HOUSEKEEPING, PROBE_LINE]
@@ -144,6 +147,8 @@ class MarlinProtocol(Session):
         self.busy_gap_s: float | None = None  # the firmware's busy: interval, once seen
         self.heating_note = ""
         self.stop_point: tuple[float, float, float] | None = None
+        self.last_done = 0
+        self.last_progress_s = time.monotonic()
 
     # -- public ----------------------------------------------------------------------------
 
@@ -435,6 +440,7 @@ class MarlinProtocol(Session):
             self.e_count = max(self.e_count, self.e_cert)
             if not garbage:
                 self._grow()
+        self._progress()
         self.show(self.done_lines, self.heating_note)
 
     def _certain_line(self, answer: Answer) -> int | None:
@@ -459,12 +465,27 @@ class MarlinProtocol(Session):
             self.warnings.append(f"the machine did not know '{self.texts[n]}'")
         self.e_count = n
 
+    def _idle_for_long(self, now: float) -> bool:
+        """Silent for ``assume_idle_s``; or answering probes (lost answers can leave
+        them unplaced) but no job line done, with no ``busy:``, for that long."""
+        limit = self.options.assume_idle_s
+        if now - self.last_rx_s > limit:
+            return True
+        busy = self.busy_gap_s is not None and now - self.last_busy_s < 1.5 * self.busy_gap_s
+        return not busy and now - self.last_progress_s > limit
+
     def _grow(self) -> None:
         """A clean job line: after enough of them a shrunk byte window grows again."""
         self.clean_lines += 1
         if self.byte_cap < self.job_window and self.clean_lines >= self.regrow_after:
             self.byte_cap = min(self.job_window, self.byte_cap + max(8, self.longest_frame // 2))
             self.clean_lines = 0
+
+    def _progress(self) -> None:
+        done = self.done_lines
+        if done != self.last_done:
+            self.last_done = done
+            self.last_progress_s = time.monotonic()
 
     def _retire(self) -> None:
         """Drop the transmissions known gone from the window (see Window above)."""
@@ -497,9 +518,9 @@ class MarlinProtocol(Session):
     def _answered_m105(self) -> int | None:
         """The line number of the M105 an ``ok T:`` answers, as low as it can be.
 
-        M105 lines execute in order, after every line counted by an ``ok``: outside
-        recovery that count bounds it from below as well."""
-        start = self.m105_scan if self.sync else max(self.m105_scan, self.e_count + 1)
+        M105 lines execute in order, after every line counted by an ``ok`` (a count that
+        recovery only lowers): it bounds the number from below as well."""
+        start = max(self.m105_scan, self.e_count + 1)
         for n in range(start, len(self.texts)):
             if self.texts[n] == _PROBE and self.job_index[n] in (PROBE_LINE, HOUSEKEEPING):
                 self.m105_scan = n + 1
@@ -523,6 +544,8 @@ class MarlinProtocol(Session):
 
     def _leave_sync(self) -> None:
         self.sync = False
+        if self.next_cap is not None:
+            self.byte_cap, self.next_cap = min(self.byte_cap, self.next_cap), None
         self.e_count = self.e_cert
         self.resend_x = None
         self.resend_budget = 0
@@ -592,11 +615,12 @@ class MarlinProtocol(Session):
         be smaller than the profile says (bytes that do not fit are lost, the line
         garbled), so the byte window shrinks below what was unanswered then. It grows
         back after ``regrow_after`` clean lines, which doubles each time it shrinks: a
-        buffer that really is smaller costs a few resends, a corrupted byte little."""
+        buffer that really is smaller costs a few resends, a corrupted byte little. The
+        window shrinks once the recovery is over (lost answers may hold some of it now)."""
         entry = next((e for e in reversed(self.inflight) if e[0] == x), None)
         if entry is None or entry[4] <= entry[1]:
             return
-        self.byte_cap = max(self.longest_frame, min(self.byte_cap, entry[4] * 3 // 4))
+        self.next_cap = max(self.longest_frame, min(self.byte_cap, entry[4] * 3 // 4))
         self.regrow_after = min(16 * REGROW_LINES, 2 * self.regrow_after)
         self.clean_lines = 0
 
@@ -620,8 +644,8 @@ class MarlinProtocol(Session):
         if quiet < probe_after or now - self.last_probe_s < probe_after:
             return
         self.last_probe_s = now
-        if self.inflight and now - self.last_rx_s > options.assume_idle_s and not waiting:
-            self.recoveries += 1  # silent for long: nothing can be left in the ring
+        if self.inflight and not waiting and self._idle_for_long(now):
+            self.recoveries += 1  # nothing can be left in the ring
             self.answers = self.transmissions
             self._retire()
         if self.cursor > self.highest_sent:
