@@ -94,8 +94,13 @@ class Answer:
     ignored: bool = False
 
 
+_PLAIN_OK = Answer(OK, "ok")
+
+
 def classify(line: str) -> Answer:
     """What ``line`` (stripped) says; see the module docstring for the wordings."""
+    if line == "ok":
+        return _PLAIN_OK  # by far the most common answer
     if not line:
         return Answer(EMPTY, line)
     lowered = line.lower()

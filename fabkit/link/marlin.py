@@ -272,11 +272,11 @@ class MarlinProtocol(Session):
             if n == len(self.texts) and not self._append():
                 break
             text = self.texts[n]
-            frame = frame_marlin(n, text)
             probe = self.job_index[n] in (PROBE_LINE, HOUSEKEEPING)
-            limit = self.rx_usable if probe else self.byte_cap
-            cap = self.max_lines + (2 if probe else 0)
-            if self.inflight_bytes + len(frame) > limit or len(self.inflight) >= cap:
+            if len(self.inflight) >= self.max_lines + (2 if probe else 0):
+                break
+            frame = frame_marlin(n, text)
+            if self.inflight_bytes + len(frame) > (self.rx_usable if probe else self.byte_cap):
                 break
             self.inflight_bytes += len(frame)
             self.inflight.append((n, len(frame), self.transmissions, text, self.inflight_bytes))
@@ -630,17 +630,19 @@ class MarlinProtocol(Session):
         if not self.inflight and (self.control.paused or self.executed >= self.highest_sent):
             return
         now = time.monotonic()
-        waiting = any(code_of(entry[3]) in WAIT_CODES for entry in self.inflight)
-        limit = self.options.wait_dead_s if waiting else self.options.dead_s
-        if self.inflight and now - self.last_rx_s > limit:
-            raise self.lost(self.done_lines, f"no answer for {limit:g} s")
         options = self.options
         probe_after = min(max(8 * self.ok_gap_s, options.probe_min_s), options.probe_max_s)
+        quiet = now - max(self.last_rx_s, self.last_tx_s)
+        if quiet < probe_after and now - self.last_rx_s <= options.dead_s:
+            return  # the common case, decided cheaply
+        waiting = any(code_of(entry[3]) in WAIT_CODES for entry in self.inflight)
+        limit = options.wait_dead_s if waiting else options.dead_s
+        if self.inflight and now - self.last_rx_s > limit:
+            raise self.lost(self.done_lines, f"no answer for {limit:g} s")
         if waiting:  # heat-ups report every 1 s, busy: comes every 2 s
             probe_after = max(probe_after, WAIT_PROBE_S)
         if self.busy_gap_s is not None:  # a firmware that says busy: would have said so
             probe_after = max(probe_after, 1.5 * self.busy_gap_s)
-        quiet = now - max(self.last_rx_s, self.last_tx_s)
         if quiet < probe_after or now - self.last_probe_s < probe_after:
             return
         self.last_probe_s = now
