@@ -160,7 +160,7 @@ class _Walker:
         self.feed: float | None = None
         self.motion = "G1"
 
-    def step(self, code: str, values: dict[str, float], text: str) -> list[float] | None:
+    def step(self, code: str, values: dict[str, float]) -> list[float] | None:
         """Apply one command; the move it makes as X, Y, Z, E deltas, or None."""
         if "F" in values and values["F"] > 0:
             self.feed = values["F"] / 60.0
@@ -211,7 +211,7 @@ def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
     for index, command in enumerate(job):
         code = code_of(command.text)
         values = words(command.text)
-        deltas = walker.step(code, values, command.text)
+        deltas = walker.step(code, values)
         positions.append(tuple(walker.pos))
         if deltas is not None:
             block = _block(deltas, walker.motion, values, walker, kinematics, index)

@@ -51,9 +51,9 @@ Resends
 
 Silence
     With lines in flight and no answer for a while (adapting to the recent pace), a
-    numbered M105 probes the machine. After ``assume_idle_s`` of silence, or of
-    answered probes but no job line done (lost answers can leave the probes' answers
-    unplaced), the ring is assumed empty; no answer at all for ``dead_s``
+    numbered M105 probes the machine. After ``assume_idle_s`` of silence, or
+    ``probe_max_s`` of answered probes but no job line done (lost answers can leave the
+    probes' answers unplaced), the ring is assumed empty; no answer at all for ``dead_s``
     (``wait_dead_s`` while a heat-up, homing or dwell is in flight) is a lost
     connection. ``busy:`` and temperature reports count as answers
     (a firmware that sends ``busy:`` is probed only after a silence of 1.5 of its
@@ -73,7 +73,9 @@ from fabkit.link.gcode import code_of, frame_marlin
 from fabkit.link.reprap import OneByOne
 from fabkit.link.session import SendReport, Session
 
-WAIT_CODES = frozenset({"M109", "M190", "G28", "G29", "G4", "M400", "M0", "M1", "M600"})
+WAIT_CODES = frozenset(
+    {"M109", "M190", "G28", "G29", "G4", "M400", "M0", "M1", "M600", "M226", "M303"}
+)
 WAIT_PROBE_S = 2.5  # longer than Marlin's default busy: interval
 ERROR_GRACE_S = 0.5  # an unknown Error: is fatal unless a resend request follows by then
 _PROBE = "M105"
@@ -467,12 +469,12 @@ class MarlinProtocol(Session):
 
     def _idle_for_long(self, now: float) -> bool:
         """Silent for ``assume_idle_s``; or answering probes (lost answers can leave
-        them unplaced) but no job line done, with no ``busy:``, for that long."""
-        limit = self.options.assume_idle_s
-        if now - self.last_rx_s > limit:
+        them unplaced) but no job line done, with no ``busy:``, for ``probe_max_s``: a
+        firmware busy with a line answers no probe behind it."""
+        if now - self.last_rx_s > self.options.assume_idle_s:
             return True
         busy = self.busy_gap_s is not None and now - self.last_busy_s < 1.5 * self.busy_gap_s
-        return not busy and now - self.last_progress_s > limit
+        return not busy and now - self.last_progress_s > self.options.probe_max_s
 
     def _grow(self) -> None:
         """A clean job line: after enough of them a shrunk byte window grows again."""
