@@ -1,6 +1,6 @@
 """Link benchmark: the send-ahead against machines we did not write, faults, and the ETA.
 
-Run from the repository root: ``python benchmarks/link_throughput.py`` (about four
+Run from the repository root: ``python benchmarks/link_throughput.py`` (about six
 minutes; ``--repeats`` and ``--lines`` change the throughput runs). It makes Fig. 1's
 G-code first (``fabkit run examples/two_shapes.toml``) and prints
 
