@@ -99,7 +99,9 @@ class Envelope:
 
 @dataclass(frozen=True)
 class Limits:
-    """Maximum speeds, mm/s: per axis, and for travel and printing moves."""
+    """Maximum speeds, mm/s: per axis, and for travel and printing moves; the planner's
+    accelerations (mm/s^2: X and Y, Z, E) and junction deviation (mm), which only the
+    duration estimate uses (optional keys, typical Marlin values by default)."""
 
     x_mm_s: float
     y_mm_s: float
@@ -107,6 +109,10 @@ class Limits:
     e_mm_s: float
     travel_mm_s: float
     print_mm_s: float
+    acceleration_mm_s2: float = 1000.0
+    z_acceleration_mm_s2: float = 100.0
+    e_acceleration_mm_s2: float = 1000.0
+    junction_deviation_mm: float = 0.013
 
     def axis_mm_s(self, axis: str) -> float:
         """The limit of ``axis`` ("x", "y", "z" or "e"), mm/s."""
@@ -565,10 +571,22 @@ def _envelope(t: _Table) -> Envelope:
     return out
 
 
+_SPEED_KEYS = ("x_mm_s", "y_mm_s", "z_mm_s", "e_mm_s", "travel_mm_s", "print_mm_s")
+_MOTION_KEYS = (
+    "acceleration_mm_s2",
+    "z_acceleration_mm_s2",
+    "e_acceleration_mm_s2",
+    "junction_deviation_mm",
+)
+
+
 def _limits(t: _Table) -> Limits:
-    out = Limits(
-        **{key: t.number(key, positive=True) for key in Limits.__dataclass_fields__},
-    )
+    speeds = {key: t.number(key, positive=True) for key in _SPEED_KEYS}
+    motion = {
+        key: t.optional(key, _positive(t), Limits.__dataclass_fields__[key].default)
+        for key in _MOTION_KEYS
+    }
+    out = Limits(**speeds, **motion)
     t.finish()
     return out
 

@@ -3,11 +3,15 @@ line with exit code 2."""
 
 from __future__ import annotations
 
+import os
 import re
+import signal
+import threading
 from pathlib import Path
 
 import pytest
 
+import fabkit.link.send as send_module
 from fabkit.cli import main
 from tests.test_link_support import grbl_job, marlin_job
 
@@ -34,7 +38,10 @@ def test_send_streams_and_reports(tmp_path, capsys):
     path = marlin_file(tmp_path)
     assert main(["send", path, "--port", f"{SIM}&corrupt=0.01&seed=1"]) == 0
     captured = capsys.readouterr()
-    assert re.match(r"sent 305 lines \(file lines 2-306\) to sim://marlin", captured.out)
+    lines = captured.out.splitlines()
+    assert lines[0].startswith("machine marlin_generic (the default:")
+    assert lines[1].startswith("estimated duration: ")
+    assert re.match(r"sent 305 lines \(file lines 2-306\) to sim://marlin", lines[2])
     assert "100.0%  305/305 lines" in captured.err  # the progress bar is on stderr
 
 
@@ -118,3 +125,76 @@ def test_a_missing_or_binary_file(tmp_path, capsys):
     binary.write_bytes(b"G1 X1\nG1 X\xff2\n")
     assert main(["send", str(binary), "--dry-run"]) == 2
     assert error_line(capsys).endswith("bin.gcode:2: non-ASCII byte in G-code")
+
+
+DIW_LINES = [
+    ";FLAVOR:Marlin",
+    ";Generated with fabkit 0.1.0 for machine marlin_diw_pneumatic",
+    "G21",
+    "G90",
+    "M42 P4 S0",
+    "G28",
+    "G1 Z1 F600",
+    "M42 P4 S255",
+    *[f"G1 X{20 + k % 150} Y{20 + (7 * k) % 150} F1200" for k in range(400)],
+    "M42 P4 S0",
+]
+
+
+def test_send_takes_the_machine_from_the_header_and_says_so(tmp_path, capsys):
+    # a file fabkit wrote for marlin_diw_pneumatic uses M42 (not in marlin_generic's
+    # list of commands): send used to check it against marlin_generic and refuse it
+    path = write(tmp_path, DIW_LINES)
+    assert main(["send", path, "--port", SIM]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == f"machine marlin_diw_pneumatic (named in the header of {path})"
+    assert out[1].startswith("estimated duration: 0:")
+    assert main(["send", path, "--dry-run"]) == 0
+    dry = capsys.readouterr().out
+    assert "fit machine marlin_diw_pneumatic" in dry and "estimated duration: " in dry
+
+
+def test_a_machine_other_than_the_header_needs_force(tmp_path, capsys):
+    path = write(tmp_path, DIW_LINES)
+    assert main(["send", path, "--port", SIM, "--machine", "marlin_generic"]) == 2
+    assert error_line(capsys) == (
+        f"fabkit: error: {path} was written for machine marlin_diw_pneumatic (its header), "
+        "not marlin_generic: send it with --machine marlin_diw_pneumatic, or add --force"
+    )
+    klipper = [line for line in DIW_LINES if "M42" not in line]  # klipper_generic has no valve
+    path = write(tmp_path, klipper, "any.gcode")
+    args = ["send", path, "--dry-run", "--machine", "klipper_generic", "--force"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(
+        "machine klipper_generic (--force: the header names marlin_diw_pneumatic)"
+    )
+
+
+def test_ctrl_c_stops_safely_exits_130_and_names_the_resume_line(tmp_path, capsys, monkeypatch):
+    # docs/troubleshooting.md: Ctrl-C exits with 130; fabkit send stops the machine first
+    ports = []
+    opened = send_module.open_port
+
+    def keep(port, baud):
+        ports.append(opened(port, baud))
+        return ports[-1]
+
+    monkeypatch.setattr(send_module, "open_port", keep)
+    path = write(tmp_path, DIW_LINES)
+    url = "sim://marlin?baud=0&time_scale=0.05&accel=500"
+    timer = threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    code = main(["send", path, "--port", url])
+    timer.join()
+    assert code == 130
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    match = re.fullmatch(
+        r"fabkit: interrupted: safe-stop sent; the machine stopped at X [-\d.]+ Y [-\d.]+ "
+        r"Z [-\d.]+, in file line (\d+); continue later with --resume-from (\d+)",
+        err,
+    )
+    assert match and match.group(1) == match.group(2), err
+    emulator = ports[0].emulator
+    safe_stop = ["M410", "M114", "M42 P4 S0", "G91", "G1 Z5 F600", "G90"]
+    assert [e.command for e in emulator.trace[-6:]] == safe_stop

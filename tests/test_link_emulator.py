@@ -148,7 +148,8 @@ def test_grbl_answers_ok_error_and_status():
     assert talk(g, b"G1 X1\n") == ["error:22"]  # no feed rate yet
     assert talk(g, b"G1 X1 F600\nM99\n") == ["ok", "error:20"]
     assert talk(g, b"G0 X5\r\n") == ["ok", "ok"]  # \r and \n each end a line
-    assert talk(g, b"?")[0].startswith("<Idle|MPos:5.000,0.000,0.000|Bf:16,127")
+    # grbl/report.c: Bf is free planner blocks (BLOCK_BUFFER_SIZE - 1 of 16) and rx bytes (128)
+    assert talk(g, b"?")[0].startswith("<Idle|MPos:5.000,0.000,0.000|Bf:15,128")
     assert [e.command for e in g.trace] == ["G1 X1 F600", "G0 X5"]
 
 
@@ -169,3 +170,42 @@ def test_grbl_real_time_bytes_bypass_a_full_receive_buffer():
     g.host_write(b"G1 Y1\n" * 30, 0.0)
     assert talk(g, b"?", 0.5)[0].startswith("<Run")
     assert g.counters.overflow_bytes > 0
+
+
+def test_the_planner_accelerates_looks_ahead_and_knows_where_the_tool_is():
+    m = marlin("time_scale=1&accel=500")
+    # 100 mm at 50 mm/s, 500 mm/s^2 from rest to rest: 0.1 s up, 1.9 s cruise, 0.1 s down
+    # (a move into an empty planner waits 0.1 s for company, as Marlin's does)
+    talk(m, b"G1 X100 F3000\n")
+    motion = m.firmware.motion
+    assert motion.idle_time(0.0) == pytest.approx(0.1 + 2.1)
+    assert motion.position_at(0.2)[0] == pytest.approx(2.5)  # the end of the ramp
+    assert motion.position_at(1.1)[0] == pytest.approx(2.5 + 0.9 * 50)
+    # a straight continuation planned before the first move runs: no stop between them
+    talk(m, b"G1 X200\n", 0.05)
+    assert motion.idle_time(0.05) == pytest.approx(0.1 + 0.1 + (200 - 5) / 50 + 0.1)
+    # planned while the last one runs: its stop at X200 is fixed, as in Marlin
+    talk(m, b"G1 X300\n", 3.0)
+    assert motion.idle_time(3.0) == pytest.approx(0.1 + 4.1 + 2.1)
+    stop = motion.position_at(3.5)[0]
+    talk(m, b"M410\n", 3.5)  # quick stop: the planned moves are dropped, the tool stays
+    assert 100 < stop < 200 and motion.pos[0] == pytest.approx(stop)
+    assert motion.idle_time(3.5) == 3.5
+    assert motion.finished == [0]  # only the first move ran to its end
+
+
+def test_grbl_reports_its_buffers_as_grbl_does():
+    g = grbl("rx=64&planner=8")
+    assert talk(g, b"$I\n") == ["[VER:1.1h.20190830:fabkit emulator]", "[OPT:V,7,64]", "ok"]
+    assert talk(g, b"?")[0].startswith("<Idle|MPos:0.000,0.000,0.000|Bf:7,64|")
+    quiet = grbl("opt=0&bf=0")
+    assert talk(quiet, b"$I\n")[1] == "[OPT:V]"
+    assert "Bf:" not in talk(quiet, b"?")[0]
+
+
+def test_repetier_says_wait_when_idle_and_skips_lines_it_has_seen():
+    m = marlin("dialect=repetier")
+    assert talk(m, frame_marlin(0, "M110 N0") + frame_marlin(1, "G1 X1")) == ["ok", "ok 1"]
+    assert talk(m, frame_marlin(1, "G1 X1")) == ["skip 1", "ok"]  # a repeat: not run twice
+    assert m.poll(1.5).decode().splitlines() == ["wait"]
+    assert [e.command for e in m.trace] == ["G1 X1"]

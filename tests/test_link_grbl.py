@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import io
+import re
 import threading
 
 import pytest
 
 from fabkit.errors import FabkitError
-from fabkit.link.gcode import Command, commands_from_lines
+from fabkit.link.gcode import commands_from_lines
 from fabkit.link.ports import open_port
 from fabkit.link.send import stream_job
 from fabkit.link.session import LinkControl
@@ -37,16 +38,55 @@ def test_character_counting_keeps_the_receive_buffer_from_overflowing():
     assert stats.overflow_bytes == 0 and 100 < stats.max_rx_bytes <= 127
 
 
-def test_an_error_stops_the_job_names_the_line_and_runs_the_safe_stop():
-    job = grbl_job(300)
-    job.insert(100, Command(4242, "G1 X10 Q5"))  # Q: not a GRBL word here -> error:20
-    port = open_port(FAST, 115200)
+def test_an_error_lets_the_buffered_lines_run_and_resume_runs_no_line_twice():
+    # the machine is busy (moves take time), so lines pile up in GRBL's 127-byte buffer
+    # behind the rejected one: they run anyway, and the resume line must come after them
+    lines = ["G21", "G90", "F3000"] + [f"G1 X{100 if i % 2 else 10} Y{i % 7}" for i in range(150)]
+    lines.insert(100, "G1 X10 Q5")  # Q: not a GRBL word here -> error:20
+    job = commands_from_lines(lines)
+    url = "sim://grbl?time_scale=0.005&baud=1000000"
+    port = open_port(url, 115200)
+    machine = load_machine("grbl_diw")
     with pytest.raises(FabkitError) as caught:
-        stream_job(port, job, load_machine("grbl_diw"), port_name="sim://grbl")
+        stream_job(port, job, machine, port_name="sim://grbl")
     message = str(caught.value)
-    assert "rejected file line 4242 ('G1 X10 Q5'): error:20 unsupported command" in message
-    assert "last acknowledged file line" in message and "\n" not in message
-    assert executed(port.emulator)[-4:] == load_machine("grbl_diw").render("safe_stop_gcode")
+    assert "rejected file line 101 ('G1 X10 Q5'): error:20 unsupported command" in message
+    assert "behind it, already in its buffer, ran; safe-stop sent" in message
+    assert "\n" not in message
+    first = executed(port.emulator)
+    assert first[-4:] == machine.render("safe_stop_gcode")
+    ran = first[:-4]
+    assert len(ran) >= 108  # lines behind the rejected one ran (its 127 bytes were full)
+    resume = int(re.search(r"--resume-from (\d+)", message).group(1))
+    rest = [c for c in job if c.file_line >= resume]
+    stream_job(port, rest, machine, port_name="sim://grbl")  # the same machine, its modes kept
+    after = executed(port.emulator)[len(first) :]
+    without_rejected = [c.text for c in job if c.file_line != 101]
+    assert ran + after == without_rejected  # every line once, in order
+
+
+def test_a_profile_buffer_larger_than_the_machine_reports_is_refused():
+    # the machine has a 64-byte buffer: with grbl_diw's 128 GRBL would get truncated
+    # lines (G1 X74F1200); $I says so, and so does an idle Bf: report without $I sizes
+    for options, source in (("", "[OPT:V,15,64]"), ("&opt=0", "Bf:15,64")):
+        port = open_port(f"{FAST}&rx=64{options}", 115200)
+        with pytest.raises(FabkitError) as caught:
+            stream_job(port, grbl_job(50), load_machine("grbl_diw"), port_name="sim://grbl")
+        assert str(caught.value) == (
+            f"sim://grbl reports a 64-byte receive buffer ({source}) but machine grbl_diw has "
+            f"[serial] rx_buffer_bytes = 128: set it to 64 in {load_machine('grbl_diw').path}"
+        )
+        assert port.emulator.trace == []
+
+
+def test_a_larger_buffer_is_used_and_silence_about_it_is_a_warning():
+    job = grbl_job(300, seed=3)
+    url = "sim://grbl?time_scale=0.001&baud=1000000&rx=256"
+    report, emulator = run_sim(url, job, "grbl_diw", options=quick())
+    assert executed(emulator) == [c.text for c in job]
+    assert emulator.stats().overflow_bytes == 0 and emulator.stats().max_rx_bytes > 127
+    report, emulator = run_sim(f"{FAST}&opt=0&bf=0", job, "grbl_diw")
+    assert "did not report its receive buffer" in report.warnings[0]
 
 
 def test_an_alarm_at_connection_is_refused():
@@ -63,13 +103,13 @@ def test_an_alarm_during_the_job_stops_it():
         run_sim(url, job, "grbl_diw", options=quick())
 
 
-def test_abort_holds_resets_and_sends_the_safe_stop():
+def test_abort_holds_resets_sends_the_safe_stop_and_names_the_line_it_stopped_in():
     job = grbl_job(2000)
-    port = open_port("sim://grbl?time_scale=0.02&baud=0", 115200)
+    port = open_port("sim://grbl?time_scale=0.02&baud=0&accel=250", 115200)
     control = LinkControl()
     threading.Timer(0.3, control.abort).start()
     log = io.StringIO()
-    with pytest.raises(FabkitError, match=r"^aborted: safe-stop sent"):
+    with pytest.raises(FabkitError, match=r"^aborted: safe-stop sent; the machine stopped at X"):
         stream_job(port, job, load_machine("grbl_diw"), control=control, log=log)
     traffic = log.getvalue()
     assert ">> !" in traffic and ">> '\\x18'" in traffic

@@ -63,12 +63,12 @@ def test_real_byte_timing_never_overflows_the_receive_buffer():
     machine = load_machine("marlin_generic")
     _, emulator = run_sim(url, job, "marlin_generic", options=quick())
     assert executed(emulator) == [c.text for c in job]
-    assert emulator.stats().overflow_bytes == 0 and 0 < emulator.stats().max_rx_bytes <= 127
-    # control: a sender that believes in a 1 KiB buffer (and, not being Marlin, keeps up
-    # to 16 lines in flight) overruns the 128-byte ring
+    assert emulator.stats().overflow_bytes == 0 and emulator.stats().max_rx_bytes <= 127
+    # control: a sender that believes in a 1 KiB buffer (and, the firmware not draining
+    # its buffer on errors, keeps up to 200 lines in flight) overruns the 128-byte ring
     serial = replace(machine.serial, rx_buffer_bytes=1024)
     greedy = replace(machine, flavour="klipper", serial=serial)
-    port = open_port(url, 115200)
+    port = open_port("sim://marlin?time_scale=0.01&baud=1000000&dialect=smoothieware", 115200)
     with contextlib.suppress(FabkitError):
         stream_job(port, job[:200], greedy, options=quick(dead_s=2.0))
     assert port.emulator.stats().overflow_bytes > 0
@@ -127,7 +127,7 @@ def test_heating_waits_report_temperatures_and_busy_lines_keep_the_link_alive():
         url, job, "marlin_generic", progress=Progress(progress, len(job)), log=log, options=quick()
     )
     assert executed(emulator) == [c.text for c in job]
-    assert "heating T:" in progress.getvalue() and "<< busy: processing" in log.getvalue()
+    assert "heating T:" in progress.getvalue() and "<< echo:busy: processing" in log.getvalue()
     assert report.probes == 0  # busy and temperature lines count as answers
 
 
@@ -151,17 +151,35 @@ def test_a_reset_during_the_job_stops_it():
         run_sim(f"{FAST}&reset_after=300", marlin_job(1000), "marlin_generic")
 
 
-def test_abort_sends_the_safe_stop_snippet_after_the_lines_in_flight():
+def test_abort_sends_the_safe_stop_and_names_the_line_the_machine_stopped_in():
+    # M410 drops the planned moves: the line to resume from is where the tool stopped,
+    # not the last acknowledged one (moves acknowledged but still planned never ran)
     machine = load_machine("marlin_diw_pneumatic")
     job = marlin_job(2000)
-    port = open_port("sim://marlin?time_scale=0.02&baud=0", 115200)
+    port = open_port("sim://marlin?time_scale=0.02&baud=0&accel=500", 115200)
     control = LinkControl()
     threading.Timer(0.3, control.abort).start()
-    with pytest.raises(FabkitError, match=r"^aborted: safe-stop sent; last acknowledged"):
+    with pytest.raises(FabkitError) as caught:
         stream_job(port, job, machine, control=control)
+    message = str(caught.value)
+    assert message.startswith("aborted: safe-stop sent; the machine stopped at X ")
+    resume = int(re.search(r"--resume-from (\d+)$", message).group(1))
+    emulator = port.emulator
     safe_stop = machine.render("safe_stop_gcode")
-    assert executed(port.emulator)[-len(safe_stop) :] == safe_stop
-    assert len(executed(port.emulator)) < 200
+    assert executed(emulator)[-len(safe_stop) :] == safe_stop
+    finished = set(emulator.firmware.motion.finished)
+    moves = [
+        (i, e) for i, e in enumerate(emulator.trace) if e.command.startswith("G1 X")
+    ]  # the job's moves that ran (were planned)
+    assert all(
+        (i in finished) == (e.n is not None and _file_line(job, e) < resume) for i, e in moves
+    )
+    assert len(moves) < 200
+
+
+def _file_line(job, entry):
+    """The file line of a job command the emulator ran (its text is unique in marlin_job)."""
+    return next(c.file_line for c in job if c.text == entry.command)
 
 
 def test_pause_stops_sending_and_resume_completes_the_job():

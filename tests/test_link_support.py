@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+import time
 
 from fabkit.link.emulator import Emulator
 from fabkit.link.gcode import Command, commands_from_lines
@@ -11,7 +12,7 @@ from fabkit.link.send import stream_job
 from fabkit.link.session import LinkOptions, SendReport
 from fabkit.machines import load_machine
 
-HOUSEKEEPING = ("M110 N0", "M105")  # lines the Marlin sender adds (handshake, probes)
+HOUSEKEEPING = ("M110 N0", "M115", "M105", "M114")  # lines the Marlin sender adds
 
 
 def marlin_job(n: int, seed: int = 1) -> list[Command]:
@@ -42,6 +43,19 @@ def executed(emulator: Emulator) -> list[str]:
     return [e.command for e in emulator.trace if e.command not in HOUSEKEEPING]
 
 
+def runs_the_file(emulator: Emulator, job: list[Command]) -> bool:
+    """The trace is the file, command for command, nothing lost or repeated.
+
+    The one allowed difference is not the link's: Repetier, Smoothieware and
+    RepRapFirmware without ``M575 P0 S1`` run a numbered line that arrives without a
+    checksum, so a corrupted ``*`` or a ``;`` made of another byte lets a damaged line
+    run; the emulator marks those lines unchecked."""
+    trace = [e for e in emulator.trace if e.command not in HOUSEKEEPING]
+    return len(trace) == len(job) and all(
+        e.command == c.text or not e.checked for e, c in zip(trace, job, strict=True)
+    )
+
+
 def numbers_are_contiguous(emulator: Emulator) -> bool:
     """Marlin line numbers executed 0, 1, 2, ... without gap or repeat."""
     numbers = [e.n for e in emulator.trace]
@@ -49,9 +63,11 @@ def numbers_are_contiguous(emulator: Emulator) -> bool:
 
 
 def run_sim(url: str, job: list[Command], machine: str, **options) -> tuple[SendReport, Emulator]:
-    """Stream ``job`` to a ``sim://`` URL; the report and the emulator."""
+    """Stream ``job`` to a ``sim://`` URL; the report and the emulator, which has then run
+    what it acknowledged (Repetier acknowledges a line when it queues it)."""
     port = open_port(url, 115200)
     report = stream_job(port, job, load_machine(machine), port_name=url, **options)
+    port.emulator.poll(time.monotonic() + 600)
     return report, port.emulator
 
 

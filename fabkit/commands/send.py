@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from fabkit.link.send import send_file
+from fabkit.link.session import SendInterrupted
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -13,10 +15,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="check a G-code file and stream it to a machine",
         description=(
             "Check FILE against the machine profile (envelope, speeds, temperatures, "
-            "commands), then stream it to PORT with the machine's protocol. PORT is a "
-            "device (/dev/ttyUSB0, COM3) or a pyserial URL; sim://marlin and sim://grbl "
-            "are built-in emulators (docs/link.md). Ctrl-C aborts with the profile's "
-            "safe-stop snippet; Ctrl-Z pauses and resumes."
+            "commands), estimate its duration, then stream it to PORT with the machine's "
+            "protocol. The machine is --machine, else the one the file's header names "
+            "(fabkit writes it), else the port's default; each send says which. PORT is "
+            "a device (/dev/ttyUSB0, COM3) or a pyserial URL; sim://marlin and sim://grbl "
+            "are built-in emulators (docs/link.md). Ctrl-C stops with the profile's "
+            "safe-stop snippet, prints the --resume-from line and exits with 130; Ctrl-Z "
+            "pauses and resumes."
         ),
     )
     parser.add_argument("file", metavar="FILE", help="G-code file")
@@ -24,27 +29,44 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--baud", type=int, help="baud rate (default: the profile's)")
     parser.add_argument(
         "--machine",
-        help="profile name or .toml path (default: grbl_diw on sim://grbl, else marlin_generic)",
+        help="profile name or .toml path (default: the machine in FILE's header, else "
+        "grbl_diw on sim://grbl, else marlin_generic)",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="send with --machine even if FILE's header names another machine",
     )
     parser.add_argument("--log", metavar="LOGFILE", help="write all traffic to LOGFILE")
     parser.add_argument(
         "--resume-from", type=int, metavar="LINE", help="start at file line LINE (1-based)"
     )
     parser.add_argument(
-        "--dry-run", action="store_true", help="check the file against the machine, send nothing"
+        "--dry-run",
+        action="store_true",
+        help="check the file against the machine and estimate its duration, send nothing",
     )
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    result = send_file(
-        args.file,
-        args.port,
-        baud=args.baud,
-        machine=args.machine,
-        log_path=args.log,
-        resume_from=args.resume_from,
-        dry_run=args.dry_run,
-    )
+    def say(text: str) -> None:
+        print(text, flush=True)
+
+    try:
+        result = send_file(
+            args.file,
+            args.port,
+            baud=args.baud,
+            machine=args.machine,
+            force=args.force,
+            log_path=args.log,
+            resume_from=args.resume_from,
+            dry_run=args.dry_run,
+            say=say,
+        )
+    except SendInterrupted as exc:
+        print(f"fabkit: interrupted: {exc}", file=sys.stderr)
+        return 130
     print(result.summary())
     return 0

@@ -15,7 +15,10 @@ time_scale         factor on move, dwell and heating times (default 1; 0 = insta
 latency_ms         extra one-way delay, e.g. a USB adapter (default 0)
 rx                 receive buffer bytes (default 128; one stays empty: 127 usable)
 planner            planner blocks (default 16); slots: Marlin command queue (4)
-resend_ok, drain   Marlin variant, 0/1 each (default 1, 1 = Marlin 2.1.x)
+dialect            Marlin-protocol firmware: marlin-2.1 (default), marlin-2.0,
+                   marlin-1.1, prusa, repetier, smoothieware, reprapfirmware
+                   (:mod:`fabkit.link.sim_dialects`)
+resend_ok, drain   override the dialect: ok after a resend request, drain on error (0/1)
 keepalive_s        Marlin busy: interval (default 2); heat_tau_s heater constant (20)
 corrupt            probability that a host line gets one bit flipped on the way
 drop_ok            probability that an ``ok`` is lost
@@ -23,6 +26,10 @@ garble             probability that a machine line gets one bit flipped
 noise              probability of a spurious line before a machine line
 reset_after        the machine resets after executing this many commands
 disconnect_after   the line goes dead after this many commands (their ok delivered)
+accel, z_accel,    planner accelerations, mm/s^2: X/Y, Z, E (default 0: none, every
+e_accel, jd        move at its feed; Z and E default to X/Y's) and junction deviation,
+                   mm (0.013)
+bf, opt            GRBL: Bf: in status reports, buffer sizes in $I (0/1, default 1)
 seed               random seed of the faults (default 0)
 =================  ===================================================================
 """
@@ -41,6 +48,7 @@ import tty
 from dataclasses import replace
 from urllib.parse import parse_qs, urlsplit
 
+from fabkit.link.sim_dialects import DIALECTS
 from fabkit.link.sim_grbl import REALTIME, GrblFirmware
 from fabkit.link.sim_machine import (
     INF,
@@ -78,6 +86,12 @@ def _count(text: str) -> int:
     return value
 
 
+def _dialect(text: str) -> str:
+    if text not in DIALECTS:
+        raise ValueError(f"must be one of {', '.join(DIALECTS)}")
+    return text
+
+
 def _flag(text: str) -> bool:
     if text not in ("0", "1"):
         raise ValueError("must be 0 or 1")
@@ -91,10 +105,17 @@ _OPTIONS = {
     "rx": ("rx_buffer_bytes", _count),
     "planner": ("planner_depth", _count),
     "slots": ("command_slots", _count),
+    "dialect": ("dialect", _dialect),
     "resend_ok": ("resend_ok", _flag),
     "drain": ("drain", _flag),
     "keepalive_s": ("keepalive_s", _non_negative),
     "heat_tau_s": ("heater_tau_s", _non_negative),
+    "accel": ("accel_mm_s2", _non_negative),
+    "z_accel": ("z_accel_mm_s2", _non_negative),
+    "e_accel": ("e_accel_mm_s2", _non_negative),
+    "jd": ("junction_deviation_mm", _non_negative),
+    "bf": ("grbl_bf", _flag),
+    "opt": ("grbl_opt", _flag),
     "seed": ("seed", int),
 }
 _FAULT_OPTIONS = {
@@ -153,7 +174,7 @@ class Emulator:
         self.output = Output(
             byte_s,
             config.latency_s,
-            firmware_class.eol,
+            GrblFirmware.eol if grbl else MarlinFirmware.eol_for(config),
             config.faults,
             self.rng,
             self.counters,

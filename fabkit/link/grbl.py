@@ -6,15 +6,31 @@ the bytes of the unanswered lines and sends a line only if it fits (character
 counting). Real-time bytes skip the buffer: ``?`` asks for a status report, ``!`` holds
 the feed, ``~`` resumes, Ctrl-X resets.
 
+Before the job, ``$I`` asks the machine for its buffers: its build info ends in
+``[OPT:<options>,<planner blocks>,<rx bytes>]`` (grbl/report.c ``report_build_info``);
+without it, the ``Bf:<free blocks>,<free rx bytes>`` of an idle status report gives them
+(``report_realtime_status``; ``serial_get_rx_buffer_available`` is RX_BUFFER_SIZE when
+empty). A machine whose buffer is smaller than the profile's ``rx_buffer_bytes`` is
+refused (streaming would overflow it and GRBL would run truncated lines); a larger one
+is used.
+
 A lost ``ok`` leaves a phantom line in the count; when the machine has been quiet for a
 while with lines in flight, ``?`` is sent, and an ``Idle`` report then proves that
-every line sent has been executed. ``error:N`` (the line was not executed and the job
-cannot continue as written) and ``ALARM:N`` stop the job: the feed is held, the machine
-soft-reset and the profile's safe-stop snippet sent.
+every line sent has been executed.
+
+``error:N`` means that line did not run and the job cannot continue as written; the
+lines behind it are already in GRBL's buffer and run regardless. So nothing more is
+sent, those lines are let run to the end (their answers are read, the machine waited for
+``Idle``), the profile's safe-stop snippet follows, and the message names the rejected
+line and the first line that never reached the machine: ``--resume-from`` there runs no
+line twice. ``ALARM:N`` and Ctrl-C stop at once: the feed is held, the position read,
+the machine soft-reset (which drops the planned moves) and the safe-stop snippet sent;
+the position says in which line the machine stopped.
 """
 
 from __future__ import annotations
 
+import re
 import time
 from collections import deque
 
@@ -63,27 +79,32 @@ class GrblProtocol(Session):
         self.inflight_bytes = 0
         self.sent = 0
         self.acked = 0
+        self.rejected: list[tuple[int, str]] = []  # job index, error line
         self.last_query_s = 0.0
         self.quiet_query = False
         self.last_idle = False
         self.held = False
         self.ok_gap_s = 0.05
         self.last_ok_s = time.monotonic()
+        self.last_status = ""
 
     def run(self) -> SendReport:
         """Handshake, stream the whole job, return the report (FabkitError on failure)."""
         self._handshake()
+        self._ask_buffers()
         while self.acked < len(self.job):
             if self.control.aborted:
                 self._abort("safe-stop sent")
             self._hold(self.control.paused)
-            if b"\n" not in self.rx:  # answer everything received before sending more
+            if b"\n" not in self.rx and not self.rejected:  # answer everything first
                 self._fill()
             line = self.read_line()
             if line is None:
                 self._on_silence()
             else:
                 self._on_line(line)
+            if self.rejected and not self.inflight:
+                self._after_error()
         self.show(self.acked, force=True)
         return self.report()
 
@@ -103,6 +124,7 @@ class GrblProtocol(Session):
                         f"{self.port_name} is in ALARM state: home ($H) or unlock ($X) it first"
                     )
                 if line.startswith("<"):
+                    self.last_status = line
                     return
                 if line.startswith("Grbl"):
                     break
@@ -110,6 +132,37 @@ class GrblProtocol(Session):
             f"no answer from {self.port_name} at {self.serial.baud} baud: is it a GRBL "
             "machine and the baud rate right?"
         )
+
+    def _ask_buffers(self) -> None:
+        """Learn the receive buffer from ``$I`` (or an idle ``Bf:``); refuse a profile that
+        claims more than the machine has (see the module docstring)."""
+        self.write(b"$I\n")
+        lines = self._wait_for(("ok", "error:"), b"", 2.0)
+        sizes = next((_opt_sizes(line) for line in lines if line.startswith("[OPT:")), None)
+        source = next((line for line in lines if line.startswith("[OPT:")), "")
+        if sizes is None:
+            bf = re.search(r"Bf:(\d+),(\d+)", self.last_status)
+            if bf and self.last_status.startswith("<Idle"):
+                sizes, source = (
+                    (int(bf.group(1)), int(bf.group(2))),
+                    f"Bf:{bf.group(1)},{bf.group(2)}",
+                )
+        if sizes is None:
+            self.warnings.append(
+                "the machine did not report its receive buffer ($I, Bf:): trusted the "
+                f"profile's rx_buffer_bytes = {self.serial.rx_buffer_bytes}"
+            )
+            return
+        blocks, rx = sizes
+        if rx < self.serial.rx_buffer_bytes:
+            raise FabkitError(
+                f"{self.port_name} reports a {rx}-byte receive buffer ({source}) but machine "
+                f"{self.machine.name} has [serial] rx_buffer_bytes = "
+                f"{self.serial.rx_buffer_bytes}: set it to {rx} in {self.machine.path}"
+            )
+        self.rx_usable = rx - 1
+        if not self.options.window_lines:
+            self.max_lines = max(self.max_lines, blocks)
 
     def _fill(self) -> None:
         frames = []
@@ -144,13 +197,13 @@ class GrblProtocol(Session):
             self._retire(1)
             self.show(self.acked)
         elif line.startswith("error:"):
-            code = _code(line)
-            failed = self.job[self.acked] if self.acked < len(self.job) else None
-            where = f"file line {failed.file_line} ('{failed.text}')" if failed else "a line"
-            self._abort(f"{self.port_name} rejected {where}: {line} {ERRORS.get(code, '')}")
+            if self.acked < len(self.job):
+                self.rejected.append((self.acked, line))
+            self._retire(1)
         elif line.startswith("ALARM:"):
-            self._abort(f"{self.port_name} raised {line} {ALARMS.get(_code(line), '')}")
+            self._abort(f"{self.port_name} raised {line} {ALARMS.get(_code(line), '')}".rstrip())
         elif line.startswith("<"):
+            self.last_status = line
             self.last_idle = line.startswith("<Idle")
             if self.last_idle and self.quiet_query and self.inflight:
                 self.recoveries += 1  # idle and quiet: every line sent was executed
@@ -181,20 +234,49 @@ class GrblProtocol(Session):
 
     # -- stopping --------------------------------------------------------------------------
 
+    def _after_error(self) -> None:
+        """Every line sent is answered after a rejected one: let the machine finish what
+        it holds, stop safely, and name the line to resume from (module docstring)."""
+        self._wait_for(("<Idle", "<Alarm"), STATUS, self.options.finish_s)
+        self._safe_stop()
+        index, error = self.rejected[0]
+        failed = self.job[index]
+        text = f"{self.port_name} rejected file line {failed.file_line} ('{failed.text}'): "
+        text += f"{error} {ERRORS.get(_code(error), '')}".rstrip()
+        if len(self.rejected) > 1:
+            text += f" (and {len(self.rejected) - 1} more lines)"
+        later = self.job[index + 1 : self.sent]
+        if not later:
+            text += f"; safe-stop sent; fix it and continue with --resume-from {failed.file_line}"
+            raise FabkitError(text)
+        lines = f"file line {later[0].file_line}"
+        if len(later) > 1:
+            lines = f"file lines {later[0].file_line}-{later[-1].file_line}"
+        text += f"; {lines} behind it, already in its buffer, ran; safe-stop sent"
+        if self.sent < len(self.job):
+            resume = self.job[self.sent].file_line
+            text += f"; continue with --resume-from {resume} (no line runs twice)"
+        raise FabkitError(text)
+
     def _abort(self, detail: str) -> None:
-        """Hold, reset, send the safe-stop snippet; raise FabkitError with ``detail``."""
-        done = self.acked
+        """Hold, read where the tool stopped, reset, send the safe-stop snippet; raise
+        FabkitError with ``detail`` and the line to resume from."""
+        last = self.sent - 1
         self.write(HOLD)
-        self._wait_for(("<Hold:0", "<Idle", "<Alarm"), STATUS, 2.0)
+        stopped = self._wait_for(("<Hold:0", "<Idle", "<Alarm"), STATUS, 2.0)
+        point = _position(stopped[-1]) if stopped and stopped[-1].startswith("<") else None
         self.write(RESET)
         after_reset = self._wait_for(("Grbl",), b"", 3.0) + self._wait_for(("[MSG:",), b"", 0.2)
         if any(line.startswith("ALARM") or "'$X' to unlock" in line for line in after_reset):
             detail += "; the machine is in ALARM after the reset (unlock with $X)"
         else:
-            for text in self.machine.render("safe_stop_gcode"):
-                self.write(text.encode("ascii") + b"\n")
-                self._wait_for(("ok", "error:"), b"", 5.0)
-        raise self.aborted_error(done, detail)
+            self._safe_stop()
+        raise self.stopped_error(detail, point, last)
+
+    def _safe_stop(self) -> None:
+        for text in self.machine.render("safe_stop_gcode"):
+            self.write(text.encode("ascii") + b"\n")
+            self._wait_for(("ok", "error:"), b"", 5.0)
 
     def _wait_for(self, prefixes: tuple[str, ...], query: bytes, timeout_s: float) -> list[str]:
         """The lines read until one starts with one of ``prefixes`` or ``timeout_s`` passed,
@@ -213,6 +295,27 @@ class GrblProtocol(Session):
             if line.startswith(prefixes):
                 break
         return seen
+
+
+def _opt_sizes(line: str) -> tuple[int, int] | None:
+    """Planner blocks and receive-buffer bytes of ``[OPT:V,15,128]`` (None if absent)."""
+    parts = line.strip("[]").split(":", 1)[-1].split(",")
+    if len(parts) >= 3 and parts[1].isdigit() and parts[2].isdigit():
+        return int(parts[1]), int(parts[2])
+    return None
+
+
+def _position(status: str) -> tuple[float, float, float] | None:
+    """The work position of a status report (``WPos``, or ``MPos`` less ``WCO``)."""
+    found = {key: value for key, value in re.findall(r"(WPos|MPos|WCO):([-\d.,]+)", status)}
+    for key in ("WPos", "MPos"):
+        if key in found:
+            x, y, z = (float(v) for v in found[key].split(",")[:3])
+            if key == "MPos" and "WCO" in found:
+                ox, oy, oz = (float(v) for v in found["WCO"].split(",")[:3])
+                x, y, z = x - ox, y - oy, z - oz
+            return x, y, z
+    return None
 
 
 def _code(line: str) -> int:

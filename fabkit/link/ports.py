@@ -22,6 +22,18 @@ def sim_personality(port: str) -> str | None:
     return port[len("sim://") :].split("?", 1)[0].strip("/").lower()
 
 
+def sim_time_scale(port: str) -> float:
+    """The ``time_scale`` of a ``sim://`` URL (1 for anything else, or a bad URL)."""
+    if sim_personality(port) is None:
+        return 1.0
+    from fabkit.link.emulator import config_from_url
+
+    try:
+        return config_from_url(port, 0).time_scale
+    except ValueError:
+        return 1.0
+
+
 def default_machine(port: str) -> str:
     """The profile used without --machine: grbl_diw on sim://grbl, else marlin_generic."""
     return SIM_DEFAULT_MACHINES.get(sim_personality(port) or "", "marlin_generic")

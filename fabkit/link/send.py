@@ -1,17 +1,21 @@
-"""Send a G-code file to a machine: check it, open the port, stream it, report.
+"""Send a G-code file to a machine: choose the machine, check the file, stream it, report.
 
 :func:`stream_job` drives an already-open port (tests inject emulators and pty ports);
-:func:`send_file` is what ``fabkit send`` calls: it adds the profile, the pre-flight
-check, ``--resume-from``, ``--dry-run``, the log file, the progress bar and the keys
-(Ctrl-C aborts with the profile's safe-stop snippet; Ctrl-Z pauses and resumes).
+:func:`send_file` is what ``fabkit send`` calls: it adds the machine (``--machine``, else
+the one the file's header names, else the port's default), the pre-flight check, the
+duration estimate, ``--resume-from``, ``--dry-run``, the log file, the progress bar and
+the keys (Ctrl-C stops with the profile's safe-stop snippet and raises
+:class:`~fabkit.link.session.SendInterrupted`; Ctrl-Z pauses and resumes).
 """
 
 from __future__ import annotations
 
 import contextlib
+import re
 import signal
 import sys
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
@@ -19,14 +23,30 @@ from serial import SerialException
 
 from fabkit.errors import FabkitError
 from fabkit.link.check import JobCheck, check_job
+from fabkit.link.duration import Estimate, estimate
 from fabkit.link.gcode import Command, read_job
 from fabkit.link.grbl import GrblProtocol
 from fabkit.link.marlin import MarlinProtocol
-from fabkit.link.ports import SIM_DEFAULT_MACHINES, default_machine, open_port, sim_personality
-from fabkit.link.session import LinkControl, LinkOptions, Progress, SendReport, SerialLike
+from fabkit.link.ports import (
+    SIM_DEFAULT_MACHINES,
+    default_machine,
+    open_port,
+    sim_personality,
+    sim_time_scale,
+)
+from fabkit.link.session import (
+    LinkControl,
+    LinkOptions,
+    Progress,
+    SendInterrupted,
+    SendReport,
+    SerialLike,
+)
 from fabkit.machines import MachineProfile, load_machine
 
 PROTOCOLS = {"marlin": MarlinProtocol, "grbl": GrblProtocol}
+_HEADER = re.compile(r";\s*Generated with fabkit \S+ for machine (\S+)")
+HEADER_LINES = 40  # the header is at the top of the file
 
 
 def stream_job(
@@ -68,26 +88,83 @@ def protocol_done(protocol: MarlinProtocol | GrblProtocol) -> int:
     return protocol.done_lines if isinstance(protocol, MarlinProtocol) else protocol.acked
 
 
+@dataclass(frozen=True)
+class DryRun:
+    """What ``--dry-run`` found: which machine and why, the check, the duration."""
+
+    machine_note: str
+    check: JobCheck
+    estimate: Estimate
+
+    def summary(self) -> str:
+        return f"{self.machine_note}\n{self.check.summary()}\n{self.estimate.summary()}"
+
+
+def machine_in_header(path: str | Path) -> str | None:
+    """The machine a fabkit-written file names in its header (``;Generated with fabkit
+    0.1.0 for machine NAME``), or None."""
+    try:
+        with open(path, encoding="ascii", errors="replace") as handle:
+            for _, line in zip(range(HEADER_LINES), handle, strict=False):
+                match = _HEADER.match(line.strip())
+                if match:
+                    return match.group(1)
+    except OSError:
+        return None
+    return None
+
+
+def choose_machine(
+    path: str | Path, requested: str | None, port: str | None, *, force: bool = False
+) -> tuple[MachineProfile, str]:
+    """The profile to send ``path`` with, and one line saying which and why.
+
+    ``--machine`` wins; without it, the machine the file's header names; without a
+    header, the port's default. ``--machine`` and a header that disagree are refused
+    unless ``force``."""
+    named = machine_in_header(path)
+    if requested is None:
+        if named is not None:
+            return load_machine(named), f"machine {named} (named in the header of {path})"
+        fallback = default_machine(port or "")
+        note = f"machine {fallback} (the default: {path} names no machine in its header)"
+        return load_machine(fallback), note
+    profile = load_machine(requested)
+    if named is not None and named != profile.name and not force:
+        raise FabkitError(
+            f"{path} was written for machine {named} (its header), not {profile.name}: "
+            f"send it with --machine {named}, or add --force"
+        )
+    if named is not None and named != profile.name:
+        return profile, f"machine {profile.name} (--force: the header names {named})"
+    return profile, f"machine {profile.name} (--machine)"
+
+
 def send_file(
     path: str | Path,
     port: str | None,
     *,
     baud: int | None = None,
     machine: str | None = None,
+    force: bool = False,
     log_path: str | Path | None = None,
     resume_from: int | None = None,
     dry_run: bool = False,
     options: LinkOptions | None = None,
     show_progress: bool = True,
-) -> SendReport | JobCheck:
+    say: Callable[[str], None] | None = None,
+) -> SendReport | DryRun:
     """Check ``path`` against the machine, then (unless ``dry_run``) stream it to ``port``.
 
-    Returns the check (dry run) or the send report; every problem is a FabkitError. The
-    progress bar goes to stderr unless ``show_progress`` is False.
+    Returns the check and estimate (dry run) or the send report; every problem is a
+    FabkitError, Ctrl-C a :class:`SendInterrupted`. ``say`` gets the lines for the user
+    before streaming (which machine, the estimated duration); the progress bar goes to
+    stderr unless ``show_progress`` is False.
     """
     if port is None and not dry_run:
         raise FabkitError("--port is required (or use --dry-run to only check the file)")
-    profile = load_machine(machine or default_machine(port or ""))
+    job = read_job(path)
+    profile, note = choose_machine(path, machine, port, force=force)
     if profile.serial is None:
         raise FabkitError(f"machine {profile.name} has flavour none and takes no G-code")
     personality = sim_personality(port or "")
@@ -96,15 +173,24 @@ def send_file(
             f"{port} emulates a {personality} machine but profile {profile.name} speaks "
             f"{profile.serial.protocol}"
         )
-    job = read_job(path)
     checked = check_job(job, profile, source=str(path))
+    planned = estimate(job, profile)
+    first = 0
     if resume_from is not None:
-        job = _resume(job, resume_from, path)
+        first = _resume(job, resume_from, path)
     if dry_run or port is None:
-        return checked
+        return DryRun(note, checked, planned)
+    if say is not None:
+        say(note)
+        say(planned.summary())
+    job = job[first:]
     handle = open_port(port, baud or profile.serial.baud)
     control = LinkControl()
-    progress = Progress(sys.stderr, len(job)) if show_progress else None
+    progress = None
+    if show_progress:
+        progress = Progress(
+            sys.stderr, len(job), estimate=planned, offset=first, time_scale=sim_time_scale(port)
+        )
     try:
         with _log_file(log_path) as log, _keys(control):
             return stream_job(
@@ -117,15 +203,20 @@ def send_file(
                 progress=progress,
                 log=log,
             )
+    except FabkitError as exc:
+        if control.interrupted:
+            raise SendInterrupted(str(exc).removeprefix("aborted: ")) from None
+        raise
     finally:
         handle.close()
 
 
-def _resume(job: list[Command], first_line: int, path: str | Path) -> list[Command]:
+def _resume(job: list[Command], first_line: int, path: str | Path) -> int:
+    """The index of the first command at or after file line ``first_line``."""
     last = job[-1].file_line if job else 0
     if not 1 <= first_line <= last:
         raise FabkitError(f"--resume-from {first_line} is outside {path} (lines 1-{last})")
-    return [command for command in job if command.file_line >= first_line]
+    return next(i for i, command in enumerate(job) if command.file_line >= first_line)
 
 
 @contextlib.contextmanager
@@ -144,11 +235,11 @@ def _log_file(path: str | Path | None) -> Iterator[TextIO | None]:
 
 @contextlib.contextmanager
 def _keys(control: LinkControl) -> Iterator[None]:
-    """Ctrl-C aborts (a second Ctrl-C interrupts at once); Ctrl-Z pauses / resumes."""
+    """Ctrl-C stops safely (a second Ctrl-C interrupts at once); Ctrl-Z pauses / resumes."""
     handlers = {}
 
     def on_interrupt(signum: int, frame: object) -> None:
-        control.abort()
+        control.interrupt()
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
     wanted = {signal.SIGINT: on_interrupt}

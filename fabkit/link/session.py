@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Protocol, TextIO
 
 from fabkit.errors import FabkitError
+from fabkit.link.duration import Estimate, clock, estimate
 from fabkit.link.gcode import Command
 from fabkit.machines import MachineProfile
 
@@ -54,12 +55,20 @@ class LinkOptions:
     finish_s: float = 60.0
 
 
+class SendInterrupted(KeyboardInterrupt):
+    """Ctrl-C ended a send after the machine's safe stop; the message (one line) says
+    where the job stopped and which ``--resume-from`` continues it."""
+
+
 class LinkControl:
-    """Pause, resume and abort requests, safe to call from signal handlers or threads."""
+    """Pause, resume and abort requests, safe to call from signal handlers or threads.
+
+    ``interrupt()`` is an abort asked for with Ctrl-C (``interrupted`` then says so)."""
 
     def __init__(self) -> None:
         self._paused = threading.Event()
         self._aborted = threading.Event()
+        self._interrupted = threading.Event()
 
     def pause(self) -> None:
         self._paused.set()
@@ -76,6 +85,14 @@ class LinkControl:
     def abort(self) -> None:
         self._aborted.set()
 
+    def interrupt(self) -> None:
+        self._interrupted.set()
+        self._aborted.set()
+
+    @property
+    def interrupted(self) -> bool:
+        return self._interrupted.is_set()
+
     @property
     def paused(self) -> bool:
         return self._paused.is_set()
@@ -88,13 +105,28 @@ class LinkControl:
 class Progress:
     """A progress bar (lines, %, ETA) redrawn at most every ``interval_s`` on ``stream``.
 
-    On a terminal it redraws one line; otherwise it prints a line every 10 %.
+    On a terminal it redraws one line; otherwise it prints a line every 10 %. The ETA
+    is the longer of the machine's time (``estimate``, the planned duration of the
+    moves left after the first ``offset + done`` commands of the file, times
+    ``time_scale``) and the host's (the lines left at the line rate so far).
     """
 
-    def __init__(self, stream: TextIO | None, total: int, interval_s: float = 0.2) -> None:
+    def __init__(
+        self,
+        stream: TextIO | None,
+        total: int,
+        interval_s: float = 0.2,
+        *,
+        estimate: Estimate | None = None,
+        offset: int = 0,
+        time_scale: float = 1.0,
+    ) -> None:
         self.stream = stream
         self.total = total
         self.interval_s = interval_s
+        self.estimate = estimate
+        self.offset = offset
+        self.time_scale = time_scale
         self.tty = bool(stream) and stream.isatty()
         self.t0 = time.monotonic()
         self.last_draw = -1.0
@@ -114,17 +146,25 @@ class Progress:
         self.last_draw = now
         self.last_decile = decile
         self.last_done = done
-        elapsed = now - self.t0
-        eta = elapsed * (1 - fraction) / fraction if fraction > 0 else 0.0
+        eta = self.eta_s(done, now - self.t0)
         bar = "#" * int(20 * fraction)
         text = (
             f"[{bar:<20}] {100 * fraction:5.1f}%  {done}/{self.total} lines  "
-            f"file line {file_line}  ETA {_clock(eta)}"
+            f"file line {file_line}  ETA {clock(eta)}"
         )
         if note:
             text += f"  {note}"
         self.stream.write("\r" + text.ljust(100)[:120] if self.tty else text + "\n")
         self.stream.flush()
+
+    def eta_s(self, done: int, elapsed_s: float) -> float:
+        """Seconds left after ``done`` of ``total`` lines, ``elapsed_s`` into the send."""
+        left = [0.0]
+        if self.estimate is not None:
+            left.append(self.estimate.remaining_s(self.offset + done) * self.time_scale)
+        if done > 0 and elapsed_s > 0:
+            left.append((self.total - done) * elapsed_s / done)
+        return max(left)
 
     def finish(self) -> None:
         if self.stream is not None and self.tty:
@@ -135,11 +175,6 @@ class Progress:
 def _visible(line: str) -> str:
     """``line`` as is, or as a Python literal if it holds control characters."""
     return repr(line) if any(ord(c) < 32 or ord(c) > 126 for c in line) else line
-
-
-def _clock(seconds: float) -> str:
-    seconds = int(seconds)
-    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
 
 
 @dataclass(frozen=True)
@@ -268,6 +303,29 @@ class Session:
         return FabkitError(
             f"aborted: {detail}; last acknowledged file line {last}; "
             f"continue later with --resume-from {last + 1}"
+        )
+
+    def stopped_error(
+        self, detail: str, point: tuple[float, float, float] | None, last: int
+    ) -> FabkitError:
+        """The one line after a stop that dropped the planned moves: where the machine
+        stopped (``point``, X, Y, Z mm) places it in the file, among the moves up to job
+        index ``last`` that the planner may have held; else the last acknowledged line."""
+        window = self.serial.planner_depth + 8  # planner blocks, command queue, lines in flight
+        index = None
+        if point is not None and self.job:
+            index = estimate(self.job, self.machine).stopped_in(point, last, window)
+        if index is None:
+            return self.aborted_error(max(0, min(last + 1, len(self.job))), detail)
+        where = " ".join(f"{axis} {value:.3f}" for axis, value in zip("XYZ", point, strict=True))
+        if index >= len(self.job):
+            return FabkitError(
+                f"aborted: {detail}; the machine stopped at {where}, after the last line"
+            )
+        line = self.job[index].file_line
+        return FabkitError(
+            f"aborted: {detail}; the machine stopped at {where}, in file line {line}; "
+            f"continue later with --resume-from {line}"
         )
 
     def report(self) -> SendReport:

@@ -20,7 +20,6 @@ from fabkit.link.sim_machine import (
     Counters,
     EmulatorConfig,
     Input,
-    Motion,
     Output,
     TraceEntry,
 )
@@ -99,7 +98,7 @@ class GrblFirmware:
 
     def _reset_state(self) -> None:
         config = self.config
-        self.motion = Motion(config.planner_depth, config.time_scale, config.rapid_mm_s)
+        self.motion = config.motion(config.planner_depth - 1)  # a ring keeps one block free
         self.motion_mode: float = 0
         self.head: _Parsed | None = None
         self.wake = INF
@@ -140,14 +139,19 @@ class GrblFirmware:
             self._soft_reset(t)
 
     def _status(self, t: float) -> None:
-        x, y, z, _ = self.motion.pos
+        """``<State|MPos:x,y,z|Bf:planner,rx|FS:feed,speed>`` (grbl/report.c): MPos where the
+        tool really is, Bf the free planner blocks and receive-buffer bytes (as
+        ``serial_get_rx_buffer_available``: RX_BUFFER_SIZE when empty), when ``$10``
+        asks for it (``bf``)."""
+        x, y, z, _ = self.motion.position_at(t)
         if not self.reading:
             self.inp.fill(t)
-        planner_free = self.motion.depth - len(self.motion.ends)
-        rx_free = self.inp.capacity - len(self.inp.pending)
+        planner_free = self.motion.depth - self.motion.planned(t)
+        rx_free = self.inp.capacity + 1 - len(self.inp.pending)
         feed = (self.motion.feed_mm_s or 0.0) * 60.0
+        buffer = f"|Bf:{planner_free},{rx_free}" if self.config.grbl_bf else ""
         self.out.line(
-            f"<{self.state(t)}|MPos:{x:.3f},{y:.3f},{z:.3f}|Bf:{planner_free},{rx_free}"
+            f"<{self.state(t)}|MPos:{x:.3f},{y:.3f},{z:.3f}{buffer}"
             f"|FS:{feed:.0f},{self.spindle:.0f}>",
             t,
         )
@@ -274,7 +278,7 @@ class GrblFirmware:
             self.motion_mode = block.motion
             if block.motion in (0, 1, 2, 3) and any(axis in values for axis in "XYZ"):
                 arc = int(block.motion) if block.motion in (2, 3) else 0
-                motion.move(values, t, rapid=block.motion == 0, arc=arc)
+                motion.move(values, t, rapid=block.motion == 0, arc=arc, tag=len(self.trace))
         if 0 in block.m or 1 in block.m:
             motion.hold(t)
         x, y, z, e = motion.pos
@@ -294,8 +298,9 @@ class GrblFirmware:
             self.alarm = False
             self.motion.home({})
         elif line == "$I":
-            self.out.line("[VER:1.1h.20190830:fabkit emulator]", t)
-            self.out.line(f"[OPT:V,{self.motion.depth},{self.inp.capacity + 1}]", t)
+            self.out.line("[VER:1.1h.20190830:fabkit emulator]", t)  # grbl/report.c build info
+            sizes = f",{self.motion.depth},{self.inp.capacity + 1}" if self.config.grbl_opt else ""
+            self.out.line(f"[OPT:V{sizes}]", t)
         elif line == "$G":
             mode = "G90" if self.motion.absolute else "G91"
             self.out.line(f"[GC:G{self.motion_mode:g} G54 G17 G21 {mode} G94 M5 M9 T0 F0 S0]", t)

@@ -1,13 +1,15 @@
-"""The emulated Marlin 2.x firmware: line numbers, checksums, resends, ok, busy, heaters.
+"""The emulated Marlin-protocol firmwares: line numbers, checksums, resends, ok, busy.
 
 It follows Marlin's ``GCodeQueue``: lines are read from the receive ring into a command
 queue of ``command_slots`` entries; a line that starts with ``N`` must carry the next
-line number and a correct XOR checksum, else Marlin answers
-``Error:<reason>, Last Line: <n>``, empties its receive ring (2.x), asks
-``Resend: <n+1>`` and (2.1.x, 1.1.x) sends ``ok``. A line without ``N`` is executed
-unchecked, as in Marlin. ``ok`` follows each executed command (M105 answers
-``ok T:...`` instead); moves wait for room in the planner, M109/M190/M400/G4/G28 wait
-for their condition, printing ``busy: processing`` or temperature reports meanwhile.
+line number and a correct XOR checksum, else the firmware rejects it in its dialect's
+words (:mod:`fabkit.link.sim_dialects`: Marlin 2.1 answers ``Error:<reason>, Last Line:
+<n>``, empties its receive ring, asks ``Resend: <n+1>`` and sends ``ok``; Repetier,
+Smoothieware, RepRapFirmware and the other Marlin versions differ). A line without
+``N`` is executed unchecked, as in Marlin. ``ok`` follows each executed command (M105
+answers ``ok T:...`` instead; Repetier acknowledges ``ok <n>`` when it queues a line);
+moves wait for room in the planner, M109/M190/M400/G4/G28 wait for their condition,
+printing the dialect's busy line or temperature reports meanwhile.
 """
 
 from __future__ import annotations
@@ -16,16 +18,16 @@ import random
 import re
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from fabkit.link.gcode import code_of, marlin_checksum, words
+from fabkit.link.sim_dialects import DIALECTS, Dialect
 from fabkit.link.sim_machine import (
     INF,
     Counters,
     EmulatorConfig,
     Heater,
     Input,
-    Motion,
     Output,
     TraceEntry,
 )
@@ -41,6 +43,9 @@ NOISE_LINES = (
 _ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "
 _ERR_CHECKSUM = "checksum mismatch, Last Line: "
 _ERR_NO_CHECKSUM = "No Checksum with line number, Last Line: "
+_ERR_NO_LINE_NO = "No Line Number with checksum, Last Line: "
+REPETIER_SKIP_LINES = 14  # Repetier's waitingForResend after a resend request (gcode.cpp)
+REPETIER_SEEN_LINES = 40  # a line number this close behind the last one is a repeat
 _STRTOL = re.compile(r"\s*([-+]?\d+)")
 
 _MOVES = {"G0", "G1", "G2", "G3"}
@@ -104,10 +109,24 @@ class _Block:
 
 
 class MarlinFirmware:
-    """Marlin's serial protocol and command execution on top of a :class:`Motion`."""
+    """A Marlin-protocol firmware (:class:`Dialect`) on top of a :class:`Motion`."""
 
-    eol = b"\n"
     noise_lines = NOISE_LINES
+
+    @staticmethod
+    def dialect_of(config: EmulatorConfig) -> Dialect:
+        """The config's dialect with its ``resend_ok`` / ``drain`` overrides applied."""
+        dialect = DIALECTS[config.dialect]
+        changes = {
+            key: value
+            for key, value in (("resend_ok", config.resend_ok), ("drain", config.drain))
+            if value is not None
+        }
+        return replace(dialect, **changes) if changes else dialect
+
+    @staticmethod
+    def eol_for(config: EmulatorConfig) -> bytes:
+        return MarlinFirmware.dialect_of(config).eol
 
     def __init__(
         self,
@@ -120,6 +139,7 @@ class MarlinFirmware:
         on_disconnect: Callable[[float], None],
     ) -> None:
         self.config = config
+        self.dialect = self.dialect_of(config)
         self.inp = inp
         self.out = out
         self.trace = trace
@@ -131,18 +151,23 @@ class MarlinFirmware:
 
     def _reset_state(self) -> None:
         config = self.config
-        self.motion = Motion(config.planner_depth, config.time_scale, config.rapid_mm_s)
+        self.motion = config.motion()
         tau = config.heater_tau_s * config.time_scale
         self.hotend = Heater(tau)
         self.bed = Heater(tau)
         self.last_n = 0
         self.queue: deque[tuple[int | None, str]] = deque()
         self.blocked: _Block | None = None
+        self.waiting_for_resend = -1  # Repetier: lines still answered with "skip"
+        self.acked = 0  # lines acknowledged when queued (Repetier)
+        self.deaf = False  # the line is dead: nothing more is read
+        self.wait_at = INF  # Repetier: when "wait" is due
 
     def boot(self, t: float) -> None:
         """Power-up (or reset) banner."""
-        for text in ("start", "echo:Marlin 2.1.2.1 (fabkit emulator)", "echo:Free Memory: 4096"):
-            self.out.raw(text.encode() + self.eol, t)
+        for text in self.dialect.banner:
+            self.out.raw(text.encode() + self.out.eol, t)
+        self._idle(t)
 
     @property
     def reading(self) -> bool:
@@ -150,15 +175,17 @@ class MarlinFirmware:
         return self.blocked is None and not self.halted
 
     def next_time(self) -> float:
-        if self.blocked is None or self.halted:
+        if self.halted:
             return INF
+        if self.blocked is None:
+            return self.wait_at
         return min(self.blocked.wake, self.blocked.report_at)
 
     def realtime(self, byte: int, t: float) -> None:
         """Marlin has no real-time bytes without EMERGENCY_PARSER: nothing to do."""
 
     def run(self, t: float) -> None:
-        """Marlin's main loop at time ``t``: read lines, execute the queue head, repeat."""
+        """The main loop at time ``t``: read lines, execute the queue head, repeat."""
         while not self.halted:
             block = self.blocked
             if block is not None:
@@ -169,14 +196,22 @@ class MarlinFirmware:
             else:
                 self._get_serial_commands(t)
             if not self.queue or not self._advance(t):
+                if not self.queue and self.blocked is None and t >= self.wait_at:
+                    self.out.line("wait", t)  # Repetier: "the last ok may be lost"
+                    self.wait_at = t + self.dialect.idle_wait_s
                 return
+
+    def _idle(self, t: float) -> None:
+        """Input or work happened at ``t``: the next idle ``wait`` is due a while later."""
+        self.wait_at = t + self.dialect.idle_wait_s if self.dialect.idle_wait_s else INF
 
     def _report(self, block: _Block, t: float) -> None:
         if block.temperature:
             self.out.line(" " + self._temperatures(t) + " W:?", t)
             block.report_at = t + 1.0
         else:
-            self.out.line("busy: processing", t)
+            if self.dialect.busy:
+                self.out.line(self.dialect.busy, t)
             block.report_at = t + self.config.keepalive_s
 
     def _temperatures(self, t: float) -> str:
@@ -190,51 +225,136 @@ class MarlinFirmware:
     # -- reading ---------------------------------------------------------------------------
 
     def _get_serial_commands(self, t: float) -> None:
-        while len(self.queue) < self.config.command_slots:
+        while len(self.queue) < self.config.command_slots and not self.deaf:
             raw = self.inp.take_line(t)
             if raw is None:
                 return
+            self._idle(t)
             for part in raw.split(b"\r"):
                 if not self._accept(part, t):
                     return
 
     def _accept(self, raw: bytes, t: float) -> bool:
-        """Check one line and queue it; False after a line error (the ring was drained)."""
+        """Check one line and queue it; False after a line error that drained the ring."""
         command = clean_line(raw).lstrip(" ")
         if not command:
             return True
-        n = None
-        if command.startswith("N"):
-            npos = command
-            m110 = "M110" in command
-            if m110:
-                second = command.find("N", 4)
-                if second >= 0:
-                    npos = command[second:]
-            gcode_n = strtol(npos[1:])
-            if gcode_n != self.last_n + 1 and not m110:
-                return self._line_error(_ERR_LINE_NO, t)
-            star = command.rfind("*")
-            if star < 0:
-                return self._line_error(_ERR_NO_CHECKSUM, t)
-            if strtol(command[star + 1 :]) != marlin_checksum(command[:star].encode("latin-1")):
-                return self._line_error(_ERR_CHECKSUM, t)
-            self.last_n = gcode_n
-            n = gcode_n
-        elif command.startswith("M410"):
-            self.motion.clear()  # processed early, as Marlin does for unnumbered M410
+        style = self.dialect.line_error
+        if style == "silent":
+            return self._accept_unsequenced(command)
+        if style == "smoothie":
+            return self._accept_smoothie(command, t)
+        if not command.startswith("N"):
+            if self.dialect.strict_star and "*" in command:
+                return self._line_error(_ERR_NO_LINE_NO, t)
+            if command.startswith("M410"):
+                self.motion.clear(t)  # processed early, as Marlin does for unnumbered M410
+            return self._queue(None, command, t)
+        npos = command
+        m110 = "M110" in command
+        if m110:
+            second = command.find("N", 4)
+            if second >= 0:
+                npos = command[second:]
+        gcode_n = strtol(npos[1:])
+        star = command.rfind("*")
+        if style == "repetier":
+            return self._accept_repetier(command, gcode_n, star, m110, t)
+        if gcode_n != self.last_n + 1 and not m110:
+            return self._line_error(_ERR_LINE_NO, t)
+        if star < 0:
+            return self._line_error(_ERR_NO_CHECKSUM, t)
+        if not _checksum_ok(command, star):
+            return self._line_error(_ERR_CHECKSUM, t)
+        self.last_n = gcode_n
+        return self._queue(gcode_n, command, t)
+
+    def _queue(self, n: int | None, command: str, t: float) -> bool:
         self.queue.append((n, command))
+        if self.dialect.ack_on_queue:
+            self.out.line(f"ok {n}" if n is not None and self.dialect.ack_numbered else "ok", t)
+            self.acked += 1
+            self._faults(t)
         return True
 
     def _line_error(self, message: str, t: float) -> bool:
+        """Marlin and Prusa: ``Error:``, drain, ``Resend:`` and (by version) ``ok``."""
         self.counters.rejected_lines += 1
         self.out.line(f"Error:{message}{self.last_n}", t)
-        if self.config.drain:
+        if self.dialect.drain:
             self.inp.drain(t)
         self.out.line(f"Resend: {self.last_n + 1}", t)
-        if self.config.resend_ok:
+        if self.dialect.resend_ok:
             self.out.line("ok", t)
         return False
+
+    def _accept_repetier(self, command: str, n: int, star: int, m110: bool, t: float) -> bool:
+        """Repetier's ``parseAscii`` (checksum) then ``checkAndPushCommand`` (sequence)."""
+        if star >= 0 and not _checksum_ok(command, star):
+            self.out.line("Error:Wrong checksum", t)
+            return self._request_resend(t)
+        if m110:
+            self.last_n = n
+            self.waiting_for_resend = -1
+            self.out.line("ok", t)
+            return True
+        expected = self.last_n + 1
+        if n % 65536 != expected % 65536:
+            if (self.last_n - n) % 65536 < REPETIER_SEEN_LINES:
+                return self._skip(n, t)
+            if self.waiting_for_resend < 0:
+                self.out.line(f"Error:expected line {expected} got {n}", t)
+                return self._request_resend(t)
+            self.waiting_for_resend -= 1
+            return self._skip(n, t)
+        self.last_n = n
+        self.waiting_for_resend = -1
+        return self._queue(n, command, t)
+
+    def _skip(self, n: int, t: float) -> bool:
+        self.counters.rejected_lines += 1
+        self.out.line(f"skip {n}", t)
+        self.out.line("ok", t)
+        return True
+
+    def _request_resend(self, t: float) -> bool:
+        self.counters.rejected_lines += 1
+        self.waiting_for_resend = REPETIER_SKIP_LINES
+        self.out.line("", t)
+        self.out.line(f"Resend:{self.last_n + 1}", t)
+        self.out.line("ok", t)
+        return False
+
+    def _accept_smoothie(self, command: str, t: float) -> bool:
+        """Smoothieware's ``on_console_line_received``: ``rs N<next>`` on any mismatch."""
+        if not command.startswith(("G", "M", "T", "S", "N")):
+            self.out.line("ok - ignored", t)
+            return True
+        if not command.startswith("N"):
+            return self._queue(None, command, t)
+        n = strtol(command[1:])
+        if "M110" in command:
+            self.last_n = n
+            self.out.line("ok", t)
+            return True
+        star = command.find("*")
+        if n != self.last_n + 1 or (star >= 0 and not _checksum_ok(command, star)):
+            self.counters.rejected_lines += 1
+            self.out.line(f"rs N{self.last_n + 1}", t)
+            return True
+        self.last_n = n
+        return self._queue(n, command, t)
+
+    def _accept_unsequenced(self, command: str) -> bool:
+        """RepRapFirmware: a bad checksum drops the line without a word; numbers unchecked."""
+        star = command.rfind("*")
+        missing = star < 0 and self.dialect.checksum_required
+        if missing or star >= 0 and not _checksum_ok(command, star):
+            self.counters.rejected_lines += 1
+            return True
+        n = strtol(command[1:]) if command.startswith("N") else None
+        self.queue.append((n, command))
+        return True
 
     # -- executing -------------------------------------------------------------------------
 
@@ -254,7 +374,8 @@ class MarlinFirmware:
             return False
         self.blocked = None
         self.queue.popleft()
-        self._execute(n, text, code, values, t)
+        self._execute(n, command, text, code, values, t)
+        self._idle(t)
         return True
 
     def _wake_time(self, code: str, values: dict[str, float], t: float) -> float:
@@ -277,16 +398,15 @@ class MarlinFirmware:
         return t
 
     def _execute(
-        self, n: int | None, text: str, code: str, values: dict[str, float], t: float
+        self, n: int | None, command: str, text: str, code: str, values: dict[str, float], t: float
     ) -> None:
         motion = self.motion
         if code not in KNOWN:
-            self.counters.unknown_commands += 1
-            self.out.line(f'echo:Unknown command: "{text}"', t)
-            self.out.line("ok", t)
+            self._unknown(text, t)
             return
         if code in _MOVES:
-            motion.move(values, t, rapid=False, arc=int(code[1]) if code in ("G2", "G3") else 0)
+            arc = int(code[1]) if code in ("G2", "G3") else 0
+            motion.move(values, t, rapid=False, arc=arc, tag=len(self.trace))
         elif code in ("G90", "G91"):
             motion.absolute = motion.absolute_e = code == "G90"
         elif code in ("M82", "M83"):
@@ -299,43 +419,81 @@ class MarlinFirmware:
             heater = self.hotend if code == "M104" else self.bed
             heater.set_target(values.get("S", heater.target_c), t)
         elif code == "M410":
-            motion.clear()
+            motion.clear(t)
         elif code == "M110" and n is None and "N" in values:
             self.last_n = int(values["N"])
-        self._record(n, text, t)
+        self._record(n, command, text, t)
         self._respond(code, t)
 
+    def _unknown(self, text: str, t: float) -> None:
+        """A command the firmware does not know, in the dialect's words (nothing runs)."""
+        self.counters.unknown_commands += 1
+        style = self.dialect.line_error
+        if style == "repetier":
+            self.out.line(f"Unknown command:{text}", t)
+        elif style == "silent":
+            self.out.line(f"Error: Bad command: {text}", t)
+            self.out.line("ok", t)
+        elif style == "smoothie":
+            self.out.line("ok", t)
+        else:
+            self.out.line(f'echo:Unknown command: "{text}"', t)
+            self.out.line("ok", t)
+
     def _respond(self, code: str, t: float) -> None:
+        out = self.out
         if code == "M112":
-            self.out.line("Error:Printer halted. kill() called!", t)
+            out.line("Error:Printer halted. kill() called!", t)
             self.halted = True
             return
+        temperatures = self._temperatures(t) if code in ("M105", "M109", "M190") else ""
+        if code == "M105" and not self.dialect.ack_on_queue:
+            out.line("ok " + temperatures, t)
+            self._faults(t)
+            return
         if code == "M105":
-            self.out.line("ok " + self._temperatures(t), t)
+            out.line(temperatures, t)
         elif code == "M114":
             x, y, z, e = self.motion.pos
-            self.out.line(f"X:{x:.2f} Y:{y:.2f} Z:{z:.2f} E:{e:.2f} Count X:0 Y:0 Z:0", t)
+            out.line(f"X:{x:.2f} Y:{y:.2f} Z:{z:.2f} E:{e:.2f} Count X:0 Y:0 Z:0", t)
         elif code == "M115":
-            self.out.line("FIRMWARE_NAME:Marlin 2.1.2.1 (fabkit emulator) PROTOCOL_VERSION:1.0", t)
+            out.line(self.dialect.firmware_name, t)
+            if self.dialect.name.startswith("marlin-2"):
+                for cap in ("Cap:EEPROM:1", "Cap:AUTOREPORT_TEMP:1", "Cap:EMERGENCY_PARSER:0"):
+                    out.line(cap, t)
         elif code in ("M109", "M190"):
-            self.out.line(" " + self._temperatures(t) + " W:0", t)
-        if code != "M105":
-            self.out.line("ok", t)
+            out.line(" " + temperatures + " W:0", t)
+        if not self.dialect.ack_on_queue:
+            out.line("ok", t)
         self._faults(t)
 
-    def _record(self, n: int | None, text: str, t: float) -> None:
+    def _record(self, n: int | None, command: str, text: str, t: float) -> None:
         x, y, z, e = self.motion.pos
-        self.trace.append(TraceEntry(n, text, x, y, z, e, t))
+        checked = n is None or "*" in command
+        if not checked:
+            self.counters.unchecked_lines += 1
+        self.trace.append(TraceEntry(n, text, x, y, z, e, t, checked))
         self.counters.executed += 1
 
     def _faults(self, t: float) -> None:
+        """``disconnect_after``: the line goes dead after that many acknowledged commands,
+        and the machine runs exactly what it acknowledged (for a firmware that
+        acknowledges when it queues, the queue is run first)."""
         faults = self.config.faults
         executed = self.counters.executed
-        if faults.disconnect_after is not None and executed == faults.disconnect_after:
-            self.halted = True
-            self.on_disconnect(t)
+        acked = self.acked if self.dialect.ack_on_queue else executed
+        if faults.disconnect_after is not None and acked >= faults.disconnect_after:
+            self.deaf = True
+            if not self.queue or not self.dialect.ack_on_queue:
+                self.halted = True
+                self.on_disconnect(t)
         elif faults.reset_after is not None and executed == faults.reset_after:
             self.counters.resets += 1
             self._reset_state()
             self.inp.drain(t)
             self.boot(t)
+
+
+def _checksum_ok(command: str, star: int) -> bool:
+    """The XOR of the bytes before ``*`` equals the number after it."""
+    return strtol(command[star + 1 :]) == marlin_checksum(command[:star].encode("latin-1"))

@@ -1,0 +1,333 @@
+"""How long a job will take: the moves planned as the firmware's planner plans them.
+
+:func:`estimate` walks the commands with their modal state (G90/G91, M82/M83, G92, G28,
+feed) and plans every move the way Marlin's and GRBL's planners do
+(Marlin/src/module/planner.cpp ``_buffer_steps`` and ``recalculate``, grbl/planner.c
+``plan_buffer_line`` and ``planner_recalculate``):
+
+* a block's nominal speed is its feed, lowered until no axis exceeds its
+  ``[limits] <axis>_mm_s``; its acceleration is ``[limits] acceleration_mm_s2`` (X, Y),
+  ``z_acceleration_mm_s2`` and ``e_acceleration_mm_s2``, lowered until no axis exceeds
+  its own share (each axis's acceleration scaled by the move's length over its
+  component);
+* the speed at the junction of two moves is limited by junction deviation
+  (``[limits] junction_deviation_mm``): ``v^2 = a * d * sin(theta/2) / (1 - sin(theta/2))``
+  with theta the angle between the moves' directions (a straight continuation is
+  limited only by the two nominal speeds, a reversal stops);
+* a backward and a forward pass make every entry speed reachable from its neighbours
+  at the block's acceleration, starting and ending at rest and stopping at every
+  command that waits for motion to end (G4, M400, G28, M109, M190, M0/M1);
+* each block then takes the time of its trapezoidal (or triangular) speed profile.
+
+The whole file is one look-ahead here, while a firmware sees only its planner's blocks
+(16): when the host keeps the planner full the two agree closely. Dwells (G4) add their
+time; heat-ups and homing cannot be known and are listed instead.
+
+Units: mm, mm/s, mm/s^2, s. G-code feeds (``F``) are mm/min.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from fabkit.link.gcode import Command, code_of, words
+from fabkit.machines import MachineProfile
+
+STOPS = frozenset({"G4", "M400", "G28", "G29", "M109", "M190", "M0", "M1", "M600", "M226"})
+"""Commands that wait until every planned move has ended (the planner empties)."""
+UNKNOWN_TIME = frozenset({"G28", "G29", "M109", "M190", "M0", "M1", "M600", "M226"})
+"""Commands whose duration depends on the machine (homing, heating, the user)."""
+_MOVES = frozenset({"G0", "G1", "G2", "G3"})
+_AXES = "XYZE"
+MIN_JUNCTION_MM_S = 0.05  # Marlin's MINIMUM_PLANNER_SPEED
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """What limits motion on one machine: per-axis X, Y, Z, E values (mm/s, mm/s^2).
+
+    ``rapid_mm_s``: the speed of a GRBL ``G0`` (the machine's maximum rate), None where
+    ``G0`` moves at the feed (Marlin); ``junction_deviation_mm`` as above.
+    """
+
+    max_mm_s: tuple[float, float, float, float]
+    accel_mm_s2: tuple[float, float, float, float]
+    junction_deviation_mm: float
+    rapid_mm_s: float | None
+
+    @classmethod
+    def of(cls, machine: MachineProfile) -> Kinematics:
+        """The machine's limits as the planner uses them."""
+        limits = machine.limits
+        xy = limits.acceleration_mm_s2
+        return cls(
+            max_mm_s=(limits.x_mm_s, limits.y_mm_s, limits.z_mm_s, limits.e_mm_s),
+            accel_mm_s2=(xy, xy, limits.z_acceleration_mm_s2, limits.e_acceleration_mm_s2),
+            junction_deviation_mm=limits.junction_deviation_mm,
+            rapid_mm_s=limits.travel_mm_s if machine.flavour == "grbl" else None,
+        )
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The planned time of a job (s).
+
+    ``end_s[i]``: the motion clock when command ``i`` (of the job) has finished (its
+    move, or its dwell); ``positions[i]``: the logical X, Y, Z, E after command ``i``
+    (None where unknown); ``waits``: commands whose time is not included.
+    """
+
+    end_s: tuple[float, ...]
+    positions: tuple[tuple[float | None, ...], ...]
+    waits: tuple[str, ...]
+
+    @property
+    def total_s(self) -> float:
+        return self.end_s[-1] if self.end_s else 0.0
+
+    def remaining_s(self, done: int) -> float:
+        """The time left once the first ``done`` commands have run."""
+        if done <= 0:
+            return self.total_s
+        return self.total_s - self.end_s[min(done, len(self.end_s)) - 1]
+
+    def stopped_in(
+        self, point: tuple[float, float, float], last: int, window: int, tol_mm: float = 0.05
+    ) -> int | None:
+        """The first command the machine had not finished when it stopped at ``point``
+        (X, Y, Z, mm), looking at the moves among the ``window`` commands up to index
+        ``last`` (the planner holds at most that many): the move whose path passes through
+        the point (the next one if the point is its end), the earliest if several do;
+        None if none does."""
+        for index in range(max(0, last - window), last + 1):
+            start = self.positions[index - 1][:3] if index > 0 else (None,) * 3
+            end = self.positions[index][:3]
+            if None in start or None in end or start == end:
+                continue
+            if _off_segment(point, start, end) <= tol_mm:
+                at_end = math.dist(point, end) <= tol_mm
+                return index + 1 if at_end else index
+        return None
+
+    def summary(self) -> str:
+        """One line for the user."""
+        text = f"estimated duration: {clock(self.total_s)} (moves and dwells"
+        if self.waits:
+            kinds = ", ".join(sorted(set(self.waits)))
+            text += f"; not counted: {len(self.waits)} waits for {kinds}"
+        return text + ")"
+
+
+def _off_segment(point: Sequence[float], start: Sequence[float], end: Sequence[float]) -> float:
+    """The distance (mm) from ``point`` to the segment ``start``-``end``."""
+    d = [b - a for a, b in zip(start, end, strict=True)]
+    length2 = sum(c * c for c in d)
+    along = sum((p - a) * c for p, a, c in zip(point, start, d, strict=True)) / length2
+    along = min(1.0, max(0.0, along))
+    return math.dist(point, [a + along * c for a, c in zip(start, d, strict=True)])
+
+
+def clock(seconds: float) -> str:
+    """``h:mm:ss``."""
+    seconds = int(round(seconds))
+    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
+
+
+@dataclass
+class _Block:
+    """One planned move: length (mm), unit direction, nominal speed (mm/s), acceleration
+    (mm/s^2), the highest entry speed its junction allows (mm/s), and its command."""
+
+    length: float
+    unit: tuple[float, float, float, float]
+    nominal: float
+    accel: float
+    max_entry: float
+    index: int
+    entry: float = 0.0
+
+
+class _Walker:
+    """Modal state while walking a job (logical mm; feed mm/s)."""
+
+    def __init__(self, kinematics: Kinematics) -> None:
+        self.k = kinematics
+        self.pos: list[float | None] = [None, None, None, None]
+        self.absolute = True
+        self.absolute_e = True
+        self.feed: float | None = None
+        self.motion = "G1"
+
+    def step(self, code: str, values: dict[str, float]) -> list[float] | None:
+        """Apply one command; the move it makes as X, Y, Z, E deltas, or None."""
+        if "F" in values and values["F"] > 0:
+            self.feed = values["F"] / 60.0
+        if code in ("G90", "G91"):
+            self.absolute = self.absolute_e = code == "G90"
+        elif code in ("M82", "M83"):
+            self.absolute_e = code == "M82"
+        elif code == "G92":
+            for i, axis in enumerate(_AXES):
+                if axis in values:
+                    self.pos[i] = values[axis]
+        elif code == "G28":
+            named = [axis for axis in "XYZ" if axis in values] or list("XYZ")
+            for axis in named:
+                self.pos[_AXES.index(axis)] = 0.0
+        if code in _MOVES:
+            self.motion = code
+            return self._move(values)
+        if code in ("X", "Y", "Z") and self.k.rapid_mm_s is not None:  # GRBL modal motion
+            return self._move(values)
+        return None
+
+    def _move(self, values: dict[str, float]) -> list[float] | None:
+        deltas = [0.0, 0.0, 0.0, 0.0]
+        moved = False
+        for i, axis in enumerate(_AXES):
+            if axis not in values:
+                continue
+            absolute = self.absolute_e if axis == "E" else self.absolute
+            start = self.pos[i]
+            end = values[axis] if absolute else None if start is None else start + values[axis]
+            if start is not None and end is not None:
+                deltas[i] = end - start
+            self.pos[i] = end
+            moved = True
+        return deltas if moved else None
+
+
+def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
+    """Plan ``job`` on ``machine`` (see the module docstring)."""
+    kinematics = Kinematics.of(machine)
+    walker = _Walker(kinematics)
+    blocks: list[_Block] = []
+    dwell_after: dict[int, float] = {}
+    positions: list[tuple[float | None, ...]] = []
+    waits: list[str] = []
+    segments: list[list[_Block]] = [blocks]
+    for index, command in enumerate(job):
+        code = code_of(command.text)
+        values = words(command.text)
+        deltas = walker.step(code, values)
+        positions.append(tuple(walker.pos))
+        if deltas is not None:
+            block = _block(deltas, walker.motion, values, walker, kinematics, index)
+            if block is not None:
+                segments[-1].append(block)
+        if code in STOPS:
+            if code in UNKNOWN_TIME:
+                waits.append(code)
+            if code == "G4":
+                dwell_after[index] = values.get("P", 0.0) / 1000.0 + values.get("S", 0.0)
+            segments.append([])
+    finish = [0.0] * len(job)
+    for segment in segments:
+        _plan(segment, kinematics)
+        exits = [block.entry for block in segment[1:]] + [0.0]
+        for block, exit_speed in zip(segment, exits, strict=False):
+            finish[block.index] += trapezoid_time(
+                block.length, block.entry, exit_speed, block.nominal, block.accel
+            )
+    end_s: list[float] = []
+    clock_s = 0.0
+    for index in range(len(job)):
+        clock_s += finish[index] + dwell_after.get(index, 0.0)
+        end_s.append(clock_s)
+    return Estimate(tuple(end_s), tuple(positions), tuple(waits))
+
+
+def _block(
+    deltas: list[float],
+    code: str,
+    values: dict[str, float],
+    walker: _Walker,
+    k: Kinematics,
+    index: int,
+) -> _Block | None:
+    """The planner block of a move (None for a move of zero length)."""
+    xyz = math.sqrt(sum(d * d for d in deltas[:3]))
+    length = xyz if xyz > 0 else abs(deltas[3])
+    if code in ("G2", "G3") and ("I" in values or "J" in values):
+        length = _arc_length(deltas, values, code)
+    if length <= 0:
+        return None
+    unit = tuple(d / length for d in deltas)
+    rapid = code == "G0" and k.rapid_mm_s is not None
+    speed = k.rapid_mm_s if rapid else walker.feed or k.max_mm_s[0]
+    accel = math.inf
+    for i in range(4):
+        share = abs(unit[i])
+        if share > 0:
+            speed = min(speed, k.max_mm_s[i] / share)
+            if k.accel_mm_s2[i] > 0:
+                accel = min(accel, k.accel_mm_s2[i] / share)
+    return _Block(length, unit, speed, accel, 0.0, index)
+
+
+def _arc_length(deltas: list[float], values: dict[str, float], code: str) -> float:
+    """Length of an I/J arc in the XY plane (with its Z travel)."""
+    i, j = values.get("I", 0.0), values.get("J", 0.0)
+    radius = math.hypot(i, j)
+    start = math.atan2(-j, -i)
+    stop = math.atan2(deltas[1] - j, deltas[0] - i)
+    sweep = (stop - start) % (2 * math.pi)
+    if code == "G2":
+        sweep = (2 * math.pi - sweep) % (2 * math.pi)
+    sweep = sweep or 2 * math.pi
+    return math.hypot(radius * sweep, deltas[2])
+
+
+def _junction(prev: _Block, block: _Block, deviation_mm: float) -> float:
+    """The highest speed at the junction of ``prev`` and ``block`` (mm/s)."""
+    cos_theta = -sum(a * b for a, b in zip(prev.unit[:3], block.unit[:3], strict=True))
+    if not any(block.unit[:3]) or not any(prev.unit[:3]):
+        cos_theta = -sum(a * b for a, b in zip(prev.unit, block.unit, strict=True))
+    limit = min(prev.nominal, block.nominal)
+    if cos_theta > 0.999999:
+        return min(MIN_JUNCTION_MM_S, limit)
+    cos_theta = max(cos_theta, -0.999999)
+    sin_half = math.sqrt(0.5 * (1.0 - cos_theta))
+    if math.isinf(block.accel):
+        return limit
+    v2 = block.accel * deviation_mm * sin_half / (1.0 - sin_half)
+    return min(math.sqrt(v2), limit)
+
+
+def _plan(blocks: list[_Block], k: Kinematics) -> None:
+    """Entry speeds: junction limits, then the backward and forward passes."""
+    for prev, block in zip(blocks, blocks[1:], strict=False):
+        block.max_entry = _junction(prev, block, k.junction_deviation_mm)
+    if blocks:
+        blocks[0].max_entry = 0.0
+    exit_speed = 0.0  # at rest after the last block
+    for block in reversed(blocks):
+        block.entry = min(block.max_entry, _reach(exit_speed, block))
+        exit_speed = block.entry
+    for prev, block in zip(blocks, blocks[1:], strict=False):
+        block.entry = min(block.entry, _reach(prev.entry, prev))
+
+
+def _reach(speed: float, block: _Block) -> float:
+    """The speed reached from ``speed`` over the block at its acceleration."""
+    if math.isinf(block.accel):
+        return math.inf
+    return math.sqrt(speed * speed + 2.0 * block.accel * block.length)
+
+
+def trapezoid_time(
+    length: float, entry: float, exit_speed: float, nominal: float, accel: float
+) -> float:
+    """Seconds to cover ``length`` mm from ``entry`` to ``exit_speed`` (mm/s), cruising
+    at most at ``nominal``, accelerating and braking at ``accel`` (mm/s^2)."""
+    if math.isinf(accel):
+        return length / nominal
+    accelerate = (nominal * nominal - entry * entry) / (2.0 * accel)
+    brake = (nominal * nominal - exit_speed * exit_speed) / (2.0 * accel)
+    if accelerate + brake <= length:
+        cruise = length - accelerate - brake
+        return (nominal - entry) / accel + (nominal - exit_speed) / accel + cruise / nominal
+    peak = math.sqrt(max(0.0, (2.0 * accel * length + entry * entry + exit_speed * exit_speed) / 2))
+    return max(0.0, (peak - entry) / accel) + max(0.0, (peak - exit_speed) / accel)
