@@ -48,7 +48,6 @@ class JobCheck:
     commands: int
     moves: int
     bounds_mm: tuple[tuple[float, float] | None, ...]
-    motion_time_s: float
 
     def summary(self) -> str:
         """A few lines for the user."""
@@ -62,7 +61,6 @@ class JobCheck:
                 f"{self.source}: {self.commands} commands, {self.moves} moves fit machine "
                 f"{self.machine}",
                 f"positions (mm): {spans}",
-                f"estimated motion time: {self.motion_time_s / 60:.1f} min",
             ]
         )
 
@@ -171,5 +169,4 @@ def check_job(job: Sequence[Command], machine: MachineProfile, source: str = "jo
         commands=len(job),
         moves=tracker.moves,
         bounds_mm=tuple(tuple(span) if span else None for span in tracker.bounds),
-        motion_time_s=tracker.motion_time_s,
     )

@@ -73,8 +73,6 @@ class GrblDialect:
         self._check_words(p)
         if "S" in p.values and self.t.machine.kind == "laser_writer":
             self.t.power(p.label, p.values["S"])
-        if "P" in p.values and "G4" in p.g:
-            self.t.motion_time_s += p.values["P"]
         self.plane = p.plane
         self.units_mm = p.units_mm
         self._tool_length(p)

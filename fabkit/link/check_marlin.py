@@ -276,7 +276,7 @@ class MarlinDialect:
         self.e_relative, self.absolute_extrude = True, False
 
     def _G4(self, label: str, block: Block) -> None:
-        self.t.motion_time_s += block.values.get("P", 0.0) / 1000.0 + block.values.get("S", 0.0)
+        """A dwell moves nothing (its time counts in fabkit.link.duration)."""
 
     def _G92(self, label: str, block: Block) -> None:
         """Set the logical position: the shift becomes machine - value (G92.cpp)."""

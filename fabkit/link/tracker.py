@@ -84,7 +84,6 @@ class Tracker:
         self.flow_on = False
         self.bounds: list[list[float] | None] = [None, None, None]
         self.moves = 0
-        self.motion_time_s = 0.0
 
     # -- positions -------------------------------------------------------------------------
 
@@ -183,11 +182,9 @@ class Tracker:
         arc: ArcMove | None,
     ) -> None:
         """Feed against the travel / print limit; each axis's share against its limit."""
-        limits = self.machine.limits
         deltas = [_delta(a, b) for a, b in zip(start, end, strict=True)]
         length = self._length(deltas, arc)
         if speed.kind == "rapid":
-            self.motion_time_s += length / limits.travel_mm_s
             return
         if speed.kind == "duration":
             if None in deltas:
@@ -202,8 +199,6 @@ class Tracker:
         self.limit(label, "feed", mm_s, "print_mm_s" if printing else "travel_mm_s")
         for axis, share in zip("xyze", _shares(deltas, de, length, arc), strict=True):
             self.limit(label, f"{axis.upper()} speed", mm_s * share, f"{axis}_mm_s")
-        if mm_s > 0:
-            self.motion_time_s += (length or abs(de)) / mm_s
 
     @staticmethod
     def _length(deltas: list[float | None], arc: ArcMove | None) -> float:
