@@ -57,8 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
         return _run(argv)
-    except KeyboardInterrupt:
-        print("fabkit: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:  # a send's says where it stopped and how to resume
+        print(f"fabkit: interrupted: {exc}" if str(exc) else "fabkit: interrupted", file=sys.stderr)
         return 130
     except FabkitError as exc:
         return _error(str(exc))

@@ -198,3 +198,20 @@ def test_ctrl_c_stops_safely_exits_130_and_names_the_resume_line(tmp_path, capsy
     emulator = ports[0].emulator
     safe_stop = ["M410", "M114", "M42 P4 S0", "M42 P5 S0", "G91", "G1 Z5 F600", "G90"]
     assert [e.command for e in emulator.trace[-len(safe_stop) :]] == safe_stop
+
+
+def test_ctrl_c_during_run_send_names_the_resume_line_too(tmp_path, capsys, monkeypatch):
+    """One behaviour everywhere: fabkit run --send stops like fabkit send (exit 130, the
+    line where the machine stopped and the --resume-from that continues)."""
+    from fabkit.link.session import SendInterrupted
+
+    def interrupted(*_, **__):
+        raise SendInterrupted("safe-stop sent; continue later with --resume-from 42")
+
+    monkeypatch.setattr(send_module, "send_file", interrupted)
+    spec = Path(__file__).parent.parent / "examples" / "two_shapes.toml"
+    args = ["run", str(spec), "--out", str(tmp_path / "out"), "--send", "sim://marlin"]
+    code = main([*args, "--step", "0.1", "--diagonals", "30", "--size", "20"])
+    assert code == 130
+    err = capsys.readouterr().err
+    assert err == ("fabkit: interrupted: safe-stop sent; continue later with --resume-from 42\n")

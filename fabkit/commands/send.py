@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 from fabkit.link.send import send_file
-from fabkit.link.session import SendInterrupted
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -53,20 +51,16 @@ def run(args: argparse.Namespace) -> int:
     def say(text: str) -> None:
         print(text, flush=True)
 
-    try:
-        result = send_file(
-            args.file,
-            args.port,
-            baud=args.baud,
-            machine=args.machine,
-            force=args.force,
-            log_path=args.log,
-            resume_from=args.resume_from,
-            dry_run=args.dry_run,
-            say=say,
-        )
-    except SendInterrupted as exc:
-        print(f"fabkit: interrupted: {exc}", file=sys.stderr)
-        return 130
+    result = send_file(
+        args.file,
+        args.port,
+        baud=args.baud,
+        machine=args.machine,
+        force=args.force,
+        log_path=args.log,
+        resume_from=args.resume_from,
+        dry_run=args.dry_run,
+        say=say,
+    )  # Ctrl-C: a SendInterrupted, which fabkit.cli prints with its resume line (exit 130)
     print(result.summary())
     return 0
