@@ -3,7 +3,8 @@
 A :class:`FlatField` is what the toolpath stage needs from a design: the domain outline
 (a shapely polygon, mm), the director angle ``theta(x, y)`` (radians, defined mod pi,
 defined on the whole plane so that line generation may look a little past the outline)
-and, if the design has one, the designable feature ``eps(x, y)``.
+and every designable feature ``eps_i(x, y)``, by name (a design's features are named in
+its spec; a director file's single ``eps`` is the feature ``eps``).
 
 It comes from one of three sources:
 
@@ -23,8 +24,9 @@ head-tail symmetry of the director is respected.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -56,18 +58,24 @@ DESIGN_KEYS = ("u", "v", "valid", "eps", "r", "n")
 
 @dataclass(frozen=True, eq=False)
 class FlatField:
-    """A director field (and optional eps) on the flat sheet; lengths in mm, angles in rad.
+    """A director field and its features on the flat sheet; lengths in mm, angles in rad.
 
-    ``theta_fn(x, y)`` and ``eps_fn(x, y)`` take broadcast arrays of mm coordinates and return
-    arrays of their shape; theta is defined mod pi. ``eps_fn`` is None when there is no eps.
+    ``theta_fn(x, y)`` and every function of ``features`` (feature name -> eps(x, y), in
+    the design's order) take broadcast arrays of mm coordinates and return arrays of
+    their shape; theta is defined mod pi. ``keys`` names where theta (key ``"theta"``)
+    and each feature came from (an option, a key, a file), for error messages.
+    ``mm_per_unit``: the scale of a design's field (mm per design unit), None for fields
+    given in mm. ``joint_fn`` (optional) gives [theta, *features] at once, cheaper than
+    one call each (a design locates each point in its mesh once).
     """
 
     outline: shapely.Polygon | shapely.MultiPolygon
     theta_fn: PlaneFunction
-    eps_fn: PlaneFunction | None
+    features: Mapping[str, PlaneFunction]
     source: str
-    keys: tuple[str, str] = ("theta", "eps")
-    """What theta_fn and eps_fn came from (an option, a key, a file), for error messages."""
+    keys: Mapping[str, str] = field(default_factory=dict)
+    mm_per_unit: float | None = None
+    joint_fn: Callable[[np.ndarray, np.ndarray], list[np.ndarray]] | None = None
 
     def theta(self, points: np.ndarray) -> np.ndarray:
         """Director angle (n,) in (-pi/2, pi/2] at (n, 2) points.
@@ -77,7 +85,7 @@ class FlatField:
         it (see :func:`_finite_values`).
         """
         points = np.asarray(points, dtype=float).reshape(-1, 2)
-        angles = _finite_values(self.theta_fn, points, self.outline, self.keys[0])
+        angles = _finite_values(self.theta_fn, points, self.outline, self.key("theta"))
         return np.pi / 2 - np.mod(np.pi / 2 - angles, np.pi)
 
     def director(self, points: np.ndarray) -> np.ndarray:
@@ -85,16 +93,44 @@ class FlatField:
         angles = self.theta(points)
         return np.column_stack([np.cos(angles), np.sin(angles)])
 
-    def eps(self, points: np.ndarray) -> np.ndarray:
-        """eps (n,) at (n, 2) points; a FabkitError if the field has none."""
-        if self.eps_fn is None:
-            raise FabkitError(f"{self.source}: has no eps field to encode")
-        points = np.asarray(points, dtype=float).reshape(-1, 2)
-        return _finite_values(self.eps_fn, points, self.outline, self.keys[1])
+    def key(self, name: str) -> str:
+        """Where theta (``"theta"``) or a feature came from, for messages."""
+        return self.keys.get(name, name)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The feature names, in order."""
+        return tuple(self.features)
 
     @property
     def has_eps(self) -> bool:
-        return self.eps_fn is not None
+        return bool(self.features)
+
+    def feature(self, name: str, points: np.ndarray) -> np.ndarray:
+        """Feature ``name`` (n,) at (n, 2) points, finite as theta is (see :meth:`theta`)."""
+        if name not in self.features:
+            known = ", ".join(self.features) or "none"
+            raise FabkitError(f"{self.source}: has no feature '{name}' (features: {known})")
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        return _finite_values(self.features[name], points, self.outline, self.key(name))
+
+    def sample(self, points: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Director angle (n,) (as :meth:`theta`) and every feature (n,) at (n, 2) points."""
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        if self.joint_fn is None:
+            return self.theta(points), {name: self.feature(name, points) for name in self.names}
+        theta, *values = self.joint_fn(points[:, 0], points[:, 1])
+        theta = np.pi / 2 - np.mod(np.pi / 2 - theta, np.pi)
+        return theta, dict(zip(self.names, values, strict=True))
+
+    def eps(self, points: np.ndarray) -> np.ndarray:
+        """The field's only feature (n,) at (n, 2) points; an error unless it has one."""
+        if len(self.features) != 1:
+            count = f"{len(self.features)} features ({', '.join(self.features)})"
+            raise FabkitError(
+                f"{self.source}: needs one eps feature, it has {count if self.features else 'none'}"
+            )
+        return self.feature(self.names[0], points)
 
     def clipped(self, clip: shapely.Geometry) -> FlatField:
         """The same field on the outline intersected with ``clip`` (mm)."""
@@ -221,25 +257,43 @@ def parse_shape(text: Any, where: str = "shape") -> shapely.Polygon:
 def field_from_expression(
     theta: str,
     outline: shapely.Geometry,
-    eps: str | float | None = None,
+    eps: str | float | Mapping[str, Any] | None = None,
     where: str | None = None,
 ) -> FlatField:
-    """A director field ``theta(x, y)`` (radians) on ``outline`` (mm), optional eps(x, y).
+    """A director field ``theta(x, y)`` (radians) on ``outline`` (mm), with features:
+    ``eps`` one expression (the feature ``eps``), a mapping name -> expression, or None.
 
     ``where`` names the table they come from (errors name ``<where>.theta`` and
     ``<where>.eps``); None means the command-line options ``--director`` and ``--eps``.
-    Both must be finite on the whole sheet (:func:`check_finite_on_sheet`).
+    Every field must be finite on the whole sheet (:func:`check_finite_on_sheet`).
     """
-    keys = ("--director", "--eps") if where is None else (f"{where}.theta", f"{where}.eps")
-    theta_fn = planar_expression(theta, keys[0])
-    eps_fn = None if eps is None else planar_expression(eps, keys[1])
+    theta_key = "--director" if where is None else f"{where}.theta"
+    eps_key = "--eps" if where is None else f"{where}.eps"
+    theta_fn = planar_expression(theta, theta_key)
+    texts: dict[str, Any] = {}
+    keys = {"theta": theta_key}
+    if isinstance(eps, Mapping):
+        if not eps:
+            raise FabkitError(f"{eps_key}: give at least one feature = expression")
+        for name in eps:
+            check_feature_name(name, eps_key)
+            texts[str(name)], keys[str(name)] = eps[name], f"{eps_key}.{name}"
+    elif eps is not None:
+        texts["eps"], keys["eps"] = eps, eps_key
+    features = {name: planar_expression(text, keys[name]) for name, text in texts.items()}
     outline = _polygonal(outline)
     if outline.is_empty or outline.area <= 0:
         raise FabkitError(f"{where or '--shape'}: the outline is empty")
-    check_finite_on_sheet(theta_fn, outline, keys[0], str(theta))
-    if eps_fn is not None:
-        check_finite_on_sheet(eps_fn, outline, keys[1], str(eps))
-    return FlatField(outline, theta_fn, eps_fn, f"theta = {theta}", keys)
+    check_finite_on_sheet(theta_fn, outline, theta_key, str(theta))
+    for name, function in features.items():
+        check_finite_on_sheet(function, outline, keys[name], str(texts[name]))
+    return FlatField(outline, theta_fn, features, f"theta = {theta}", keys)
+
+
+def check_feature_name(name: Any, where: str) -> None:
+    """A feature name: an identifier (letters, digits, underscores; not a digit first)."""
+    if not (isinstance(name, str) and name.isidentifier() and name.isascii()):
+        raise FabkitError(f"{where}: feature name {name!r} must be an identifier like eps1")
 
 
 # --------------------------------------------------------------------------- grids
@@ -250,26 +304,27 @@ def field_from_grid(
     mask: np.ndarray,
     pixel_mm: float,
     origin: tuple[float, float] = (0.0, 0.0),
-    eps: np.ndarray | None = None,
+    eps: np.ndarray | Mapping[str, np.ndarray] | None = None,
     source: str = "theta grid",
 ) -> FlatField:
     """A director field from an (nx, ny) theta grid (radians) and boolean mask.
 
     Node ``(i, j)`` sits at ``origin + pixel_mm * (i, j)`` (mm). The outline is the mask's
-    0.5 contour; theta (as a tensor) and eps are interpolated bilinearly, and extended by
-    the nearest masked node outside the mask.
+    0.5 contour; theta (as a tensor) and the features are interpolated bilinearly, and
+    extended by the nearest masked node outside the mask. ``eps``: one grid (the feature
+    ``eps``) or a mapping name -> grid.
     """
     theta = np.asarray(theta, dtype=float)
     mask = np.asarray(mask, dtype=bool)
     if theta.ndim != 2 or mask.shape != theta.shape or min(theta.shape) < 2:
         raise FabkitError(f"{source}: theta and mask must be 2-D arrays of one shape (>= 2 x 2)")
-    if eps is not None and np.shape(eps) != theta.shape:
-        raise FabkitError(f"{source}: eps must have the shape of theta {theta.shape}")
+    grids = {} if eps is None else dict(eps) if isinstance(eps, Mapping) else {"eps": eps}
+    for name, grid in grids.items():
+        if np.shape(grid) != theta.shape:
+            raise FabkitError(f"{source}: {name} must have the shape of theta {theta.shape}")
     if not mask.any():
         raise FabkitError(f"{source}: the mask selects no point")
-    for label, values in (("theta", theta), ("eps", eps)):
-        if values is None:
-            continue
+    for label, values in (("theta", theta), *grids.items()):
         bad = np.argwhere(mask & ~np.isfinite(np.asarray(values, dtype=float)))
         if len(bad):
             raise FabkitError(
@@ -282,14 +337,15 @@ def field_from_grid(
     filled = _fill_nearest(mask, np.cos(2 * theta), np.sin(2 * theta))
     cos2, sin2 = (RegularGridInterpolator((xs, ys), f, bounds_error=False) for f in filled[:2])
     theta_fn = _tensor_angle(cos2, sin2, xs, ys)
-    eps_fn = None
-    if eps is not None:
-        (eps_filled,) = _fill_nearest(mask, np.asarray(eps, dtype=float))
-        eps_fn = _clamped(RegularGridInterpolator((xs, ys), eps_filled), xs, ys)
+    features = {}
+    for name, grid in grids.items():
+        (filled_grid,) = _fill_nearest(mask, np.asarray(grid, dtype=float))
+        features[name] = _clamped(RegularGridInterpolator((xs, ys), filled_grid), xs, ys)
     outline = _mask_outline(mask.astype(float), xs, ys)
     if outline.is_empty:
         raise FabkitError(f"{source}: the mask has no area (needs 2 x 2 neighbouring points)")
-    return FlatField(outline, theta_fn, eps_fn, source, (f"{source}: theta", f"{source}: eps"))
+    keys = {"theta": f"{source}: theta", **{name: f"{source}: {name}" for name in features}}
+    return FlatField(outline, theta_fn, features, source, keys)
 
 
 def _fill_nearest(mask: np.ndarray, *grids: np.ndarray) -> list[np.ndarray]:
@@ -339,28 +395,45 @@ def field_from_design(
     path: str | Path,
     size_mm: float | None = None,
     mm_per_unit: float | None = None,
-    feature: int = 0,
 ) -> FlatField:
     """The flat-sheet field of a solved ``design.npz``, scaled to millimetres.
 
     Give exactly one of ``size_mm`` (the longest side of the outline's bounding box, mm) and
-    ``mm_per_unit`` (mm per design unit). ``feature`` picks the eps feature to carry.
+    ``mm_per_unit`` (mm per design unit). Every feature of the design is carried, named as
+    in its spec.
     """
     if (size_mm is None) == (mm_per_unit is None):
         raise FabkitError("design: give the size (--size MM, longest side) or --scale MM_PER_UNIT")
     design = Design.load(path)
     arrays = {key: getattr(design, key) for key in DESIGN_KEYS}
-    if not 0 <= feature < arrays["eps"].shape[0]:
-        raise FabkitError(f"{path}: no eps feature {feature} (it has {arrays['eps'].shape[0]})")
-    mesh = _DesignMesh.build(arrays, feature, 1.0, str(path))
+    names = feature_names(design, str(path))
+    mesh = _DesignMesh.build(arrays, 1.0, str(path))
     outline = mesh.outline()
     if size_mm is not None:
         low_x, low_y, high_x, high_y = outline.bounds
         mm_per_unit = number(size_mm, "--size", positive=True) / max(high_x - low_x, high_y - low_y)
     scale = number(mm_per_unit, "--scale", positive=True)
-    mesh = _DesignMesh.build(arrays, feature, scale, str(path))
+    mesh = _DesignMesh.build(arrays, scale, str(path))
     outline = shapely.affinity.scale(outline, scale, scale, origin=(0, 0))
-    return FlatField(outline, mesh.theta, mesh.eps, f"{path}", (f"{path}: theta", f"{path}: eps"))
+    features = {name: mesh.feature_function(k) for k, name in enumerate(names)}
+    keys = {"theta": f"{path}: theta", **{name: f"{path}: {name}" for name in names}}
+    return FlatField(outline, mesh.theta, features, f"{path}", keys, scale, mesh.everything)
+
+
+def feature_names(design: Design, where: str = "design") -> tuple[str, ...]:
+    """The names of a design's features, from the spec it carries (``material.features``)."""
+    try:
+        names = json.loads(design.spec)["material"]["features"]
+    except (ValueError, KeyError, TypeError):
+        names = None
+    count = design.eps.shape[0]
+    if not (
+        isinstance(names, list) and len(names) == count and all(isinstance(n, str) for n in names)
+    ):
+        raise FabkitError(
+            f"{where}: its spec does not name its {count} feature(s) (material.features)"
+        )
+    return tuple(names)
 
 
 @dataclass(frozen=True, eq=False)
@@ -369,7 +442,7 @@ class _DesignMesh:
 
     ``points`` (V, 2) flat-sheet positions of valid grid nodes; ``triangles`` (T, 3) node
     indices, ordered by distance of the cell from the design origin (smallest |u|+|v| first);
-    ``cos2``, ``sin2``, ``eps_values`` (V,) per-node values.
+    ``cos2``, ``sin2`` (V,) and ``eps_values`` (N, V) per-node values.
     """
 
     points: np.ndarray
@@ -382,13 +455,12 @@ class _DesignMesh:
     nodes: cKDTree
 
     @classmethod
-    def build(
-        cls, arrays: Mapping[str, np.ndarray], feature: int, scale: float, where: str
-    ) -> _DesignMesh:
+    def build(cls, arrays: Mapping[str, np.ndarray], scale: float, where: str) -> _DesignMesh:
         """The mesh of ``arrays`` (a design file's contents) with positions times ``scale``."""
         valid = arrays["valid"].astype(bool)
-        r0, n0, eps = arrays["r"][0], arrays["n"][0], arrays["eps"][feature]
-        valid &= np.isfinite(r0).all(axis=-1) & np.isfinite(n0).all(axis=-1) & np.isfinite(eps)
+        r0, n0, eps = arrays["r"][0], arrays["n"][0], arrays["eps"]
+        valid &= np.isfinite(r0).all(axis=-1) & np.isfinite(n0).all(axis=-1)
+        valid &= np.isfinite(eps).all(axis=0)
         cells = valid[:-1, :-1] & valid[1:, :-1] & valid[1:, 1:] & valid[:-1, 1:]
         if not cells.any():
             raise FabkitError(f"{where}: the design has no valid grid cell")
@@ -411,7 +483,7 @@ class _DesignMesh:
             triangles=triangles,
             cos2=np.cos(2 * angle),
             sin2=np.sin(2 * angle),
-            eps_values=eps[valid].astype(float),
+            eps_values=eps[:, valid].astype(float),
             where=where,
             locator=TriangleLocator(points, triangles),
             nodes=cKDTree(points),
@@ -440,8 +512,18 @@ class _DesignMesh:
         cos2, sin2 = self._interpolate(x, y, self.cos2, self.sin2)
         return 0.5 * np.arctan2(sin2, cos2)
 
-    def eps(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return self._interpolate(x, y, self.eps_values)[0]
+    def everything(self, x: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
+        """[theta, *features] at x, y (mm), each point located once."""
+        cos2, sin2, *values = self._interpolate(x, y, self.cos2, self.sin2, *self.eps_values)
+        return [0.5 * np.arctan2(sin2, cos2), *values]
+
+    def feature_function(self, index: int) -> PlaneFunction:
+        """Feature ``index`` as a function of x, y (mm)."""
+
+        def evaluate(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+            return self._interpolate(x, y, self.eps_values[index])[0]
+
+        return evaluate
 
     def _interpolate(self, x: np.ndarray, y: np.ndarray, *values: np.ndarray) -> list[np.ndarray]:
         """Barycentric interpolation in the containing image triangle; nearest node outside."""
@@ -531,7 +613,7 @@ def load_director_file(path: str | Path) -> FlatField:
     [director]
     theta = "phi + pi/2"      # radians; names x, y, r, phi; arctan2(a, b) allowed
     shape = "disc:10"         # or outline = [[x, y], ...] (mm)
-    eps = "0.3"               # optional
+    eps = "0.3"               # optional: the feature eps; or { eps1 = "...", eps2 = "..." }
     # or, instead of theta/eps: grid = "theta.npz" with theta, mask, pixel_mm (, eps)
     """
     path = user_or_example(path)

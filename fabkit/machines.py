@@ -17,12 +17,21 @@ import string
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
 from fabkit.errors import FabkitError
 from fabkit.limits import MAGNITUDE, TEMPLATE_CHARS, TEMPLATE_LINE_CHARS
+from fabkit.process import (
+    LIGHT_PARAMETERS,
+    PRINT_PARAMETERS,
+    SETTING_KEYS,
+    Calibration,
+    Encode,
+    JointCalibration,
+    Process,
+)
 from fabkit.shipped import PROFILES_DIR
 from fabkit.tomlfile import read_toml
 
@@ -39,18 +48,24 @@ RELATIONS = ("perpendicular", "parallel")
 """How a photoalignment layer's director lies with respect to the light's polarisation."""
 DEFAULT_RELATION = "perpendicular"
 """Azo dyes such as SD1 align the director perpendicular to the polarisation."""
-PRINT_PARAMETERS = (
-    "print_speed_mm_s",
-    "extrusion_multiplier",
-    "temperature_c",
-    "line_spacing_mm",
-)
-"""Print-line parameters an eps calibration may map to (same names as the toolpath's)."""
-LIGHT_PARAMETERS = ("dose_mj_cm2",)
-"""Exposure parameters an eps calibration of a laser writer may map to."""
 CALIBRATION_PARAMETERS = PRINT_PARAMETERS + LIGHT_PARAMETERS
+"""Parameters a channel of a profile may encode (light ones on laser writers only)."""
+INK_METHODS = ("alternate", "mixing")
+"""How a machine makes a share of a second ink: alternating the two inks along every road
+(valves or tools switched by ``ink2_on_gcode`` / ``ink2_off_gcode``), or a mixing
+extruder's ratio (Marlin ``M163`` / ``M164``)."""
 
-GCODE_KEYS = ("start_gcode", "end_gcode", "flow_on_gcode", "flow_off_gcode", "safe_stop_gcode")
+GCODE_KEYS = (
+    "start_gcode",
+    "end_gcode",
+    "flow_on_gcode",
+    "flow_off_gcode",
+    "safe_stop_gcode",
+    "ink2_on_gcode",
+    "ink2_off_gcode",
+)
+OPTIONAL_GCODE_KEYS = ("ink2_on_gcode", "ink2_off_gcode")
+"""Template keys a profile may leave out (empty): the second ink's switch."""
 PLACEHOLDERS = (
     "nozzle_c",
     "bed_c",
@@ -140,6 +155,8 @@ class GcodeTemplates:
 
     ``flow_on_gcode`` / ``flow_off_gcode`` start and stop the material (valve, dispenser,
     beam); empty when the flow follows the E axis. ``safe_stop_gcode`` is sent on abort.
+    ``ink2_on_gcode`` / ``ink2_off_gcode`` (optional) start and stop the second ink of a
+    two-ink machine (its valve, or a tool change such as ``T1`` / ``T0``).
     """
 
     start_gcode: str
@@ -147,6 +164,48 @@ class GcodeTemplates:
     flow_on_gcode: str
     flow_off_gcode: str
     safe_stop_gcode: str
+    ink2_on_gcode: str = ""
+    ink2_off_gcode: str = ""
+
+
+@dataclass(frozen=True)
+class PressureOutput:
+    """How a pneumatic machine sets its dispense pressure (the optional ``[pressure]``).
+
+    ``command`` is written with ``S<n>``, n = round(pressure / ``full_scale_kpa`` x
+    ``s_max``) (an electronic regulator on a PWM output: Marlin ``M106 P1``, 0..255);
+    ``max_kpa`` is the highest pressure the machine may be asked for.
+    """
+
+    command: str
+    s_max: int
+    full_scale_kpa: float
+    max_kpa: float
+
+    def s_value(self, kpa: Any) -> Any:
+        """The S word (whole steps, halves up) for pressures in kPa (numbers or arrays)."""
+        return np.floor(np.asarray(kpa, dtype=float) / self.full_scale_kpa * self.s_max + 0.5)
+
+    def kpa(self, s: Any) -> Any:
+        """The pressure, kPa, that S words set."""
+        return np.asarray(s, dtype=float) * self.full_scale_kpa / self.s_max
+
+
+@dataclass(frozen=True)
+class Inks:
+    """A machine with a second ink (the optional ``[inks]`` table).
+
+    ``method`` one of INK_METHODS. ``alternate``: every road switches between the two
+    inks (``flow_on_gcode`` / ``flow_off_gcode`` for the first, ``ink2_on_gcode`` /
+    ``ink2_off_gcode`` for the second) in runs of about ``piece_mm`` (mm, never shorter
+    than half of it), so that the share of the second ink over a few road widths is the
+    encoded fraction. ``mixing``:
+    a mixing extruder (E axis, Marlin-like) takes the ratio per move from ``M163 S0 P..``,
+    ``M163 S1 P..`` and ``M164 S0``.
+    """
+
+    method: str
+    piece_mm: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -165,32 +224,6 @@ class SerialSettings:
 
 
 @dataclass(frozen=True)
-class Calibration:
-    """Measured eps (programmed strain) against one process parameter.
-
-    ``eps`` strictly increasing, ``value`` positive and strictly monotone; ``clip``: eps
-    outside the table is clipped to it (with a warning) instead of being an error. The
-    stage that uses the table interpolates it (the toolpath: monotone PCHIP).
-    """
-
-    parameter: str
-    eps: tuple[float, ...]
-    value: tuple[float, ...]
-    clip: bool = False
-
-
-@dataclass(frozen=True)
-class ProcessProfile:
-    """Default process settings the toolpath reads (mm, mm/s), and the eps calibration."""
-
-    road_width_mm: float
-    layer_height_mm: float
-    print_speed_mm_s: float
-    travel_speed_mm_s: float
-    calibration: Calibration | None
-
-
-@dataclass(frozen=True)
 class LaserOptics:
     """The light of a photoalignment writer (the optional ``[laser]`` table).
 
@@ -198,7 +231,9 @@ class LaserOptics:
     width; ``relation``: the aligned director lies perpendicular (azo dyes such as SD1) or
     parallel to the polarisation; ``input_polarisation_deg``: the polarisation entering
     the half-wave plate, degrees from +x in [0, 180); ``intensity_mw_cm2`` (exposure
-    times) and ``max_power_mw`` (scan power limit), None = unknown.
+    times) and ``max_power_mw`` (scan power limit), None = unknown; ``dose_levels`` and
+    ``bins``: dose levels and director angle bins of the exposures (None = the writer's
+    defaults).
     """
 
     pixel_pitch_mm: float | None = None
@@ -206,6 +241,8 @@ class LaserOptics:
     input_polarisation_deg: float = 0.0
     intensity_mw_cm2: float | None = None
     max_power_mw: float | None = None
+    dose_levels: int | None = None
+    bins: int | None = None
 
 
 @dataclass(frozen=True)
@@ -214,7 +251,9 @@ class MachineProfile:
 
     ``gcode`` and ``serial`` are None exactly when ``flavour == "none"`` (a machine that
     takes no G-code, e.g. a projector-based writer driven by images); ``laser`` is set
-    only for kind ``laser_writer`` (defaults when its profile has no ``[laser]`` table).
+    only for kind ``laser_writer`` (defaults when its profile has no ``[laser]`` table);
+    ``pressure`` and ``inks`` when the profile says how it sets a dispense pressure and
+    makes a second ink. ``process`` is the default :class:`~fabkit.process.Process`.
     """
 
     name: str
@@ -227,9 +266,11 @@ class MachineProfile:
     temperature: Temperatures
     gcode: GcodeTemplates | None
     serial: SerialSettings | None
-    process: ProcessProfile
+    process: Process
     laser: LaserOptics | None
     path: Path
+    pressure: PressureOutput | None = None
+    inks: Inks | None = None
 
     def placeholders(self) -> dict[str, str]:
         """Values of the template placeholders for this machine, formatted for G-code."""
@@ -328,7 +369,7 @@ class _Table:
         self.data = dict(data)
         self.seen: set[str] = set()
 
-    def fail(self, message: str) -> None:
+    def fail(self, message: str) -> NoReturn:
         raise FabkitError(f"{_display(self.path)}: {message}")
 
     def _raw(self, key: str) -> Any:
@@ -411,6 +452,62 @@ class _Table:
     def table(self, key: str) -> _Table:
         return _Table(self._raw(key), f"[{self._qualified(key)}]", self.path)
 
+    def count(self, key: str) -> int:
+        """How many tables the array of tables ``key`` holds (0 if absent)."""
+        self.seen.add(key)
+        if key not in self.data:
+            return 0
+        if not isinstance(self.data[key], list):
+            self.fail(f"{self._name(key)} must be an array of tables ([[{self._qualified(key)}]])")
+        return len(self.data[key])
+
+    def item(self, key: str, index: int) -> _Table:
+        """Table ``index`` of the array of tables ``key``."""
+        return _Table(self.data[key][index], f"[[{self._qualified(key)}]] {index + 1}", self.path)
+
+    def feature(self, key: str, value: Any = None) -> str | int:
+        """A feature by name (a string) or position (an integer >= 0, 0 = the first)."""
+        value = self._raw(key) if value is None else value
+        if isinstance(value, str) and value.strip():
+            return value
+        if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
+            return value
+        self.fail(
+            f"{self._name(key)} must be a feature name or its position (0 = the first), "
+            f"got {value!r}"
+        )
+
+    def choice(self, key: str, value: Any, choices: tuple[str, ...]) -> str:
+        if not isinstance(value, str) or value not in choices:
+            self.fail(f"{self._name(key)}: '{value}' is not one of {', '.join(choices)}")
+        return value
+
+    def pair(self, key: str, read: Callable[[str, Any], Any]) -> tuple[Any, Any]:
+        """Two items read by ``read(key, item)``."""
+        value = self._raw(key)
+        if not isinstance(value, list) or len(value) != 2:
+            self.fail(f"{self._name(key)} must be an array of two items, got {value!r}")
+        return read(key, value[0]), read(key, value[1])
+
+    def matrix(self, key: str) -> tuple[tuple[float, ...], ...]:
+        """An array of arrays of finite numbers."""
+        value = self._raw(key)
+        if not isinstance(value, list) or not all(isinstance(row, list) for row in value):
+            self.fail(f"{self._name(key)} must be an array of arrays of numbers")
+        rows = []
+        for row in value:
+            for item in row:
+                if isinstance(item, bool) or not isinstance(item, int | float):
+                    self.fail(f"{self._name(key)} must hold numbers only, got {_type(item)}")
+                if not math.isfinite(item):
+                    self.fail(f"{self._name(key)} must hold finite numbers, got {item}")
+                if abs(item) > MAGNITUDE:
+                    self.fail(
+                        f"{self._name(key)} holds {item:g}, beyond the plausible +-{MAGNITUDE:g}"
+                    )
+            rows.append(tuple(float(item) for item in row))
+        return tuple(rows)
+
     def _qualified(self, key: str) -> str:
         return f"{self.where.strip('[]')}.{key}" if self.where else key
 
@@ -440,8 +537,9 @@ def _parse(data: dict[str, Any], path: Path) -> MachineProfile:
     laser = None
     if kind == "laser_writer":
         laser = top.optional("laser", lambda key: _laser(top.table(key)), LaserOptics())
+    name = top.text("name")
     profile = MachineProfile(
-        name=top.text("name"),
+        name=name,
         kind=kind,
         flavour=flavour,
         description=top.text("description"),
@@ -451,14 +549,19 @@ def _parse(data: dict[str, Any], path: Path) -> MachineProfile:
         temperature=_temperatures(top.table("temperature")),
         gcode=_gcode(top.table("gcode")) if streamable else None,
         serial=_serial(top.table("serial")) if streamable else None,
-        process=_process(top.table("process"), light=kind == "laser_writer"),
+        process=_process(
+            top.table("process"), light=kind == "laser_writer", source=f"machine {name}"
+        ),
         laser=laser,
         path=path,
+        pressure=top.optional("pressure", lambda key: _pressure(top.table(key)), None),
+        inks=top.optional("inks", lambda key: _inks(top.table(key)), None),
     )
     top.finish()
     if profile.gcode is not None:
         _check_placeholders(profile.gcode, path)
         _check_rendered(profile)
+    _check_outputs(profile, top)
     return profile
 
 
@@ -517,9 +620,59 @@ def _temperatures(t: _Table) -> Temperatures:
 
 
 def _gcode(t: _Table) -> GcodeTemplates:
-    out = GcodeTemplates(**{key: t.text(key) for key in GCODE_KEYS})
+    out = GcodeTemplates(
+        **{
+            key: t.optional(key, t.text, "") if key in OPTIONAL_GCODE_KEYS else t.text(key)
+            for key in GCODE_KEYS
+        }
+    )
     t.finish()
     return out
+
+
+def _pressure(t: _Table) -> PressureOutput:
+    out = PressureOutput(
+        command=t.text("command"),
+        s_max=t.integer("s_max"),
+        full_scale_kpa=t.number("full_scale_kpa", positive=True),
+        max_kpa=t.number("max_kpa", positive=True),
+    )
+    t.finish()
+    if (
+        not out.command.strip()
+        or any(c in out.command for c in ";(\n")
+        or len(out.command) > TEMPLATE_LINE_CHARS
+    ):
+        t.fail(f"[pressure] command must be one G-code command, got {out.command!r}")
+    if out.max_kpa > out.full_scale_kpa:
+        t.fail(
+            f"[pressure] max_kpa = {out.max_kpa:g} exceeds full_scale_kpa = {out.full_scale_kpa:g}"
+        )
+    return out
+
+
+def _inks(t: _Table) -> Inks:
+    out = Inks(
+        method=t.text("method", INK_METHODS),
+        piece_mm=t.optional("piece_mm", _positive(t), Inks.piece_mm),
+    )
+    t.finish()
+    return out
+
+
+def _check_outputs(profile: MachineProfile, top: _Table) -> None:
+    """The [pressure] and [inks] tables need G-code, and [inks] what its method uses."""
+    gcode = profile.gcode
+    for key, table in (("pressure", profile.pressure), ("inks", profile.inks)):
+        if table is not None and gcode is None:
+            top.fail(f"[{key}] needs a machine that takes G-code (flavour is none)")
+    if profile.inks is None or gcode is None:
+        return
+    if profile.inks.method == "alternate" and not gcode.ink2_on_gcode.strip():
+        top.fail("[inks] method alternate needs [gcode] ink2_on_gcode and ink2_off_gcode")
+    marlin_like = profile.flavour in ("marlin", "klipper", "reprap")
+    if profile.inks.method == "mixing" and (gcode.flow_on_gcode.strip() or not marlin_like):
+        top.fail("[inks] method mixing needs a Marlin-like mixing extruder (an E axis)")
 
 
 def _serial(t: _Table) -> SerialSettings:
@@ -535,44 +688,69 @@ def _serial(t: _Table) -> SerialSettings:
     return out
 
 
-def parse_process(data: Mapping[str, Any], path: Path, *, light: bool = False) -> ProcessProfile:
-    """A ``[process]`` table (with its optional calibration) read from the file ``path``.
+def parse_process(
+    data: Mapping[str, Any], path: Path, *, light: bool = True, source: str | None = None
+) -> Process:
+    """A ``[process]`` table (settings and channels) read from the file ``path``.
 
-    ``light``: the machine is a laser writer, whose calibration may also map eps to an
-    exposure (LIGHT_PARAMETERS). Errors are one line naming the file and the key.
+    ``light``: light parameters (LIGHT_PARAMETERS) are allowed (a laser writer's profile,
+    or a ``--process`` file); ``source`` names it in messages (default: the path).
+    Errors are one line naming the file and the key.
     """
-    return _process(_Table(data, "[process]", path), light=light)
+    return _process(_Table(data, "[process]", path), light=light, source=source or str(path))
 
 
-def _process(t: _Table, *, light: bool) -> ProcessProfile:
-    values = {
-        key: t.number(key, positive=True)
-        for key in ("road_width_mm", "layer_height_mm", "print_speed_mm_s", "travel_speed_mm_s")
-    }
-    calibration = t.optional("calibration", lambda key: _calibration(t.table(key), light), None)
-    t.finish()
-    return ProcessProfile(**values, calibration=calibration)
-
-
-def _calibration(t: _Table, light: bool) -> Calibration:
+def _process(t: _Table, *, light: bool, source: str) -> Process:
+    values = {key: t.number(key, positive=True) for key in SETTING_KEYS}
     parameters = CALIBRATION_PARAMETERS if light else PRINT_PARAMETERS
-    out = Calibration(
-        parameter=t.text("parameter", parameters),
-        eps=t.numbers("eps"),
-        value=t.numbers("value"),
-        clip=t.optional("clip", t.flag, False),
-    )
+    encodes = [_encode(t.item("encode", k), parameters) for k in range(t.count("encode"))]
+    encodes += [_joint(t.item("joint", k), parameters) for k in range(t.count("joint"))]
+    if t.has("calibration"):
+        if encodes:
+            t.fail(
+                "[process.calibration] (one table for the first feature) cannot be mixed "
+                "with [[process.encode]] / [[process.joint]]: use [[process.encode]] only"
+            )
+        encodes.append(_legacy(t.table("calibration"), parameters))
     t.finish()
-    if len(out.eps) < 2 or len(out.eps) != len(out.value):
-        t.fail("[process.calibration] eps and value must have the same length, at least 2")
-    if any(b <= a for a, b in zip(out.eps, out.eps[1:], strict=False)):
-        t.fail("[process.calibration] eps must be strictly increasing")
-    if any(v <= 0 for v in out.value):
-        t.fail("[process.calibration] value must hold positive numbers only")
-    steps = np.diff(out.value)
-    if not (np.all(steps > 0) or np.all(steps < 0)):
-        t.fail("[process.calibration] value must be strictly increasing or decreasing in eps")
-    return out
+    return Process(**values, encodes=tuple(encodes), source=source)
+
+
+def _encode(t: _Table, parameters: tuple[str, ...]) -> Encode:
+    feature = t.feature("feature")
+    table = _calibration(t, parameters)
+    t.finish()
+    return Encode((feature,), table)
+
+
+def _legacy(t: _Table, parameters: tuple[str, ...]) -> Encode:
+    """``[process.calibration]`` of the one-feature format: the design's first feature."""
+    table = _calibration(t, parameters)
+    t.finish()
+    return Encode((0,), table)
+
+
+def _calibration(t: _Table, parameters: tuple[str, ...]) -> Calibration:
+    parameter = t.text("parameter", parameters)
+    eps, value = t.numbers("eps"), t.numbers("value")
+    clip = t.optional("clip", t.flag, False)
+    try:
+        return Calibration(parameter, eps, value, clip)
+    except FabkitError as exc:
+        t.fail(f"{t.where} {exc}")
+
+
+def _joint(t: _Table, parameters: tuple[str, ...]) -> Encode:
+    features = t.pair("features", t.feature)
+    names = t.pair("parameters", lambda key, item: t.choice(key, item, parameters))
+    table_values = (t.numbers("grid1"), t.numbers("grid2"))
+    measured = (t.matrix("measured1"), t.matrix("measured2"))
+    clip = t.optional("clip", t.flag, False)
+    t.finish()
+    try:
+        return Encode(features, JointCalibration(names, *table_values, measured, clip))
+    except FabkitError as exc:
+        t.fail(f"{t.where} {exc}")
 
 
 def _laser(t: _Table) -> LaserOptics:
@@ -582,6 +760,8 @@ def _laser(t: _Table) -> LaserOptics:
         input_polarisation_deg=t.optional("input_polarisation_deg", t.number, 0.0),
         intensity_mw_cm2=t.optional("intensity_mw_cm2", _positive(t), None),
         max_power_mw=t.optional("max_power_mw", _positive(t), None),
+        dose_levels=t.optional("dose_levels", t.integer, None),
+        bins=t.optional("bins", t.integer, None),
     )
     t.finish()
     if not out.input_polarisation_deg < 180:

@@ -1,6 +1,11 @@
 """``fabkit run``: spec to machine files in one go, by calling each stage in turn.
 
-spec -> solve -> check -> pictures -> toolpath -> export (-> send). Every stage writes
+spec -> solve -> check -> pictures -> toolpath -> export -> verify (-> send). Every
+feature of the design goes to the machine through its own channel of the process (a
+feature the process does not encode is refused before any work, unless it is named with
+``--ignore-feature``, which the report then says on its first line); the machine file is
+then read back and checked (``fabkit verify``, skipped with ``--no-verify``). Every stage
+writes
 through :func:`fabkit.atomic.atomic_path`, so an interrupted run leaves no half-written
 file under a final name, and re-running into the same folder replaces the files whole.
 
@@ -14,7 +19,7 @@ toolpath/          toolpath.npz, quality.json, preview.png/svg (``fabkit toolpat
 sheet.gcode        machine file(s), one per ``--format`` (``fabkit export``)
 sheet.dxf          (with ``--format dxf``)
 laser/             (with ``--format laser`` on a laser-writer profile)
-report.html        every picture and the key figures in one page
+report.html        every picture and the key figures (the verification included) in one page
 report.json        the key figures as data
 ================== ==============================================================
 """
@@ -38,7 +43,7 @@ from fabkit.plot.report import html_report
 from fabkit.spec import Spec, load_spec
 from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
-from fabkit.toolpath.process import load_process
+from fabkit.toolpath.process import load_process, resolve_channels
 from fabkit.writers.dxf import layout_layers, write_dxf
 from fabkit.writers.export import ExportOptions, export
 
@@ -58,6 +63,8 @@ class RunOptions:
 
     ``formats`` None: DXF for baromorph channels, laser patterns on a laser writer, else
     G-code. ``machine`` None: laser_cutter for baromorph channels, else a pneumatic DIW.
+    ``ignore_features`` are left out of the machine file on purpose; ``verify`` reads the
+    machine file back and checks it (:mod:`fabkit.verify`).
     """
 
     spec: str
@@ -71,6 +78,8 @@ class RunOptions:
     step: float | None = None
     diagonals: int | None = None
     mesh_format: str = "ply"
+    ignore_features: tuple[str, ...] = ()
+    verify: bool = True
 
 
 def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dict[str, Any]:
@@ -82,8 +91,11 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     options = _with_defaults(options)
     spec = _check_inputs(options)
     out = Path(options.out)
+    notice = _notice(options)
+    if notice:
+        say(f"      {notice}")
 
-    say(f"[1/6] solving {options.spec}")
+    say(f"[1/7] solving {options.spec}")
     result = solve_to_file(spec, out / "design.npz", "      solving")
     solution, check, solved = result.solution, result.check, result.summary
     say(
@@ -91,7 +103,7 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
         f"check {'passed' if check.passed else 'FAILED'}"
     )
 
-    say("[2/6] drawing pictures and patch meshes")
+    say("[2/7] drawing pictures and patch meshes")
     pictures = render_design(solution.design, out / "pictures")
     meshes = [
         str(path)
@@ -105,22 +117,26 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     else:
         fabricated = _print_lines(options, out, say)
 
+    verification = _verify(options, out, fabricated, say)
+
     sent = None
     if options.send:
-        say(f"[5/6] sending sheet.gcode to {options.send}")
+        say(f"[6/7] sending sheet.gcode to {options.send}")
         from fabkit.link.send import send_file
 
         sent = send_file(out / "sheet.gcode", options.send, machine=options.machine).summary()
     else:
-        say("[5/6] not sending (no --send)")
+        say("[6/7] not sending (no --send)")
 
-    say("[6/6] writing report.html and report.json")
+    say("[7/7] writing report.html and report.json")
     figures = {
+        **({"notice": notice} if notice else {}),
         "spec": str(options.spec),
         "machine": options.machine,
         "solve": {k: solved[k] for k in ("solve_seconds", "valid_points", "areas", "stop_counts")},
         "check": check.to_dict(),
         **fabricated.figures,
+        "verify": verification,
         "sent": sent,
         "meshes": meshes,
     }
@@ -129,6 +145,7 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
         figures,
         pictures + [fabricated.picture],
         out / "report.html",
+        notice=notice,
     )
     with atomic_path(out / "report.json") as tmp:
         tmp.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
@@ -158,13 +175,15 @@ def _check_inputs(options: RunOptions) -> Spec:
         if options.formats != ("dxf",):
             raise FabkitError("a baromorph run writes DXF only: use --format dxf (or no --format)")
         load_baromorph(options.baromorph)
-    elif machine.kind == LASER_WRITER:
-        if options.formats != ("laser",):
-            raise FabkitError(
-                f"{options.machine} is a laser writer: use --format laser (or no --format)"
-            )
-    elif options.process_file:
-        load_process(options.process_file)
+    elif machine.kind == LASER_WRITER and options.formats != ("laser",):
+        raise FabkitError(
+            f"{options.machine} is a laser writer: use --format laser (or no --format)"
+        )
+    if not options.baromorph:
+        process = load_process(options.process_file) if options.process_file else machine.process
+        resolve_channels(process, spec.material.features, options.ignore_features)
+    elif options.ignore_features:
+        raise FabkitError("--ignore-feature: a baromorph run encodes one feature as the width")
     spans = [hi - lo for lo, hi in (machine.envelope.x_mm, machine.envelope.y_mm)]
     if options.size_mm > max(spans):
         raise FabkitError(
@@ -172,6 +191,46 @@ def _check_inputs(options: RunOptions) -> Spec:
             f"{options.machine} ({spans[0]:g} x {spans[1]:g} mm); give a smaller --size"
         )
     return spec
+
+
+def _notice(options: RunOptions) -> str:
+    """The report's first line when features are left out on purpose ("" if none)."""
+    if not options.ignore_features:
+        return ""
+    names = ", ".join(options.ignore_features)
+    plural = "s" if len(options.ignore_features) > 1 else ""
+    return (
+        f"NOT ENCODED: feature{plural} {names} left out on purpose (--ignore-feature): the "
+        "machine file does not carry "
+        + ("them" if plural else "it")
+        + ", so the sheet it makes cannot take every designed shape"
+    )
+
+
+def _verify(
+    options: RunOptions, out: Path, fabricated: _Fabricated, say: Callable[[str], None]
+) -> dict[str, Any] | None:
+    """Read the first machine file back and check it (None with --no-verify)."""
+    if not options.verify:
+        say("[5/7] not verifying (--no-verify)")
+        return None
+    from fabkit.verify.check import VerifyOptions, verify
+
+    target = out / ("channels.dxf" if options.baromorph else FORMAT_FILES[options.formats[0]])
+    say(f"[5/7] verifying {target.name}: reading it back, simulating the sheet as fabricated")
+    result = verify(
+        out / "design.npz",
+        target,
+        VerifyOptions(
+            machine=options.machine,
+            process_file=options.process_file,
+            ignore_features=options.ignore_features,
+            baromorph=options.baromorph,
+        ),
+    )
+    for line in result.table().splitlines()[1:-1]:
+        say(f"      {line.strip()}")
+    return result.to_dict()
 
 
 def _with_defaults(options: RunOptions) -> RunOptions:
@@ -198,17 +257,18 @@ class _Fabricated:
 
 def _print_lines(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
     """Print lines along the director, then the machine files."""
-    say(f"[3/6] planning print lines for {options.machine} at {options.size_mm:g} mm")
+    say(f"[3/7] planning print lines for {options.machine} at {options.size_mm:g} mm")
     job = run_job(
         ToolpathJob(
             inputs=(str(out / "design.npz"),),
             machine=options.machine,
             process_file=options.process_file,
             size_mm=options.size_mm,
+            ignore_features=options.ignore_features,
             out=str(out / "toolpath"),
         )
     )
-    say(f"[4/6] writing {', '.join(options.formats)}")
+    say(f"[4/7] writing {', '.join(options.formats)}")
     exports = {
         fmt: export(
             out / "toolpath" / "toolpath.npz", options.machine, fmt, out / FORMAT_FILES[fmt]
@@ -216,6 +276,7 @@ def _print_lines(options: RunOptions, out: Path, say: Callable[[str], None]) -> 
         for fmt in options.formats
     }
     figures = {
+        "channels": dict(job.plan.toolpath.channels),
         "toolpath quality": [q.to_dict() for q in job.plan.quality],
         "toolpath warnings": list(job.plan.warnings),
         "exports": exports,
@@ -226,14 +287,17 @@ def _print_lines(options: RunOptions, out: Path, say: Callable[[str], None]) -> 
 
 def _laser_patterns(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
     """Photoalignment patterns straight from the design (no print lines)."""
-    say("[3/6] no print lines: a laser writer exposes the director field directly")
-    say("[4/6] writing laser/")
+    say("[3/7] no print lines: a laser writer exposes the director field directly")
+    say("[4/7] writing laser/")
+    process = load_process(options.process_file) if options.process_file else None
     summary = export(
         out / "design.npz",
         options.machine,
         "laser",
         out / "laser",
-        ExportOptions(size_mm=options.size_mm),
+        ExportOptions(
+            size_mm=options.size_mm, process=process, ignore_features=options.ignore_features
+        ),
     )
     caption = "Photoalignment pattern: binned director angle and the dose of each exposure (mm)"
     return _Fabricated({"exports": {"laser": summary}}, (caption, out / "laser" / "preview.png"))
@@ -241,14 +305,17 @@ def _laser_patterns(options: RunOptions, out: Path, say: Callable[[str], None]) 
 
 def _channels(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
     """Baromorph channels whose width encodes eps, their mould, and a DXF for a cutter."""
-    say(f"[3/6] laying out baromorph channels at {options.size_mm:g} mm")
+    say(f"[3/7] laying out baromorph channels at {options.size_mm:g} mm")
     fields = ToolpathJob(inputs=(str(out / "design.npz"),), size_mm=options.size_mm)
     result = run_channel_job(
         ChannelJob(fields=fields, baromorph=options.baromorph, out=str(out / "channels"))
     )
-    say("[4/6] writing channels.dxf")
+    say("[4/7] writing channels.dxf")
     drawing = write_dxf(
-        out / "channels.dxf", machine=load_machine(options.machine), **layout_layers(result.layout)
+        out / "channels.dxf",
+        machine=load_machine(options.machine),
+        mm_per_unit=result.mm_per_unit,
+        **layout_layers(result.layout),
     )
     figures = {
         "channels": asdict(result.report),

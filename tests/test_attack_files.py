@@ -366,6 +366,11 @@ def _design_files(folder, design) -> dict:
     return files
 
 
+def _channels(arrays: dict) -> list[str]:
+    """The per-vertex channel arrays of a saved toolpath (format 2: ``channel_<name>``)."""
+    return [key for key in arrays if key.startswith("channel_")]
+
+
 def _toolpath_files(folder, toolpath) -> dict:
     arrays = h.arrays_of(toolpath)
     xyz = arrays["xyz"]
@@ -378,7 +383,7 @@ def _toolpath_files(folder, toolpath) -> dict:
         "move_kind": np.zeros(n, np.int8),
         "move_layer": np.zeros(n, np.int32),
         "xyz": np.zeros((2 * n, 3)),
-        **{k: np.ones(2 * n) for k in ("width", "speed", "flow", "value")},
+        **{k: np.ones(2 * n) for k in ("width", "speed", "flow", *_channels(arrays))},
     }
     kinds = arrays["move_kind"].copy()
     kinds[0] = -1

@@ -63,7 +63,7 @@ JOBS = {
     "marlin_m220": [*MARLIN, "M220 S500", "G1 X100 F3000"],
     "marlin_m221": [*MARLIN, "G1 X10 F600", "M221 S500", "G1 X20 E20"],
     "marlin_m42_i": [*MARLIN, "M42 P13 S255 I"],
-    "diw_m42_pin": ["G21", "G90", "G28", "M42 P5 S255"],
+    "diw_m42_pin": ["G21", "G90", "G28", "M42 P6 S255"],
     "marlin_g92_unknown": ["G21", "G90", "G92 X0", "G1 X200 F600"],
     "marlin_lowercase": [*MARLIN, "g1 x500 f600"],
     "marlin_repeated": [*MARLIN, "G1 X10 X500 F600"],
@@ -182,7 +182,7 @@ CASES = [
     case(
         marlin("diw_m42_pin", "marlin_diw_pneumatic"),
         "cannot be checked",
-        "M42 P5 S255",
+        "M42 P6 S255",
         "M42 P4 S0",
         id="gcode-diw-m42-pin",
     ),

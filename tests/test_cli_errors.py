@@ -226,8 +226,9 @@ CASES = [
         id="toolpath-end-inset",
     ),
     case(
-        "toolpath {design} --size 60 --feature 5 --out {out}",
-        "no eps feature",
+        "toolpath {design} --size 60 --ignore-feature eps5 --out {out}",
+        "not a feature of the input",
+        "--ignore-feature eps5",
         id="toolpath-feature",
     ),
     case(

@@ -2,7 +2,8 @@
 
 The commands are read from the README's ``sh`` blocks, so the page and this test cannot
 drift apart. ``fabkit run`` gets ``--step 0.1 --diagonals 30`` appended (a coarse solver
-grid); the swimmer runs on a copy of its spec with small meshes and two stations per leg
+grid) and ``--no-verify`` (the ``fabkit verify`` example reads a run back, simulations
+included); the swimmer runs on a copy of its spec with small meshes and two stations per leg
 (as in tests/test_swimmer.py). Outputs go to the test's folder, never to ``out/``.
 """
 
@@ -11,6 +12,7 @@ from __future__ import annotations
 import json
 import re
 import shlex
+from pathlib import Path
 
 import pytest
 
@@ -27,7 +29,10 @@ def example_commands() -> list[str]:
 
 
 def out_name(command: str) -> str:
+    """The command's output folder (``verify``: the folder of the run it reads)."""
     words = shlex.split(command)
+    if words[1] == "verify":
+        return str(Path(words[2]).parent) + "-verify"
     return words[words.index("--out") + 1]
 
 
@@ -41,20 +46,46 @@ def coarse_swimmer(folder) -> str:
     return str(path)
 
 
+RUNS: dict[str, str] = {}
+"""Output folders of the run examples already made in this session, by README folder."""
+
+
+def run_of(folder: str) -> str:
+    """The README's ``fabkit run`` command that writes ``folder``."""
+    (command,) = [
+        c for c in example_commands() if c.startswith("fabkit run") and out_name(c) == folder
+    ]
+    return command
+
+
 @pytest.mark.parametrize("command", example_commands(), ids=out_name)
 def test_example_runs(command, run_cli, tmp_path):
     args = shlex.split(command)[1:]
+    if args[0] == "verify":  # reads what a run of the page wrote (made above, or now)
+        folder = str(Path(args[1]).parent)
+        if folder not in RUNS:
+            made = shlex.split(run_of(folder))[1:]
+            made[made.index("--out") + 1] = RUNS[folder] = str(tmp_path / folder)
+            made = [str(ROOT / a) if a.startswith("examples/") else a for a in made]
+            assert run_cli(*made, *COARSE_SOLVE, "--no-verify")[0] == 0
+        args = [a.replace(folder, RUNS[folder], 1) if a.startswith(folder) else a for a in args]
+        code, text, err = run_cli(*args)
+        assert code == 0, err
+        assert "director error" in text and "as fabricated vs" in text
+        return
     out = tmp_path / out_name(command).removeprefix("out/")
     args[args.index("--out") + 1] = str(out)
     args = [str(ROOT / a) if a.startswith("examples/") else a for a in args]
     name = args[0]
-    if name == "run":
-        args += COARSE_SOLVE
+    if name == "run":  # fabkit verify runs in its own example below and in test_verify
+        args += [*COARSE_SOLVE, "--no-verify"]
     if name == "swimmer":
         args[args.index(str(EXAMPLES / "swimmer.toml"))] = coarse_swimmer(tmp_path)
         args += ["--stations", "2"]
     code, _, err = run_cli(*args)
     assert code == 0, err
+    if name == "run":
+        RUNS[out_name(command)] = str(out)
     assert [p for p in out.rglob("*") if ".part" in p.name] == []
     expected = {
         "run": ["design.npz", "report.html", "report.json"],

@@ -65,7 +65,7 @@ def write_design(
         n=n,
         error=np.where(valid, 0.0, np.nan),
         stimuli=np.array([[0.0], [1.0], [2.0]]),
-        spec=np.array(json.dumps({"synthetic": True})),
+        spec=np.array(json.dumps({"synthetic": True, "material": {"features": ["eps"]}})),
     )
     return path
 

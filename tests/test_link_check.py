@@ -222,11 +222,23 @@ def test_arcs_in_both_forms():
 def test_m42_may_only_repeat_the_profiles_pin_writes():
     diw = ["G21", "G90", "G28"]
     check([*diw, "M42 P4 S255", "M42 P4 S0"], "marlin_diw_pneumatic")
-    for line in ("M42 P4 S255 I", "M42 P5 S255", "M42 P4 S128", "M42 P4 T1 S255"):
+    for line in ("M42 P4 S255 I", "M42 P6 S255", "M42 P4 S128", "M42 P4 T1 S255"):
         message = refused([*diw, line], "marlin_diw_pneumatic")
         assert "M42 may only repeat a pin write of the machine's own G-code (M42 P4 S0, " in (
             message
         )
+
+
+def test_a_second_inks_valve_is_flow_too():
+    """marlin_diw_pneumatic's second ink (M42 P5): moves while either valve is open print."""
+    lines = ["G21", "G90", "G28", "G1 X10 F1800", "M42 P5 S255", "G1 X20"]
+    assert "job.gcode:6: feed 30.000 mm/s exceeds [limits] print_mm_s = 25" in refused(
+        lines, "marlin_diw_pneumatic"
+    )
+    switched = [*lines[:4], "M42 P5 S255", "M42 P5 S0", "M42 P4 S255", "M42 P4 S0", "G1 X20"]
+    check(switched, "marlin_diw_pneumatic")  # both closed again: a travel at 30 is fine
+    still_open = [*lines[:4], "M42 P4 S255", "M42 P5 S255", "M42 P4 S0", "G1 X20"]
+    assert "print_mm_s = 25" in refused(still_open, "marlin_diw_pneumatic")
 
 
 def test_flow_commands_make_moves_printing_moves():

@@ -58,8 +58,9 @@ def test_every_shipped_profile_loads_with_consistent_fields():
         for axis in "xyz":
             lo, hi = p.envelope.axis(axis)
             assert lo < hi
-        if p.process.calibration is not None:
-            assert p.process.calibration.parameter in CALIBRATION_PARAMETERS
+        for channel in p.process.encodes:
+            assert set(channel.parameters) <= set(CALIBRATION_PARAMETERS)
+        assert p.process.source == f"machine {name}"
         if p.gcode is not None:
             assert p.render("safe_stop_gcode"), name
             assert all("{" not in line for line in p.render("start_gcode"))
@@ -87,7 +88,9 @@ def test_optional_keys_have_documented_defaults_and_are_read_when_given(tmp_path
     plain = load_machine(_edited(tmp_path, 'e_units = "filament"\n', ""))
     assert plain.tool.e_mode is None and plain.tool.e_units is None
     assert plain.tool.filament_diameter_mm == 1.75 and plain.tool.pulses_per_mm3 is None
-    assert plain.laser is None and plain.process.calibration.clip is False
+    assert plain.laser is None and plain.process.encodes[0].table.clip is False
+    assert plain.pressure is None and plain.inks is None
+    assert plain.gcode.ink2_on_gcode == "" and plain.gcode.ink2_off_gcode == ""
     edits = 'e_units = "pulses"\npulses_per_mm3 = 90\ne_mode = "relative"\n'
     tuned = load_machine(_edited(tmp_path, 'e_units = "filament"\n', edits))
     assert (tuned.tool.e_units, tuned.tool.pulses_per_mm3, tuned.tool.e_mode) == (
@@ -98,14 +101,71 @@ def test_optional_keys_have_documented_defaults_and_are_read_when_given(tmp_path
     clipped = load_machine(
         _edited(tmp_path, "value = [25, 15, 8, 4]", "value = [25, 15, 8, 4]\nclip = true")
     )
-    assert clipped.process.calibration.clip is True
+    assert clipped.process.encodes[0].table.clip is True
 
 
 def test_laser_writer_reads_its_light_table():
     laser = load_machine("dmd_photoalign")
     assert laser.laser.relation == "perpendicular" and laser.laser.pixel_pitch_mm == 0.01
     assert laser.laser.intensity_mw_cm2 == 10 and laser.laser.max_power_mw is None
-    assert laser.process.calibration.parameter == "dose_mj_cm2"
+    assert [c.parameters for c in laser.process.encodes] == [
+        ("dose_mj_cm2",),
+        ("cure_dose_mj_cm2",),
+    ]
+    assert laser.laser.dose_levels == 24 and laser.laser.bins == 90
+
+
+def test_the_default_diw_profile_encodes_two_features_with_two_inks_and_a_pressure():
+    diw = load_machine("marlin_diw_pneumatic")
+    assert [(c.features, c.parameters) for c in diw.process.encodes] == [
+        ((0,), ("print_speed_mm_s",)),
+        ((1,), ("ink_fraction",)),
+    ]
+    assert diw.inks.method == "alternate" and diw.inks.piece_mm == 0.5
+    assert diw.render("ink2_on_gcode") == ["M42 P5 S255"]
+    assert "M42 P5 S0" in diw.render("safe_stop_gcode")
+    assert diw.pressure.command == "M106 P1" and diw.pressure.s_value(350.0) == 128.0
+    assert diw.pressure.kpa(255) == pytest.approx(700.0)
+
+
+DIW = (MACHINES_DIR / "marlin_diw_pneumatic.toml").read_text()
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "expected"),
+    [
+        ("feature = 1\n", 'feature = "1 2"\n', None),
+        ("feature = 1\n", "feature = -1\n", "must be a feature name or its position"),
+        ("feature = 1\n", "feature = true\n", "must be a feature name or its position"),
+        ('method = "alternate"', 'method = "blend"', "method = 'blend' is not one of"),
+        ('method = "alternate"', 'method = "mixing"', "mixing needs a Marlin-like mixing"),
+        ('ink2_on_gcode = "M42 P5 S255"\n', "", "alternate needs \\[gcode\\] ink2_on_gcode"),
+        ("piece_mm = 0.5", "piece_mm = 0", "piece_mm must be > 0"),
+        ("max_kpa = 600", "max_kpa = 800", "max_kpa = 800 exceeds full_scale_kpa = 700"),
+        ('command = "M106 P1"', 'command = ""', "command must be one G-code command"),
+        ("s_max = 255", "s_max = 2.5", "s_max must be an integer"),
+        ("[[process.encode]]              # the design's second", "[[process.joint]]  #", None),
+        (
+            'parameter = "ink_fraction"',
+            'parameter = "dose_mj_cm2"',
+            "parameter = 'dose_mj_cm2' is not one of",
+        ),
+        (
+            "value = [0.0, 0.3, 0.65, 1.0]",
+            "value = [0, 0.3, 0.6, 1.2]",
+            "in \\[0, 1\\]",
+        ),
+    ],
+)
+def test_channel_inks_and_pressure_mistakes(tmp_path, old, new, expected):
+    path = _edited(tmp_path, old, new, DIW)
+    if expected is None:  # a string feature name is fine; a joint table needs its keys
+        if "joint" in new:
+            assert "features is missing" in _error(path)
+        else:
+            assert load_machine(path).process.encodes[1].features == ("1 2",)
+        return
+    assert re.search(expected, _error(path))
 
 
 def test_unknown_machine_names_the_known_ones():

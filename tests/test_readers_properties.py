@@ -284,7 +284,7 @@ def test_a_mutated_toolpath_is_loaded_or_refused(data, toolpath_file, folder):
 def test_a_toolpath_with_edited_members_is_loaded_or_refused(data, toolpath_file, folder):
     arrays = h.arrays_of(toolpath_file)
     key = data.draw(st.sampled_from(sorted(k for k in arrays if k not in ("format", "meta"))))
-    if key == "parameter":
+    if key in ("parameter", "channels"):
         arrays[key] = np.array(data.draw(st.text(max_size=20)))
     else:
         shape = data.draw(hnp.array_shapes(min_dims=0, max_dims=3, max_side=6))

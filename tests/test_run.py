@@ -10,7 +10,15 @@ from tests.conftest import EXAMPLES
 def test_run_writes_every_file(run_cli, tmp_path):
     out = tmp_path / "out"
     code, text, err = run_cli(
-        "run", EXAMPLES / "two_shapes.toml", "--out", out, "--format", "gcode", "--format", "dxf"
+        "run",
+        EXAMPLES / "two_shapes.toml",
+        "--out",
+        out,
+        "--format",
+        "gcode",
+        "--format",
+        "dxf",
+        "--no-verify",
     )
     assert code == 0, err
     expected = [
@@ -46,6 +54,7 @@ def test_run_writes_every_file(run_cli, tmp_path):
     page = (out / "report.html").read_text()
     # the key figures are tables: one row per surface with its residual columns
     assert "<th>length_u median</th>" in page and "<td>sphere</td>" in page
+    assert figures["verify"] is None  # --no-verify: tests/test_verify.py reads runs back
     assert page.count("data:image/png;base64,") == 5
 
 
@@ -72,6 +81,11 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
         EXAMPLES / "baromorph_channels.toml",
     )
     assert code == 0, err
+    verified = json.loads((out / "report.json").read_text())["verify"]
+    assert verified["kind"] == "channels"  # read back by the channels' widths and directions
+    (width,) = verified["features"]
+    assert width["channel"] == "channel_width_mm" and width["rms_pct"] < 3.0
+    assert verified["director_mean_deg"] < 4.0
     channels = json.loads((out / "report.json").read_text())["channels"]
     assert channels["valid"] and channels["connected"]
     assert channels["max_width_error"] <= 0.01 and channels["min_wall_mm"] >= 0.6
@@ -104,6 +118,7 @@ def test_run_photoalignment_pattern(run_cli, tmp_path):
         "dmd_photoalign",
         "--size",
         "20",
+        "--no-verify",
     )
     assert code == 0, err
     manifest = json.loads((out / "laser" / "manifest.json").read_text())

@@ -30,7 +30,7 @@ def test_director_expression_to_toolpath(tmp_path, capsys):
     report = json.loads((out / "quality.json").read_text())
     assert report["layers"][0]["empty_fraction"] < 0.1  # a small disc: R = 16 w
     toolpath = load_toolpath(out / "toolpath.npz")
-    assert len(toolpath.layers) == 1 and toolpath.parameter == ""
+    assert len(toolpath.layers) == 1 and toolpath.channels == {}
     assert toolpath.layers[0].moves[0].width[0] == 0.25
 
 
@@ -42,7 +42,7 @@ def test_design_with_encoding_and_a_bilayer(tmp_path, capsys):
     assert code == 0
     toolpath = load_toolpath(out / "toolpath.npz")
     assert [layer.z_mm for layer in toolpath.layers] == pytest.approx([0.2, 0.4, 0.6, 0.8])
-    assert toolpath.parameter == "print_speed_mm_s"
+    assert toolpath.channels == {"print_speed_mm_s": "eps"}
     speeds = [m.speed for m in toolpath.layers[0].moves if m.kind == "print"]
     assert min(s.min() for s in speeds) >= 2.0 and max(s.max() for s in speeds) <= 16.0
     assert len(json.loads((out / "quality.json").read_text())["layers"]) == 4
@@ -61,6 +61,21 @@ def test_design_with_encoding_and_a_bilayer(tmp_path, capsys):
         (["--director", "phi", "--shape", "disc:3", "--end-inset", "2"], "--end-inset"),
         (["--director", "phi", "--shape", "disc:3", "--road-width", "-1"], "road_width_mm"),
         (["--director", "phi", "--shape", "disc:3", "--process", "missing.toml"], "missing"),
+        (["--director", "phi", "--shape", "disc:3", "--ignore-feature", "eps"], "not a feature"),
+        (
+            [
+                "--director",
+                "phi",
+                "--shape",
+                "disc:3",
+                "--eps",
+                "0.1",
+                "--machine",
+                "klipper_generic",
+            ]
+            + ["--process", str(EXAMPLES.parent / "three_shapes.toml")],
+            "missing table [process]",
+        ),
     ],
 )
 def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, arguments, message):
@@ -71,6 +86,23 @@ def test_bad_input_is_one_line_and_writes_nothing(tmp_path, capsys, arguments, m
     assert code == 2
     assert error.startswith("fabkit: error:") and message in error and "\n" not in error
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_a_feature_without_a_channel_is_refused_unless_ignored(tmp_path, capsys):
+    arguments = ["--director", "0", "--shape", "disc:3", "--eps", "0.2"]
+    code = main(["toolpath", *arguments, "--machine", "klipper_generic", "--out", str(tmp_path)])
+    error = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in error
+    assert "machine klipper_generic encodes no channel for feature eps" in error
+    assert "--ignore-feature eps" in error
+    out = tmp_path / "ignored"
+    arguments += ["--machine", "klipper_generic", "--ignore-feature", "eps", "--out", str(out)]
+    assert main(["toolpath", *arguments]) == 0
+    warning = capsys.readouterr().err.strip()
+    assert warning.startswith("fabkit: warning: feature eps left out (--ignore-feature)")
+    assert load_toolpath(out / "toolpath.npz").channels == {}
+    report = json.loads((out / "quality.json").read_text())
+    assert report["ignored_features"] == ["eps"]
 
 
 def test_clipped_eps_is_a_warning_with_the_fraction(tmp_path, capsys):

@@ -58,7 +58,7 @@ def fig1_toolpath(machine: MachineProfile, layers: int = 2) -> Toolpath:
         if len(run) >= 2 and np.all(np.diff(run) == 1):
             roads.append((points[run, j] * scale, eps[run, j]))
     process = machine.process
-    table = process.calibration
+    table = process.encodes[0].table if process.encodes else None
     result = []
     for k in range(layers):
         z = process.layer_height_mm * (k + 1)
@@ -67,6 +67,7 @@ def fig1_toolpath(machine: MachineProfile, layers: int = 2) -> Toolpath:
             if n % 2:
                 xy, e = xy[::-1], e[::-1]
             speed, flow, value = np.full(len(xy), process.print_speed_mm_s), 1.0, math.nan
+            channels = {}
             if table is not None:
                 machine_eps = table.eps[0] + (table.eps[-1] - table.eps[0]) * (e - low) / (
                     high - low
@@ -76,13 +77,16 @@ def fig1_toolpath(machine: MachineProfile, layers: int = 2) -> Toolpath:
                     speed = value
                 elif table.parameter == "extrusion_multiplier":
                     flow = value
+                channels = {table.parameter: value}
             if last is not None:
-                moves.append(Move.make(TRAVEL, [last, xy[0]], z, 0.0, process.travel_speed_mm_s, 0))
-            moves.append(Move.make(PRINT, xy, z, process.road_width_mm, speed, flow, value))
+                hop = [last, xy[0]]
+                nothing = {name: math.nan for name in channels}
+                moves.append(Move.make(TRAVEL, hop, z, 0.0, process.travel_speed_mm_s, 0, nothing))
+            moves.append(Move.make(PRINT, xy, z, process.road_width_mm, speed, flow, channels))
             last = xy[-1]
         result.append(Layer(z, process.layer_height_mm, tuple(moves)))
-    parameter = table.parameter if table is not None else ""
-    return Toolpath(tuple(result), parameter, {"source": "fig1 test"})
+    named = {table.parameter: "eps"} if table is not None else {}
+    return Toolpath(tuple(result), named, {"source": "fig1 test"})
 
 
 @dataclass(frozen=True)

@@ -96,7 +96,7 @@ def test_polygons_with_holes_lists_and_lines():
 
 def test_non_planar_moves_become_3d_polylines():
     xyz = np.array([[0, 0, 0.2], [5, 0, 0.4], [10, 0, 0.6]])
-    move = Move(PRINT, xyz, 0.4, 10.0, 1.0, np.nan)
+    move = Move(PRINT, xyz, 0.4, 10.0, 1.0)
     doc, _ = dxf_document(Toolpath((Layer(0.2, 0.2, (move,)),)))
     (entity,) = _by_layer(doc)["PATHS"]
     assert entity.dxftype() == "POLYLINE" and entity.is_3d_polyline

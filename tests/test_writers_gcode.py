@@ -79,7 +79,7 @@ def test_every_flavour_parses_inside_limits_with_exact_volume(tmp_path, name, ex
 def test_print_feeds_follow_the_calibrated_speeds():
     machine = load_machine("marlin_generic")
     toolpath = fig1_toolpath(machine)
-    assert toolpath.parameter == "print_speed_mm_s"
+    assert toolpath.channels == {"print_speed_mm_s": "eps"}
     text, _ = gcode_bytes(toolpath, machine)
     run = replay(text.decode())
     moving = np.nan_to_num(np.linalg.norm(run.step, axis=1)) > 0
@@ -92,7 +92,7 @@ def test_print_feeds_follow_the_calibrated_speeds():
 def test_hyrel_writes_volume_and_flow_from_the_calibration():
     machine = load_machine("hyrel_pulse")
     toolpath = fig1_toolpath(machine)
-    assert toolpath.parameter == "extrusion_multiplier"
+    assert toolpath.channels == {"extrusion_multiplier": "eps"}
     text, summary = gcode_bytes(toolpath, machine)
     assert summary.e_units == "volume" and summary.e_mode == "relative"
     run = replay(text.decode())
@@ -101,7 +101,7 @@ def test_hyrel_writes_volume_and_flow_from_the_calibration():
     per_mm = run.e_step[printing] / length[printing]
     nominal = machine.process.road_width_mm * machine.process.layer_height_mm
     flows = per_mm / nominal
-    cal = machine.process.calibration.value
+    cal = machine.process.encodes[0].table.value
     assert flows.min() >= cal[0] * 0.99 and flows.max() <= cal[-1] * 1.01
 
 
@@ -169,16 +169,17 @@ def test_e_rate_above_the_limit_is_an_error():
 def test_temperature_encoding_writes_m104_and_checks_the_maximum():
     machine = load_machine("marlin_generic")
     moves = [
-        Move.make(PRINT, [[0, y], [10, y]], 0.2, 0.45, 20.0, 1.0, t)
+        Move.make(PRINT, [[0, y], [10, y]], 0.2, 0.45, 20.0, 1.0, {"temperature_c": t})
         for y, t in ((0, 200.0), (1, 200.0), (2, 215.0))
     ]
-    toolpath = Toolpath((Layer(0.2, 0.2, tuple(moves)),), "temperature_c")
+    named = {"temperature_c": "eps"}
+    toolpath = Toolpath((Layer(0.2, 0.2, tuple(moves)),), named)
     text = gcode_bytes(toolpath, machine)[0].decode()
     body = text.split("G92 E0")[-1]
     assert re.findall(r"^M104 S(\d+)$", body, flags=re.M) == ["200", "215", "0"]
-    hot = Toolpath((Layer(0.2, 0.2, (moves[0],)),), "temperature_c")
-    too_hot = Move.make(PRINT, [[0, 0], [10, 0]], 0.2, 0.45, 20.0, 1.0, 300.0)
-    hot = Toolpath((Layer(0.2, 0.2, (too_hot,)),), "temperature_c")
+    hot = {"temperature_c": 300.0}
+    too_hot = Move.make(PRINT, [[0, 0], [10, 0]], 0.2, 0.45, 20.0, 1.0, hot)
+    hot = Toolpath((Layer(0.2, 0.2, (too_hot,)),), named)
     with pytest.raises(FabkitError, match="300 C is above the maximum 260 C"):
         gcode_bytes(hot, machine)
 

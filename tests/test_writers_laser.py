@@ -18,9 +18,9 @@ from fabkit.fields import field_from_design
 from fabkit.link.check import check_job
 from fabkit.link.gcode import read_job
 from fabkit.machines import load_machine
+from fabkit.process import Calibration, Encode, Process
 from fabkit.writers.laser import (
     DirectorGrid,
-    DoseCalibration,
     LaserSettings,
     bin_angles,
     sample_field,
@@ -29,6 +29,12 @@ from fabkit.writers.laser import (
 from tests.test_writers_common import ROOT, baromorph, fig1_design_path, replay
 
 SCHEMA = json.loads((ROOT / "docs" / "laser-manifest.schema.json").read_text())
+
+
+def _dose(eps: tuple[float, float], dose: tuple[float, float], clip: bool = False) -> Process:
+    """A process whose one channel sets the alignment dose of the feature eps."""
+    channel = Encode(("eps",), Calibration("dose_mj_cm2", eps, dose, clip))
+    return Process(1.0, 1.0, 1.0, 1.0, (channel,), "test dose")
 
 
 def _wrap_deg(angle: np.ndarray) -> np.ndarray:
@@ -52,7 +58,7 @@ def _baromorph_grid(pitch: float = 0.25) -> DirectorGrid:
     theta = np.arctan2(yy, xx) + np.pi / 2
     eps = 0.1 + 0.2 * np.hypot(xx, yy) / 20
     assert baromorph().outline.contains(baromorph().inlet)
-    return DirectorGrid(theta, mask, eps, pitch, (-20.0, -20.0))
+    return DirectorGrid(theta, mask, {"eps": eps}, pitch, (-20.0, -20.0))
 
 
 def _check_masks(folder: Path, manifest: dict, grid: DirectorGrid) -> np.ndarray:
@@ -69,9 +75,9 @@ def _check_masks(folder: Path, manifest: dict, grid: DirectorGrid) -> np.ndarray
 def test_fig1_masks_partition_the_domain_within_half_a_bin(tmp_path):
     grid = _fig1_grid()
     machine = load_machine("dmd_photoalign")
-    eps = grid.eps[grid.mask]
-    calibration = DoseCalibration((float(eps.min()), float(eps.max())), (500.0, 2000.0))
-    settings = LaserSettings.for_machine(machine, dose=calibration, bins=18)
+    eps = grid.features["eps"][grid.mask]
+    process = _dose((float(eps.min()), float(eps.max())), (500.0, 2000.0))
+    settings = LaserSettings.for_machine(machine, process=process, bins=18, dose_levels=4)
     summary = write_laser(grid, tmp_path / "fig1", machine, settings)
     folder = tmp_path / "fig1"
     manifest = json.loads((folder / "manifest.json").read_text())
@@ -95,7 +101,7 @@ def test_fig1_masks_partition_the_domain_within_half_a_bin(tmp_path):
     sidecar = json.loads((folder / "angle.json").read_text())
     assert "y down" in sidecar["convention"] and "counter-clockwise" in sidecar["convention"]
     dose = _read(folder / "dose.png") * sidecar["dose"]["scale"] / 65535
-    expected = calibration.dose(grid.eps)
+    expected = np.interp(grid.features["eps"], (eps.min(), eps.max()), (500.0, 2000.0))
     np.testing.assert_allclose(dose[grid.mask], expected[grid.mask], rtol=1e-4)
     mask_dose = np.array([e["dose_mj_cm2"] for e in manifest["exposures"]])[index]
     half_level = (expected[grid.mask].max() - expected[grid.mask].min()) / 4 / 2
@@ -109,7 +115,7 @@ def test_image_rows_go_down_and_angles_go_counter_clockwise(tmp_path):
     theta = np.zeros((4, 3))
     theta[:2] = np.radians(30)  # top rows = largest y
     theta[2:] = np.radians(120)
-    grid = DirectorGrid(theta, np.ones((4, 3)), None, 0.5, (1.0, 2.0))
+    grid = DirectorGrid(theta, np.ones((4, 3)), {}, 0.5, (1.0, 2.0))
     x, y = grid.centres()
     assert x.tolist() == [1.25, 1.75, 2.25] and y.tolist() == [3.75, 3.25, 2.75, 2.25]
     summary = write_laser(
@@ -128,7 +134,9 @@ def test_image_rows_go_down_and_angles_go_counter_clockwise(tmp_path):
 @pytest.mark.parametrize(("relation", "offset"), [("perpendicular", 90.0), ("parallel", 0.0)])
 def test_polariser_and_half_wave_plate_follow_the_relation(tmp_path, relation, offset):
     grid = _baromorph_grid(pitch=1.0)
-    settings = LaserSettings(bins=12, relation=relation, input_polarisation_deg=20.0)
+    settings = LaserSettings(
+        bins=12, relation=relation, input_polarisation_deg=20.0, ignore=("eps",)
+    )
     summary = write_laser(grid, tmp_path / "b", load_machine("dmd_photoalign"), settings)
     for exposure in summary.manifest["exposures"]:
         polariser = exposure["polariser_deg"]
@@ -145,8 +153,9 @@ def test_the_profiles_light_table_and_dose_calibration_apply(tmp_path):
     machine = load_machine(path)
     settings = LaserSettings.for_machine(machine)
     assert settings.relation == "parallel" and settings.intensity_mw_cm2 == 10
-    table = machine.process.calibration
-    assert settings.dose.dose(np.array(table.eps)) == pytest.approx(table.value)
+    table = settings.process.encodes[0].table
+    assert table.parameter == "dose_mj_cm2"
+    assert table.encode(np.array(table.eps))[0] == pytest.approx(table.value)
     assert LaserSettings.for_machine(machine, relation="perpendicular").relation == "perpendicular"
 
 
@@ -155,7 +164,8 @@ def test_baromorph_scan_lines_cover_every_pixel_once(tmp_path):
     grid = _baromorph_grid()
     settings = LaserSettings.for_machine(
         machine,
-        dose=DoseCalibration((0.0, 0.5), (400.0, 1600.0)),
+        process=_dose((0.0, 0.5), (400.0, 1600.0)),
+        dose_levels=4,
         scan_speed_mm_s=5.0,
         max_power_mw=50.0,
         image_format="tiff",
@@ -210,8 +220,8 @@ def test_refusals_leave_nothing_behind(tmp_path):
     with pytest.raises(FabkitError, match="outside the envelope of dmd_photoalign"):
         write_laser(big, tmp_path / "out", machine, offset_mm=(30.0, 0.0))
     assert not (tmp_path / "out").exists() and not list(tmp_path.iterdir())
-    calibrated = LaserSettings(dose=DoseCalibration((0.0, 0.2), (100.0, 200.0)))
-    with pytest.raises(FabkitError, match="outside the dose calibration range"):
+    calibrated = LaserSettings(process=_dose((0.0, 0.2), (100.0, 200.0)))
+    with pytest.raises(FabkitError, match=r"outside the calibrated range \[0, 0.2\] of dose"):
         write_laser(big, tmp_path / "out", machine, calibrated)
     with pytest.raises(FabkitError, match="laser patterns need a laser_writer profile"):
         write_laser(big, tmp_path / "out", load_machine("marlin_generic"))
@@ -225,29 +235,33 @@ def test_refusals_leave_nothing_behind(tmp_path):
 
 def test_rewriting_a_pattern_directory_replaces_it(tmp_path):
     machine = load_machine("dmd_photoalign")
-    write_laser(_baromorph_grid(1.0), tmp_path / "out", machine, LaserSettings(bins=12))
-    write_laser(_baromorph_grid(1.0), tmp_path / "out", machine, LaserSettings(bins=4))
+    write_laser(
+        _baromorph_grid(1.0), tmp_path / "out", machine, LaserSettings(bins=12, ignore=("eps",))
+    )
+    write_laser(
+        _baromorph_grid(1.0), tmp_path / "out", machine, LaserSettings(bins=4, ignore=("eps",))
+    )
     assert len(list((tmp_path / "out" / "masks").iterdir())) == 4
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
 
 
 def test_grid_and_settings_validation():
     with pytest.raises(FabkitError, match="same shape|one shape"):
-        DirectorGrid(np.zeros((2, 2)), np.ones((3, 2)), None, 0.1)
+        DirectorGrid(np.zeros((2, 2)), np.ones((3, 2)), {}, 0.1)
     with pytest.raises(FabkitError, match="selects no pixel"):
-        DirectorGrid(np.zeros((2, 2)), np.zeros((2, 2)), None, 0.1)
+        DirectorGrid(np.zeros((2, 2)), np.zeros((2, 2)), {}, 0.1)
     with pytest.raises(FabkitError, match="pixel pitch"):
-        DirectorGrid(np.zeros((2, 2)), np.ones((2, 2)), None, 0.0)
+        DirectorGrid(np.zeros((2, 2)), np.ones((2, 2)), {}, 0.0)
+    with pytest.raises(FabkitError, match="eps must have the shape"):
+        DirectorGrid(np.zeros((2, 2)), np.ones((2, 2)), {"eps": np.zeros(3)}, 0.1)
     with pytest.raises(FabkitError, match="relation"):
         LaserSettings(relation="diagonal")
-    with pytest.raises(FabkitError, match="strictly increasing"):
-        DoseCalibration((0.2, 0.1), (1.0, 2.0))
 
 
 @pytest.mark.parametrize("bins", [1, 2, 7, 18, 90])
 def test_binning_error_is_at_most_half_a_bin(bins):
     rng = np.random.default_rng(bins)
     theta = rng.uniform(-4, 4, (30, 40))
-    binning = bin_angles(DirectorGrid(theta, np.ones(theta.shape), None, 0.1), bins)
+    binning = bin_angles(DirectorGrid(theta, np.ones(theta.shape), {}, 0.1), bins)
     assert binning.max_error <= math.pi / (2 * bins) + 1e-12
     assert set(np.unique(binning.label)) <= set(range(bins))

@@ -33,7 +33,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     design = parser.add_argument_group("design input")
     design.add_argument("--size", type=float, help="longest side of the flat sheet (mm)")
     design.add_argument("--scale", type=float, help="mm per design unit")
-    design.add_argument("--feature", type=int, default=0, help="eps feature (default 0)")
+    design.add_argument(
+        "--ignore-feature",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="laser: leave feature NAME out on purpose (repeatable)",
+    )
+    design.add_argument(
+        "--process", metavar="FILE", help="laser: TOML whose [process] replaces the machine's"
+    )
     gcode = parser.add_argument_group("gcode")
     gcode.add_argument("--e-mode", choices=E_MODES, help="default: the profile's start G-code")
     gcode.add_argument("--e-units", choices=E_UNITS, help="default: filament (hyrel: volume)")
@@ -73,13 +82,15 @@ def _numbers(text: str) -> tuple[float, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fabkit.toolpath.process import load_process
     from fabkit.writers.export import ExportOptions, export
 
     options = ExportOptions(
         offset_mm=args.offset,
         size_mm=args.size,
         mm_per_unit=args.scale,
-        feature=args.feature,
+        process=load_process(args.process) if args.process else None,
+        ignore_features=tuple(args.ignore_feature),
         gcode=GcodeOptions(
             e_mode=args.e_mode,
             e_units=args.e_units,

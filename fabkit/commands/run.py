@@ -68,6 +68,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="format of the patch meshes in patches/ (default %(default)s)",
     )
     parser.add_argument(
+        "--ignore-feature",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="leave feature NAME out of the machine file on purpose (repeatable); without "
+        "it a feature the process does not encode is an error",
+    )
+    parser.add_argument(
+        "--no-verify",
+        action="store_true",
+        help="do not read the machine file back and check it (fabkit verify)",
+    )
+    parser.add_argument(
         "--send",
         metavar="PORT",
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
@@ -88,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
         step=args.step,
         diagonals=args.diagonals,
         mesh_format=args.mesh_format,
+        ignore_features=tuple(args.ignore_feature),
+        verify=not args.no_verify,
     )
     figures = run_pipeline(options)
     print(

@@ -24,7 +24,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     process.add_argument("--process", metavar="FILE", help="TOML whose [process] replaces it")
     process.add_argument("--road-width", type=float, metavar="MM", help="override road width w")
     process.add_argument("--layer-height", type=float, metavar="MM", help="override layer height")
-    process.add_argument("--no-encode", action="store_true", help="do not encode eps")
+    process.add_argument(
+        "--no-encode", action="store_true", help="encode no feature (each one left out)"
+    )
+    process.add_argument(
+        "--ignore-feature",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="leave feature NAME out of the encoding on purpose (repeatable); without it a "
+        "feature the process does not encode is an error",
+    )
     process.add_argument("--clip-eps", action="store_true", help="clip eps to the calibration")
     parser.add_argument(
         "--end-inset",
@@ -66,7 +76,6 @@ def _field_arguments(parser: argparse.ArgumentParser, inputs_help: str) -> None:
     scale = parser.add_argument_group("design scale").add_mutually_exclusive_group()
     scale.add_argument("--size", type=float, metavar="MM", help="longest side of the sheet, mm")
     scale.add_argument("--scale", type=float, metavar="MM_PER_UNIT", help="mm per design unit")
-    parser.add_argument("--feature", type=int, default=0, help="eps feature of a design (0)")
     parser.add_argument("--clip", metavar="SHAPE", help="clip every outline by this shape (mm)")
 
 
@@ -78,7 +87,6 @@ def _fields(args: argparse.Namespace, **extra) -> ToolpathJob:
         eps=args.eps,
         size_mm=args.size,
         mm_per_unit=args.scale,
-        feature=args.feature,
         clip=args.clip,
         **extra,
     )
@@ -102,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
         layers=args.layers,
         pattern=args.pattern,
         encode=not args.no_encode,
+        ignore_features=tuple(args.ignore_feature),
         clip_eps=args.clip_eps,
         end_inset=args.end_inset,
         out=args.out,

@@ -82,6 +82,9 @@ class _Checker:
         snippets = {key: self._snippet(key) for key in GCODE_KEYS}
         self.flow_on_codes = {code for line in snippets["flow_on_gcode"] for code in line.codes}
         self.flow_off = [line for line in snippets["flow_off_gcode"] if line.codes]
+        self.ink2_on = [line for line in snippets["ink2_on_gcode"] if line.codes]
+        self.ink2_off = [line for line in snippets["ink2_off_gcode"] if line.codes]
+        self.inks_on = [False, False]  # the first ink (flow on/off), the second (ink2 on/off)
         if self.grbl:
             self.dialect: GrblDialect | MarlinDialect = GrblDialect(self.tracker, self.extra_axes)
         else:
@@ -103,6 +106,8 @@ class _Checker:
             raise GcodeError("inch units (G20) are not supported: use millimetres (G21)")
         self._flow(block)
         self.dialect.run(text, block)
+        if not self.tracker.flow_on:  # the firmware stopped the flow (GRBL's M2, M30)
+            self.inks_on = [False, False]
 
     def read(self, text: str) -> Block:
         """``text`` as the machine's firmware reads it."""
@@ -126,12 +131,19 @@ class _Checker:
             raise GcodeError("the line already carries a line number: remove N words and checksums")
 
     def _flow(self, block: Block) -> None:
-        """Flow off when the block holds a flow-off line of the profile; on when it shares a
-        command with a flow-on line (a valve, coolant output, spindle or laser)."""
-        if any(_holds(block, line) for line in self.flow_off):
-            self.tracker.flow_on = False
+        """The first ink's flow off when the block holds a flow-off line of the profile, on
+        when it shares a command with a flow-on line (a valve, coolant output, spindle or
+        laser); a second ink's (the profile's ink2 lines) off and on when the block holds
+        one of its lines. Material flows while either flows."""
+        if any(_holds(block, line) for line in self.ink2_off):
+            self.inks_on[1] = False
+        elif any(_holds(block, line) for line in self.ink2_on):
+            self.inks_on[1] = True
+        elif any(_holds(block, line) for line in self.flow_off):
+            self.inks_on[0] = False
         elif not self.flow_on_codes.isdisjoint(block.codes):
-            self.tracker.flow_on = True
+            self.inks_on[0] = True
+        self.tracker.flow_on = any(self.inks_on)
 
 
 def _holds(block: Block, line: Block) -> bool:

@@ -28,11 +28,13 @@ def html_report(
     figures: Mapping[str, Any],
     pictures: Sequence[tuple[str, Path]],
     path: str | Path,
+    notice: str = "",
 ) -> None:
     """Write ``path``: the key figures as tables, then each (caption, PNG file) inline.
 
     ``figures`` is plain JSON-like data: a mapping becomes a two-column table, a list of
-    mappings a table with one row per item and one column per (nested) key.
+    mappings a table with one row per item and one column per (nested) key. ``notice``,
+    if any, is the page's first line (in red).
     """
     blocks = []
     for caption, picture in pictures:
@@ -44,7 +46,8 @@ def html_report(
     page = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
 <style>{STYLE}</style></head>
-<body><h1>{html.escape(title)}</h1>
+<body>{f'<p class="no">{html.escape(notice)}</p>' if notice else ""}
+<h1>{html.escape(title)}</h1>
 <h2>Key figures</h2>
 {_html(figures)}
 <h2>Pictures</h2>

@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 from fabkit.errors import FabkitError
 from fabkit.fields import FlatField
 from fabkit.limits import MAGNITUDE
+from fabkit.process import CHANNEL_WIDTH, Calibration
 from fabkit.shipped import user_or_example
 from fabkit.tomlfile import read_toml
 from fabkit.toolpath.lines import (
@@ -45,9 +46,8 @@ from fabkit.toolpath.lines import (
     resample,
     smooth,
 )
-from fabkit.toolpath.process import Calibration, encode_eps
 
-CHANNEL_PARAMETER = "channel_width_mm"
+CHANNEL_PARAMETER = CHANNEL_WIDTH
 LENGTH_KEYS = (
     "pitch_mm",
     "min_wall_mm",
@@ -235,7 +235,7 @@ def _check_pitch(flat: FlatField, settings: BaromorphSettings) -> None:
     grid = grid[shapely.contains_xy(flat.outline, grid[:, 0], grid[:, 1])]
     if len(grid) == 0:
         return
-    widest = float(encode_eps(flat.eps(grid), settings.calibration).value.max())
+    widest = float(settings.calibration.encode(flat.eps(grid))[0].max())
     if settings.pitch_mm - widest < settings.min_wall_mm:
         raise FabkitError(
             f"[baromorph] pitch_mm {settings.pitch_mm:g} leaves walls of "
@@ -245,7 +245,7 @@ def _check_pitch(flat: FlatField, settings: BaromorphSettings) -> None:
 
 
 def _widths(flat: FlatField, line: np.ndarray, calibration: Calibration) -> np.ndarray:
-    return encode_eps(flat.eps(line), calibration).value
+    return calibration.encode(flat.eps(line))[0]
 
 
 def _keep_walls(
@@ -424,7 +424,7 @@ def _width_errors(layout: ChannelLayout, settings: BaromorphSettings) -> np.ndar
     """
     errors = []
     for line, channel, eps in zip(layout.centrelines, layout.channels, layout.eps, strict=True):
-        expected = encode_eps(eps, settings.calibration).value
+        expected = settings.calibration.encode(eps)[0]
         arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(line, axis=0), axis=1))])
         margin = float(expected.max())
         middle = np.flatnonzero((arc > margin) & (arc < arc[-1] - margin))[::4]

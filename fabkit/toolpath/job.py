@@ -17,7 +17,7 @@ Every file is written atomically (no half-written output on failure).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +33,7 @@ from fabkit.fields import (
     parse_shape,
 )
 from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES
+from fabkit.process import Process
 from fabkit.toolpath.baromorph import (
     ChannelLayout,
     ChannelReport,
@@ -45,7 +46,7 @@ from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.mould import POLARITY, mould_mesh, save_mould
 from fabkit.toolpath.plan import Plan, PlanSettings, plan_toolpath
 from fabkit.toolpath.preview import save_channel_preview, save_preview
-from fabkit.toolpath.process import Process, load_process, machine_process
+from fabkit.toolpath.process import load_process, machine_process, resolve_channels
 
 
 @dataclass(frozen=True)
@@ -58,7 +59,6 @@ class ToolpathJob:
     eps: str | None = None
     size_mm: float | None = None
     mm_per_unit: float | None = None
-    feature: int = 0
     clip: str | None = None
     machine: str | None = None
     process_file: str | None = None
@@ -67,6 +67,7 @@ class ToolpathJob:
     layers: int = 1
     pattern: str = "same"
     encode: bool = True
+    ignore_features: tuple[str, ...] = ()
     clip_eps: bool = False
     end_inset: float = LineSettings().end_inset
     out: str = "toolpath"
@@ -88,11 +89,16 @@ def run_job(job: ToolpathJob) -> JobResult:
     check_folder(job.out, f"--out {job.out}")
     fields = load_fields(job)
     process = job_process(job)
+    if job.encode:
+        for flat in fields:  # a feature without a channel is refused before planning
+            ignore = tuple(name for name in job.ignore_features if name in flat.names)
+            resolve_channels(process, flat.names, ignore)
     _check_extent(fields, process.road_width_mm, job.layers)
     settings = PlanSettings(
         layers=job.layers,
         pattern=job.pattern,
         encode=job.encode,
+        ignore=job.ignore_features,
         lines=LineSettings(end_inset=job.end_inset),
     )
     plan = plan_toolpath(fields, process, settings)
@@ -155,7 +161,7 @@ def load_fields(job: ToolpathJob) -> list[FlatField]:
 def _load_input(path: str, job: ToolpathJob) -> FlatField:
     suffix = Path(path).suffix
     if suffix == ".npz":
-        return field_from_design(path, job.size_mm, job.mm_per_unit, job.feature)
+        return field_from_design(path, job.size_mm, job.mm_per_unit)
     if suffix == ".toml":
         return load_director_file(path)
     raise FabkitError(f"input '{path}': expected a design .npz or a director .toml file")
@@ -169,9 +175,7 @@ def job_process(job: ToolpathJob) -> Process:
     process = process.with_overrides(
         road_width_mm=job.road_width_mm, layer_height_mm=job.layer_height_mm
     )
-    if job.clip_eps and process.calibration is not None:
-        process = replace(process, calibration=replace(process.calibration, clip=True))
-    return process
+    return process.with_clip() if job.clip_eps else process
 
 
 def _save_quality(plan: Plan, process: Process, path: Path) -> None:
@@ -180,7 +184,8 @@ def _save_quality(plan: Plan, process: Process, path: Path) -> None:
         "road_width_mm": process.road_width_mm,
         "layer_height_mm": process.layer_height_mm,
         "process": process.source,
-        "parameter": plan.toolpath.parameter,
+        "channels": dict(plan.toolpath.channels),
+        "ignored_features": plan.toolpath.meta.get("ignored_features", []),
         "sources": plan.toolpath.meta.get("sources", []),
         "warnings": list(plan.warnings),
     }
@@ -199,11 +204,13 @@ class ChannelJob:
 
 @dataclass(frozen=True)
 class ChannelResult:
-    """The layout, its checks, and the files written."""
+    """The layout, its checks, the files written, and the design's scale (mm per design
+    unit; None for a director field)."""
 
     layout: ChannelLayout
     report: ChannelReport
     files: tuple[Path, ...]
+    mm_per_unit: float | None = None
 
 
 def run_channel_job(job: ChannelJob) -> ChannelResult:
@@ -221,7 +228,7 @@ def run_channel_job(job: ChannelJob) -> ChannelResult:
         tmp.write_text(json.dumps(_channels_json(layout, report)), encoding="utf-8")
     save_mould(mould_mesh(layout, settings), files[1])
     save_channel_preview(layout, list(files[2:]))
-    return ChannelResult(layout, report, files)
+    return ChannelResult(layout, report, files, fields[0].mm_per_unit)
 
 
 def _channels_json(layout: ChannelLayout, report: ChannelReport) -> dict:

@@ -4,22 +4,28 @@ A :class:`Toolpath` is a tuple of :class:`Layer` s; a layer is the ordered tuple
 :class:`Move` s (print moves and the travels between them). A move is a polyline with
 per-vertex data:
 
-========= ======= ==========================================================================
-field     shape   meaning
-========= ======= ==========================================================================
-xyz       (n, 3)  vertex positions, mm (machine-independent: the sheet's frame, z up)
-width     (n,)    road width, mm (0 on travels)
-speed     (n,)    feed rate, mm/s
-flow      (n,)    extrusion multiplier: the volume deposited along a segment is
-                  ``length * width * layer height * flow`` (1 = nominal road, 0 on travels)
-value     (n,)    the encoded process parameter (see :attr:`Toolpath.parameter`); NaN if none
-========= ======= ==========================================================================
+=========== ======= ========================================================================
+field       shape   meaning
+=========== ======= ========================================================================
+xyz         (n, 3)  vertex positions, mm (machine-independent: the sheet's frame, z up)
+width       (n,)    road width, mm (0 on travels)
+speed       (n,)    feed rate, mm/s
+flow        (n,)    extrusion multiplier: the volume deposited along a segment is
+                    ``length * width * layer height * flow`` (1 = nominal road, 0 on travels)
+channels    {name:  one array per encoded process parameter (:attr:`Toolpath.channels`),
+            (n,)}   named by the parameter (``print_speed_mm_s``, ``ink_fraction``, ...);
+                    NaN on travels
+=========== ======= ========================================================================
 
-Vertex ``k`` carries the settings of the segment that *ends* at it (the G-code convention:
-a move to vertex ``k`` is made with ``speed[k]``, ``flow[k]``, ``width[k]``, ``value[k]``);
-vertex 0 carries the settings at the start of the move. Writers (G-code, DXF, laser) read
-only this model; :func:`save_toolpath` / :func:`load_toolpath` store it as ``.npz`` or
-``.json`` with the same content.
+The channels are the values the process gives each feature of the design (see
+:mod:`fabkit.process`); ``speed`` and ``flow`` already hold the print speed and extrusion
+multiplier channels where those are encoded. Vertex ``k`` carries the settings of the
+segment that *ends* at it (the G-code convention: a move to vertex ``k`` is made with
+``speed[k]``, ``flow[k]``, ``width[k]`` and every channel's ``[k]``); vertex 0 carries the
+settings at the start of the move. Writers (G-code, DXF, laser) read only this model;
+:func:`save_toolpath` / :func:`load_toolpath` store it as ``.npz`` or ``.json`` with the
+same content (format ``fabkit-toolpath/2``; files of format 1, with one encoded
+``parameter`` and its ``value`` per vertex, are read as one channel).
 """
 
 from __future__ import annotations
@@ -37,18 +43,21 @@ from fabkit.atomic import atomic_path
 from fabkit.errors import FabkitError
 from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES, TOOLPATH_VERTICES
 from fabkit.npzfile import ArrayHeader, check_magnitude, read_npz
+from fabkit.process import PARAMETERS
 from fabkit.readfile import parse_json, read_json
 
-FORMAT = "fabkit-toolpath/1"
+FORMAT = "fabkit-toolpath/2"
 """Format tag stored in every saved toolpath."""
+OLD_FORMATS = ("fabkit-toolpath/1",)
+"""Older tags :func:`load_toolpath` still reads."""
 
 PRINT = "print"
 TRAVEL = "travel"
 KINDS = (PRINT, TRAVEL)
-PARAMETERS = ("", "print_speed_mm_s", "extrusion_multiplier", "temperature_c", "line_spacing_mm")
-"""Names :attr:`Toolpath.parameter` may take ("" = nothing encoded)."""
 
-_VERTEX_FIELDS = ("width", "speed", "flow", "value")
+_VERTEX_FIELDS = ("width", "speed", "flow")
+_CHANNEL_KEY = "channel_"
+"""Prefix of the per-vertex channel arrays in a ``.npz`` toolpath."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,7 +69,7 @@ class Move:
     width: np.ndarray
     speed: np.ndarray
     flow: np.ndarray
-    value: np.ndarray
+    channels: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -72,10 +81,9 @@ class Move:
             raise FabkitError("toolpath: a move has non-finite coordinates")
         object.__setattr__(self, "xyz", xyz)
         for name in _VERTEX_FIELDS:
-            values = np.asarray(getattr(self, name), dtype=float)
-            if values.shape != (len(xyz),):  # broadcast_to is slow; skip it when not needed
-                values = np.broadcast_to(values, (len(xyz),))
-            object.__setattr__(self, name, values.copy())
+            object.__setattr__(self, name, _per_vertex(getattr(self, name), len(xyz)))
+        channels = {str(k): _per_vertex(v, len(xyz)) for k, v in self.channels.items()}
+        object.__setattr__(self, "channels", channels)
 
     @classmethod
     def make(
@@ -86,12 +94,12 @@ class Move:
         width: np.ndarray | float,
         speed: np.ndarray | float,
         flow: np.ndarray | float = 1.0,
-        value: np.ndarray | float = math.nan,
+        channels: Mapping[str, np.ndarray | float] | None = None,
     ) -> Move:
         """A move at height ``z`` (mm) from (n, 2) points; scalars are broadcast to vertices."""
         xy = np.asarray(xy, dtype=float)
         xyz = np.column_stack([xy, np.full(len(xy), float(z))])
-        return cls(kind, xyz, width, speed, flow, value)
+        return cls(kind, xyz, width, speed, flow, dict(channels or {}))
 
     @property
     def length_mm(self) -> float:
@@ -103,6 +111,13 @@ class Move:
         """Time to run the move at its per-segment speeds, s."""
         lengths = np.linalg.norm(np.diff(self.xyz, axis=0), axis=1)
         return float((lengths / np.maximum(self.speed[1:], 1e-9)).sum())
+
+
+def _per_vertex(values: Any, count: int) -> np.ndarray:
+    values = np.asarray(values, dtype=float)
+    if values.shape != (count,):  # broadcast_to is slow; skip it when not needed
+        values = np.broadcast_to(values, (count,))
+    return values.copy()
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,22 +135,34 @@ class Layer:
 
 @dataclass(frozen=True, eq=False)
 class Toolpath:
-    """Layers of moves plus the name of the encoded parameter and JSON-able metadata.
+    """Layers of moves, the encoded channels, and JSON-able metadata.
 
-    ``parameter`` is one of :data:`PARAMETERS`: which process parameter ``Move.value``
-    holds (``"print_speed_mm_s"`` etc.; ``""`` if nothing is encoded). ``meta`` holds
-    provenance (source, machine, process settings, quality report) as plain JSON values.
+    ``channels`` maps every encoded parameter (one of :data:`fabkit.process.PARAMETERS`)
+    to the feature(s) it encodes (``"eps1"``, or ``"eps1+eps2"`` for a joint table; ``""``
+    when unknown, as in a format-1 file); every move carries exactly these channels.
+    ``meta`` holds provenance (sources, process, scale, ignored features) as plain JSON.
     """
 
     layers: tuple[Layer, ...]
-    parameter: str = ""
+    channels: Mapping[str, str] = field(default_factory=dict)
     meta: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.parameter not in PARAMETERS:
-            raise FabkitError(
-                f"toolpath: encoded parameter '{self.parameter}' is not one of {PARAMETERS[1:]}"
-            )
+        object.__setattr__(self, "channels", dict(self.channels))
+        for name in self.channels:
+            if name not in PARAMETERS:
+                raise FabkitError(
+                    f"toolpath: channel '{name}' is not a parameter ({', '.join(PARAMETERS)})"
+                )
+        wanted = set(self.channels)
+        for index, layer in enumerate(self.layers):
+            for move in layer.moves:
+                if set(move.channels) != wanted:
+                    raise FabkitError(
+                        f"toolpath: a move of layer {index} has channels "
+                        f"{sorted(move.channels) or 'none'}, the toolpath "
+                        f"{sorted(wanted) or 'none'}"
+                    )
 
     def moves(self) -> Iterator[tuple[int, Move]]:
         """Every move in machine order, with its layer index."""
@@ -182,7 +209,9 @@ def load_toolpath(path: str | Path) -> Toolpath:
     An ``.npz`` is checked from its zip directory and array headers before any array is
     read (:mod:`fabkit.npzfile`; at most TOOLPATH_MOVES moves, TOOLPATH_VERTICES vertices,
     TOOLPATH_LAYERS layers); a ``.json`` is at most JSON_BYTES and NESTING_DEPTH deep.
-    Coordinates, widths, speeds and flows must be finite and within +-MAGNITUDE.
+    Coordinates, widths, speeds and flows must be finite, and every number (channels
+    included) within +-MAGNITUDE. Files of format 1 are read with their one ``parameter``
+    as a channel.
     """
     path = Path(path)
     if not path.is_file():
@@ -213,17 +242,27 @@ def _loaded(path: Path, build: Callable[[], Toolpath]) -> Toolpath:
         raise FabkitError(f"{path}: not a fabkit toolpath ({type(exc).__name__}: {exc})") from None
 
 
-_TEXT_KEYS = ("format", "parameter", "meta")
 _INDEX_KEYS = ("move_start", "move_kind", "move_layer")
-_ARRAY_KEYS = (*_TEXT_KEYS, "layer_z", "layer_height", *_INDEX_KEYS, "xyz", *_VERTEX_FIELDS)
+_BASE_KEYS = ("format", "meta", "layer_z", "layer_height", *_INDEX_KEYS, "xyz", *_VERTEX_FIELDS)
+_TEXT_KEYS = ("format", "meta", "channels", "parameter")
+_OLD_KEYS = ("parameter", "value")
+"""Format 1's arrays beyond the base ones: the one encoded parameter and its values."""
 
 
 def _check_keys(found: set[str], path: Path) -> None:
-    """Refuse a file that is not a toolpath from its member names alone."""
+    """Refuse a file that is not a toolpath from its member names alone: the base arrays,
+    then ``channels`` and one ``channel_<parameter>`` array per channel (format 2), or
+    ``parameter`` and ``value`` (format 1)."""
     if "format" not in found:
         raise FabkitError(f"{path}: not a toolpath file of format {FORMAT}")
-    missing = [key for key in _ARRAY_KEYS if key not in found]
-    unknown = sorted(found - set(_ARRAY_KEYS))
+    if "channels" in found or "parameter" not in found:  # format 2
+        extra: tuple[str, ...] = ("channels",)
+        named = {key for key in found if key.removeprefix(_CHANNEL_KEY) in PARAMETERS}
+        channel_arrays = {key for key in named if key.startswith(_CHANNEL_KEY)}
+    else:  # format 1
+        extra, channel_arrays = _OLD_KEYS, set()
+    missing = [key for key in (*_BASE_KEYS, *extra) if key not in found]
+    unknown = sorted(found - {*_BASE_KEYS, *extra} - channel_arrays)
     if missing or unknown:
         which = f"no '{missing[0]}' array" if missing else f"unknown array '{unknown[0]}'"
         raise FabkitError(f"{path}: not a toolpath file of format {FORMAT} ({which})")
@@ -234,11 +273,12 @@ def _check_headers(headers: Mapping[str, ArrayHeader], path: Path) -> None:
     for key in _INDEX_KEYS:
         if headers[key].dtype.kind not in "iu":
             raise FabkitError(f"{path}: '{key}' holds {headers[key].dtype} values, not integers")
-    shapes = {key: headers[key].shape for key in _ARRAY_KEYS}
+    shapes = {key: header.shape for key, header in headers.items()}
     # a 0-d array counts -1 items, so that no expected shape matches it
     layers, moves, vertices = (
         shapes[key][0] if shapes[key] else -1 for key in ("layer_z", "move_kind", "xyz")
     )
+    per_vertex = [key for key in shapes if key.startswith(_CHANNEL_KEY) or key == "value"]
     expected = {
         "layer_z": (layers,),
         "layer_height": (layers,),
@@ -246,7 +286,7 @@ def _check_headers(headers: Mapping[str, ArrayHeader], path: Path) -> None:
         "move_kind": (moves,),
         "move_layer": (moves,),
         "xyz": (vertices, 3),
-        **{name: (vertices,) for name in _VERTEX_FIELDS},
+        **{name: (vertices,) for name in (*_VERTEX_FIELDS, *per_vertex)},
     }
     for key, shape in expected.items():
         if shapes[key] != shape:
@@ -265,7 +305,7 @@ def _to_arrays(toolpath: Toolpath) -> dict[str, np.ndarray]:
     counts = [len(m.xyz) for _, m in moves]
     arrays = {
         "format": np.array(FORMAT),
-        "parameter": np.array(toolpath.parameter),
+        "channels": np.array(json.dumps(list(toolpath.channels.items()))),
         "meta": np.array(json.dumps(toolpath.meta)),
         "layer_z": np.array([layer.z_mm for layer in toolpath.layers], dtype=float),
         "layer_height": np.array([layer.height_mm for layer in toolpath.layers], dtype=float),
@@ -277,13 +317,31 @@ def _to_arrays(toolpath: Toolpath) -> dict[str, np.ndarray]:
     for name in _VERTEX_FIELDS:
         parts = [getattr(m, name) for _, m in moves]
         arrays[name] = np.concatenate(parts) if parts else np.zeros(0)
+    for name in toolpath.channels:
+        parts = [m.channels[name] for _, m in moves]
+        arrays[_CHANNEL_KEY + name] = np.concatenate(parts) if parts else np.zeros(0)
     return arrays
 
 
 def _from_arrays(data: Mapping[str, np.ndarray]) -> Toolpath:
     """The toolpath of checked arrays (:func:`_check_headers`); values checked here."""
-    if str(data["format"]) != FORMAT:
+    tag = str(data["format"])
+    if tag != FORMAT and tag not in OLD_FORMATS:
         raise FabkitError(f"not a toolpath file of format {FORMAT}")
+    if "channels" in data:
+        if tag != FORMAT:
+            raise FabkitError(f"a file of format {tag} holds no channels")
+        channels = dict(_channel_pairs(parse_json(str(data["channels"]), "channels")))
+        present = {key.removeprefix(_CHANNEL_KEY) for key in data if key.startswith(_CHANNEL_KEY)}
+        if present != set(channels):
+            raise FabkitError("the channel arrays do not match the channels listed")
+        vertex_channels = {name: data[_CHANNEL_KEY + name] for name in channels}
+    else:  # format 1: one parameter, its values in "value"
+        if tag == FORMAT:
+            raise FabkitError("no 'channels' array")
+        parameter = str(data["parameter"])
+        channels = {parameter: ""} if parameter else {}
+        vertex_channels = {parameter: data["value"]} if parameter else {}
     start, kinds, owners = (data[key].astype(np.int64) for key in _INDEX_KEYS)
     n_layers = len(data["layer_z"])
     steps = np.diff(start)
@@ -293,23 +351,37 @@ def _from_arrays(data: Mapping[str, np.ndarray]) -> Toolpath:
         raise FabkitError("a move refers to a missing layer or an unknown kind")
     if len(kinds) and kinds.max() >= len(KINDS):
         raise FabkitError("a move refers to a missing layer or an unknown kind")
-    for key in ("layer_z", "layer_height", "xyz", "width", "speed", "flow", "value"):
+    for key in ("layer_z", "layer_height", "xyz", *_VERTEX_FIELDS):
         values = data[key].astype(float)
-        if key != "value" and not np.isfinite(values).all():
+        if not np.isfinite(values).all():
             raise FabkitError(f"'{key}' has non-finite values")
         check_magnitude(values, key)
+    for name, values in vertex_channels.items():
+        check_magnitude(values.astype(float), name)
     meta = parse_json(str(data["meta"]), "meta")
     if not isinstance(meta, dict):
         raise FabkitError("meta: expected a JSON object")
     per_layer: list[list[Move]] = [[] for _ in range(n_layers)]
     for k, (a, b) in enumerate(zip(start[:-1], start[1:], strict=True)):
         fields = {name: data[name][a:b] for name in _VERTEX_FIELDS}
-        per_layer[owners[k]].append(Move(KINDS[kinds[k]], data["xyz"][a:b], **fields))
+        values = {name: array[a:b] for name, array in vertex_channels.items()}
+        per_layer[owners[k]].append(
+            Move(KINDS[kinds[k]], data["xyz"][a:b], **fields, channels=values)
+        )
     layers = tuple(
         Layer(float(z), float(h), tuple(moves))
         for z, h, moves in zip(data["layer_z"], data["layer_height"], per_layer, strict=True)
     )
-    return Toolpath(layers, str(data["parameter"]), meta)
+    return Toolpath(layers, channels, meta)
+
+
+def _channel_pairs(pairs: Any) -> list[tuple[str, str]]:
+    """The ``[[parameter, features], ...]`` list of a saved toolpath, checked."""
+    if not isinstance(pairs, list) or not all(
+        isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) for x in p) for p in pairs
+    ):
+        raise FabkitError("channels must be a list of [parameter, features] pairs")
+    return [(p[0], p[1]) for p in pairs]
 
 
 def _to_json(toolpath: Toolpath) -> dict[str, Any]:
@@ -318,7 +390,7 @@ def _to_json(toolpath: Toolpath) -> dict[str, Any]:
 
     return {
         "format": FORMAT,
-        "parameter": toolpath.parameter,
+        "channels": [list(pair) for pair in toolpath.channels.items()],
         "meta": dict(toolpath.meta),
         "layers": [
             {
@@ -331,6 +403,7 @@ def _to_json(toolpath: Toolpath) -> dict[str, Any]:
                         "y": m.xyz[:, 1].tolist(),
                         "z": m.xyz[:, 2].tolist(),
                         **{name: listed(getattr(m, name)) for name in _VERTEX_FIELDS},
+                        "channels": {name: listed(v) for name, v in m.channels.items()},
                     }
                     for m in layer.moves
                 ],
@@ -341,11 +414,22 @@ def _to_json(toolpath: Toolpath) -> dict[str, Any]:
 
 
 def _from_json(table: Mapping[str, Any]) -> Toolpath:
-    if table.get("format") != FORMAT:
+    tag = table.get("format")
+    if tag != FORMAT and tag not in OLD_FORMATS:
         raise FabkitError(f"not a toolpath file of format {FORMAT}")
 
     def array(values: list[float | None]) -> np.ndarray:
         return np.array([math.nan if v is None else v for v in values], dtype=float)
+
+    if tag == FORMAT:
+        channels = dict(_channel_pairs(table["channels"]))
+    else:
+        channels = {table["parameter"]: ""} if table["parameter"] else {}
+
+    def move_channels(m: Mapping[str, Any]) -> dict[str, np.ndarray]:
+        if tag == FORMAT:
+            return {name: array(values) for name, values in m["channels"].items()}
+        return {name: array(m["value"]) for name in channels}
 
     count = sum(len(layer["moves"]) for layer in table["layers"])
     if count > TOOLPATH_MOVES:
@@ -357,17 +441,19 @@ def _from_json(table: Mapping[str, Any]) -> Toolpath:
                 m["kind"],
                 np.column_stack([m["x"], m["y"], m["z"]]).astype(float),
                 **{name: array(m[name]) for name in _VERTEX_FIELDS},
+                channels=move_channels(m),
             )
             for m in layer["moves"]
         )
         layers.append(Layer(float(layer["z_mm"]), float(layer["height_mm"]), moves))
-    toolpath = Toolpath(tuple(layers), table["parameter"], dict(table["meta"]))
+    toolpath = Toolpath(tuple(layers), channels, dict(table["meta"]))
     _check_values(toolpath)
     return toolpath
 
 
 def _check_values(toolpath: Toolpath) -> None:
-    """Finite widths, speeds and flows, and every number within +-MAGNITUDE."""
+    """Finite widths, speeds and flows, and every number (channels included) within
+    +-MAGNITUDE."""
     layers = np.array([(layer.z_mm, layer.height_mm) for layer in toolpath.layers], float)
     if not np.isfinite(layers).all():
         raise FabkitError("layer heights must be finite")
@@ -375,6 +461,8 @@ def _check_values(toolpath: Toolpath) -> None:
     for _, move in toolpath.moves():
         for name in ("xyz", *_VERTEX_FIELDS):
             values = getattr(move, name)
-            if name != "value" and not np.isfinite(values).all():
+            if not np.isfinite(values).all():
                 raise FabkitError(f"'{name}' has non-finite values")
+            check_magnitude(values, name)
+        for name, values in move.channels.items():
             check_magnitude(values, name)

@@ -6,10 +6,12 @@ field's lines (``pattern = "same"``) or alternates them with the staggered set h
 between (``"alternate"``: stripe phase pi, and the print order reversed). Layer k is
 printed at z = (k + 1) * layer height.
 
-If the process has a calibration and the field has eps, eps is encoded on every vertex:
-``print_speed_mm_s`` sets the speed, ``extrusion_multiplier`` the flow,
-``temperature_c`` only the value (the writer sets the heater), and ``line_spacing_mm``
-the spacing of the lines themselves (through the stripe wavenumber).
+Every feature of a field is encoded on every vertex by the process's channel for it
+(:meth:`fabkit.process.Process.resolve`: a feature without a channel is an error unless
+it is ignored on purpose). Each move carries one array per encoded parameter;
+``print_speed_mm_s`` also sets the speed, ``extrusion_multiplier`` the flow, and
+``line_spacing_mm`` the spacing of the lines themselves (through the stripe
+wavenumber); the writers emit the others (pressure, temperature, ink fraction).
 """
 
 from __future__ import annotations
@@ -20,10 +22,10 @@ import numpy as np
 
 from fabkit.errors import FabkitError
 from fabkit.fields import FlatField
+from fabkit.process import Encode, Process, Resolution
 from fabkit.toolpath.lines import LineSettings, print_lines
 from fabkit.toolpath.model import PRINT, TRAVEL, Layer, Move, Toolpath
 from fabkit.toolpath.order import order_lines, travel_length
-from fabkit.toolpath.process import Calibration, Process, encode_eps
 from fabkit.toolpath.quality import Quality, measure_quality
 
 PATTERNS = ("same", "alternate")
@@ -31,11 +33,13 @@ PATTERNS = ("same", "alternate")
 
 @dataclass(frozen=True)
 class PlanSettings:
-    """Number of layers, layer pattern, whether to encode eps, and the line settings."""
+    """Number of layers, layer pattern, whether to encode the features, the features left
+    out on purpose (``--ignore-feature``), and the line settings."""
 
     layers: int = 1
     pattern: str = "same"
     encode: bool = True
+    ignore: tuple[str, ...] = ()
     lines: LineSettings = field(default_factory=LineSettings)
 
 
@@ -56,11 +60,12 @@ def plan_toolpath(
     w = process.road_width_mm
     per_field = settings.layers // len(fields)
     phases = (0.0, np.pi) if settings.pattern == "alternate" and per_field > 1 else (0.0,)
+    resolutions = [_resolve(flat, process, settings) for flat in fields]
+    names = {p: "+".join(c.features) for r in resolutions for c in r.channels for p in c.parameters}
     layers, qualities, warnings = [], [], []
     position = np.zeros(2)
-    for flat in fields:
-        encoding = _encoding(flat, process, settings)
-        spacing = _spacing(flat, encoding)
+    for flat, resolution in zip(fields, resolutions, strict=True):
+        spacing = _spacing(flat, resolution.channel_of("line_spacing_mm"))
         line_sets = print_lines(flat, w, spacing, settings.lines, phases)
         for repeat in range(per_field):
             variant = repeat % len(phases)
@@ -70,9 +75,8 @@ def plan_toolpath(
             if not lines:
                 raise FabkitError(f"{flat.source}: no print line fits (domain narrower than w?)")
             z = (len(layers) + 1) * process.layer_height_mm
-            moves, clipped = _moves(lines, flat, process, encoding, z)
-            if clipped:
-                warnings.append(f"{flat.source}: eps clipped to the calibration on {clipped:.1%}")
+            moves, clipped = _moves(lines, flat, process, resolution, tuple(names), z)
+            warnings += [f"{flat.source}: eps clipped to {text}" for text in clipped]
             layers.append(Layer(z, process.layer_height_mm, tuple(moves)))
             position = lines[-1][-1]
             travel = travel_length(lines)
@@ -81,7 +85,9 @@ def plan_toolpath(
                 qualities.append(measure_quality(lines, widths, flat, w, travel))
             else:  # the same lines as len(phases) layers below: only the travels differ
                 qualities.append(replace(qualities[-len(phases)], travel_length_mm=travel))
-    parameter = process.calibration.parameter if _encodes(fields, process, settings) else ""
+    ignored = sorted({name for r in resolutions for name in r.ignored})
+    if ignored:
+        warnings.insert(0, _ignored_text(ignored, settings))
     meta = {
         "units": "mm, s, mm/s",
         "sources": [flat.source for flat in fields],
@@ -89,8 +95,20 @@ def plan_toolpath(
         "road_width_mm": w,
         "layer_height_mm": process.layer_height_mm,
         "pattern": settings.pattern,
+        "mm_per_unit": fields[0].mm_per_unit,
+        "features": list(dict.fromkeys(name for flat in fields for name in flat.names)),
+        "ignored_features": ignored,
+        "unused_channels": sorted({c.label for r in resolutions for c in r.unused}),
     }
-    return Plan(Toolpath(tuple(layers), parameter, meta), tuple(qualities), tuple(warnings))
+    return Plan(Toolpath(tuple(layers), names, meta), tuple(qualities), tuple(warnings))
+
+
+def _ignored_text(ignored: list[str], settings: PlanSettings) -> str:
+    why = "--ignore-feature" if settings.encode else "--no-encode"
+    return (
+        f"feature{'s' if len(ignored) > 1 else ''} {', '.join(ignored)} left out ({why}): "
+        "the machine file does not encode " + ("them" if len(ignored) > 1 else "it")
+    )
 
 
 def _check(fields: list[FlatField], settings: PlanSettings) -> None:
@@ -102,26 +120,31 @@ def _check(fields: list[FlatField], settings: PlanSettings) -> None:
         raise FabkitError(
             f"--layers {settings.layers} cannot be split evenly over {len(fields)} inputs"
         )
+    names = list(dict.fromkeys(name for flat in fields for name in flat.names))
+    for name in settings.ignore:
+        if name not in names:
+            raise FabkitError(
+                f"--ignore-feature {name}: not a feature of the input "
+                f"(features: {', '.join(names) or 'none'})"
+            )
 
 
-def _encodes(fields: list[FlatField], process: Process, settings: PlanSettings) -> bool:
-    return bool(settings.encode and process.calibration and any(flat.has_eps for flat in fields))
+def _resolve(flat: FlatField, process: Process, settings: PlanSettings) -> Resolution:
+    """The channels of ``flat``'s features (every feature left out with --no-encode)."""
+    if not settings.encode:
+        return Resolution((), (), flat.names)
+    return process.resolve(flat.names, tuple(n for n in settings.ignore if n in flat.names))
 
 
-def _encoding(flat: FlatField, process: Process, settings: PlanSettings) -> Calibration | None:
-    if settings.encode and process.calibration is not None and flat.has_eps:
-        return process.calibration
-    return None
-
-
-def _spacing(flat: FlatField, calibration: Calibration | None):
-    """Line spacing (mm): the calibrated one when eps encodes the line spacing."""
-    if calibration is None or calibration.parameter != "line_spacing_mm":
+def _spacing(flat: FlatField, channel: Encode | None):
+    """Line spacing (mm): the encoded one when a feature is encoded as the line spacing."""
+    if channel is None:
         return None
 
     def spacing(points: np.ndarray) -> np.ndarray:
-        eps = np.clip(flat.eps(points), *calibration.eps_range)
-        return encode_eps(eps, calibration).value
+        eps = {name: flat.feature(name, points) for name in channel.features}
+        clipped = Encode(channel.features, replace(channel.table, clip=True))
+        return clipped.encode(eps).values["line_spacing_mm"]
 
     return spacing
 
@@ -130,33 +153,41 @@ def _moves(
     lines: list[np.ndarray],
     flat: FlatField,
     process: Process,
-    calibration: Calibration | None,
+    resolution: Resolution,
+    parameters: tuple[str, ...],
     z: float,
-) -> tuple[list[Move], float]:
-    """Print moves (encoded) with travels between them; the fraction of eps clipped."""
+) -> tuple[list[Move], list[str]]:
+    """Print moves (encoded) with travels between them; a note per clipped channel."""
     w, speed = process.road_width_mm, process.print_speed_mm_s
-    values: list[np.ndarray | float] = [np.nan] * len(lines)
-    clipped = 0.0
-    if calibration is not None:
-        points = np.concatenate(lines)
-        encoding = encode_eps(flat.eps(points), calibration)
-        values = np.split(encoding.value, np.cumsum([len(x) for x in lines])[:-1])
-        clipped = encoding.clipped_fraction
+    points = np.concatenate(lines)
+    values: dict[str, np.ndarray] = {p: np.full(len(points), np.nan) for p in parameters}
+    clipped = []
+    sampled = flat.sample(points)[1] if resolution.channels else {}
+    for channel in resolution.channels:
+        eps = {name: sampled[name] for name in channel.features}
+        coded = channel.encode(eps, f"{flat.source}: {channel.label}")
+        values.update(coded.values)
+        if coded.clipped_fraction:
+            clipped.append(f"the table of {channel.label} on {coded.clipped_fraction:.1%}")
+    cuts = np.cumsum([len(x) for x in lines])[:-1]
+    per_line = {p: np.split(v, cuts) for p, v in values.items()}
+    nothing = {p: np.nan for p in parameters}
     moves = []
-    for k, (line, value) in enumerate(zip(lines, values, strict=True)):
+    for k, line in enumerate(lines):
         if k:
             hop = np.vstack([lines[k - 1][-1], line[0]])
-            moves.append(Move.make(TRAVEL, hop, z, 0.0, process.travel_speed_mm_s, 0.0))
-        parameter = calibration.parameter if calibration else ""
+            moves.append(Move.make(TRAVEL, hop, z, 0.0, process.travel_speed_mm_s, 0.0, nothing))
+        channels = {p: per_line[p][k] for p in parameters}
+        own = {p: channels[p] for p in resolution.parameters}  # this field's channels
         moves.append(
             Move.make(
                 PRINT,
                 line,
                 z,
                 w,
-                value if parameter == "print_speed_mm_s" else speed,
-                value if parameter == "extrusion_multiplier" else 1.0,
-                value,
+                own.get("print_speed_mm_s", speed),
+                own.get("extrusion_multiplier", 1.0),
+                channels,
             )
         )
     return moves, clipped

@@ -1,9 +1,9 @@
 """Preview images of a toolpath: PNG and SVG, one panel per layer (at most four).
 
 Print moves are drawn to scale at 60 % of their road width (so that neighbouring lines stay
-distinguishable and gaps show), coloured by the encoded parameter (``Move.value``; one
-colour when nothing is encoded), over the domain outline in grey; travels are thin dark
-lines.
+distinguishable and gaps show), over the domain outline in grey; travels are thin dark
+lines. The roads are coloured by the first encoded channel (one colour when nothing is
+encoded); the colour bar names it and the feature it encodes.
 """
 
 from __future__ import annotations
@@ -21,17 +21,12 @@ from matplotlib.patches import PathPatch
 from matplotlib.path import Path as MplPath
 
 from fabkit.atomic import atomic_path
+from fabkit.process import LABELS
 from fabkit.toolpath.model import PRINT, Toolpath
 
 PANEL_INCHES = 6.0
 ROAD_SCALE = 0.6
 MAX_PANELS = 4
-LABELS = {
-    "print_speed_mm_s": "print speed (mm/s)",
-    "extrusion_multiplier": "extrusion multiplier",
-    "temperature_c": "temperature (°C)",
-    "line_spacing_mm": "line spacing (mm)",
-}
 
 
 def save_preview(
@@ -43,30 +38,39 @@ def save_preview(
     """Draw ``toolpath`` over the per-layer ``outlines`` (mm) and save to each of ``paths``
     (the suffix picks the format: .png, .svg, .pdf)."""
     shown = _shown_layers(len(toolpath.layers))
+    channel = next(iter(toolpath.channels), None)
     figure = Figure(figsize=(PANEL_INCHES * len(shown), PANEL_INCHES))
-    axes = figure.subplots(1, len(shown), squeeze=False)
-    values = np.concatenate([m.value[1:] for _, m in toolpath.moves() if m.kind == PRINT])
-    finite = values[np.isfinite(values)]
-    norm = Normalize(*(finite.min(), finite.max())) if len(finite) else None
-    if norm is not None and norm.vmin == norm.vmax:
-        norm = Normalize(norm.vmin - 1, norm.vmax + 1)
+    axes = figure.subplots(1, len(shown), squeeze=False)[0]
     low, high = toolpath.bounds()
     extent = float(max(high[0] - low[0], high[1] - low[1], 1e-9)) * 1.04
-    for ax, index in zip(axes[0], shown, strict=True):
-        _draw_layer(ax, toolpath, index, outlines[index % len(outlines)], norm, extent)
-        ax.set_xlim(0.5 * (low[0] + high[0]) - extent / 2, 0.5 * (low[0] + high[0]) + extent / 2)
-        ax.set_ylim(0.5 * (low[1] + high[1]) - extent / 2, 0.5 * (low[1] + high[1]) + extent / 2)
+    norm = _norm(toolpath, channel)
+    middle = 0.5 * (low + high)
+    for ax, index in zip(axes, shown, strict=True):
+        _draw_layer(ax, toolpath, index, outlines[index % len(outlines)], channel, norm, extent)
+        ax.set_xlim(middle[0] - extent / 2, middle[0] + extent / 2)
+        ax.set_ylim(middle[1] - extent / 2, middle[1] + extent / 2)
     if norm is not None:
+        label = f"{LABELS.get(channel, channel)}: {toolpath.channels[channel] or 'eps'}"
         mappable = ScalarMappable(norm=norm, cmap="viridis")
-        figure.colorbar(
-            mappable,
-            ax=axes[0].tolist(),
-            shrink=0.8,
-            label=LABELS.get(toolpath.parameter, toolpath.parameter),
-        )
+        figure.colorbar(mappable, ax=axes.tolist(), shrink=0.8, label=label)
     for path in paths:
         with atomic_path(path) as tmp:
             figure.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip("."))
+
+
+def _norm(toolpath: Toolpath, channel: str | None) -> Normalize | None:
+    """The colour scale of a channel over every print vertex (None: no channel)."""
+    if channel is None:
+        return None
+    values = np.concatenate(
+        [m.channels[channel][1:] for _, m in toolpath.moves() if m.kind == PRINT]
+    )
+    finite = values[np.isfinite(values)]
+    if not len(finite):
+        return None
+    if finite.min() == finite.max():
+        return Normalize(finite.min() - 1, finite.max() + 1)
+    return Normalize(finite.min(), finite.max())
 
 
 def _shown_layers(count: int) -> list[int]:
@@ -75,7 +79,9 @@ def _shown_layers(count: int) -> list[int]:
     return sorted({0, 1, count - 2, count - 1})
 
 
-def _draw_layer(ax, toolpath: Toolpath, index: int, outline, norm, extent: float) -> None:
+def _draw_layer(
+    ax, toolpath: Toolpath, index: int, outline, channel: str | None, norm, extent: float
+) -> None:
     layer = toolpath.layers[index]
     ax.set_aspect("equal")
     ax.set_title(f"layer {index + 1}  z = {layer.z_mm:g} mm")
@@ -87,10 +93,9 @@ def _draw_layer(ax, toolpath: Toolpath, index: int, outline, norm, extent: float
     prints = [m for m in layer.moves if m.kind == PRINT]
     segments = np.concatenate([_segments(m.xyz) for m in prints])
     widths = np.concatenate([m.width[1:] for m in prints]) * points_per_mm * ROAD_SCALE
-    values = np.concatenate([m.value[1:] for m in prints])
     roads = LineCollection(segments, linewidths=widths, capstyle="round", joinstyle="round")
-    if norm is not None and np.isfinite(values).any():
-        roads.set_array(values)
+    if norm is not None:
+        roads.set_array(np.concatenate([m.channels[channel][1:] for m in prints]))
         roads.set_cmap("viridis")
         roads.set_norm(norm)
     else:

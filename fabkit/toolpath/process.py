@@ -1,8 +1,9 @@
-"""Process settings for toolpaths, and the eps encoding through a calibration table.
+"""Where the toolpath's process comes from: a machine profile or a ``--process`` file.
 
-The settings live in the ``[process]`` table of a machine profile (``machines/*.toml``,
+The settings and the channels are :class:`fabkit.process.Process` (one type for every
+stage). They live in the ``[process]`` table of a machine profile (``machines/*.toml``,
 read by :mod:`fabkit.machines`); ``--process FILE`` replaces that table with the one in
-FILE, read by :func:`load_process` here with the profile reader (the same keys)::
+FILE, read by :func:`load_process` with the profile's parser (the same keys)::
 
     [process]
     road_width_mm = 0.4
@@ -10,134 +11,35 @@ FILE, read by :func:`load_process` here with the profile reader (the same keys):
     print_speed_mm_s = 8
     travel_speed_mm_s = 30
 
-    [process.calibration]          # optional: eps -> one process parameter
-    parameter = "print_speed_mm_s" # or extrusion_multiplier, temperature_c, line_spacing_mm
-    eps = [0.1, 0.3, 0.5, 0.7]     # strictly increasing
-    value = [20, 12, 6, 2]         # strictly monotone, positive
+    [[process.encode]]             # one table per feature of the design
+    feature = "eps1"               # a feature name of the spec, or its position (0 = first)
+    parameter = "print_speed_mm_s" # see fabkit.process.PARAMETERS
+    eps = [0.0, 0.1, 0.2, 0.3]     # strictly increasing
+    value = [16.0, 11.0, 7.0, 4.0] # strictly monotone
     clip = false                   # true: clip eps to the table (with a warning)
 
-The encoding is monotone piecewise-cubic (PCHIP) interpolation of the table: it never
-overshoots between measured points and keeps the table's direction. eps outside the
-table is an error naming both ranges, unless ``clip`` is set; then eps is clipped and a
-warning gives the clipped fraction.
+``[[process.joint]]`` tables encode two features with two parameters that each move
+both; the one-feature format's ``[process.calibration]`` table is read as the channel of
+the design's first feature (``docs/toolpath.md``).
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, replace
 from pathlib import Path
 
-import numpy as np
-from scipy.interpolate import PchipInterpolator
-
 from fabkit.errors import FabkitError
-from fabkit.machines import PRINT_PARAMETERS, ProcessProfile, load_machine, parse_process
+from fabkit.machines import list_machines, load_machine, parse_process
+from fabkit.process import Process, Resolution
 from fabkit.tomlfile import read_toml
 
 DEFAULT_MACHINE = "marlin_diw_pneumatic"
 """The profile whose ``[process]`` is used when no machine is given (a pneumatic DIW
-printer; see ``machines/marlin_diw_pneumatic.toml``)."""
-
-PROCESS_KEYS = ("road_width_mm", "layer_height_mm", "print_speed_mm_s", "travel_speed_mm_s")
-PARAMETERS = (*PRINT_PARAMETERS, "channel_width_mm")
-"""Calibrated parameters: the print ones, and the channel width of baromorphs."""
-
-
-@dataclass(frozen=True)
-class Calibration:
-    """eps (increasing) against one process parameter (strictly monotone, positive)."""
-
-    parameter: str
-    eps: tuple[float, ...]
-    value: tuple[float, ...]
-    clip: bool = False
-
-    def __post_init__(self) -> None:
-        where = "[process.calibration]"
-        if self.parameter not in PARAMETERS:
-            raise FabkitError(
-                f"{where} parameter '{self.parameter}' is not one of {', '.join(PARAMETERS)}"
-            )
-        eps, value = np.asarray(self.eps, float), np.asarray(self.value, float)
-        if len(eps) < 2 or len(eps) != len(value):
-            raise FabkitError(f"{where} eps and value need the same length, at least 2")
-        if not (np.isfinite(eps).all() and np.isfinite(value).all()):
-            raise FabkitError(f"{where} eps and value must be finite numbers")
-        if np.any(np.diff(eps) <= 0):
-            raise FabkitError(f"{where} eps must be strictly increasing")
-        steps = np.diff(value)
-        if not (np.all(steps > 0) or np.all(steps < 0)):
-            raise FabkitError(f"{where} value must be strictly increasing or decreasing in eps")
-        if np.any(value <= 0):
-            raise FabkitError(f"{where} value must hold positive numbers only")
-
-    @property
-    def eps_range(self) -> tuple[float, float]:
-        return self.eps[0], self.eps[-1]
-
-
-@dataclass(frozen=True)
-class Process:
-    """Road width and layer height (mm), print and travel speed (mm/s), calibration."""
-
-    road_width_mm: float
-    layer_height_mm: float
-    print_speed_mm_s: float
-    travel_speed_mm_s: float
-    calibration: Calibration | None = None
-    source: str = ""
-
-    def __post_init__(self) -> None:
-        for key in PROCESS_KEYS:
-            value = getattr(self, key)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise FabkitError(f"[process] {key} must be a positive number, got {value!r}")
-
-    def with_overrides(self, **values: float | None) -> Process:
-        """A copy with the given (non-None) settings replaced."""
-        return replace(self, **{k: v for k, v in values.items() if v is not None})
-
-
-@dataclass(frozen=True)
-class Encoding:
-    """Per-vertex values of the calibrated parameter, and the fraction of eps clipped."""
-
-    value: np.ndarray
-    clipped_fraction: float
-
-
-def encode_eps(eps: np.ndarray, calibration: Calibration) -> Encoding:
-    """The calibrated parameter for each eps (monotone PCHIP interpolation of the table)."""
-    eps = np.asarray(eps, dtype=float)
-    low, high = calibration.eps_range
-    if not np.isfinite(eps).all():
-        raise FabkitError("eps is not finite everywhere on the print paths")
-    outside = (eps < low) | (eps > high)
-    if outside.any() and not calibration.clip:
-        raise FabkitError(
-            f"eps on the print paths spans [{eps.min():.4g}, {eps.max():.4g}], outside the "
-            f"calibrated range [{low:g}, {high:g}] of [process.calibration] "
-            "(extend the table, or set clip = true / --clip-eps)"
-        )
-    curve = PchipInterpolator(np.asarray(calibration.eps), np.asarray(calibration.value))
-    return Encoding(curve(np.clip(eps, low, high)), float(outside.mean()) if len(eps) else 0.0)
-
-
-def process_from_profile(profile: ProcessProfile, source: str) -> Process:
-    """A :class:`Process` from a machine profile's ``.process`` (``fabkit.machines``)."""
-    table = profile.calibration
-    calibration = None
-    if table is not None:
-        calibration = Calibration(table.parameter, table.eps, table.value, table.clip)
-    values = {key: float(getattr(profile, key)) for key in PROCESS_KEYS}
-    return Process(**values, calibration=calibration, source=source)
+printer with two inks; see ``machines/marlin_diw_pneumatic.toml``)."""
 
 
 def machine_process(name_or_path: str | None) -> Process:
     """The ``[process]`` of a machine profile (name or path), or of the default DIW one."""
-    name = name_or_path or DEFAULT_MACHINE
-    return process_from_profile(load_machine(name).process, f"machine {name}")
+    return load_machine(name_or_path or DEFAULT_MACHINE).process
 
 
 def load_process(path: str | Path) -> Process:
@@ -146,4 +48,26 @@ def load_process(path: str | Path) -> Process:
     table = read_toml(path, "process")
     if "process" not in table:
         raise FabkitError(f"{path}: missing table [process]")
-    return process_from_profile(parse_process(table["process"], path), str(path))
+    return parse_process(table["process"], path)
+
+
+def resolve_channels(
+    process: Process, features: tuple[str, ...], ignore: tuple[str, ...] = ()
+) -> Resolution:
+    """``process.resolve``, whose refusal of a feature without a channel also names the
+    shipped machines whose own process encodes every feature (when the process is a
+    machine's)."""
+    hint = ""
+    if process.source.startswith("machine "):
+        able = [m.name for m in list_machines() if _encodes_all(m.process, features, ignore)]
+        if able:
+            hint = f"; machines whose process encodes every feature: {', '.join(able)}"
+    return process.resolve(features, ignore, hint)
+
+
+def _encodes_all(process: Process, features: tuple[str, ...], ignore: tuple[str, ...]) -> bool:
+    try:
+        process.resolve(features, ignore)
+    except FabkitError:
+        return False
+    return True

@@ -12,6 +12,16 @@ OUTLINE   5      the sheet outline, closed LWPOLYLINEs
 INLET     3      inlets: a CIRCLE of ``inlet_radius_mm`` per point, or closed polylines
 ========= ====== =============================================================
 
+Every print move's polyline has the road width as its constant width and carries the
+toolpath's channels (one per encoded feature: print speed, flow, pressure, temperature,
+ink fraction, line spacing) as extended data of the application ``FABKIT``: for each
+channel a string with its name (1000) followed by one real (1040) per vertex. Moves of
+more than :data:`XDATA_VERTICES` vertices are split into consecutive polylines (sharing
+their end vertex), so that no entity's extended data exceeds the 16 kB limit of DXF.
+The header's custom properties ``fabkit_offset_mm`` (x,y,z) and ``fabkit_mm_per_unit``
+record where the sheet was placed and its scale. Dose channels are refused (the laser
+writer exposes them).
+
 Channels, outline and inlet are plain shapely geometry (polygons, multipolygons, rings,
 lines, points, or lists of them), in the sheet frame like the toolpath;
 :func:`layout_layers` takes them from a baromorph channel layout. A polygon gives
@@ -49,6 +59,19 @@ LAYERS = {
 }
 """Layer name -> (ACI colour, linetype)."""
 DEFAULT_INLET_RADIUS_MM = 0.5
+APP_ID = "FABKIT"
+"""The registered application of the channels' extended data."""
+XDATA_VERTICES = 400
+"""Vertices per polyline at most when channels ride along (16 kB of extended data)."""
+DRAWN_CHANNELS = (
+    "print_speed_mm_s",
+    "extrusion_multiplier",
+    "pressure_kpa",
+    "line_spacing_mm",
+    "temperature_c",
+    "ink_fraction",
+)
+"""Channels a DXF carries (extended data, or the road positions for the line spacing)."""
 
 Geometry = shapely.Geometry | Iterable[shapely.Geometry] | None
 """Shapely geometry, a list of geometries, or nothing."""
@@ -72,6 +95,7 @@ def write_dxf(
     machine: MachineProfile | None = None,
     offset_mm: tuple[float, ...] | None = None,
     inlet_radius_mm: float = DEFAULT_INLET_RADIUS_MM,
+    mm_per_unit: float | None = None,
 ) -> DxfSummary:
     """Write the drawing at ``path`` atomically (see the module docstring)."""
     doc, summary = dxf_document(
@@ -82,6 +106,7 @@ def write_dxf(
         machine=machine,
         offset_mm=offset_mm,
         inlet_radius_mm=inlet_radius_mm,
+        mm_per_unit=mm_per_unit,
     )
     with atomic_path(path) as tmp:
         doc.saveas(tmp)
@@ -97,8 +122,13 @@ def dxf_document(
     machine: MachineProfile | None = None,
     offset_mm: tuple[float, ...] | None = None,
     inlet_radius_mm: float = DEFAULT_INLET_RADIUS_MM,
+    mm_per_unit: float | None = None,
 ) -> tuple[Drawing, DxfSummary]:
-    """The drawing (audited, no errors) and its summary; nothing is written."""
+    """The drawing (audited, no errors) and its summary; nothing is written.
+
+    ``mm_per_unit`` (the design's scale) is recorded in the header; a toolpath's own
+    (its ``meta``) is used when not given.
+    """
     if not inlet_radius_mm > 0:
         raise FabkitError(f"inlet radius must be > 0 mm, got {inlet_radius_mm}")
     shapes = {
@@ -108,24 +138,30 @@ def dxf_document(
     moves = [m for _, m in toolpath.moves()] if toolpath is not None else []
     if not moves and not any(shapes.values()):
         raise FabkitError("nothing to draw: no toolpath moves, outline, channels or inlet")
+    channels = tuple(toolpath.channels) if toolpath is not None else ()
+    for name in channels:
+        if name not in DRAWN_CHANNELS:
+            raise FabkitError(
+                f"the DXF writer cannot carry the {name} channel ({toolpath.channels[name]}): "
+                "it draws roads; a dose is exposed by the laser writer (--format laser)"
+            )
     shift = _offset(moves, shapes, machine, offset_mm, inlet_radius_mm)
     doc = ezdxf.new("R2010", setup=True)
     doc.units = units.MM
     doc.header["$MEASUREMENT"] = 1
+    doc.header.custom_vars.append("fabkit_offset_mm", ",".join(f"{v:.6f}" for v in shift))
+    scale = mm_per_unit
+    if scale is None and toolpath is not None:
+        scale = toolpath.meta.get("mm_per_unit")
+    if isinstance(scale, int | float) and not isinstance(scale, bool):
+        doc.header.custom_vars.append("fabkit_mm_per_unit", f"{scale:.9g}")
+    doc.appids.new(APP_ID)
     for name, (colour, linetype) in LAYERS.items():
         doc.layers.add(name, color=colour, linetype=linetype)
     msp = doc.modelspace()
     counts = dict.fromkeys(LAYERS, 0)
     for move in moves:
-        layer = "PATHS" if move.kind == PRINT else "TRAVEL"
-        xyz = move.xyz + shift
-        if np.ptp(xyz[:, 2]) > 1e-9:
-            msp.add_polyline3d(xyz.tolist(), dxfattribs={"layer": layer})
-        else:
-            msp.add_lwpolyline(
-                xyz[:, :2].tolist(), dxfattribs={"layer": layer, "elevation": float(xyz[0, 2])}
-            )
-        counts[layer] += 1
+        counts["PATHS" if move.kind == PRINT else "TRAVEL"] += _add_move(msp, move, shift, channels)
     for layer, parts in shapes.items():
         for part in parts:
             counts[layer] += _add_geometry(msp, part, layer, shift, inlet_radius_mm)
@@ -133,6 +169,34 @@ def dxf_document(
     if auditor.has_errors:
         raise FabkitError(f"DXF audit found {len(auditor.errors)} error(s): {auditor.errors[0]}")
     return doc, DxfSummary(counts, tuple(shift.tolist()))
+
+
+def _add_move(msp: Any, move: Any, shift: np.ndarray, channels: tuple[str, ...]) -> int:
+    """Draw one move (split so that its channels' extended data stays small); returns
+    the number of entities added."""
+    layer = "PATHS" if move.kind == PRINT else "TRAVEL"
+    xyz = move.xyz + shift
+    count = len(xyz)
+    step = XDATA_VERTICES - 1 if channels and move.kind == PRINT else count
+    added = 0
+    for a in range(0, count - 1, step):
+        part = slice(a, min(a + step, count - 1) + 1)
+        points = xyz[part]
+        if np.ptp(points[:, 2]) > 1e-9:
+            entity = msp.add_polyline3d(points.tolist(), dxfattribs={"layer": layer})
+        else:
+            attribs = {"layer": layer, "elevation": float(points[0, 2])}
+            if move.kind == PRINT:
+                attribs["const_width"] = float(np.max(move.width))
+            entity = msp.add_lwpolyline(points[:, :2].tolist(), dxfattribs=attribs)
+        if channels and move.kind == PRINT:
+            tags = []
+            for name in channels:
+                tags.append((1000, name))
+                tags += [(1040, float(v)) for v in move.channels[name][part]]
+            entity.set_xdata(APP_ID, tags)
+        added += 1
+    return added
 
 
 def layout_layers(layout: Any) -> dict[str, shapely.Geometry]:

@@ -29,6 +29,7 @@ from fabkit.errors import FabkitError
 from fabkit.fields import FlatField, field_from_design, load_director_file
 from fabkit.machines import load_machine
 from fabkit.npzfile import npz_keys
+from fabkit.process import Process
 from fabkit.readfile import read_json
 from fabkit.toolpath.model import Toolpath, load_toolpath
 from fabkit.writers.common import FORMATS
@@ -44,13 +45,16 @@ class ExportOptions:
     """Everything ``fabkit export`` may be told; None = the writer's default.
 
     ``size_mm`` / ``mm_per_unit`` scale a design (give one); ``pixel_mm`` is the laser
-    pixel pitch (default: the profile's ``laser.pixel_pitch_mm``, else its road width).
+    pixel pitch (default: the profile's ``laser.pixel_pitch_mm``, else its road width);
+    ``process`` replaces the profile's process for laser patterns (its dose channels);
+    ``ignore_features`` are features left out of the laser patterns on purpose.
     """
 
     offset_mm: tuple[float, ...] | None = None
     size_mm: float | None = None
     mm_per_unit: float | None = None
-    feature: int = 0
+    process: Process | None = None
+    ignore_features: tuple[str, ...] = ()
     gcode: GcodeOptions = field(default_factory=GcodeOptions)
     geometry: Path | None = None
     inlet_radius_mm: float = DEFAULT_INLET_RADIUS_MM
@@ -104,7 +108,7 @@ def _field(kind: str, path: Path, options: ExportOptions) -> FlatField:
             "a design is in design units: give its size (--size MM, longest side) "
             "or --scale MM_PER_UNIT"
         )
-    return field_from_design(path, options.size_mm, options.mm_per_unit, options.feature)
+    return field_from_design(path, options.size_mm, options.mm_per_unit)
 
 
 def _gcode(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions) -> str:
@@ -155,13 +159,19 @@ def _laser(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptio
         or machine.process.road_width_mm
     )
     grid = sample_field(_field(kind, loaded, options), pixel)
-    settings = LaserSettings.for_machine(machine, **options.laser)
+    settings = LaserSettings.for_machine(
+        machine, **options.laser, process=options.process, ignore=options.ignore_features
+    )
     s = write_laser(grid, out, machine, settings, options.offset_mm)
     scan = f", {s.scan_lines} scan lines" if s.scan_lines else ""
+    cures = len(s.manifest["cure_exposures"])
+    cure = f" and {cures} cure masks" if cures else ""
+    notes = "".join(f"; warning: {w}" for w in s.warnings)
     return (
         f"wrote {out}/: {s.domain_pixels} domain pixels at {pixel:g} mm in {s.exposures} "
-        f"exposure masks{scan}; binning error max {s.max_binning_error_deg:.2f} deg, rms "
+        f"exposure masks{cure}{scan}; binning error max {s.max_binning_error_deg:.2f} deg, rms "
         f"{s.rms_binning_error_deg:.2f} deg; origin {_xyz(s.origin_mm)} mm on {machine.name}"
+        f"{notes}"
     )
 
 

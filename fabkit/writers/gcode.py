@@ -17,7 +17,16 @@ all moves at once and formatted by :func:`fabkit.writers.lines.render`:
   ``flow_on_gcode`` is not empty) get ``flow_on_gcode`` before and ``flow_off_gcode``
   after every print move; at constant pressure the volume per mm goes as 1 / speed, so
   the flow multiplier is written as feed = speed / flow.
-* a toolpath encoding ``temperature_c`` gets ``M104 S<value>`` where the value changes.
+* channels (one per feature, :attr:`Toolpath.channels`): ``print_speed_mm_s`` is the
+  feed ``F``; ``extrusion_multiplier`` the E volume (or the feed on a machine without an
+  E axis, when speed is not a channel too); ``line_spacing_mm`` is in the road positions;
+  ``temperature_c`` is ``M104 S<C>``, ``pressure_kpa`` the profile's ``[pressure]``
+  command ``S<n>``, and a mixing extruder's ``ink_fraction`` ``M163 S0 P<1-f>``,
+  ``M163 S1 P<f>``, ``M164 S0``, each written before the first vertex where its written
+  value (whole degrees, whole S steps, hundredths) changes. On a machine that alternates
+  two inks, every road is cut into runs of one ink no shorter than ``[inks] piece_mm``
+  (two-dimensional error diffusion, :mod:`fabkit.writers.inks`), each run bracketed by
+  its ink's on and off G-code. A channel the machine cannot emit is refused, naming it.
 
 Comments that slicer viewers read: a header with ``;FLAVOR:``, ``;TIME:`` (s),
 ``;Filament used:`` (m), ``;LAYER_COUNT:``, the bounds, PrusaSlicer's estimated time and
@@ -45,6 +54,7 @@ from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile
 from fabkit.toolpath.model import PRINT, Toolpath
 from fabkit.writers.common import placement_offset
+from fabkit.writers.inks import alternate_inks
 from fabkit.writers.lines import Word, render
 
 E_MODES = ("absolute", "relative")
@@ -60,7 +70,7 @@ _FLAVOUR_NAMES = {
     "hyrel": "Hyrel",
 }
 # Columns of the row table, and how each is written.
-_L, _X, _Y, _Z, _E, _F, _S = range(7)
+_L, _X, _Y, _Z, _E, _F, _S, _P = range(8)
 _WORDS = (
     Word("", 0),
     Word(" X", 3),
@@ -69,13 +79,28 @@ _WORDS = (
     Word(" E", 5),
     Word(" F", 1),
     Word(" S", 0),
+    Word(" P", 2),
 )
 _XYZ_SCALE, _E_SCALE, _F_SCALE = 1e3, 1e5, 1e1
-# Row prefixes: the fixed vocabulary, then the flow-on and flow-off snippets.
-_G0, _G1, _LAYER, _TYPE, _M104, _FLOW_ON, _FLOW_OFF = range(7)
-_PREFIXES = ("G0", "G1", ";LAYER:", ";TYPE:FILL", "M104")
-# Order of rows inside one move (slot in the sort key); vertex rows come after _VERTEX.
-_S_LAYER, _S_TYPE, _S_TEMP, _S_RETRACT, _S_LIFT, _S_FLOW_ON, _VERTEX = range(7)
+# Row prefixes: the fixed vocabulary, then the profile's snippets.
+_G0, _G1, _LAYER, _TYPE, _M104, _M163, _M164 = range(7)
+_FLOW_ON, _FLOW_OFF, _INK2_ON, _INK2_OFF, _PRESSURE = range(7, 12)
+_PREFIXES = ("G0", "G1", ";LAYER:", ";TYPE:FILL", "M104", "M163", "M164")
+# Order of rows inside one move (slot in the sort key). Vertex k's row comes at
+# _VERTEX + 2 k - 1, the channel commands for its segment just before it (for the first
+# segment: at _S_CHANNELS, before the flow is turned on).
+_S_LAYER, _S_TYPE, _S_RETRACT, _S_LIFT, _S_CHANNELS, _S_FLOW_ON, _VERTEX = range(7)
+MIX_STEP = 0.01
+"""Mixing ratios are written in hundredths."""
+SUPPORTED = {
+    "print_speed_mm_s": "the feed F",
+    "extrusion_multiplier": "the E volume (or the feed without an E axis)",
+    "line_spacing_mm": "the road positions",
+    "temperature_c": "M104 S",
+    "pressure_kpa": "the [pressure] command",
+    "ink_fraction": "alternating inks ([inks] alternate) or M163/M164 ([inks] mixing)",
+}
+"""The channels a G-code file can carry, and how (some need the profile's support)."""
 
 
 @dataclass(frozen=True)
@@ -130,6 +155,12 @@ class _Setup:
     min_travel_mm: float
     flow_on: str
     flow_off: str
+    ink2_on: str = ""
+    ink2_off: str = ""
+    pressure: str = ""
+    inks: str = ""
+    piece_mm: float = 0.0
+    s_per_kpa: float = 0.0
 
 
 def write_gcode(
@@ -151,6 +182,7 @@ def gcode_bytes(
     """The whole G-code file as ASCII bytes, and its summary; raises before any output."""
     options = options or GcodeOptions()
     setup = _setup(machine, options)
+    check_channels(toolpath, machine)
     paths = _Paths.gather(toolpath, machine, options.offset_mm, setup)
     rows = _rows(paths, setup, toolpath)
     rows = _slow_travels(rows, machine)
@@ -194,7 +226,53 @@ def _setup(machine: MachineProfile, options: GcodeOptions) -> _Setup:
         min_travel_mm=options.retract_min_travel_mm,
         flow_on=_snippet(machine, "flow_on_gcode"),
         flow_off=_snippet(machine, "flow_off_gcode"),
+        ink2_on=_snippet(machine, "ink2_on_gcode"),
+        ink2_off=_snippet(machine, "ink2_off_gcode"),
+        pressure=machine.pressure.command if machine.pressure else "",
+        inks=machine.inks.method if machine.inks else "",
+        piece_mm=machine.inks.piece_mm if machine.inks else 0.0,
+        s_per_kpa=(
+            machine.pressure.s_max / machine.pressure.full_scale_kpa if machine.pressure else 0.0
+        ),
     )
+
+
+def check_channels(toolpath: Toolpath, machine: MachineProfile) -> None:
+    """Refuse, naming it, a channel of ``toolpath`` that ``machine``'s G-code cannot carry."""
+    for name in toolpath.channels:
+        reason = _unsupported(name, toolpath, machine)
+        if reason:
+            raise FabkitError(
+                f"machine {machine.name} cannot carry the {name} channel "
+                f"({toolpath.channels[name] or 'a feature'}) in G-code: {reason}"
+            )
+
+
+def _unsupported(name: str, toolpath: Toolpath, machine: MachineProfile) -> str:
+    """Why the G-code for ``machine`` cannot carry channel ``name`` ("" if it can)."""
+    gcode = machine.gcode
+    has_e = gcode is not None and not gcode.flow_on_gcode.strip()
+    if name not in SUPPORTED:
+        return (
+            "it is written by the laser writer (--format laser)"
+            if "dose" in name
+            else ("no G-code command sets it")
+        )
+    if name == "extrusion_multiplier" and not has_e and "print_speed_mm_s" in toolpath.channels:
+        return (
+            "without an E axis the multiplier is written as the feed (speed / multiplier), "
+            "which the print_speed_mm_s channel already sets; encode the flow as pressure_kpa"
+        )
+    if name == "temperature_c":
+        if machine.flavour == "grbl":
+            return "GRBL has no temperature command"
+        if machine.temperature.nozzle_max_c <= 0:
+            return "it has no nozzle heater ([temperature] nozzle_max_c = 0)"
+    if name == "pressure_kpa" and machine.pressure is None:
+        return "its profile has no [pressure] table (the command that sets the pressure)"
+    if name == "ink_fraction" and machine.inks is None:
+        return "its profile has no [inks] table (a second ink: alternating, or a mixing extruder)"
+    return ""
 
 
 def _profile_e_mode(machine: MachineProfile) -> str:
@@ -226,7 +304,14 @@ def _snippet(machine: MachineProfile, key: str) -> str:
 
 
 def _prefixes(setup: _Setup) -> tuple[str, ...]:
-    return (*_PREFIXES, setup.flow_on, setup.flow_off)
+    return (
+        *_PREFIXES,
+        setup.flow_on,
+        setup.flow_off,
+        setup.ink2_on,
+        setup.ink2_off,
+        setup.pressure,
+    )
 
 
 def _lines(lines: list[str]) -> bytes:
@@ -237,16 +322,17 @@ def _lines(lines: list[str]) -> bytes:
 class _Paths:
     """All moves flattened in machine coordinates, with inserted travels.
 
-    Vertex arrays (V,): xyz (V, 3) mm, width mm, speed mm/s, flow, value; move arrays
-    (M,): start (M + 1,) vertex offsets, printing flag, layer index, and the index of the
-    source move in ``toolpath.moves()`` (-1 for an inserted travel).
+    Vertex arrays (V,): xyz (V, 3) mm, width mm, speed mm/s, flow, and every channel
+    (NaN on travels); move arrays (M,): start (M + 1,) vertex offsets, printing flag,
+    layer index, and the index of the source move in ``toolpath.moves()`` (-1 for an
+    inserted travel).
     """
 
     xyz: np.ndarray
     width: np.ndarray
     speed: np.ndarray
     flow: np.ndarray
-    value: np.ndarray
+    channels: dict[str, np.ndarray]
     start: np.ndarray
     printing: np.ndarray
     layer: np.ndarray
@@ -267,8 +353,10 @@ class _Paths:
         counts = np.array([len(m.xyz) for _, m in moves])
         fields = {
             name: np.concatenate([getattr(m, name) for _, m in moves])
-            for name in ("xyz", "width", "speed", "flow", "value")
+            for name in ("xyz", "width", "speed", "flow")
         }
+        for name in toolpath.channels:
+            fields[name] = np.concatenate([m.channels[name] for _, m in moves])
         shift = placement_offset(*_bounds(fields["xyz"]), machine, offset)
         fields["xyz"] += shift
         start = np.concatenate([[0], np.cumsum(counts)])
@@ -304,8 +392,8 @@ class _Paths:
             "width": np.zeros(total),
             "speed": np.full(total, setup.travel_feed / 60.0),
             "flow": np.zeros(total),
-            "value": np.full(total, np.nan),
         }
+        out.update({name: np.full(total, np.nan) for name in fields if name not in out})
         for name, array in out.items():
             array[old_index] = fields[name]
         jumps = np.flatnonzero(jump)
@@ -318,8 +406,10 @@ class _Paths:
         is_inserted = np.zeros(len(moves), dtype=bool)
         is_inserted[np.cumsum(move_counts)[jump] - 2] = True
         lengths = np.where(is_inserted, 2, np.diff(start)[moves])
+        base = {name: out.pop(name) for name in ("xyz", "width", "speed", "flow")}
         return cls(
-            **out,
+            **base,
+            channels=out,
             start=np.concatenate([[0], np.cumsum(lengths)]),
             printing=printing[moves] & ~is_inserted,
             layer=layer[moves],
@@ -403,11 +493,11 @@ class _RowBuilder:
         **columns: np.ndarray | float,
     ) -> None:
         """Rows for the moves ``move`` at ``slot``; ``columns`` name values of _WORDS
-        (L, X, Y, Z, E, F, S); a given column is present unless NaN."""
+        (L, X, Y, Z, E, F, S, P); a given column is present unless NaN."""
         n = len(move)
         values = np.full((n, len(_WORDS)), np.nan)
         for name, column in columns.items():
-            values[:, "LXYZEFS".index(name)] = column
+            values[:, "LXYZEFSP".index(name)] = column
         self.groups.append(
             {
                 "key": move.astype(np.int64) * self.stride + slot,
@@ -438,13 +528,9 @@ class _RowBuilder:
 def _rows(paths: _Paths, setup: _Setup, toolpath: Toolpath) -> _Rows:
     """Every row of the job body (before modal omission), in output order."""
     start, xyz = paths.start, paths.xyz
-    n_moves = len(paths.printing)
     counts = np.diff(start)
-    build = _RowBuilder(int(counts.max()) + _VERTEX + 4)
-    moves = np.arange(n_moves)
+    build = _RowBuilder(2 * int(counts.max()) + _VERTEX + 4)
     _layer_rows(build, paths, toolpath)
-    if toolpath.parameter == "temperature_c":
-        _temperature_rows(build, paths)
     # vertex rows
     owner = paths.owner()
     vertex = np.arange(len(xyz))
@@ -467,7 +553,7 @@ def _rows(paths: _Paths, setup: _Setup, toolpath: Toolpath) -> _Rows:
     v = np.flatnonzero(is_vertex)
     build.add(
         owner[v],
-        _VERTEX + local[v] - 1,
+        _VERTEX + 2 * local[v] - 1,
         np.where(printing_v[v], _G1, _G0),
         vertex=v,
         e_delta=volume[v] * setup.e_per_mm3,
@@ -477,13 +563,78 @@ def _rows(paths: _Paths, setup: _Setup, toolpath: Toolpath) -> _Rows:
         Z=z[v],
         F=feed[v],
     )
-    after = _VERTEX + counts - 1
+    after = _VERTEX + 2 * counts - 2
     _travel_rows(build, paths, hop, z_hop, after, setup)
-    if not setup.has_e:
-        prints = moves[paths.printing]
-        build.add(prints, _S_FLOW_ON, _FLOW_ON)
-        build.add(prints, after[prints], _FLOW_OFF)
+    printed = np.flatnonzero(printing_v & is_vertex)
+    slot = np.where(local[printed] == 1, _S_CHANNELS, _VERTEX + 2 * local[printed] - 2)
+    _channel_rows(build, paths, printed, owner[printed], slot, setup)
+    _flow_rows(build, paths, segment, after, setup)
     return build.build()
+
+
+def _channel_rows(
+    build: _RowBuilder,
+    paths: _Paths,
+    printed: np.ndarray,
+    owner: np.ndarray,
+    slot: np.ndarray,
+    setup: _Setup,
+) -> None:
+    """The commands of the temperature, pressure and mixing channels: before each print
+    segment whose written value differs from the last one written (machine order)."""
+    channels = paths.channels
+    if "temperature_c" in channels:
+        value = np.rint(channels["temperature_c"][printed])
+        fresh = _fresh(value)
+        build.add(owner[fresh], slot[fresh], _M104, vertex=printed[fresh], S=value[fresh])
+    if "pressure_kpa" in channels:
+        value = np.floor(channels["pressure_kpa"][printed] * setup.s_per_kpa + 0.5)
+        fresh = _fresh(value)
+        build.add(owner[fresh], slot[fresh], _PRESSURE, vertex=printed[fresh], S=value[fresh])
+    if "ink_fraction" in channels and setup.inks == "mixing":
+        value = np.rint(channels["ink_fraction"][printed] / MIX_STEP) * MIX_STEP
+        fresh = _fresh(value)
+        at, where, vertex = owner[fresh], slot[fresh], printed[fresh]
+        build.add(at, where, _M163, vertex=vertex, S=0.0, P=1.0 - value[fresh])
+        build.add(at, where, _M163, vertex=vertex, S=1.0, P=value[fresh])
+        build.add(at, where, _M164, vertex=vertex, S=0.0)
+
+
+def _fresh(value: np.ndarray) -> np.ndarray:
+    """Where a modal value differs from the previous one (the first always)."""
+    fresh = np.ones(len(value), dtype=bool)
+    fresh[1:] = value[1:] != value[:-1]
+    return fresh
+
+
+def _flow_rows(
+    build: _RowBuilder, paths: _Paths, segment: np.ndarray, after: np.ndarray, setup: _Setup
+) -> None:
+    """Flow on before and off after every print move (machines without an E axis); with
+    two alternating inks, each run of one ink bracketed by that ink's on and off G-code."""
+    prints = np.flatnonzero(paths.printing)
+    if "ink_fraction" not in paths.channels or setup.inks != "alternate":
+        if not setup.has_e:
+            build.add(prints, _S_FLOW_ON, _FLOW_ON)
+            build.add(prints, after[prints], _FLOW_OFF)
+        return
+    on = {0: _FLOW_ON if setup.flow_on else -1, 1: _INK2_ON}
+    off = {0: _FLOW_OFF if setup.flow_off else -1, 1: _INK2_OFF}
+    fraction = paths.channels["ink_fraction"]
+    width = float(np.median(paths.width[paths.width > 0]))
+    ink = alternate_inks(paths.xyz[:, :2], paths.start, prints, fraction, width, setup.piece_mm)
+    rows: list[tuple[int, int, int]] = []  # (move, slot, prefix)
+    for move in prints.tolist():
+        a, b = paths.start[move] + 1, paths.start[move + 1]
+        runs = ink[a:b]
+        rows += [(move, _S_FLOW_ON, on[runs[0]]), (move, int(after[move]), off[runs[-1]])]
+        for k in (np.flatnonzero(np.diff(runs)) + 1).tolist():  # segment k changes ink
+            rows += [
+                (move, _VERTEX + 2 * k, off[runs[k - 1]]),
+                (move, _VERTEX + 2 * k, on[runs[k]]),
+            ]
+    table = np.array([row for row in rows if row[2] >= 0], dtype=np.int64).reshape(-1, 3)
+    build.add(table[:, 0], table[:, 1], table[:, 2])
 
 
 def _layer_height(toolpath: Toolpath, layer: np.ndarray) -> np.ndarray:
@@ -495,18 +646,6 @@ def _layer_rows(build: _RowBuilder, paths: _Paths, toolpath: Toolpath) -> None:
     first = np.flatnonzero(np.diff(paths.layer, prepend=-1) != 0)
     build.add(first, _S_LAYER, _LAYER, L=paths.layer[first].astype(float))
     build.add(first, _S_TYPE, _TYPE)
-
-
-def _temperature_rows(build: _RowBuilder, paths: _Paths) -> None:
-    """``M104 S<value>`` before every print move whose first-segment value differs from
-    the previous print move's (the first print always)."""
-    prints = np.flatnonzero(paths.printing)
-    value = paths.value[paths.start[prints] + 1]
-    known = np.isfinite(value)
-    prints, value = prints[known], value[known]
-    fresh = np.ones(len(value), dtype=bool)
-    fresh[1:] = np.rint(value[1:]) != np.rint(value[:-1])
-    build.add(prints[fresh], _S_TEMP, _M104, S=value[fresh])
 
 
 def _travel_heights(paths: _Paths, hop: np.ndarray, setup: _Setup) -> np.ndarray:
@@ -682,6 +821,7 @@ def _check(
                 f"{limits.e_mm_s:g} of {machine.name}; print slower or thinner",
             )
     _check_temperature(rows, paths, machine)
+    _check_pressure(rows, paths, machine)
 
 
 def _check_temperature(rows: _Rows, paths: _Paths, machine: MachineProfile) -> None:
@@ -695,6 +835,19 @@ def _check_temperature(rows: _Rows, paths: _Paths, machine: MachineProfile) -> N
         raise FabkitError(
             f"{_where(rows, at[bad[0]], paths)}: nozzle temperature {values[bad[0]]:g} C is "
             f"above the maximum {highest:g} C of {machine.name}"
+        )
+
+
+def _check_pressure(rows: _Rows, paths: _Paths, machine: MachineProfile) -> None:
+    at = np.flatnonzero(rows.prefix == _PRESSURE)
+    if not len(at) or machine.pressure is None:
+        return
+    kpa = machine.pressure.kpa(rows.values[at, _S])
+    bad = np.flatnonzero((kpa > machine.pressure.max_kpa * (1 + 1e-9)) | (kpa < 0))
+    if len(bad):
+        raise FabkitError(
+            f"{_where(rows, at[bad[0]], paths)}: dispense pressure {kpa[bad[0]]:g} kPa is "
+            f"outside 0..{machine.pressure.max_kpa:g} kPa of {machine.name}"
         )
 
 
@@ -777,12 +930,25 @@ def _header(
         f"{setup.e_per_mm3:.6g} E per mm^3, offset "
         + ",".join(f"{v:.3f}" for v in summary.offset_mm)
         + " mm",
-        f";fabkit encoded parameter: {toolpath.parameter or 'none'}",
+        ";fabkit channels: "
+        + (
+            ", ".join(f"{name} ({features or '?'})" for name, features in toolpath.channels.items())
+            or "none"
+        ),
+        *_scale_line(toolpath),
         *machine.render("start_gcode"),
     ]
     if setup.has_e:
         lines += ["M82", "G92 E0"] if setup.e_mode == "absolute" else ["M83"]
     return _lines(lines)
+
+
+def _scale_line(toolpath: Toolpath) -> list[str]:
+    """``;fabkit scale: S mm per design unit`` when the toolpath comes from a design."""
+    scale = toolpath.meta.get("mm_per_unit")
+    if not isinstance(scale, int | float) or isinstance(scale, bool):
+        return []
+    return [f";fabkit scale: {scale:.9g} mm per design unit"]
 
 
 def _duration_text(seconds: float) -> str:

@@ -1,8 +1,12 @@
 """Laser-writer patterns for photoalignment: angle maps, binned DMD masks, scan lines.
 
-Input is a :class:`DirectorGrid`: the director angle theta, the shape mask and
-(optionally) eps sampled on a square pixel grid of the flat sheet. Conventions, also
-written into every sidecar and manifest:
+Input is a :class:`DirectorGrid`: the director angle theta, the shape mask and every
+designable feature sampled on a square pixel grid of the flat sheet. Each feature is
+exposed through its channel of the process (:mod:`fabkit.process`): ``dose_mj_cm2``, the
+dose of the polarised alignment exposures, and ``cure_dose_mj_cm2``, a second,
+unpolarised exposure set after them (a curing or cross-linking dose); any other channel
+is refused, naming it, and so is a feature no channel encodes (unless ignored).
+Conventions, also written into every sidecar and manifest:
 
 * theta is in [0, pi), counter-clockwise from the sheet's +x axis (+y up);
 * images are stored as usual, x to the right and **y down**: row 0 is the largest y;
@@ -20,9 +24,12 @@ b. For DMD/SLM exposure: theta is binned into N bins centred on k * pi / N (so t
    domain pixel lies in exactly one mask. ``manifest.json`` (schema:
    ``docs/laser-manifest.schema.json``) lists, in exposure order, each mask's director,
    polarisation (= polariser) and half-wave-plate angle, dose and exposure time, with
-   the pixel pitch and field size. Whether the director lies parallel or perpendicular
-   to the polarisation is a material parameter (:attr:`LaserSettings.relation`); the
-   half-wave plate turns the fixed input polarisation p0 to 2 a - p0 for fast axis a.
+   the pixel pitch and field size. With a cure channel, its dose is binned into levels
+   too: ``cure_dose.png`` and one mask per non-empty level ``masks/cure_NNN.png``,
+   listed as ``cure_exposures`` (unpolarised, after the alignment exposures). Whether
+   the director lies parallel or perpendicular to the polarisation is a material
+   parameter (:attr:`LaserSettings.relation`); the half-wave plate turns the fixed
+   input polarisation p0 to 2 a - p0 for fast axis a.
 c. For scanning writers (a laser_writer profile that takes G-code): ``scan.gcode``, raster lines
    along x in serpentine order, one ``G1`` per run of one exposure, with the wave-plate
    fast axis as ``A`` (degrees) and the laser power as ``S`` (mW) from
@@ -40,9 +47,9 @@ import math
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -53,6 +60,7 @@ from PIL import Image
 import fabkit
 from fabkit.errors import FabkitError
 from fabkit.machines import DEFAULT_RELATION, RELATIONS, LaserOptics, MachineProfile
+from fabkit.process import Process, Resolution
 from fabkit.writers.common import (
     IMAGE_FORMATS,
     check_inside,
@@ -60,13 +68,17 @@ from fabkit.writers.common import (
 )
 from fabkit.writers.lines import Word, render
 
-MANIFEST_FORMAT = "fabkit-laser-manifest/1"
+MANIFEST_FORMAT = "fabkit-laser-manifest/2"
 SIDECAR_FORMAT = "fabkit-angle-map/1"
 DEFAULT_BINS = 18
 """Angle bins (10 degrees each, binning error <= 5 degrees)."""
 DEFAULT_DOSE_MJ_CM2 = 1000.0
 """Dose when there is no eps-to-dose calibration (typical of azo-dye photoalignment)."""
 DEFAULT_DOSE_LEVELS = 4
+CHUNK = 1 << 16
+"""Pixels sampled at once."""
+LIGHT_CHANNELS = ("dose_mj_cm2", "cure_dose_mj_cm2")
+"""The channels a light writer exposes."""
 PREVIEW_HEIGHT_IN = 5.0
 """Height of the preview's panels (inches at 100 dpi)."""
 ANGLE_CONVENTION = (
@@ -80,43 +92,48 @@ class FieldLike(Protocol):
     """What :func:`sample_field` needs (``fabkit.fields.FlatField`` has it): mm, radians."""
 
     outline: shapely.Geometry
+    mm_per_unit: float | None
 
-    def theta(self, points: np.ndarray) -> np.ndarray: ...
-
-    def eps(self, points: np.ndarray) -> np.ndarray: ...
+    def sample(self, points: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]: ...
 
     @property
-    def has_eps(self) -> bool: ...
+    def names(self) -> tuple[str, ...]: ...
 
 
 @dataclass(frozen=True, eq=False)
 class DirectorGrid:
-    """theta (rows, cols) rad, mask (rows, cols) bool, eps (rows, cols) or None, the pixel
-    pitch (mm) and the lower-left corner ``origin_mm`` (sheet frame); see module docstring.
-    theta is reduced to [0, pi); pixels with non-finite theta leave the mask."""
+    """theta (rows, cols) rad, mask (rows, cols) bool, ``features`` (name -> (rows, cols)
+    eps), the pixel pitch (mm) and the lower-left corner ``origin_mm`` (sheet frame); see
+    the module docstring. theta is reduced to [0, pi); pixels with non-finite theta or a
+    non-finite feature leave the mask. ``mm_per_unit``: the design's scale, if any."""
 
     theta: np.ndarray
     mask: np.ndarray
-    eps: np.ndarray | None
+    features: Mapping[str, np.ndarray]
     pixel_mm: float
     origin_mm: tuple[float, float] = (0.0, 0.0)
+    mm_per_unit: float | None = None
 
     def __post_init__(self) -> None:
         theta = np.asarray(self.theta, dtype=float)
         mask = np.asarray(self.mask, dtype=bool)
         if theta.ndim != 2 or mask.shape != theta.shape or theta.size == 0:
             raise FabkitError("director grid: theta and mask must be 2-D arrays of one shape")
-        if self.eps is not None and np.shape(self.eps) != theta.shape:
-            raise FabkitError(f"director grid: eps must have the shape of theta {theta.shape}")
         if not (math.isfinite(self.pixel_mm) and self.pixel_mm > 0):
             raise FabkitError(f"director grid: pixel pitch must be > 0 mm, got {self.pixel_mm}")
         mask = mask & np.isfinite(theta)
-        if self.eps is not None:
-            eps = np.asarray(self.eps, dtype=float)
-            mask &= np.isfinite(eps)
-            object.__setattr__(self, "eps", np.where(mask, eps, np.nan))
+        features = {}
+        for name, values in self.features.items():
+            if np.shape(values) != theta.shape:
+                raise FabkitError(
+                    f"director grid: {name} must have the shape of theta {theta.shape}"
+                )
+            features[name] = np.asarray(values, dtype=float)
+            mask &= np.isfinite(features[name])
         if not mask.any():
             raise FabkitError("director grid: the mask selects no pixel")
+        features = {name: np.where(mask, values, np.nan) for name, values in features.items()}
+        object.__setattr__(self, "features", features)
         object.__setattr__(self, "theta", np.where(mask, np.mod(theta, np.pi), np.nan))
         object.__setattr__(self, "mask", mask)
 
@@ -145,7 +162,7 @@ def sample_field(field: FieldLike, pixel_mm: float) -> DirectorGrid:
     cols, rows = (max(1, math.ceil((hi - lo) / pixel_mm)) for lo, hi in ((x0, x1), (y0, y1)))
     if rows * cols > 50_000_000:
         raise FabkitError(f"{cols} x {rows} pixels is too many; use a coarser --pixel")
-    blank = DirectorGrid(np.zeros((rows, cols)), np.ones((rows, cols)), None, pixel_mm, (x0, y0))
+    blank = DirectorGrid(np.zeros((rows, cols)), np.ones((rows, cols)), {}, pixel_mm, (x0, y0))
     x, y = blank.centres()
     xx, yy = np.meshgrid(x, y)
     mask = shapely.contains_xy(field.outline, xx, yy)
@@ -153,69 +170,41 @@ def sample_field(field: FieldLike, pixel_mm: float) -> DirectorGrid:
         raise FabkitError(f"pixel pitch {pixel_mm} mm leaves no pixel inside the outline")
     points = np.column_stack([xx[mask], yy[mask]])
     theta = np.full(mask.shape, np.nan)
-    theta[mask] = _in_chunks(field.theta, points)
-    eps = None
-    if field.has_eps:
-        eps = np.full(mask.shape, np.nan)
-        eps[mask] = _in_chunks(field.eps, points)
-    return DirectorGrid(theta, mask, eps, pixel_mm, (x0, y0))
-
-
-def _in_chunks(function: Any, points: np.ndarray, size: int = 1 << 15) -> np.ndarray:
-    """``function(points)`` evaluated on slices of ``size`` points (bounded memory)."""
-    return np.concatenate([function(points[a : a + size]) for a in range(0, len(points), size)])
-
-
-@dataclass(frozen=True)
-class DoseCalibration:
-    """Measured exposure dose (mJ/cm^2) giving eps, eps increasing; linear in between.
-
-    ``clip``: eps outside the table takes the dose of the nearest end instead of being an
-    error.
-    """
-
-    eps: tuple[float, ...]
-    dose_mj_cm2: tuple[float, ...]
-    clip: bool = False
-
-    def __post_init__(self) -> None:
-        if len(self.eps) < 2 or len(self.eps) != len(self.dose_mj_cm2):
-            raise FabkitError("dose calibration: eps and dose need the same length, at least 2")
-        if any(b <= a for a, b in zip(self.eps, self.eps[1:], strict=False)):
-            raise FabkitError("dose calibration: eps must be strictly increasing")
-        if any(not d > 0 for d in self.dose_mj_cm2):
-            raise FabkitError("dose calibration: doses must be > 0 mJ/cm^2")
-
-    def dose(self, eps: np.ndarray) -> np.ndarray:
-        """Dose (mJ/cm^2) for each eps (NaN stays NaN); out of range is an error."""
-        known = eps[np.isfinite(eps)]
-        outside = len(known) and (known.min() < self.eps[0] or known.max() > self.eps[-1])
-        if outside and not self.clip:
-            raise FabkitError(
-                f"eps spans [{known.min():g}, {known.max():g}], outside the dose calibration "
-                f"range [{self.eps[0]:g}, {self.eps[-1]:g}] (extend it, or set clip = true)"
-            )
-        return np.interp(eps, self.eps, self.dose_mj_cm2)
+    features = {name: np.full(mask.shape, np.nan) for name in field.names}
+    angles, values = [], {name: [] for name in field.names}
+    for a in range(0, len(points), CHUNK):  # bounded memory
+        angle, sampled = field.sample(points[a : a + CHUNK])
+        angles.append(angle)
+        for name in field.names:
+            values[name].append(sampled[name])
+    theta[mask] = np.concatenate(angles)
+    for name in field.names:
+        features[name][mask] = np.concatenate(values[name])
+    return DirectorGrid(theta, mask, features, pixel_mm, (x0, y0), field.mm_per_unit)
 
 
 @dataclass(frozen=True)
 class LaserSettings:
     """Exposure settings (angles in degrees, dose mJ/cm^2, intensity mW/cm^2, power mW).
 
-    ``dose`` is a constant or an eps calibration; ``intensity_mw_cm2`` (if known) gives the
-    exposure times; ``scan_speed_mm_s`` defaults to the profile's print speed;
-    ``max_power_mw`` (if known) bounds the scan power.
+    ``process`` gives the channels of the grid's features (dose and cure dose; None: no
+    channel); ``ignore`` names features left out on purpose; ``dose`` is the alignment
+    dose where no channel sets it; ``intensity_mw_cm2`` (if known) gives the exposure
+    times; ``scan_speed_mm_s`` defaults to the profile's print speed; ``max_power_mw``
+    (if known) bounds the scan power.
     """
 
     bins: int = DEFAULT_BINS
     relation: str = DEFAULT_RELATION
     input_polarisation_deg: float = 0.0
-    dose: float | DoseCalibration = DEFAULT_DOSE_MJ_CM2
+    dose: float = DEFAULT_DOSE_MJ_CM2
     dose_levels: int = DEFAULT_DOSE_LEVELS
     intensity_mw_cm2: float | None = None
     scan_speed_mm_s: float | None = None
     max_power_mw: float | None = None
     image_format: str = "png"
+    process: Process | None = None
+    ignore: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if not 1 <= self.bins <= 1000:
@@ -226,12 +215,13 @@ class LaserSettings:
             raise FabkitError(f"relation '{self.relation}' is not one of {', '.join(RELATIONS)}")
         if self.image_format not in IMAGE_FORMATS:
             raise FabkitError(f"image format '{self.image_format}' is not png or tiff")
-        if isinstance(self.dose, int | float) and not self.dose > 0:
+        if not self.dose > 0:
             raise FabkitError(f"dose must be > 0 mJ/cm^2, got {self.dose}")
 
     @classmethod
     def for_machine(cls, machine: MachineProfile, **overrides: Any) -> LaserSettings:
-        """Settings from the profile where it has them, then ``overrides`` (None ignored)."""
+        """Settings from the profile where it has them (its process's channels included),
+        then ``overrides`` (None ignored)."""
         optics = machine.laser or LaserOptics()
         values: dict[str, Any] = {
             "relation": optics.relation,
@@ -239,12 +229,31 @@ class LaserSettings:
             "intensity_mw_cm2": optics.intensity_mw_cm2,
             "max_power_mw": optics.max_power_mw,
             "scan_speed_mm_s": machine.process.print_speed_mm_s,
+            "dose_levels": optics.dose_levels or DEFAULT_DOSE_LEVELS,
+            "bins": optics.bins or DEFAULT_BINS,
+            "process": machine.process,
         }
-        table = machine.process.calibration
-        if table is not None and table.parameter == "dose_mj_cm2":
-            values["dose"] = DoseCalibration(table.eps, table.value, table.clip)
         values.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**values)
+
+    def resolve(self, grid: DirectorGrid) -> Resolution:
+        """The light channels of ``grid``'s features; any other channel, or a feature no
+        channel encodes (unless ignored), is a one-line error."""
+        if self.process is None:
+            process = Process(1.0, 1.0, 1.0, 1.0, source="the laser settings")
+        else:
+            process = self.process
+        ignore = tuple(name for name in self.ignore if name in grid.features)
+        resolution = process.resolve(tuple(grid.features), ignore)
+        for channel in resolution.channels:
+            for name in channel.parameters:
+                if name not in LIGHT_CHANNELS:
+                    raise FabkitError(
+                        f"the laser writer cannot expose the {name} channel "
+                        f"({', '.join(channel.features)}): it sets "
+                        f"{' and '.join(LIGHT_CHANNELS)}; print roads with --format gcode"
+                    )
+        return resolution
 
 
 @dataclass(frozen=True, eq=False)
@@ -294,22 +303,43 @@ class Exposure:
     pixels: int
 
 
+@dataclass(frozen=True)
+class CureExposure:
+    """One unpolarised exposure of the cure channel (dose mJ/cm^2, time s or None)."""
+
+    order: int
+    file: str
+    dose_mj_cm2: float
+    exposure_s: float | None
+    pixels: int
+
+
 @dataclass(frozen=True, eq=False)
 class ExposurePlan:
     """Every domain pixel's exposure index (rows, cols; -1 outside), the exposures in
-    order, the dose map (mJ/cm^2, NaN outside) and the binning."""
+    order, the dose map (mJ/cm^2, NaN outside) and the binning; with a cure channel, its
+    dose map, each pixel's cure exposure and the cure exposures; the resolved channels."""
 
     index: np.ndarray
     exposures: tuple[Exposure, ...]
     dose: np.ndarray
     binning: Binning
     dose_error_mj_cm2: float
+    resolution: Resolution
+    cure: np.ndarray | None = None
+    cure_index: np.ndarray | None = None
+    cure_exposures: tuple[CureExposure, ...] = ()
+    cure_error_mj_cm2: float = 0.0
+    clipped: tuple[str, ...] = ()
 
 
 def plan_exposures(grid: DirectorGrid, settings: LaserSettings, suffix: str) -> ExposurePlan:
-    """Bin angle and dose; one exposure per non-empty (angle bin, dose level) pair."""
+    """Bin angle and dose; one exposure per non-empty (angle bin, dose level) pair, and one
+    cure exposure per non-empty cure level."""
+    resolution = settings.resolve(grid)
     binning = bin_angles(grid, settings.bins)
-    dose = _dose_map(grid, settings)
+    maps, clipped = _channel_maps(grid, resolution)
+    dose = maps.get("dose_mj_cm2", np.where(grid.mask, settings.dose, np.nan))
     level, level_dose = _dose_levels(dose, grid.mask, settings.dose_levels)
     combined = np.where(grid.mask, binning.label * settings.dose_levels + level, -1)
     used, inverse = np.unique(combined[grid.mask], return_inverse=True)
@@ -331,26 +361,68 @@ def plan_exposures(grid: DirectorGrid, settings: LaserSettings, suffix: str) -> 
                     _half_wave_plate_deg(polariser, settings.input_polarisation_deg), 6
                 ),
                 dose_mj_cm2=float(level_dose[dose_level]),
-                exposure_s=(
-                    float(level_dose[dose_level] / settings.intensity_mw_cm2)
-                    if settings.intensity_mw_cm2
-                    else None
-                ),
+                exposure_s=_seconds(level_dose[dose_level], settings),
                 pixels=int(counts[k]),
             )
         )
     error = np.nanmax(np.abs(dose - level_dose[level])[grid.mask])
-    return ExposurePlan(index, tuple(exposures), dose, binning, float(error))
+    plan = ExposurePlan(index, tuple(exposures), dose, binning, float(error), resolution)
+    if "cure_dose_mj_cm2" in maps:
+        plan = _with_cure(plan, maps["cure_dose_mj_cm2"], grid, settings, suffix, len(exposures))
+    return replace(plan, clipped=clipped)
 
 
-def _dose_map(grid: DirectorGrid, settings: LaserSettings) -> np.ndarray:
-    if isinstance(settings.dose, DoseCalibration):
-        if grid.eps is None:
-            raise FabkitError("a dose calibration needs eps, but the director field has none")
-        dose = settings.dose.dose(grid.eps)
-    else:
-        dose = np.full(grid.shape, float(settings.dose))
-    return np.where(grid.mask, dose, np.nan)
+def _channel_maps(
+    grid: DirectorGrid, resolution: Resolution
+) -> tuple[dict[str, np.ndarray], tuple[str, ...]]:
+    """Each light channel's map (mJ/cm^2, NaN outside) and a note per clipped channel."""
+    maps, clipped = {}, []
+    for channel in resolution.channels:
+        eps = {name: grid.features[name][grid.mask] for name in channel.features}
+        coded = channel.encode(eps, channel.label)
+        for name, values in coded.values.items():
+            maps[name] = np.full(grid.shape, np.nan)
+            maps[name][grid.mask] = values
+        if coded.clipped_fraction:
+            clipped.append(
+                f"eps clipped to the table of {channel.label} on {coded.clipped_fraction:.1%}"
+            )
+    return maps, tuple(clipped)
+
+
+def _with_cure(
+    plan: ExposurePlan,
+    cure: np.ndarray,
+    grid: DirectorGrid,
+    settings: LaserSettings,
+    suffix: str,
+    before: int,
+) -> ExposurePlan:
+    """The cure channel's levels and its unpolarised exposures (ordered after the others)."""
+    level, level_dose = _dose_levels(cure, grid.mask, settings.dose_levels)
+    used, inverse = np.unique(level[grid.mask], return_inverse=True)
+    index = np.full(grid.shape, -1)
+    index[grid.mask] = inverse
+    counts = np.bincount(inverse, minlength=len(used))
+    exposures = tuple(
+        CureExposure(
+            order=before + k + 1,
+            file=f"masks/cure_{k + 1:03d}.{suffix}",
+            dose_mj_cm2=float(level_dose[code]),
+            exposure_s=_seconds(level_dose[code], settings),
+            pixels=int(counts[k]),
+        )
+        for k, code in enumerate(used.tolist())
+    )
+    error = float(np.nanmax(np.abs(cure - level_dose[level])[grid.mask]))
+    return replace(
+        plan, cure=cure, cure_index=index, cure_exposures=exposures, cure_error_mj_cm2=error
+    )
+
+
+def _seconds(dose: float, settings: LaserSettings) -> float | None:
+    """Exposure time (s) of a dose (mJ/cm^2) at the settings' intensity, if known."""
+    return float(dose / settings.intensity_mw_cm2) if settings.intensity_mw_cm2 else None
 
 
 def _dose_levels(dose: np.ndarray, mask: np.ndarray, levels: int) -> tuple[np.ndarray, np.ndarray]:
@@ -386,6 +458,7 @@ class LaserSummary:
     origin_mm: tuple[float, float]
     scan_lines: int = 0
     manifest: dict[str, Any] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
 
 
 def write_laser(
@@ -410,22 +483,33 @@ def write_laser(
     check_inside(corners, machine, "laser field")
     suffix = "png" if settings.image_format == "png" else "tif"
     plan = plan_exposures(grid, settings, suffix)
+    if machine.gcode and plan.cure is not None:
+        raise FabkitError(
+            f"machine {machine.name} cannot expose the cure_dose_mj_cm2 channel "
+            f"({'+'.join(plan.resolution.channel_of('cure_dose_mj_cm2').features)}): a "
+            "scanning writer has one polarised beam; use a DMD writer such as dmd_photoalign"
+        )
     scan = _scan_text(grid, plan, settings, machine, origin) if machine.gcode else None
     manifest = _manifest(grid, plan, settings, machine, origin, suffix, scan is not None)
+    manifest["sheet_offset_mm"] = shift.tolist()
     sidecar = _sidecar(grid, plan, origin, suffix)
     files = [
         f"angle.{suffix}",
         f"mask.{suffix}",
         f"dose.{suffix}",
+        *([f"cure_dose.{suffix}"] if plan.cure is not None else []),
         "angle.json",
         "manifest.json",
         "preview.png",
         *(e.file for e in plan.exposures),
+        *(e.file for e in plan.cure_exposures),
     ]
     with _atomic_directory(out_dir) as tmp:
         _write_maps(tmp, grid, plan, sidecar, suffix)
         for k, exposure in enumerate(plan.exposures):
             Image.fromarray(plan.index == k).save(tmp / exposure.file)
+        for k, cure in enumerate(plan.cure_exposures):
+            Image.fromarray(plan.cure_index == k).save(tmp / cure.file)
         _write_preview(tmp / "preview.png", grid, plan, origin)
         _write_json(tmp / "manifest.json", manifest)
         if scan is not None:
@@ -440,6 +524,7 @@ def write_laser(
         origin_mm=tuple(origin.tolist()),
         scan_lines=scan.count(b"\n") if scan else 0,
         manifest=manifest,
+        warnings=plan.clipped,
     )
 
 
@@ -457,6 +542,9 @@ def _write_maps(
     Image.fromarray((grid.mask * 255).astype(np.uint8)).save(folder / f"mask.{suffix}")
     dose = np.rint(np.nan_to_num(plan.dose) / _dose_scale(plan) * 65535)
     Image.fromarray(dose.astype(np.uint16)).save(folder / f"dose.{suffix}")
+    if plan.cure is not None:
+        cure = np.rint(np.nan_to_num(plan.cure) / np.nanmax(plan.cure) * 65535)
+        Image.fromarray(cure.astype(np.uint16)).save(folder / f"cure_dose.{suffix}")
     (folder / "masks").mkdir()
     _write_json(folder / "angle.json", sidecar)
 
@@ -478,9 +566,10 @@ def _write_preview(path: Path, grid: DirectorGrid, plan: ExposurePlan, origin: n
     doses = [exposure.dose_mj_cm2 for exposure in plan.exposures]
     delivered = np.where(grid.mask, np.array(doses)[np.maximum(plan.index, 0)], np.nan)
     panel_width = float(np.clip(PREVIEW_HEIGHT_IN * cols / rows, 2.5, 8.0)) + 1.8
-    figure = Figure(figsize=(2 * panel_width, PREVIEW_HEIGHT_IN + 0.8), layout="constrained")
-    angle_ax, dose_ax = figure.subplots(1, 2)
-    panels = (
+    count = 2 if plan.cure is None else 3
+    figure = Figure(figsize=(count * panel_width, PREVIEW_HEIGHT_IN + 0.8), layout="constrained")
+    angle_ax, dose_ax, *cure_ax = figure.subplots(1, count)
+    panels = [
         (
             angle_ax,
             np.where(grid.mask, centres, np.nan),
@@ -495,7 +584,12 @@ def _write_preview(path: Path, grid: DirectorGrid, plan: ExposurePlan, origin: n
             (None, None),
             f"dose per exposure (mJ/cm^2, {len(set(doses))} levels)",
         ),
-    )
+    ]
+    if plan.cure is not None:
+        cure_doses = np.array([exposure.dose_mj_cm2 for exposure in plan.cure_exposures])
+        cured = np.where(grid.mask, cure_doses[np.maximum(plan.cure_index, 0)], np.nan)
+        label = f"cure dose (mJ/cm^2, {len(cure_doses)} levels)"
+        panels.append((cure_ax[0], cured, "magma", (None, None), label))
     for ax, values, cmap, (low, high), label in panels:
         image = ax.imshow(
             values, cmap=cmap, vmin=low, vmax=high, extent=extent, interpolation="nearest"
@@ -536,6 +630,19 @@ def _sidecar(
             "scale": _dose_scale(plan),
             "decode": "dose = value * scale / 65535",
         },
+        **(
+            {
+                "cure_dose": {
+                    "file": f"cure_dose.{suffix}",
+                    "bits": 16,
+                    "unit": "mJ/cm^2",
+                    "scale": float(np.nanmax(plan.cure)),
+                    "decode": "cure dose = value * scale / 65535",
+                }
+            }
+            if plan.cure is not None
+            else {}
+        ),
     }
 
 
@@ -578,8 +685,18 @@ def _manifest(
             "sidecar": "angle.json",
             "preview": "preview.png",
             "scan": "scan.gcode" if scan else None,
+            "cure_dose_map": f"cure_dose.{suffix}" if plan.cure is not None else None,
         },
+        "channels": {
+            name: "+".join(channel.features)
+            for channel in plan.resolution.channels
+            for name in channel.parameters
+        },
+        "ignored_features": list(plan.resolution.ignored),
+        "mm_per_unit": grid.mm_per_unit,
         "exposures": [vars(e) for e in plan.exposures],
+        "cure_dose_error_mj_cm2": plan.cure_error_mj_cm2,
+        "cure_exposures": [vars(e) for e in plan.cure_exposures],
     }
 
 

@@ -1,0 +1,237 @@
+"""Forward simulation of a sheet as it was made: its own director and features.
+
+A design prescribes, on the flat sheet, the director n (the u-curves) and the features
+eps; a fabricated sheet has a director and features of its own (read back from the
+machine file by ``fabkit verify``). :class:`SheetFields` holds them as functions of the
+flat-sheet position (design units) together with the region that was made.
+
+The simulation reuses the design's material grid: its mesh (coarsened by ``stride``,
+faces kept where the sheet was made) keeps every vertex's material coordinates (u, v),
+so the distance to each target is measured exactly as ``fabkit simulate`` does
+(:func:`fabkit.mechanics.compare.compare`). The reference metric at a stimulus is the
+material's: stretches lambda1 along the *fabricated* director and lambda2 across it, at
+the *fabricated* features, in flat-sheet coordinates,
+
+    a = R(theta) diag(lambda1^2, lambda2^2) R(theta)^T,
+
+pulled back to (u, v) by the flat map's Jacobian J = [alpha n0, beta t0] (n0 the
+designed flat director, t0 perpendicular to it with the orientation of the v-curves):
+A = J^T a J. Each mesh edge's reference length follows by the trapezoidal rule in (u, v)
+as for a design (:func:`~fabkit.mechanics.simulate.design_metrics`); with the design's
+own director and features A is diag((alpha lambda1)^2, (beta lambda2)^2) and the metrics
+are the design's. The sheet as made is unstretched (the flat sheet's stimulus gives
+lambda = 1), so the ramp starts from J^T J, the designed flat metric.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from fabkit.design.design import Design
+from fabkit.errors import FabkitError
+from fabkit.mechanics.mesh import DesignMesh, counter_clockwise, design_mesh
+from fabkit.mechanics.metric import metric_from_director, metric_from_lengths
+from fabkit.mechanics.simulate import DesignSimulation, Settings, diameter, simulate
+from fabkit.spec import spec_from_json
+
+PointFunction = Callable[[np.ndarray], np.ndarray]
+"""A function of (n, 2) flat-sheet points (design units)."""
+
+
+@dataclass(frozen=True)
+class SheetFields:
+    """A flat sheet as made, as functions of (n, 2) flat-sheet points in design units.
+
+    ``theta`` gives the director angle (n,) (radians, mod pi), ``features`` the features
+    (N, n) in the order of the design's spec, ``made`` whether each point was made
+    (n,) bool.
+    """
+
+    theta: PointFunction
+    features: PointFunction
+    made: PointFunction
+
+
+def design_fields(design: Design) -> SheetFields:
+    """The design's own fields, made wherever it is solved (the sheet as designed):
+    interpolated linearly between the design's grid points on the flat sheet, exact at
+    them."""
+    from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+
+    mesh = design_mesh(design)
+    n0 = mesh.sample(design.n[0])
+    angle = np.arctan2(n0[:, 1], n0[:, 0])
+    eps = mesh.sample(np.moveaxis(design.eps, 0, -1)).reshape(len(angle), -1)
+    values = np.column_stack([np.cos(2 * angle), np.sin(2 * angle), eps])
+    linear = LinearNDInterpolator(mesh.points, values)
+    nearest = NearestNDInterpolator(mesh.points, values)
+
+    def sample(points: np.ndarray) -> np.ndarray:
+        out = linear(points)
+        missing = ~np.isfinite(out).all(axis=1)
+        if missing.any():
+            out[missing] = nearest(points[missing])
+        return out
+
+    def theta(points: np.ndarray) -> np.ndarray:
+        tensor = sample(points)
+        return 0.5 * np.arctan2(tensor[:, 1], tensor[:, 0])
+
+    return SheetFields(
+        theta=theta,
+        features=lambda points: sample(points)[:, 2:].T,
+        made=lambda points: np.ones(len(points), dtype=bool),
+    )
+
+
+def coarsened(design: Design, stride: int) -> Design:
+    """The design on every ``stride``-th grid line (the lines through u = 0, v = 0 kept)."""
+    if stride < 1:
+        raise FabkitError(f"stride must be a positive integer, got {stride}")
+    if stride == 1:
+        return design
+    i0 = int(np.argmin(np.abs(design.u))) % stride
+    j0 = int(np.argmin(np.abs(design.v))) % stride
+    rows, cols = slice(i0, None, stride), slice(j0, None, stride)
+    return replace(
+        design,
+        u=design.u[rows],
+        v=design.v[cols],
+        valid=design.valid[rows, cols],
+        alpha=design.alpha[rows, cols],
+        beta=design.beta[rows, cols],
+        eps=design.eps[:, rows, cols],
+        r=design.r[:, rows, cols],
+        n=design.n[:, rows, cols],
+    )
+
+
+def made_mesh(design: Design, made: PointFunction, trim: int = 0) -> DesignMesh:
+    """The design's mesh with only the faces whose centroid was made (unused vertices
+    dropped); a one-line error if nothing is left."""
+    mesh = design_mesh(design, trim)
+    centroids = mesh.points[mesh.triangles].mean(axis=1)
+    return _faces(mesh, np.asarray(made(centroids), dtype=bool))
+
+
+def _faces(mesh: DesignMesh, keep: np.ndarray) -> DesignMesh:
+    """``mesh`` with the faces ``keep`` only (unused vertices dropped)."""
+    if not keep.any():
+        raise FabkitError("no face of the design's mesh lies on the sheet as made")
+    triangles = mesh.triangles[keep]
+    used = np.unique(triangles)
+    index = np.full(len(mesh.points), -1)
+    index[used] = np.arange(len(used))
+    points = mesh.points[used]
+    return DesignMesh(points, counter_clockwise(points, index[triangles]), mesh.grid[used])
+
+
+def sheet_metrics(
+    design: Design, mesh: DesignMesh, surface: int, theta: np.ndarray, eps: np.ndarray
+) -> np.ndarray:
+    """Per-face reference metrics (F, 2, 2) at surface ``surface``'s stimulus for the
+    director angles ``theta`` (V,) and features ``eps`` (N, V) at the mesh's vertices
+    (a one-line error where a face's edge lengths make no metric)."""
+    return metric_from_lengths(
+        mesh.points, mesh.triangles, _edge_lengths(design, mesh, surface, theta, eps)
+    )
+
+
+def _edge_lengths(
+    design: Design, mesh: DesignMesh, surface: int, theta: np.ndarray, eps: np.ndarray
+) -> np.ndarray:
+    """Reference lengths (F, 3) of every face's edges (module docstring)."""
+    spec = spec_from_json(design.spec)
+    response = spec.material.response(eps, design.stimuli[surface : surface + 1])
+    director = np.column_stack([np.cos(theta), np.sin(theta)])
+    flat = metric_from_director(director, response.lambda1[0], response.lambda2[0])
+    jacobian = _flat_jacobian(design, mesh)
+    pulled = np.einsum("vki,vkl,vlj->vij", jacobian, flat, jacobian)
+    start, end = mesh.triangles[:, [1, 2, 0]], mesh.triangles[:, [2, 0, 1]]
+    steps = design.step / mesh.refine * (mesh.grid[end] - mesh.grid[start])  # (F, 3, 2)
+    speed = [np.sqrt(np.einsum("fei,feij,fej->fe", steps, pulled[k], steps)) for k in (start, end)]
+    return 0.5 * (speed[0] + speed[1])
+
+
+def _metric_faces(
+    design: Design, mesh: DesignMesh, theta: np.ndarray, eps: np.ndarray
+) -> np.ndarray:
+    """Faces (F,) bool whose edge lengths make a metric at every stimulus (a sheet whose
+    director turns fast across a coarse face may break the triangle inequality there)."""
+    ok = np.ones(len(mesh.triangles), dtype=bool)
+    for surface in range(len(design.stimuli)):
+        lengths = _edge_lengths(design, mesh, surface, theta, eps)
+        a, b, c = lengths.T
+        ok &= (a < b + c) & (b < c + a) & (c < a + b)
+    return ok
+
+
+def _flat_jacobian(design: Design, mesh: DesignMesh) -> np.ndarray:
+    """(V, 2, 2) Jacobian of the flat map r0(u, v) at the vertices: columns alpha n0 and
+    beta t0, t0 perpendicular to n0 on the side of the v-curves."""
+    n0 = mesh.sample(design.n[0])
+    n0 /= np.linalg.norm(n0, axis=1, keepdims=True)
+    perp = np.column_stack([-n0[:, 1], n0[:, 0]])
+    alpha, beta = mesh.sample(design.alpha), mesh.sample(design.beta)
+    return np.stack([alpha[:, None] * n0, _v_side(design) * beta[:, None] * perp], axis=-1)
+
+
+def _v_side(design: Design) -> float:
+    """+1 if the v-curves run to the left of the flat director (counter-clockwise), else -1."""
+    r0, n0 = design.r[0], design.n[0]
+    both = design.valid[:, 1:] & design.valid[:, :-1]
+    dv = (r0[:, 1:] - r0[:, :-1])[both]
+    n = n0[:, :-1][both]
+    cross = n[:, 0] * dv[:, 1] - n[:, 1] * dv[:, 0]
+    return 1.0 if np.median(cross) >= 0 else -1.0
+
+
+def simulate_sheet(
+    design: Design,
+    fields: SheetFields,
+    surface: int,
+    thickness: float | None = None,
+    poisson: float = 0.5,
+    settings: Settings | None = None,
+    trim: int = 0,
+    stride: int = 1,
+) -> tuple[Design, DesignSimulation]:
+    """Simulate the sheet of ``fields`` under surface ``surface``'s stimulus.
+
+    The mesh is the design's grid coarsened by ``stride`` (and trimmed as in
+    :func:`~fabkit.mechanics.mesh.design_mesh`), restricted to where the sheet was made.
+    ``thickness`` defaults to 1 % of the diameter of the design's whole solved flat domain
+    (as ``fabkit simulate``). Returns the coarsened design (compare against it) and the
+    simulation.
+    """
+    coarse = coarsened(design, stride)
+    mesh = made_mesh(coarse, fields.made, trim)
+    if thickness is None:
+        thickness = 0.01 * diameter(design_mesh(design).points)
+
+    def sample(mesh: DesignMesh) -> tuple[np.ndarray, np.ndarray]:
+        theta = np.asarray(fields.theta(mesh.points), dtype=float)
+        eps = np.asarray(fields.features(mesh.points), dtype=float)
+        return theta, eps.reshape(-1, len(mesh.points))
+
+    theta, eps = sample(mesh)
+    ok = _metric_faces(coarse, mesh, theta, eps)
+    if not ok.all():
+        mesh = _faces(mesh, ok)
+        theta, eps = sample(mesh)
+    metrics = sheet_metrics(coarse, mesh, surface, theta, eps)
+    made = sheet_metrics(coarse, mesh, 0, theta, eps)
+    result = simulate(
+        mesh.points,
+        mesh.triangles,
+        metrics,
+        thickness,
+        poisson,
+        settings or Settings(),
+        start_metrics=made,
+    )
+    name = spec_from_json(design.spec).targets[surface].name
+    return coarse, DesignSimulation(surface, name, mesh, metrics, thickness, result)

@@ -1,0 +1,12 @@
+"""``fabkit verify``: read a machine file back as a machine would, and check it.
+
+The readers (:mod:`~fabkit.verify.read_gcode`, :mod:`~fabkit.verify.read_dxf`,
+:mod:`~fabkit.verify.read_laser`) parse the file that goes to the machine, independently
+of the writers and of ``toolpath.npz``, into what it makes on the flat sheet: roads with
+their widths and the process values they were printed with, or exposed pixels with
+their director and doses. :mod:`~fabkit.verify.raster` turns roads into a grid of the
+sheet (coverage, road direction, the values); :mod:`~fabkit.verify.check` inverts every
+channel's calibration to read the features back, compares director, features and
+coverage with the design, and forward-simulates the sheet as fabricated under every
+stimulus (:mod:`fabkit.mechanics.fabricated`).
+"""

@@ -1,0 +1,601 @@
+"""``fabkit verify``: a machine file read back, compared with its design, and simulated.
+
+:func:`verify` reads the file (G-code, a DXF's roads, or a laser pattern folder), lays
+what it makes on a grid of the flat sheet (:mod:`fabkit.verify.raster`), reads every
+feature back by inverting its channel's calibration (:meth:`fabkit.process.Encode.decode`),
+and compares, over the cells inside the design's outline:
+
+* coverage: ``empty`` (cells no road or exposure covers) and ``overlap`` (mean number
+  of further roads over the covered cells);
+* the director: the angle between the road direction (the exposure's director) and the
+  design's, mean and 95th percentile, degrees;
+* each feature: |read back - designed| as a percentage of the feature's designed range
+  (max - min over the design), RMS and 95th percentile, over the covered cells.
+
+Then the sheet *as fabricated* (the read-back director and features, on the printed
+outline) is simulated under the stimulus of every target and its distance to the
+target reported as ``fabkit simulate`` does (RMS and max after rigid alignment, % of the
+patch diameter); ``reference`` adds the sheet as designed on the same mesh.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+from scipy import ndimage
+
+from fabkit.design.design import Design
+from fabkit.errors import FabkitError
+from fabkit.fields import FlatField, feature_names, field_from_design
+from fabkit.machines import MachineProfile, load_machine
+from fabkit.mechanics.compare import compare
+from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
+from fabkit.mechanics.simulate import Settings
+from fabkit.process import Encode, Process, Resolution
+from fabkit.readfile import read_json
+from fabkit.spec import spec_from_json
+from fabkit.surfaces.analytic import number
+from fabkit.toolpath.baromorph import load_baromorph
+from fabkit.toolpath.process import DEFAULT_MACHINE, load_process
+from fabkit.verify.raster import Readback, Roads, rasterise
+from fabkit.verify.read_dxf import read_channels, read_dxf
+from fabkit.verify.read_gcode import Placement, Printed, read_gcode
+from fabkit.verify.read_laser import read_laser
+
+CELL_PER_WIDTH = 4
+"""Grid cells per road width (roads are read on cells of w / 4)."""
+TARGET_TRIANGLES = 800
+"""The simulation mesh is the design's grid coarsened to about this many triangles."""
+
+
+@dataclass(frozen=True)
+class VerifyOptions:
+    """What ``fabkit verify`` is told; None = from the file or the default.
+
+    ``machine`` the profile (default marlin_diw_pneumatic; a laser folder: its manifest's
+    machine); ``process_file`` replaces its process; ``size_mm`` / ``mm_per_unit`` the
+    sheet's scale and ``offset_mm`` its placement (default: the file's records);
+    ``cell_mm`` the grid (default w / 4, or the laser pixel); ``simulate`` runs the
+    forward simulations, ``reference`` adds the sheet as designed; ``stride`` coarsens
+    the design's grid for them (default: about :data:`TARGET_TRIANGLES` triangles),
+    ``trim`` as ``fabkit simulate --trim``; ``baromorph`` the channel settings of a
+    baromorph drawing (its channels are read instead of roads).
+    """
+
+    machine: str | None = None
+    process_file: str | None = None
+    size_mm: float | None = None
+    mm_per_unit: float | None = None
+    offset_mm: tuple[float, ...] | None = None
+    cell_mm: float | None = None
+    ignore_features: tuple[str, ...] = ()
+    simulate: bool = True
+    reference: bool = False
+    stride: int | None = None
+    trim: int = 0
+    max_iterations: int = 100
+    baromorph: str | None = None
+
+
+@dataclass(frozen=True)
+class FeatureError:
+    """One feature read back: its channel, RMS and 95th-percentile error as % of its
+    designed range, the range, and the cells compared."""
+
+    feature: str
+    channel: str
+    rms_pct: float
+    p95_pct: float
+    design_range: float
+    cells: int
+
+
+@dataclass(frozen=True)
+class TargetDistance:
+    """The sheet as fabricated against one target: RMS and max distance, % of the patch
+    diameter; the sheet as designed on the same mesh when asked (else None)."""
+
+    target: str
+    surface: int
+    rms_pct: float
+    max_pct: float
+    mirrored: bool
+    converged: bool
+    triangles: int
+    seconds: float
+    designed_rms_pct: float | None = None
+    designed_max_pct: float | None = None
+    designed_converged: bool | None = None
+
+
+@dataclass(frozen=True)
+class Verification:
+    """Everything ``fabkit verify`` measured (see the module docstring)."""
+
+    file: str
+    kind: str
+    machine: str
+    process: str
+    placement: str
+    cell_mm: float
+    empty_fraction: float
+    mean_overlap: float
+    director_mean_deg: float
+    director_p95_deg: float
+    features: tuple[FeatureError, ...]
+    targets: tuple[TargetDistance, ...]
+    ignored: tuple[str, ...]
+    notes: tuple[str, ...]
+    seconds: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        data = asdict(self)
+        if self.ignored:
+            return {"notice": self.notice(), **data}
+        return data
+
+    def notice(self) -> str:
+        """The first line of the report when features were left out ("" if none)."""
+        if not self.ignored:
+            return ""
+        return (
+            f"NOT ENCODED: feature{'s' if len(self.ignored) > 1 else ''} "
+            f"{', '.join(self.ignored)} left out on purpose (--ignore-feature): the machine "
+            "file does not carry it and the sheet as fabricated was not simulated"
+        )
+
+    def table(self) -> str:
+        """The report as text (the first line says when features were left out)."""
+        lines = [self.notice()] if self.ignored else []
+        lines += [
+            f"verify {self.file} ({self.kind}, machine {self.machine}, {self.process}; "
+            f"placement from {self.placement}; cells {self.cell_mm:.3g} mm)",
+            f"  coverage: empty {100 * self.empty_fraction:.2f} %, overlap "
+            f"{100 * self.mean_overlap:.2f} %",
+            f"  director error: mean {self.director_mean_deg:.2f} deg, p95 "
+            f"{self.director_p95_deg:.2f} deg",
+        ]
+        for f in self.features:
+            lines.append(
+                f"  {f.feature} ({f.channel}): error RMS {f.rms_pct:.2f} %, p95 {f.p95_pct:.2f} "
+                f"% of its range {f.design_range:.4g} ({f.cells} cells)"
+            )
+        for t in self.targets:
+            mirror = " (mirror image)" if t.mirrored else ""
+            moving = "" if t.converged else " (not converged)"
+            line = (
+                f"  as fabricated vs {t.target}: RMS {t.rms_pct:.2f} %, max {t.max_pct:.2f} % "
+                f"of the patch diameter{mirror}{moving}"
+            )
+            if t.designed_rms_pct is not None:
+                moving = "" if t.designed_converged else " (not converged)"
+                line += (
+                    f"; as designed RMS {t.designed_rms_pct:.2f} %, max "
+                    f"{t.designed_max_pct:.2f} %{moving}"
+                )
+            lines.append(line)
+        lines += [f"  note: {note}" for note in self.notes]
+        lines.append(f"  {self.seconds:.1f} s")
+        return "\n".join(lines)
+
+
+def verify(
+    design_path: str | Path, machine_file: str | Path, options: VerifyOptions
+) -> Verification:
+    """Read ``machine_file`` back and check it against the design (module docstring)."""
+    started = time.perf_counter()
+    _check_options(options)
+    design = Design.load(design_path)
+    names = feature_names(design, str(design_path))
+    machine_file = Path(machine_file)
+    if not machine_file.exists():
+        raise FabkitError(f"machine file '{machine_file}' does not exist")
+    kind = "channels" if options.baromorph else _kind(machine_file)
+    machine = _machine(options, machine_file, kind)
+    process = _process(options, machine)
+    resolution = process.resolve(names, options.ignore_features)
+    readback, placement = _read(machine_file, kind, machine, process, resolution, options)
+    flat = _flat_field(design_path, options, placement)
+    scale = float(flat.mm_per_unit)
+    sheet = _Sheet.of(readback, flat)
+    features = _features(readback, resolution, sheet, design, names)
+    notes = list(readback.notes)
+    missing = [f.feature for f in features if f.cells == 0]
+    if missing:
+        notes.append(f"not read back (the file carries no value for it): {', '.join(missing)}")
+    targets: tuple[TargetDistance, ...] = ()
+    if not options.simulate:
+        notes.append("not simulated (--no-simulate)")
+    elif resolution.ignored or missing:
+        notes.append("not simulated: a feature of the design is not in the machine file")
+    else:
+        fields = _sheet_fields(readback, resolution, sheet, scale, names)
+        targets = _simulate(design, fields, options)
+    return Verification(
+        file=str(machine_file),
+        kind=kind,
+        machine=machine.name,
+        process=process.source,
+        placement=placement.source,
+        cell_mm=readback.cell_mm,
+        empty_fraction=sheet.empty,
+        mean_overlap=sheet.overlap,
+        director_mean_deg=sheet.director_mean,
+        director_p95_deg=sheet.director_p95,
+        features=tuple(features),
+        targets=targets,
+        ignored=resolution.ignored,
+        notes=tuple(notes),
+        seconds=time.perf_counter() - started,
+    )
+
+
+def _check_options(options: VerifyOptions) -> None:
+    """Refuse options out of range before reading anything."""
+    for name, value in (
+        ("--cell", options.cell_mm),
+        ("--size", options.size_mm),
+        ("--scale", options.mm_per_unit),
+    ):
+        if value is not None:
+            number(value, name, positive=True)
+    for name, value, least in (
+        ("--stride", options.stride, 1),
+        ("--max-iterations", options.max_iterations, 1),
+        ("--trim", options.trim, 0),
+    ):
+        if value is not None and value < least:
+            raise FabkitError(f"{name} {value}: expected an integer >= {least}")
+
+
+def _kind(path: Path) -> str:
+    if path.is_dir():
+        return "laser"
+    return "dxf" if path.suffix.lower() == ".dxf" else "gcode"
+
+
+def _machine(options: VerifyOptions, path: Path, kind: str) -> MachineProfile:
+    """The profile named, else a laser pattern's own machine, else the default (the laser
+    cutter for baromorph channels)."""
+    if options.machine:
+        return load_machine(options.machine)
+    if kind == "channels":
+        return load_machine("laser_cutter")
+    if kind == "laser":
+        return load_machine(manifest_machine(path))
+    return load_machine(DEFAULT_MACHINE)
+
+
+def _process(options: VerifyOptions, machine: MachineProfile) -> Process:
+    """The process the file was made with: --process, the baromorph channel settings (a
+    channel-width channel for the first feature), else the machine's."""
+    if options.baromorph:
+        settings = load_baromorph(options.baromorph)
+        channel = Encode((0,), settings.calibration)
+        return Process(
+            settings.pitch_mm,
+            settings.channel_depth_mm,
+            1.0,
+            1.0,
+            (channel,),
+            f"baromorph {options.baromorph}",
+        )
+    return load_process(options.process_file) if options.process_file else machine.process
+
+
+def manifest_machine(folder: Path) -> str:
+    """The machine a laser pattern folder was written for (its manifest's ``machine``)."""
+    path = folder / "manifest.json"
+    manifest = read_json(path, "laser manifest")
+    name = manifest.get("machine") if isinstance(manifest, dict) else None
+    if not isinstance(name, str) or not name:
+        raise FabkitError(f"{path}: names no machine; give --machine")
+    return name
+
+
+def _read(
+    path: Path,
+    kind: str,
+    machine: MachineProfile,
+    process: Process,
+    resolution: Resolution,
+    options: VerifyOptions,
+) -> tuple[Readback, Placement]:
+    """The file on a grid of the sheet's frame, and where the placement came from."""
+    if kind in ("laser", "channels"):
+        if kind == "laser":
+            readback, found, _ = read_laser(path)
+        else:
+            readback, found = _read_channels(path, options.baromorph)
+        placement = _placement(options, found)
+        shift = np.asarray(placement.offset_mm)
+        moved = (readback.origin[0] - shift[0], readback.origin[1] - shift[1])
+        return _replace_origin(readback, moved), placement
+    cell = options.cell_mm or process.road_width_mm / CELL_PER_WIDTH
+    if kind == "dxf":
+        start, end, width, road, values, found = read_dxf(path, process.road_width_mm)
+        values = {p: values.get(p, np.full(len(start), np.nan)) for p in resolution.parameters}
+        ink = None
+        roads = Roads(start, end, width, road, values, ink)
+    else:
+        printed = read_gcode(path, machine)
+        found = printed.placement
+        roads = _gcode_roads(printed, machine, process, resolution)
+    placement = _placement(options, found)
+    return rasterise(roads.shifted(np.asarray(placement.offset_mm)), cell), placement
+
+
+def _read_channels(path: Path, baromorph: str) -> tuple[Readback, Placement]:
+    """A baromorph drawing's channels with the settings it was laid out with: the band
+    along the outline holding the manifold ring is left out."""
+    settings = load_baromorph(baromorph)
+    widest = max(settings.calibration.value)
+    band = settings.min_wall_mm + settings.manifold_width_mm + settings.pitch_mm / 2
+    return read_channels(path, settings.pitch_mm, widest, band)
+
+
+def _replace_origin(readback: Readback, origin: tuple[float, float]) -> Readback:
+    return replace(readback, origin=origin)
+
+
+def _placement(options: VerifyOptions, found: Placement) -> Placement:
+    """--offset, else the file's record; a one-line error when neither is there."""
+    if options.offset_mm is not None:
+        if len(options.offset_mm) not in (2, 3) or not np.isfinite(options.offset_mm).all():
+            raise FabkitError(f"--offset {options.offset_mm}: expected X,Y in mm")
+        return Placement(tuple(options.offset_mm[:2]), found.mm_per_unit, "--offset")
+    if found.offset_mm is None:
+        raise FabkitError(
+            f"{found.source.split(' ')[0]}: the file does not record where the sheet was "
+            "placed on the machine; give --offset X,Y (mm)"
+        )
+    return found
+
+
+def _flat_field(design_path: str | Path, options: VerifyOptions, placement: Placement) -> FlatField:
+    """The design's flat sheet in mm: at --scale, else at --size, else at the file's scale."""
+    if options.mm_per_unit is not None:
+        return field_from_design(design_path, None, options.mm_per_unit)
+    if options.size_mm is not None:
+        return field_from_design(design_path, options.size_mm, None)
+    if placement.mm_per_unit is None:
+        raise FabkitError(
+            f"{placement.source.split(' ')[0]}: the file does not record the sheet's scale; "
+            "give --size MM (its longest side, as fabkit run --size) or --scale MM_PER_UNIT"
+        )
+    return field_from_design(design_path, None, placement.mm_per_unit)
+
+
+def _gcode_roads(
+    printed: Printed, machine: MachineProfile, process: Process, resolution: Resolution
+) -> Roads:
+    """The first layer's segments with each channel's parameter per segment."""
+    first = (
+        np.isclose(printed.start[:, 2], printed.start[0, 2], atol=1e-6)
+        if len(printed.start)
+        else np.zeros(0, dtype=bool)
+    )
+    start, end = printed.start[first, :2], printed.end[first, :2]
+    length = np.linalg.norm(end - start, axis=1)
+    feed, volume = printed.feed[first], printed.volume[first]
+    w, h = process.road_width_mm, process.layer_height_mm
+    has_e = machine.gcode is not None and not machine.gcode.flow_on_gcode.strip()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        flow = volume / (length * w * h) if has_e else process.print_speed_mm_s / feed
+        width = w * flow if has_e else np.full(len(start), w)
+    raw = {
+        "print_speed_mm_s": feed,
+        "extrusion_multiplier": flow,
+        "pressure_kpa": printed.pressure[first],
+        "temperature_c": printed.temperature[first],
+        "ink_fraction": printed.mix[first],
+        "line_spacing_mm": np.full(len(start), np.nan),
+    }
+    values = {p: raw.get(p, np.full(len(start), np.nan)) for p in resolution.parameters}
+    alternate = machine.inks is not None and machine.inks.method == "alternate"
+    ink = None
+    if "ink_fraction" in values and alternate:
+        ink = printed.ink[first]
+        del values["ink_fraction"]
+    return Roads(start, end, width, printed.road[first], values, ink, printed.layers)
+
+
+@dataclass(frozen=True, eq=False)
+class _Sheet:
+    """The read-back grid against the design: cells inside the outline, covered (their
+    centres ``points``, mm, and the designed features there), and the coverage and
+    director figures."""
+
+    inside: np.ndarray
+    covered: np.ndarray
+    points: np.ndarray
+    designed: dict[str, np.ndarray]
+    empty: float
+    overlap: float
+    director_mean: float
+    director_p95: float
+
+    @classmethod
+    def of(cls, readback: Readback, flat: FlatField) -> _Sheet:
+        x, y = readback.centres()
+        inside = shapely.contains_xy(flat.outline, x, y)
+        if readback.region is not None:
+            inside &= readback.region
+        if not inside.any():
+            raise FabkitError(
+                "no cell of the machine file lies on the design's flat sheet: wrong "
+                "--offset or --size?"
+            )
+        covered = inside & (readback.hits > 0)
+        points = np.column_stack([x[covered], y[covered]])
+        designed, features = flat.sample(points)
+        error = np.abs(_wrap(readback.theta[covered] - designed))
+        degrees = np.degrees(error) if len(error) else np.array([np.nan])
+        hits = readback.hits[covered]
+        return cls(
+            inside=inside,
+            covered=covered,
+            points=points,
+            designed=features,
+            empty=float(1.0 - covered.sum() / inside.sum()),
+            overlap=float(np.mean(hits - 1)) if len(hits) else 0.0,
+            director_mean=float(np.mean(degrees)),
+            director_p95=float(np.percentile(degrees, 95)),
+        )
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """An angle mod pi in [-pi/2, pi/2)."""
+    return np.mod(angle + np.pi / 2, np.pi) - np.pi / 2
+
+
+def _decoded(readback: Readback, resolution: Resolution) -> dict[str, np.ndarray]:
+    """Every encoded feature read back on the grid (NaN where its values are unknown)."""
+    out = {}
+    for channel in resolution.channels:
+        shape = readback.shape
+        values = {p: readback.values.get(p, np.full(shape, np.nan)) for p in channel.parameters}
+        out.update(channel.decode(values))
+    return out
+
+
+def _features(
+    readback: Readback,
+    resolution: Resolution,
+    sheet: _Sheet,
+    design: Design,
+    names: tuple[str, ...],
+) -> list[FeatureError]:
+    """Each encoded feature's error over the covered cells inside the outline."""
+    decoded = _decoded(readback, resolution)
+    out = []
+    for channel in resolution.channels:
+        for name in channel.features:
+            span = float(np.ptp(design.eps[names.index(name)][design.valid])) or 1.0
+            read = decoded[name][sheet.covered]
+            known = np.isfinite(read)
+            designed = sheet.designed[name][known]
+            error = np.abs(read[known] - designed) / span * 100.0
+            out.append(
+                FeatureError(
+                    feature=name,
+                    channel=", ".join(channel.parameters),
+                    rms_pct=float(np.sqrt(np.mean(error**2))) if len(error) else math.nan,
+                    p95_pct=float(np.percentile(error, 95)) if len(error) else math.nan,
+                    design_range=span,
+                    cells=int(known.sum()),
+                )
+            )
+    return out
+
+
+def _sheet_fields(
+    readback: Readback,
+    resolution: Resolution,
+    sheet: _Sheet,
+    scale: float,
+    names: tuple[str, ...],
+) -> SheetFields:
+    """The read-back director and features as functions of flat-sheet points in design
+    units (bilinear on the grid, each uncovered cell taking its nearest covered cell's
+    values), made where the printed region (covered cells, gaps narrower than a road
+    closed) is."""
+    decoded = _decoded(readback, resolution)
+    covered = readback.hits > 0
+    made = ndimage.binary_closing(covered, _disc(readback.width_mm / readback.cell_mm))
+    made |= covered
+    nearest = ndimage.distance_transform_edt(~covered, return_distances=False, return_indices=True)
+    grids = [np.cos(2 * readback.theta), np.sin(2 * readback.theta)]
+    grids += [decoded[name] for name in names]
+    filled = [g[tuple(nearest)] for g in grids]
+
+    def cells(points: np.ndarray) -> np.ndarray:
+        """(2, n) fractional cell coordinates of design-unit points."""
+        mm = np.asarray(points, dtype=float) * scale
+        return ((mm - np.asarray(readback.origin)) / readback.cell_mm - 0.5).T
+
+    def sample(points: np.ndarray) -> list[np.ndarray]:
+        where = cells(points)
+        return [ndimage.map_coordinates(g, where, order=1, mode="nearest") for g in filled]
+
+    def theta(points: np.ndarray) -> np.ndarray:
+        cos2, sin2, *_ = sample(points)
+        return 0.5 * np.arctan2(sin2, cos2)
+
+    def features(points: np.ndarray) -> np.ndarray:
+        return np.array(sample(points)[2:])
+
+    def is_made(points: np.ndarray) -> np.ndarray:
+        index = np.rint(cells(points)).astype(int)
+        inside = (index >= 0).all(axis=0) & (index[0] < made.shape[0]) & (index[1] < made.shape[1])
+        out = np.zeros(index.shape[1], dtype=bool)
+        out[inside] = made[index[0, inside], index[1, inside]]
+        return out
+
+    return SheetFields(theta, features, is_made)
+
+
+def _disc(radius: float) -> np.ndarray:
+    reach = max(1, int(math.ceil(radius)))
+    offsets = np.arange(-reach, reach + 1)
+    return offsets[:, None] ** 2 + offsets[None, :] ** 2 <= max(radius, 1.0) ** 2
+
+
+def _simulate(
+    design: Design, fields: SheetFields, options: VerifyOptions
+) -> tuple[TargetDistance, ...]:
+    """The sheet of ``fields`` under every target's stimulus (and, if asked, the sheet as
+    designed on the same mesh)."""
+    stride = options.stride or _stride(design)
+    settings = Settings(max_iterations=options.max_iterations)
+    spec = spec_from_json(design.spec)
+    reference = None
+    if options.reference:
+        own = design_fields(design)
+        reference = SheetFields(own.theta, own.features, fields.made)
+    out = []
+    for surface in range(1, len(spec.targets)):
+        if spec.targets[surface].surface.embed(np.zeros((1, 2))) is None:
+            continue  # intrinsic target: nothing to compare in 3D
+        started = time.perf_counter()
+        coarse, simulation = simulate_sheet(
+            design, fields, surface, settings=settings, trim=options.trim, stride=stride
+        )
+        made = compare(coarse, simulation)
+        seconds = time.perf_counter() - started
+        designed = None
+        if reference is not None:
+            coarse, simulation = simulate_sheet(
+                design, reference, surface, settings=settings, trim=options.trim, stride=stride
+            )
+            designed = compare(coarse, simulation)
+        out.append(
+            TargetDistance(
+                target=made.name,
+                surface=surface,
+                rms_pct=100 * made.rms,
+                max_pct=100 * made.max,
+                mirrored=made.mirrored,
+                converged=made.converged,
+                triangles=made.triangles,
+                seconds=seconds,
+                designed_rms_pct=100 * designed.rms if designed else None,
+                designed_max_pct=100 * designed.max if designed else None,
+                designed_converged=designed.converged if designed else None,
+            )
+        )
+    return tuple(out)
+
+
+def _stride(design: Design) -> int:
+    """The grid coarsening that leaves about TARGET_TRIANGLES triangles."""
+    valid = design.valid
+    cells = int((valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:] & valid[1:, 1:]).sum())
+    return max(1, round(math.sqrt(2 * cells / TARGET_TRIANGLES)))

@@ -1,0 +1,323 @@
+"""Read a G-code file back as the machine runs it: where material goes, and how.
+
+Every command is read by the firmware's own reader (:mod:`fabkit.link.gcode`: GRBL, or
+Marlin and the Marlin-likes) and followed through the machine's modal state: absolute or
+relative positions (G90/G91) and E (M82/M83; on Marlin G91 also makes E relative),
+G92 position shifts, homing (G28: the homed axes at 0), the feed (F, mm/min), the
+material switches of the profile (``flow_on_gcode`` / ``flow_off_gcode`` for the first
+ink, ``ink2_on_gcode`` / ``ink2_off_gcode`` for the second: valves, a beam or tool
+changes), the dispense pressure (the profile's ``[pressure]`` command ``S<n>``), the
+nozzle temperature (M104/M109 S) and a mixing extruder's ratio (M163 S<i> P<w>, applied
+by M164).
+
+A move deposits material when E advances (machines whose flow follows E) or while a
+material switch is on (the others). Each depositing move is a :class:`Segment` of a road;
+a road ends where the machine stops depositing. Arcs (G2/G3) and positions the file never
+sets are refused, naming the line. Nothing of the writer is used: the placement of the
+sheet on the machine is read from fabkit's own header comments (``;fabkit ... offset
+X,Y,Z mm`` and ``;fabkit scale: S mm per design unit``) when the file has them.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fabkit.errors import FabkitError
+from fabkit.link.gcode import (
+    Block,
+    GcodeError,
+    is_extended,
+    read_grbl,
+    read_job,
+    read_marlin,
+)
+from fabkit.machines import MachineProfile
+
+HEADER_LINES = 200
+"""Leading lines searched for fabkit's placement comments."""
+_OFFSET = re.compile(r";fabkit .*offset\s+([-+\d.eE]+),([-+\d.eE]+)(?:,([-+\d.eE]+))?\s*mm")
+_SCALE = re.compile(r";fabkit scale:\s*([-+\d.eE]+)\s*mm per design unit")
+_MARLIN_LIKE = ("marlin", "klipper", "reprap", "hyrel")
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where the sheet sits on the machine: ``offset_mm`` (x, y) from the sheet's frame to
+    the machine's, ``mm_per_unit`` its scale (None = unknown), and where they came from."""
+
+    offset_mm: tuple[float, float] | None
+    mm_per_unit: float | None
+    source: str
+
+
+@dataclass(frozen=True, eq=False)
+class Printed:
+    """What a G-code file deposits, machine coordinates, per depositing segment (n,):
+    ``start``, ``end`` (n, 3) mm; ``feed`` mm/s; ``volume`` mm^3 (NaN without an E axis);
+    ``pressure`` kPa, ``temperature`` C, ``mix`` the second ink's share of a mixing
+    extruder (NaN where never set); ``ink`` 0/1 the ink switched on; ``road`` (n,) int.
+    ``layers`` counts the heights printed at; ``placement`` from the header."""
+
+    start: np.ndarray
+    end: np.ndarray
+    feed: np.ndarray
+    volume: np.ndarray
+    pressure: np.ndarray
+    temperature: np.ndarray
+    mix: np.ndarray
+    ink: np.ndarray
+    road: np.ndarray
+    layers: int
+    placement: Placement
+    commands: int
+
+
+_ACTIONS = {
+    "flow_on_gcode": ("first", True),
+    "flow_off_gcode": ("first", False),
+    "ink2_on_gcode": ("second", True),
+    "ink2_off_gcode": ("second", False),
+}
+
+
+class _Machine:
+    """The modal state of one job (see the module docstring)."""
+
+    def __init__(self, machine: MachineProfile) -> None:
+        if machine.gcode is None:
+            raise FabkitError(f"machine {machine.name} takes no G-code (flavour none)")
+        self.machine = machine
+        self.grbl = machine.flavour == "grbl"
+        self.extra = "A" if self.grbl and machine.kind == "laser_writer" else ""
+        self.has_e = not machine.gcode.flow_on_gcode.strip()
+        self.e_per_mm3 = e_per_mm3(machine) if self.has_e else 0.0
+        self.switches = self._switches()
+        self.pressure_block = self.read(machine.pressure.command) if machine.pressure else None
+        self.absolute = True
+        self.e_relative = False
+        self.position = [math.nan] * 3  # logical, mm
+        self.shift = [0.0] * 3  # machine = logical + shift
+        self.e = 0.0
+        self.feed = math.nan
+        self.on = {"first": False, "second": False}
+        self.pressure = math.nan
+        self.temperature = math.nan
+        self.weights = [math.nan, math.nan]
+        self.mix = math.nan
+        self.depositing = False
+        self.road = -1
+        self.rows: list[tuple] = []
+
+    def read(self, text: str) -> Block:
+        if self.grbl:
+            return read_grbl(text, self.extra)
+        return read_marlin(text, upper=self.machine.flavour == "klipper")
+
+    def _switches(self) -> dict[tuple, tuple[str, bool]]:
+        """The profile's material switch lines, by their reading (a line that is both an
+        on and an off of one ink is left out)."""
+        found: dict[tuple, set[tuple[str, bool]]] = {}
+        for key, action in _ACTIONS.items():
+            for line in self.machine.render(key):
+                found.setdefault(_signature(self.read(line)), set()).add(action)
+        return {sig: next(iter(acts)) for sig, acts in found.items() if len(acts) == 1}
+
+    def run(self, block: Block) -> None:
+        action = self.switches.get(_signature(block))
+        if action is not None:
+            ink, state = action
+            self.on[ink] = state
+            return
+        if self.pressure_block is not None and _is_pressure(block, self.pressure_block):
+            self.pressure = float(self.machine.pressure.kpa(block.values["S"]))
+            return
+        for code in block.codes:
+            handler = getattr(self, "_" + code.replace(".", "_"), None)
+            if handler is not None:
+                handler(block)
+
+    # -- modes and positions ----------------------------------------------------------
+
+    def _G90(self, block: Block) -> None:
+        self.absolute = True
+        if not self.grbl and self.machine.flavour == "marlin":
+            self.e_relative = False
+
+    def _G91(self, block: Block) -> None:
+        self.absolute = False
+        if not self.grbl and self.machine.flavour == "marlin":
+            self.e_relative = True
+
+    def _M82(self, block: Block) -> None:
+        self.e_relative = False
+
+    def _M83(self, block: Block) -> None:
+        self.e_relative = True
+
+    def _G92(self, block: Block) -> None:
+        for axis, letter in enumerate("XYZ"):
+            if letter in block.values:
+                machine = self.position[axis] + self.shift[axis]
+                self.position[axis] = block.values[letter]
+                self.shift[axis] = machine - block.values[letter]
+        if "E" in block.values:
+            self.e = block.values["E"]
+
+    def _G28(self, block: Block) -> None:
+        axes = [a for a, letter in enumerate("XYZ") if letter in block.flags | set(block.values)]
+        for axis in axes or range(3):
+            self.position[axis] = 0.0
+            self.shift[axis] = 0.0
+        self.depositing = False
+
+    def _G2(self, block: Block) -> None:
+        raise GcodeError("verify does not follow arcs (G2/G3)")
+
+    _G3 = _G2
+
+    def _G0(self, block: Block) -> None:
+        self._move(block)
+
+    _G1 = _G0
+
+    # -- process state --------------------------------------------------------------
+
+    def _M104(self, block: Block) -> None:
+        if "S" in block.values:
+            self.temperature = block.values["S"]
+
+    _M109 = _M104
+
+    def _M163(self, block: Block) -> None:
+        index = int(block.values.get("S", -1))
+        if index in (0, 1) and "P" in block.values:
+            self.weights[index] = block.values["P"]
+
+    def _M164(self, block: Block) -> None:
+        total = self.weights[0] + self.weights[1]
+        self.mix = self.weights[1] / total if total > 0 else math.nan
+
+    # -- motion -------------------------------------------------------------------
+
+    def _move(self, block: Block) -> None:
+        values = block.values
+        if "F" in values:
+            self.feed = values["F"] / 60.0
+        old = [p + s for p, s in zip(self.position, self.shift, strict=True)]
+        for axis, letter in enumerate("XYZ"):
+            if letter in values:
+                step = values[letter]
+                self.position[axis] = step if self.absolute else self.position[axis] + step
+        new = [p + s for p, s in zip(self.position, self.shift, strict=True)]
+        delta_e = 0.0
+        if "E" in values:
+            delta_e = values["E"] if self.e_relative else values["E"] - self.e
+            self.e = self.e + values["E"] if self.e_relative else values["E"]
+        moved = _differ(old[0], new[0]) or _differ(old[1], new[1])
+        flowing = delta_e > 0 if self.has_e else (self.on["first"] or self.on["second"])
+        if not (flowing and moved):
+            if ((moved or _differ(old[2], new[2])) and not flowing) or delta_e < 0:
+                self.depositing = False  # a travel or a retraction ends the road
+            return
+        if not all(math.isfinite(v) for v in (*old, *new)):
+            raise GcodeError("material is deposited from a position the file never set")
+        if not self.depositing:
+            self.road += 1
+            self.depositing = True
+        volume = delta_e / self.e_per_mm3 if self.has_e else math.nan
+        self.rows.append(
+            (
+                *old,
+                *new,
+                self.feed,
+                volume,
+                self.pressure,
+                self.temperature,
+                self.mix,
+                1 if self.on["second"] else 0,
+                self.road,
+            )
+        )
+
+
+def _differ(a: float, b: float) -> bool:
+    """Two coordinates differ (NaN = unknown differs from everything but NaN)."""
+    if math.isnan(a) or math.isnan(b):
+        return math.isnan(a) != math.isnan(b)
+    return abs(a - b) > 1e-9
+
+
+def _signature(block: Block) -> tuple:
+    return (block.codes, tuple(sorted(block.values.items())), tuple(sorted(block.flags)))
+
+
+def _is_pressure(block: Block, command: Block) -> bool:
+    """``block`` is the pressure command with an S word."""
+    if block.codes != command.codes or "S" not in block.values:
+        return False
+    return all(block.values.get(k) == v for k, v in command.values.items())
+
+
+def e_per_mm3(machine: MachineProfile) -> float:
+    """E units per mm^3 of material, from the profile's tool (docs/machines.md)."""
+    units = machine.tool.e_units or ("volume" if machine.flavour == "hyrel" else "filament")
+    if units == "volume":
+        return 1.0
+    if units == "pulses":
+        if not machine.tool.pulses_per_mm3:
+            raise FabkitError(
+                f"machine {machine.name}: E counts pulses but [tool] pulses_per_mm3 is not set"
+            )
+        return float(machine.tool.pulses_per_mm3)
+    return 4.0 / (math.pi * machine.tool.filament_diameter_mm**2)
+
+
+def read_gcode(path: str | Path, machine: MachineProfile) -> Printed:
+    """Read ``path`` as ``machine`` runs it (module docstring); one-line errors."""
+    path = Path(path)
+    commands = read_job(path)
+    state = _Machine(machine)
+    for command in commands:
+        text = command.text
+        try:
+            if machine.flavour == "klipper" and is_extended(text):
+                continue
+            state.run(state.read(text))
+        except GcodeError as exc:
+            raise FabkitError(f"{path}:{command.file_line}: {exc}") from None
+    rows = np.array(state.rows, dtype=float).reshape(-1, 13)
+    start, end = rows[:, 0:3], rows[:, 3:6]
+    heights = np.unique(np.round(start[:, 2], 6)) if len(rows) else np.zeros(0)
+    return Printed(
+        start=start,
+        end=end,
+        feed=rows[:, 6],
+        volume=rows[:, 7],
+        pressure=rows[:, 8],
+        temperature=rows[:, 9],
+        mix=rows[:, 10],
+        ink=rows[:, 11].astype(np.int8),
+        road=rows[:, 12].astype(np.int64),
+        layers=len(heights),
+        placement=read_placement(path),
+        commands=len(commands),
+    )
+
+
+def read_placement(path: Path) -> Placement:
+    """fabkit's placement comments among the first lines of a G-code file."""
+    offset, scale = None, None
+    with path.open(encoding="ascii", errors="replace") as handle:
+        for _, line in zip(range(HEADER_LINES), handle, strict=False):
+            found = _OFFSET.search(line)
+            if found:
+                offset = (float(found.group(1)), float(found.group(2)))
+            found = _SCALE.search(line)
+            if found:
+                scale = float(found.group(1))
+    return Placement(offset, scale, f"{path.name} header")
