@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fabkit.commands import help_of
 from fabkit.machines import RELATIONS
 from fabkit.writers.common import FORMATS, IMAGE_FORMATS
 from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
@@ -17,7 +18,7 @@ from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "export",
-        help="write G-code, DXF or laser-writer patterns for a machine",
+        help=help_of("export"),
         description="Write a toolpath or design as a machine file; everything is checked "
         "against the machine profile before anything is written (see docs/export.md).",
     )

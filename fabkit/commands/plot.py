@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fabkit.commands import help_of
 from fabkit.design.check import check_design
 from fabkit.design.design import Design
 from fabkit.design.patches import MESH_TYPES, write_patch_meshes
@@ -13,9 +14,7 @@ from fabkit.plot.report import html_report
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "plot", help="draw a design: pictures, actuated patches as meshes, HTML report"
-    )
+    parser = subparsers.add_parser("plot", help=help_of("plot"))
     parser.add_argument("design", help="design file (.npz) written by fabkit solve")
     parser.add_argument("--out", default="plots", help="output folder (default %(default)s)")
     parser.add_argument(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from fabkit.commands import help_of
 from fabkit.design.patches import MESH_TYPES
 from fabkit.pipeline import (
     BAROMORPH_MACHINE,
@@ -18,7 +19,7 @@ from fabkit.pipeline import (
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "run",
-        help="spec to machine files in one go: solve, check, pictures, toolpath, export, send",
+        help=help_of("run"),
     )
     parser.add_argument("spec", help="spec file (TOML), e.g. examples/two_shapes.toml")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")

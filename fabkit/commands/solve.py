@@ -5,13 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fabkit.design.report import describe, solve_to_file
+from fabkit.commands import help_of
 from fabkit.errors import FabkitError
-from fabkit.spec import load_spec
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("solve", help="solve a design spec into design.npz")
+    parser = subparsers.add_parser("solve", help=help_of("solve"))
     parser.add_argument("spec", help="spec file (TOML)")
     parser.add_argument("--out", default="design.npz", help="design file to write (.npz)")
     parser.add_argument("--step", type=float, help="grid step in u and v (design units)")
@@ -30,6 +29,9 @@ def parse_quadrants(text: str) -> list[list[int]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fabkit.design.report import describe, solve_to_file
+    from fabkit.spec import load_spec
+
     out = Path(args.out)
     if out.suffix != ".npz":
         raise FabkitError(f"--out {out}: a design file must end in .npz")

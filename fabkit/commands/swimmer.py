@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from fabkit.atomic import atomic_path, check_folder
+from fabkit.commands import help_of
 from fabkit.progress import ProgressBar
 from fabkit.swimmer.cycle import convergence, run_stroke
 from fabkit.swimmer.fabricate import fabricate
@@ -24,7 +25,7 @@ from fabkit.swimmer.spec import load_swimmer
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "swimmer",
-        help="simulate the bilayer swimmer's cycle, its motion per cycle, and make it",
+        help=help_of("swimmer"),
         description="Equilibrium shapes along the stimulus path, the force- and torque-free "
         "motion in Stokes flow (regularised Stokeslets), plots, the work bound per stage, "
         "and both layers' toolpath and G-code (docs/swimmer.md).",

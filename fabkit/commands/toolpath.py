@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from fabkit.commands import help_of
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.plan import PATTERNS
 
@@ -12,7 +13,7 @@ from fabkit.toolpath.plan import PATTERNS
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "toolpath",
-        help="print lines along the director of a design or director field (docs/toolpath.md)",
+        help=help_of("toolpath"),
         description="Evenly spaced print lines along the director, ordered, layered and "
         "encoded; writes toolpath.npz, quality.json and preview.png/svg into --out.",
     )
@@ -52,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     channels = subparsers.add_parser(
         "channels",
-        help="baromorph channels along the director, and their casting mould (STL)",
+        help=help_of("channels"),
         description="Channels along the director with widths from eps, a manifold to one "
         "inlet, walls of at least min_wall_mm; writes channels.json, mould.stl and "
         "channels.png/svg into --out.",

@@ -9,12 +9,13 @@ from __future__ import annotations
 import argparse
 import json
 
+from fabkit.commands import help_of
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "verify",
-        help="read a machine file back (G-code, DXF, laser pattern) and check it against "
-        "its design, then simulate the sheet as fabricated",
+        help=help_of("verify"),
         description="Read the machine file as the machine would, independent of "
         "toolpath.npz: director, every feature (its calibration inverted) and coverage "
         "on the flat sheet, compared with the design; then the sheet as fabricated under "
