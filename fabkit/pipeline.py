@@ -7,7 +7,10 @@ feature the process does not encode is refused before any work, unless it is nam
 then read back and checked (``fabkit verify``, skipped with ``--no-verify``). Every stage
 writes
 through :func:`fabkit.atomic.atomic_path`, so an interrupted run leaves no half-written
-file under a final name, and re-running into the same folder replaces the files whole.
+file under a final name. The output folder is claimed first
+(:func:`fabkit.atomic.output_folder`): a folder holding an earlier run's files is refused
+unless ``--overwrite``, which removes exactly the files that run wrote (listed in the
+folder's ``.fabkit-files``); a folder holding files fabkit did not write is refused.
 
 Files in the output folder:
 
@@ -33,7 +36,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from fabkit.atomic import atomic_path, check_folder
+from fabkit.atomic import atomic_path, check_folder, output_folder, record
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
 from fabkit.design.report import solve_to_file
 from fabkit.errors import FabkitError
@@ -64,7 +67,8 @@ class RunOptions:
     ``formats`` None: DXF for baromorph channels, laser patterns on a laser writer, else
     G-code. ``machine`` None: laser_cutter for baromorph channels, else a pneumatic DIW.
     ``ignore_features`` are left out of the machine file on purpose; ``verify`` reads the
-    machine file back and checks it (:mod:`fabkit.verify`).
+    machine file back and checks it (:mod:`fabkit.verify`). ``overwrite`` replaces the
+    files an earlier run wrote into ``out`` (else such a folder is refused).
     """
 
     spec: str
@@ -80,6 +84,7 @@ class RunOptions:
     mesh_format: str = "ply"
     ignore_features: tuple[str, ...] = ()
     verify: bool = True
+    overwrite: bool = False
 
 
 def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dict[str, Any]:
@@ -90,6 +95,12 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     """
     options = _with_defaults(options)
     spec = _check_inputs(options)
+    with output_folder(options.out, f"--out {options.out}", options.overwrite):
+        return _stages(options, spec, say)
+
+
+def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict[str, Any]:
+    """Every stage in turn, into the claimed output folder; returns the key figures."""
     out = Path(options.out)
     notice = _notice(options)
     if notice:
@@ -299,6 +310,7 @@ def _laser_patterns(options: RunOptions, out: Path, say: Callable[[str], None]) 
             size_mm=options.size_mm, process=process, ignore_features=options.ignore_features
         ),
     )
+    record(out / "laser")  # the laser writer renames a whole folder into place
     caption = "Photoalignment pattern: binned director angle and the dose of each exposure (mm)"
     return _Fabricated({"exports": {"laser": summary}}, (caption, out / "laser" / "preview.png"))
 

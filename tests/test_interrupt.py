@@ -21,6 +21,7 @@ import pytest
 import trimesh
 from PIL import Image
 
+from fabkit.atomic import MANIFEST
 from fabkit.design.design import Design
 from tests.conftest import EXAMPLES
 
@@ -54,6 +55,10 @@ def assert_complete(out: Path) -> list[str]:
             assert path.read_text().rstrip().endswith("</html>")
         elif suffix == ".gcode":
             assert path.read_text().endswith("\n")
+        elif name == MANIFEST:  # every file the run finished is listed for --overwrite
+            listed = set(path.read_text().split())
+            present = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()}
+            assert present - {MANIFEST} <= listed
         else:
             raise AssertionError(f"unexpected file {name}")
     return names

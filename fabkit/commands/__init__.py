@@ -11,6 +11,7 @@ without importing any of the modules, and imports only the module of the command
 
 from __future__ import annotations
 
+import argparse
 from typing import NamedTuple
 
 
@@ -60,3 +61,13 @@ COMMANDS: dict[str, Command] = {
 def help_of(name: str) -> str:
     """The one-line help of sub-command ``name`` (for its module's ``add_parser``)."""
     return COMMANDS[name].help
+
+
+def add_overwrite(parser: argparse.ArgumentParser, option: str = "--out") -> None:
+    """The ``--overwrite`` option of a command that writes a folder (see fabkit.atomic)."""
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help=f"replace the files an earlier fabkit run wrote into {option} (without it such "
+        "a folder is refused; files fabkit did not write are never touched)",
+    )

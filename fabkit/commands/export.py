@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fabkit.commands import help_of
+from fabkit.commands import add_overwrite, help_of
 from fabkit.machines import RELATIONS
 from fabkit.writers.common import FORMATS, IMAGE_FORMATS
 from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
@@ -26,6 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--machine", required=True, help="profile name or .toml path")
     parser.add_argument("--format", required=True, choices=FORMATS)
     parser.add_argument("-o", "--out", required=True, help="output file (laser: a directory)")
+    add_overwrite(parser, "-o (laser: a directory)")
     parser.add_argument(
         "--offset",
         type=_numbers,
@@ -114,5 +115,13 @@ def run(args: argparse.Namespace) -> int:
             "image_format": args.image_format,
         },
     )
-    print(export(args.input, args.machine, args.format, args.out, options))
+    if args.format != "laser":
+        print(export(args.input, args.machine, args.format, args.out, options))
+        return 0
+    from fabkit.atomic import output_folder, record
+
+    with output_folder(args.out, f"-o {args.out}", args.overwrite, whole=True):
+        summary = export(args.input, args.machine, args.format, args.out, options)
+        record(args.out)
+    print(summary)
     return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.commands import help_of
+from fabkit.commands import add_overwrite, help_of
 from fabkit.design.patches import MESH_TYPES
 from fabkit.pipeline import (
     BAROMORPH_MACHINE,
@@ -86,6 +86,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PORT",
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
     )
+    add_overwrite(parser)
     parser.set_defaults(func=run)
 
 
@@ -104,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         mesh_format=args.mesh_format,
         ignore_features=tuple(args.ignore_feature),
         verify=not args.no_verify,
+        overwrite=args.overwrite,
     )
     figures = run_pipeline(options)
     print(

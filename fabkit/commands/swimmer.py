@@ -6,8 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
-from fabkit.atomic import atomic_path, check_folder
-from fabkit.commands import help_of
+from fabkit.atomic import atomic_path, output_folder
+from fabkit.commands import add_overwrite, help_of
 from fabkit.progress import ProgressBar
 from fabkit.swimmer.cycle import convergence, run_stroke
 from fabkit.swimmer.fabricate import fabricate
@@ -39,11 +39,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="skip the re-solves with half the stations and fewer Stokeslet points",
     )
     parser.add_argument("--no-fabricate", action="store_true", help="skip toolpath and G-code")
+    add_overwrite(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    check_folder(args.out, f"--out {args.out}")
+    with output_folder(args.out, f"--out {args.out}", args.overwrite):
+        return _swimmer(args)
+
+
+def _swimmer(args: argparse.Namespace) -> int:
     spec = load_swimmer(args.spec)
     if args.stations is not None:
         spec = spec.with_path(spec.path, args.stations)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from fabkit.commands import help_of
+from fabkit.atomic import output_folder
+from fabkit.commands import add_overwrite, help_of
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.plan import PATTERNS
 
@@ -49,6 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--pattern", choices=PATTERNS, default="same", help="layer pattern")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--json", action="store_true", help="also write toolpath.json")
+    add_overwrite(parser)
     parser.set_defaults(func=run)
 
     channels = subparsers.add_parser(
@@ -63,6 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--baromorph", required=True, metavar="FILE", help="TOML with a [baromorph] table"
     )
     channels.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    add_overwrite(channels)
     channels.set_defaults(func=run_channels)
 
 
@@ -94,7 +97,8 @@ def _fields(args: argparse.Namespace, **extra) -> ToolpathJob:
 
 
 def run_channels(args: argparse.Namespace) -> int:
-    result = run_channel_job(ChannelJob(_fields(args), args.baromorph, args.out))
+    with output_folder(args.out, f"--out {args.out}", args.overwrite):
+        result = run_channel_job(ChannelJob(_fields(args), args.baromorph, args.out))
     print(result.report.summary())
     for path in result.files:
         print(f"wrote {path}")
@@ -117,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
         out=args.out,
         json=args.json,
     )
-    result = run_job(job)
+    with output_folder(args.out, f"--out {args.out}", args.overwrite):
+        result = run_job(job)
     for warning in result.plan.warnings:
         print(f"fabkit: warning: {warning}", file=sys.stderr)
     for index, quality in enumerate(result.plan.quality):
