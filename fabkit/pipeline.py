@@ -34,12 +34,13 @@ import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fabkit.atomic import atomic_path, check_folder, output_folder, record
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
-from fabkit.design.report import solve_to_file
+from fabkit.design.report import checked_points, solve_to_file
 from fabkit.errors import FabkitError
+from fabkit.figures import AREA_UNIT
 from fabkit.machines import load_machine
 from fabkit.plot import render_design
 from fabkit.plot.report import html_report
@@ -48,7 +49,10 @@ from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.process import load_process, resolve_channels
 from fabkit.writers.dxf import layout_layers, write_dxf
-from fabkit.writers.export import ExportOptions, export
+from fabkit.writers.export import ExportOptions, describe_dxf, export
+
+if TYPE_CHECKING:
+    from fabkit.link.session import SendReport
 
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
 DEFAULT_MACHINE = "marlin_diw_pneumatic"
@@ -113,6 +117,11 @@ def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict
         f"      {solved['valid_points']} valid points in {solved['solve_seconds']:.2f} s; "
         f"check {'passed' if check.passed else 'FAILED'}"
     )
+    say(f"      {checked_points(solved['check'])}")
+    say(
+        f"      area over the solved cells ({AREA_UNIT}): "
+        + ", ".join(f"{k} {v:.4g}" for k, v in solved["area_design_units2"].items())
+    )
 
     say("[2/7] drawing pictures and patch meshes")
     pictures = render_design(solution.design, out / "pictures")
@@ -135,7 +144,7 @@ def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict
         say(f"[6/7] sending sheet.gcode to {options.send}")
         from fabkit.link.send import send_file
 
-        sent = send_file(out / "sheet.gcode", options.send, machine=options.machine).summary()
+        sent = _sent(send_file(out / "sheet.gcode", options.send, machine=options.machine))
     else:
         say("[6/7] not sending (no --send)")
 
@@ -144,7 +153,10 @@ def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict
         **({"notice": notice} if notice else {}),
         "spec": str(options.spec),
         "machine": options.machine,
-        "solve": {k: solved[k] for k in ("solve_seconds", "valid_points", "areas", "stop_counts")},
+        "solve": {
+            k: solved[k]
+            for k in ("solve_seconds", "valid_points", "area_design_units2", "stop_counts")
+        },
         "check": check.to_dict(),
         **fabricated.figures,
         "verify": verification,
@@ -244,6 +256,22 @@ def _verify(
     return result.to_dict()
 
 
+def _sent(report: SendReport) -> dict[str, Any]:
+    """What ``--send`` did, each figure named with its unit (report.json, report.html)."""
+    return {
+        "port": report.port,
+        "protocol": report.protocol,
+        "job_lines": report.job_lines,
+        "file_lines": f"{report.first_file_line}-{report.last_file_line}",
+        "seconds": round(report.elapsed_s, 3),
+        "lines_per_second": round(report.lines_per_s, 1),
+        "resent_lines": report.resends,
+        "status_queries_between_lines": report.probes,
+        "recoveries_from_lost_answers": report.recoveries,
+        "warnings": list(report.warnings),
+    }
+
+
 def _with_defaults(options: RunOptions) -> RunOptions:
     """Fill in the machine and the formats that suit the route (see :class:`RunOptions`)."""
     machine = options.machine or (BAROMORPH_MACHINE if options.baromorph else DEFAULT_MACHINE)
@@ -332,7 +360,7 @@ def _channels(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fa
     figures = {
         "channels": asdict(result.report),
         "mould": str(out / "channels" / "mould.stl"),
-        "exports": {"dxf": f"wrote {out / 'channels.dxf'}: {drawing}"},
+        "exports": {"dxf": describe_dxf(out / "channels.dxf", drawing, options.machine)},
     }
     caption = "Baromorph channels coloured by width (walls grey), inlet red"
     return _Fabricated(figures, (caption, out / "channels" / "channels.png"))

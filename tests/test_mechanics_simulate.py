@@ -10,8 +10,8 @@ from scipy.spatial import Delaunay
 
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
+from fabkit.figures import cell_integral
 from fabkit.mechanics.compare import align, compare, integrated_curvature
-from fabkit.mechanics.energy import grid_integral
 from fabkit.mechanics.mesh import design_mesh, disc_mesh
 from fabkit.mechanics.metric import edge_lengths, metric_from_director, metric_from_lengths
 from fabkit.mechanics.shell import Sheet
@@ -170,7 +170,7 @@ def test_refined_design_mesh_splits_every_cell(fig1_design):
     # the sheet as made: its area in the reference metric against the designed flat area
     # iint alpha beta du dv; unrefined cells are too long and curved to carry it
     design = fig1_design
-    designed = grid_integral(design.alpha * design.beta, design.valid, design.step)
+    designed = cell_integral(design.alpha * design.beta, design.valid, design.step)
     coarse_error = abs(made_area(design, mesh) / designed - 1)
     fine_error = abs(made_area(design, fine) / designed - 1)
     assert fine_error < 0.005 and fine_error < 0.5 * coarse_error

@@ -89,6 +89,8 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
     channels = json.loads((out / "report.json").read_text())["channels"]
     assert channels["valid"] and channels["connected"]
     assert channels["max_width_error"] <= 0.01 and channels["min_wall_mm"] >= 0.6
+    drawing = json.loads((out / "report.json").read_text())["exports"]["dxf"]
+    assert "entities per layer CHANNELS" in drawing and "Summary(" not in drawing  # no repr
     document = ezdxf.readfile(out / "channels.dxf")
     assert len(document.audit().errors) == 0
     layers = {entity.dxf.layer for entity in document.modelspace()}

@@ -188,7 +188,7 @@ def test_cli_solve_and_check(run_cli, tmp_path):
     assert code == 0 and "valid points" in text
     summary = json.loads(out.with_suffix(".json").read_text())
     assert summary["valid_points"] > 500 and summary["check"]["passed"]
-    assert set(summary["areas"]) == {"flat", "sphere", "bump"}
+    assert set(summary["area_design_units2"]) == {"flat", "sphere", "bump"}
     assert summary["stop_counts"]
     code, text, _ = run_cli("check", out)
     assert code == 0 and "sphere" in text

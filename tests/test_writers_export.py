@@ -45,7 +45,7 @@ def test_gcode_for_both_examples(run_cli, tmp_path, toolpaths):
         "--e-mode",
         "relative",
     )
-    assert code == 0 and err == "" and "wrote" in out and "E relative (filament)" in out
+    assert code == 0 and err == "" and "wrote" in out and "E relative, in filament units" in out
     run = replay((tmp_path / "fig1.gcode").read_text())
     volume = run.e_step.sum() * 3.141592653589793 * 1.75**2 / 4
     assert volume == pytest.approx(

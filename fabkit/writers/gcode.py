@@ -923,7 +923,7 @@ def _header(
     if setup.e_units == "filament":
         lines.append(f"; filament used [mm] = {summary.e_total:.2f}")
     lines += [
-        f";fabkit print path {summary.print_length_mm:.3f} mm, travel path "
+        f";fabkit printing path {summary.print_length_mm:.3f} mm, non-printing path "
         f"{summary.travel_length_mm:.3f} mm, volume {summary.volume_mm3:.4f} mm^3, "
         f"time {summary.duration_s:.1f} s",
         f";fabkit E mode {setup.e_mode}, E units {setup.e_units}, "
