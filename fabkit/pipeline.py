@@ -362,5 +362,8 @@ def _channels(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fa
         "mould": str(out / "channels" / "mould.stl"),
         "exports": {"dxf": describe_dxf(out / "channels.dxf", drawing, options.machine)},
     }
-    caption = "Baromorph channels coloured by width (walls grey), inlet red"
+    caption = (
+        "Baromorph channels coloured by their local width (mm), manifold dark grey, sheet "
+        "(walls) light grey, inlet red"
+    )
     return _Fabricated(figures, (caption, out / "channels" / "channels.png"))
