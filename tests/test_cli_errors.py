@@ -433,7 +433,7 @@ CASES = [
     ),
     case(
         "export {design} --machine dmd_photoalign --format laser -o {blocker} --size 5",
-        "exists and is not a directory",
+        "exists and is not a folder",
         outputs=(),
         id="export-laser-out-is-file",
     ),

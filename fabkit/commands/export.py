@@ -51,6 +51,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     gcode.add_argument("--filament-diameter", type=float, help="mm (default 1.75)")
     gcode.add_argument("--pulses-per-mm3", type=float, help="pulse extruder calibration")
     gcode.add_argument(
+        "--nominal-e",
+        action="store_true",
+        default=None,
+        help="a Marlin valve machine: also write E (the roads' volume as filament) that the "
+        "firmware ignores, so that slicer viewers show the roads as extrusions (default: "
+        "the profile's [tool] nominal_e)",
+    )
+    gcode.add_argument(
         "--min-travel",
         type=float,
         default=GcodeOptions.retract_min_travel_mm,
@@ -99,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
             filament_diameter_mm=args.filament_diameter,
             pulses_per_mm3=args.pulses_per_mm3,
             retract_min_travel_mm=args.min_travel,
+            nominal_e=args.nominal_e,
         ),
         geometry=args.geometry,
         inlet_radius_mm=args.inlet_radius,

@@ -125,6 +125,11 @@ def describe_gcode(out: Path, s: GcodeSummary, machine: str) -> str:
     """The one-line summary of a written G-code file (``fabkit export``, ``report.json``)."""
     if s.e_mode == "none":
         extrusion = "no E axis: flow switched by the machine's flow on/off G-code"
+    elif s.nominal_e:
+        extrusion = (
+            "no E axis: flow switched by the machine's flow on/off G-code; nominal E "
+            f"{s.e_mode}, in {s.e_units} units, for G-code viewers (the firmware ignores it)"
+        )
     else:
         extrusion = f"E {s.e_mode}, in {s.e_units} units"
     return (
