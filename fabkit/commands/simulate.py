@@ -13,7 +13,7 @@ from fabkit.errors import FabkitError
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.simulate import SEEDS, Settings, simulate_design, surface_index
-from fabkit.progress import ProgressBar
+from fabkit.progress import ProgressBar, add_progress
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -52,6 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--out", type=Path, help="mesh of the result (.ply, .stl, .glb, .obj)")
     parser.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    add_progress(parser)
     parser.set_defaults(func=run)
 
 
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     design = Design.load(args.design)
     surface = surface_index(design, args.stimulus)
     settings = Settings(steps=args.steps, seed=args.seed, max_iterations=args.max_iterations)
-    bar = ProgressBar("simulating")
+    bar = ProgressBar("simulating", force=args.progress)
     try:
         simulation = simulate_design(
             design,

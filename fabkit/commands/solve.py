@@ -7,6 +7,7 @@ from pathlib import Path
 
 from fabkit.commands import help_of
 from fabkit.errors import FabkitError
+from fabkit.progress import add_progress
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -16,6 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--step", type=float, help="grid step in u and v (design units)")
     parser.add_argument("--diagonals", type=int, help="diagonals to march per quadrant")
     parser.add_argument("--quadrants", type=parse_quadrants, help='"all" or signs like "1,1;-1,1"')
+    add_progress(parser)
     parser.set_defaults(func=run)
 
 
@@ -38,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec).with_solver(
         step=args.step, diagonals=args.diagonals, quadrants=args.quadrants
     )
-    solved = solve_to_file(spec, out)
+    solved = solve_to_file(spec, out, progress=args.progress)
     print(describe(solved.summary, solved.check))
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0

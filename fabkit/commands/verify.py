@@ -10,6 +10,7 @@ import argparse
 import json
 
 from fabkit.commands import help_of
+from fabkit.progress import ProgressBar, add_progress
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -86,6 +87,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="Newton iterations per ramp step (default %(default)s)",
     )
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    add_progress(parser)
     parser.set_defaults(func=run)
 
 
@@ -117,6 +119,10 @@ def run(args: argparse.Namespace) -> int:
         max_iterations=args.max_iterations,
         baromorph=args.baromorph,
     )
-    result = verify(args.design, args.machine_file, options)
+    bar = ProgressBar("simulating the sheet as made", force=args.progress)
+    try:
+        result = verify(args.design, args.machine_file, options, bar)
+    finally:
+        bar.close()
     print(json.dumps(result.to_dict(), indent=2) if args.json else result.table())
     return 0

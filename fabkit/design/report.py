@@ -84,14 +84,17 @@ def check_grid_size(spec: Spec) -> None:
         )
 
 
-def solve_to_file(spec: Spec, out: str | Path, label: str = "solving") -> Solved:
-    """Solve with a progress bar, check, and write ``out`` (.npz) and its .json summary.
+def solve_to_file(
+    spec: Spec, out: str | Path, label: str = "solving", progress: bool = False
+) -> Solved:
+    """Solve with a progress bar (:mod:`fabkit.progress`: on a terminal, or if
+    ``progress``), check, and write ``out`` (.npz) and its .json summary.
 
     A grid larger than a design file may hold (DESIGN_NODES) is refused before solving.
     """
     out = Path(out)
     check_grid_size(spec)
-    bar = ProgressBar(label)
+    bar = ProgressBar(label, force=progress)
     try:
         solution = solve(spec, progress=bar)
     finally:

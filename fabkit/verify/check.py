@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -187,9 +188,14 @@ class Verification:
 
 
 def verify(
-    design_path: str | Path, machine_file: str | Path, options: VerifyOptions
+    design_path: str | Path,
+    machine_file: str | Path,
+    options: VerifyOptions,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Verification:
-    """Read ``machine_file`` back and check it against the design (module docstring)."""
+    """Read ``machine_file`` back and check it against the design (module docstring).
+
+    ``progress(done, total)`` follows the simulations: ramp steps over every target."""
     started = time.perf_counter()
     _check_options(options)
     design = Design.load(design_path)
@@ -217,7 +223,7 @@ def verify(
         notes.append("not simulated: a feature of the design is not in the machine file")
     else:
         fields = _sheet_fields(readback, resolution, sheet, scale, names)
-        targets = _simulate(design, fields, options)
+        targets = _simulate(design, fields, options, progress)
     return Verification(
         file=str(machine_file),
         kind=kind,
@@ -549,10 +555,13 @@ def _disc(radius: float) -> np.ndarray:
 
 
 def _simulate(
-    design: Design, fields: SheetFields, options: VerifyOptions
+    design: Design,
+    fields: SheetFields,
+    options: VerifyOptions,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[TargetDistance, ...]:
     """The sheet of ``fields`` under every target's stimulus (and, if asked, the sheet as
-    designed on the same mesh)."""
+    designed on the same mesh); ``progress`` over all their ramp steps."""
     stride = options.stride or _stride(design)
     settings = Settings(max_iterations=options.max_iterations)
     spec = spec_from_json(design.spec)
@@ -561,19 +570,42 @@ def _simulate(
         own = design_fields(design)
         reference = SheetFields(own.theta, own.features, fields.made)
     out = []
-    for surface in range(1, len(spec.targets)):
-        if spec.targets[surface].surface.embed(np.zeros((1, 2))) is None:
-            continue  # intrinsic target: nothing to compare in 3D
+    surfaces = [
+        s
+        for s in range(1, len(spec.targets))
+        if spec.targets[s].surface.embed(np.zeros((1, 2))) is not None  # else intrinsic
+    ]
+    runs = len(surfaces) * (2 if reference is not None else 1)
+
+    def part(k: int) -> Callable[[int, int], None] | None:
+        """The progress of the k-th simulation as part of them all."""
+        if progress is None:
+            return None
+        return lambda done, total: progress(k * total + done, runs * total)
+
+    for surface in surfaces:
         started = time.perf_counter()
         coarse, simulation = simulate_sheet(
-            design, fields, surface, settings=settings, trim=options.trim, stride=stride
+            design,
+            fields,
+            surface,
+            settings=settings,
+            trim=options.trim,
+            stride=stride,
+            progress=part(len(out) * (runs // len(surfaces))),
         )
         made = compare(coarse, simulation)
         seconds = time.perf_counter() - started
         designed = None
         if reference is not None:
             coarse, simulation = simulate_sheet(
-                design, reference, surface, settings=settings, trim=options.trim, stride=stride
+                design,
+                reference,
+                surface,
+                settings=settings,
+                trim=options.trim,
+                stride=stride,
+                progress=part(2 * len(out) + 1),
             )
             designed = compare(coarse, simulation)
         out.append(
