@@ -731,6 +731,7 @@ CASES = [
         "cannot open port",
         outputs=("{out}/report.json", "{out}/report.html"),
         id="run-send-no-such-device",
+        slow=True,  # a whole (coarse) run before the port
     ),
 ]
 

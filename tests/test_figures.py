@@ -16,6 +16,8 @@ import pytest
 
 from tests.conftest import EXAMPLES
 
+pytestmark = pytest.mark.slow  # every test reads one full fabkit run (about 15 s)
+
 SPEC = EXAMPLES / "two_shapes.toml"
 COARSE = ("--step", "0.1", "--diagonals", "30")
 

@@ -64,6 +64,7 @@ def assert_complete(out: Path) -> list[str]:
     return names
 
 
+@pytest.mark.slow
 def test_ctrl_c_while_writing_gcode(run_cli, tmp_path, monkeypatch):
     real_replace = os.replace
 
@@ -84,6 +85,7 @@ def test_ctrl_c_while_writing_gcode(run_cli, tmp_path, monkeypatch):
     assert {"design.npz", "design.json", "toolpath/toolpath.npz"} <= set(names)
 
 
+@pytest.mark.slow
 def test_ctrl_c_while_drawing_pictures(run_cli, tmp_path, monkeypatch):
     real_savefig = matplotlib.figure.Figure.savefig
     saved = []
@@ -105,6 +107,7 @@ def test_ctrl_c_while_drawing_pictures(run_cli, tmp_path, monkeypatch):
     assert not (out / "toolpath").exists() and not (out / "sheet.gcode").exists()
 
 
+@pytest.mark.slow
 def test_ctrl_c_while_writing_a_laser_pattern(run_cli, tmp_path, monkeypatch):
     real_save = Image.Image.save
 
@@ -139,6 +142,7 @@ run()
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("module", ["fabkit.cli", "fabkit.pipeline", "matplotlib", "scipy"])
 def test_ctrl_c_while_the_command_starts_is_one_line(tmp_path, module):
     """Ctrl-C while the CLI and its stages are imported: exit 130, one line, no traceback.

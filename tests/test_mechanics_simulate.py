@@ -47,6 +47,7 @@ def radial(p):
     return p
 
 
+@pytest.mark.slow
 def test_azimuthal_director_makes_a_cone():
     points, triangles = disc_mesh(1.0, 20)  # 2400 triangles
     metrics = director_metrics(points, triangles, azimuthal)
@@ -56,6 +57,7 @@ def test_azimuthal_director_makes_a_cone():
     assert integrated_curvature(result.positions, triangles) == pytest.approx(exact, rel=0.01)
 
 
+@pytest.mark.slow
 def test_radial_director_makes_an_anticone():
     points, triangles = disc_mesh(1.0, 10)  # 600 triangles
     metrics = director_metrics(points, triangles, radial)
@@ -66,6 +68,7 @@ def test_radial_director_makes_an_anticone():
     assert integrated_curvature(result.positions, triangles) == pytest.approx(-excess, rel=0.01)
 
 
+@pytest.mark.slow
 def test_isotropic_stereographic_metric_makes_a_spherical_cap():
     """a = (2 / (1 + r^2))^2 I on the disc r <= 0.7 is a cap of the unit sphere."""
     points, triangles = disc_mesh(1.0, 10)
@@ -83,6 +86,7 @@ def test_isotropic_stereographic_metric_makes_a_spherical_cap():
     assert alignment.max <= 0.02  # pointwise distance / R bounds the Hausdorff distance
 
 
+@pytest.mark.slow
 def test_bilayer_curls_with_timoshenko_curvature_towards_its_contracting_top():
     """Top layer contracting along x by 1 %, bottom unchanged, equal thicknesses, nu = 0:
     a cylinder of curvature 1.5 |strain| / h about y, bending towards the top layer."""
@@ -126,6 +130,7 @@ def fig1_design():
     return solve(build_spec(table, ROOT)).design
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("stimulus", "whole"), [("sphere", 0.075), ("bump", 0.026)])
 def test_fig1_targets_are_reproduced_where_the_sheet_is_wide_enough(fig1_design, stimulus, whole):
     """Thickness 1 % of the flat domain's size. Without the arms (regions under 0.5 in
@@ -185,6 +190,7 @@ def made_area(design, mesh) -> float:
     return float(np.sum(np.sqrt(np.linalg.det(metrics)) * flat))
 
 
+@pytest.mark.slow
 def test_simulate_cli_writes_the_mesh_and_reports(fig1_design, run_cli, tmp_path):
     path = tmp_path / "design.npz"
     fig1_design.save(path)

@@ -28,6 +28,7 @@ def listed(folder: Path) -> set[str]:
     return set((folder / MANIFEST).read_text().split())
 
 
+@pytest.mark.slow
 def test_overwrite_removes_exactly_the_earlier_files(run_cli, tmp_path):
     out = tmp_path / "out"
     assert run_cli("toolpath", *DISC, "--out", out, "--json")[0] == 0
@@ -48,6 +49,7 @@ def test_overwrite_removes_exactly_the_earlier_files(run_cli, tmp_path):
     )
 
 
+@pytest.mark.slow
 def test_overwrite_with_bad_input_leaves_the_earlier_files(run_cli, tmp_path):
     out = tmp_path / "out"
     assert run_cli("toolpath", *DISC, "--out", out, "--json")[0] == 0
@@ -59,6 +61,7 @@ def test_overwrite_with_bad_input_leaves_the_earlier_files(run_cli, tmp_path):
     assert {name: (out / name).read_bytes() for name in files(out)} == before
 
 
+@pytest.mark.slow
 def test_an_interrupted_run_lists_what_it_wrote(run_cli, tmp_path, monkeypatch):
     """Ctrl-C halfway: the files written so far are listed, so --overwrite clears them."""
     real_replace = os.replace
@@ -78,6 +81,7 @@ def test_an_interrupted_run_lists_what_it_wrote(run_cli, tmp_path, monkeypatch):
     assert listed(out) == files(out)
 
 
+@pytest.mark.slow
 def test_a_users_file_is_never_touched(run_cli, tmp_path):
     out = tmp_path / "out"
     assert run_cli("toolpath", *DISC, "--out", out)[0] == 0
@@ -103,6 +107,7 @@ def test_a_run_with_another_machine_leaves_no_file_of_the_first(run_cli, tmp_pat
     assert "laser/manifest.json" in names and listed(out) == names
 
 
+@pytest.mark.slow
 def test_laser_export_into_its_earlier_folder(run_cli, tmp_path):
     design = tmp_path / "design.npz"
     code, _, err = run_cli(

@@ -50,6 +50,7 @@ def test_patch_meshes_lie_on_their_targets(fig1_design, tmp_path):
         write_patch_mesh(fig1_design, 1, tmp_path / "sphere.xyz")
 
 
+@pytest.mark.slow
 def test_cli_plot_writes_pictures_meshes_and_report(run_cli, fig1_design, tmp_path):
     design_path = tmp_path / "design.npz"
     fig1_design.save(design_path)

@@ -59,6 +59,7 @@ def tiny_swimmer(tmp_path_factory):
     return spec
 
 
+@pytest.mark.slow
 def test_swimmer_progress_goes_to_stderr_only_when_asked(tiny_swimmer, tmp_path, run_cli):
     args = ("swimmer", tiny_swimmer, "--no-fabricate", "--out")
     code, quiet_out, quiet_err = run_cli(*args, tmp_path / "a")
@@ -85,6 +86,7 @@ def test_simulate_progress_when_asked(tmp_path, run_cli):
     assert "simulating" not in out
 
 
+@pytest.mark.slow
 def test_verify_progress_counts_every_simulation_when_asked(tmp_path, run_cli):
     out = tmp_path / "out"
     spec = EXAMPLES / "two_shapes.toml"

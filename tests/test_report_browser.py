@@ -43,6 +43,7 @@ def report(tmp_path_factory):
     return out / "report.html"
 
 
+@pytest.mark.slow
 def test_the_report_loads_without_console_errors_and_shows_every_picture(report):
     with Browser() as browser:
         browser.open(report.resolve().as_uri())

@@ -57,6 +57,7 @@ def solved(table: dict, **solver):
     return solve(build_spec(table, EXAMPLES))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", HARD)
 def test_hard_case_fails_check_without_error_control_and_passes_with_it(name):
     before = solved(hard_table(name, tolerance=NO_CONTROL))
@@ -160,6 +161,7 @@ def test_extrapolate_false_keeps_the_step_h_march_with_its_estimate(fig1):
     assert np.allclose(plain.error[both], richardson.error[both], rtol=0, atol=0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("example", "options"),
     [

@@ -120,6 +120,7 @@ def test_dxf_for_both_examples(run_cli, tmp_path, toolpaths):
     assert counts == {"PATHS": 4, "TRAVEL": 2, "CHANNELS": 1, "OUTLINE": 1, "INLET": 1}
 
 
+@pytest.mark.slow
 def test_laser_for_both_examples(run_cli, tmp_path):
     code, out, _ = run_cli(
         "export",
@@ -188,6 +189,7 @@ def test_bad_requests_are_one_line_errors(run_cli, tmp_path, toolpaths, args, me
     assert not out.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("source", "machine"),
     [
