@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,7 @@ from fabkit.errors import FabkitError
 from fabkit.limits import DESIGN_FEATURES, DESIGN_NODES, DESIGN_SURFACES, MAGNITUDE
 from fabkit.npzfile import ArrayHeader, check_magnitude, read_npz
 from fabkit.readfile import parse_json
+from fabkit.spec import Spec, spec_from_json
 
 FORMAT = "fabkit-design/2"
 """The format tag this version writes; a file without a tag is format 1 and still read."""
@@ -64,6 +66,11 @@ class Design:
     error: np.ndarray
     stimuli: np.ndarray
     spec: str
+
+    @cached_property
+    def problem(self) -> Spec:
+        """The spec this design solves, rebuilt once from the embedded JSON ``spec``."""
+        return spec_from_json(self.spec)
 
     @property
     def step(self) -> float:
