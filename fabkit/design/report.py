@@ -18,13 +18,13 @@ from fabkit.errors import FabkitError
 from fabkit.figures import AREA_UNIT, cell_integral
 from fabkit.limits import DESIGN_NODES
 from fabkit.progress import ProgressBar
-from fabkit.spec import Spec, spec_from_json
+from fabkit.spec import Spec
 
 
 def realised_areas(design: Design) -> dict[str, float]:
     """Area of the solved patch on every surface (design units^2): alpha beta lambda1 lambda2
     integrated over the solved cells (:func:`fabkit.figures.cell_integral`)."""
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     eps = np.where(design.valid, design.eps, 0.0)
     response = spec.material.response(eps, design.stimuli)
     valid = design.valid
@@ -40,7 +40,7 @@ def realised_areas(design: Design) -> dict[str, float]:
 def summary(solution: Solution, check: CheckReport) -> dict[str, Any]:
     """Solve time, grid, valid points, areas, stops and residuals as plain JSON data."""
     design = solution.design
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     stops = [
         {"reason": s.reason, "u": round(s.u, 12), "v": round(s.v, 12), "surface": s.surface}
         for s in solution.stops
