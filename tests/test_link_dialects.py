@@ -22,6 +22,7 @@ from tests.test_link_support import executed, marlin_job, quick, run_sim, runs_t
 FAST = "sim://marlin?time_scale=0&baud=0"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dialect", list(DIALECTS))
 def test_corruption_and_lost_oks_in_every_dialect(dialect):
     job = marlin_job(1500, seed=4)

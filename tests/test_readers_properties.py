@@ -326,6 +326,7 @@ def test_a_mutated_csv_height_map_is_read_or_refused(data, folder):
     refused_or(_grid_reader(path), tuple)
 
 
+@pytest.mark.slow
 @FEW
 @given(data=st.data())
 def test_a_mutated_png_height_map_is_read_or_refused(data, folder):

@@ -106,6 +106,7 @@ def test_error_estimate_is_second_order(fig1):
     assert 3.0 < ratio < 5.5, ratio
 
 
+@pytest.mark.slow
 def test_tight_tolerance_stops_and_drops_quarter_planes(fig1):
     loose = solved(json.loads(json.dumps(fig1)), step=0.1, diagonals=20).design
     tight = solved(fig1, step=0.1, diagonals=20, tolerance=1e-3)
@@ -151,6 +152,7 @@ def test_tolerance_key(fig1):
         build_spec(fig1, EXAMPLES)
 
 
+@pytest.mark.slow
 def test_extrapolate_false_keeps_the_step_h_march_with_its_estimate(fig1):
     richardson = solved(json.loads(json.dumps(fig1)), step=0.1, diagonals=20).design
     plain = solved(fig1, step=0.1, diagonals=20, extrapolate=False).design

@@ -222,6 +222,7 @@ def test_dxf_round_trip(tmp_path, parameters):
     assert road.max() + 1 == prints
 
 
+@pytest.mark.slow
 def test_laser_round_trip_of_both_doses(tmp_path):
     field = _field()
     machine = load_machine("dmd_photoalign")
