@@ -166,7 +166,7 @@ class Part:
     def summary(self) -> str:
         """One line: the kept area and what removed what."""
         unit = self.mm_per_unit or 1.0
-        length = " mm" if self.mm_per_unit else ""
+        length = " mm" if self.mm_per_unit else " design units"
         parts = []
         for step, area in self.removed:
             share = 100 * area / self.solved.area
@@ -176,7 +176,9 @@ class Part:
             elif step == "min width":
                 step = f"min width {self.rules.min_width * unit:.3g}{length}"
             parts.append(f"{step} -{share:.1f} %")
-        return f"part: {100 * self.kept:.1f} % of the solved area kept ({', '.join(parts)})"
+        area = f"{self.outline.area * unit**2:.4g} of {self.solved.area * unit**2:.4g}"
+        area += " mm2" if self.mm_per_unit else " design units squared"
+        return f"part: {100 * self.kept:.1f} % of the solved area kept ({area}; {', '.join(parts)})"
 
 
 def solved_region(design: Design, where: str = "design") -> shapely.Polygon | shapely.MultiPolygon:
@@ -385,6 +387,17 @@ def diameter(region: shapely.Geometry) -> float:
     hull = np.asarray(shapely.get_coordinates(region.convex_hull), dtype=float)
     differences = hull[:, None, :] - hull[None, :, :]
     return float(np.sqrt(np.max(np.einsum("ijk,ijk->ij", differences, differences))))
+
+
+def check_part_options(min_width_mm: float | None, trim: float | None, outline: str | None) -> None:
+    """Refuse bad part options before any work: lengths negative or not finite, an outline
+    that cannot be read."""
+    if min_width_mm is not None:
+        _check_length(min_width_mm, "--min-width")
+    if trim is not None:
+        _check_length(trim, "--trim")
+    if outline is not None:
+        read_outline(outline)
 
 
 def _check_length(value: float, name: str, positive: bool = False) -> None:
