@@ -264,9 +264,11 @@ def make_part(
     region = polygonal(region.intersection(limit))
     if region.is_empty:
         steps = ", ".join(f"{step} -{100 * area / solved.area:.0f} %" for step, area in removed)
+        hint = "smaller --min-width or --trim, or a larger --size"
+        if rules.outline is not None:
+            hint += ", or an --outline that overlaps the sheet (mm, sheet frame)"
         raise FabkitError(
-            f"{where}: nothing of the solved domain is left for the part ({steps}): give a "
-            "smaller --min-width or --trim, or a larger --size"
+            f"{where}: nothing of the solved domain is left for the part ({steps}): give a {hint}"
         )
     return Part(region, solved, rules, tuple(removed), mm_per_unit, length)
 
