@@ -45,6 +45,8 @@ from fabkit.design.report import solve_to_file
 from fabkit.errors import FabkitError
 from fabkit.machines import load_machine
 from fabkit.part import (
+    MIN_WIDTH_PITCHES,
+    MIN_WIDTH_ROADS,
     Part,
     PartOptions,
     check_part_options,
@@ -231,15 +233,17 @@ def _notice(options: RunOptions) -> str:
 
 def _part(options: RunOptions, design: Design) -> Part:
     """The part of the flat sheet that is made, at the run's size, for its process: the
-    road width (a baromorph's channel pitch) and one layer's height (a baromorph's part
-    thickness) set the default minimum width and the trim."""
+    road width (a baromorph's: two channel pitches) and one layer's height (a baromorph's
+    part thickness) set the default minimum width and the trim."""
     if options.baromorph:
         settings = load_baromorph(options.baromorph)
         road, thickness = settings.pitch_mm, settings.part_thickness_mm
+        roads = MIN_WIDTH_PITCHES
     else:
         machine = load_machine(options.machine)
         process = load_process(options.process_file) if options.process_file else machine.process
         road, thickness = process.road_width_mm, process.layer_height_mm
+        roads = MIN_WIDTH_ROADS
     solved = solved_region(design)
     return print_part(
         design,
@@ -250,6 +254,7 @@ def _part(options: RunOptions, design: Design) -> Part:
             outline=options.outline,
             road_width_mm=road,
             thickness_mm=thickness,
+            roads=roads,
         ),
         solved,
     )

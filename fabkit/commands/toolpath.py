@@ -94,7 +94,8 @@ def part_arguments(parser: argparse.ArgumentParser) -> None:
         "--min-width",
         type=float,
         metavar="MM",
-        help="remove parts narrower than this (default 4 road widths; 0: keep them)",
+        help="remove parts narrower than this (default 4 road widths, channels 2 pitches; "
+        "0: keep them)",
     )
     part.add_argument(
         "--trim",

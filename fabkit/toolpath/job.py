@@ -34,7 +34,7 @@ from fabkit.fields import (
 )
 from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES
 from fabkit.outlines import read_outline
-from fabkit.part import Part, PartOptions
+from fabkit.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
 from fabkit.process import Process
 from fabkit.toolpath.baromorph import (
     ChannelLayout,
@@ -153,17 +153,21 @@ def _check_extent(fields: list[FlatField], road_width_mm: float, layers: int) ->
 
 
 def load_fields(
-    job: ToolpathJob, road_width_mm: float | None = None, thickness_mm: float | None = None
+    job: ToolpathJob,
+    road_width_mm: float | None = None,
+    thickness_mm: float | None = None,
+    roads: float = MIN_WIDTH_ROADS,
 ) -> list[FlatField]:
     """The flat-sheet fields of the job's inputs, in order (bottom layer first); a design
     is cut to its part for a process of this road width (mm) making a sheet this thick
-    (mm)."""
+    (mm), by default no narrower than ``roads`` road widths."""
     options = PartOptions(
         min_width_mm=job.min_width_mm,
         trim=job.trim,
         outline=job.outline,
         road_width_mm=road_width_mm,
         thickness_mm=thickness_mm,
+        roads=roads,
     )
     if job.part is not None and len(job.inputs) != 1:
         raise FabkitError("a part made already goes with one design input")
@@ -247,7 +251,9 @@ def run_channel_job(job: ChannelJob) -> ChannelResult:
     """Lay out, check and write baromorph channels and their mould."""
     check_folder(job.out, f"--out {job.out}")
     settings = load_baromorph(job.baromorph)
-    fields = load_fields(job.fields, settings.pitch_mm, settings.part_thickness_mm)
+    fields = load_fields(
+        job.fields, settings.pitch_mm, settings.part_thickness_mm, MIN_WIDTH_PITCHES
+    )
     if len(fields) != 1:
         raise FabkitError("channels: give exactly one input field")
     layout = layout_channels(fields[0], settings)

@@ -37,7 +37,7 @@ from fabkit.machines import MachineProfile, load_machine
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
 from fabkit.mechanics.simulate import Settings
-from fabkit.part import Part, PartOptions
+from fabkit.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
 from fabkit.process import Encode, Process, Resolution
 from fabkit.readfile import read_json
 from fabkit.spec import spec_from_json
@@ -255,15 +255,18 @@ def _part_options(options: VerifyOptions, process: Process, layers: int) -> Part
     """How the file's maker cut the part: the options, the process's road width, and a
     sheet as thick as the layers the file prints (a baromorph drawing: its part)."""
     if options.baromorph:
-        thickness = load_baromorph(options.baromorph).part_thickness_mm
+        settings = load_baromorph(options.baromorph)
+        road, thickness, roads = settings.pitch_mm, settings.part_thickness_mm, MIN_WIDTH_PITCHES
     else:
-        thickness = layers * process.layer_height_mm
+        road, thickness = process.road_width_mm, layers * process.layer_height_mm
+        roads = MIN_WIDTH_ROADS
     return PartOptions(
         min_width_mm=options.min_width_mm,
         trim=options.trim,
         outline=options.outline,
-        road_width_mm=process.road_width_mm,
+        road_width_mm=road,
         thickness_mm=thickness,
+        roads=roads,
     )
 
 
