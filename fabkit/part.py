@@ -233,8 +233,13 @@ def scale_for_size(solved: shapely.Geometry, size_mm: float) -> float:
 
 
 def bending_length(design: Design, thickness: float) -> float | None:
-    """sqrt(h R) (design units) for thickness h; None when every target is flat."""
-    spec = spec_from_json(design.spec)
+    """sqrt(h R) (design units) for thickness h; None when every target is flat, or the
+    design carries no spec with targets (a design made by other means than the solver:
+    nothing to say how curved it becomes)."""
+    try:
+        spec = spec_from_json(design.spec)
+    except FabkitError:
+        return None
     scales = [
         np.percentile(np.abs(target.surface.curvature(design.r[j][design.valid])), 95)
         for j, target in enumerate(spec.targets)
@@ -398,7 +403,8 @@ def simulation_part(
     solved = solved_region(design)
     if thickness is None:
         thickness = SIMULATE_THICKNESS * diameter(solved)
-    _check_length(thickness, "--thickness", positive=True)
+    if not (math.isfinite(thickness) and thickness > 0):
+        raise FabkitError(f"--thickness {thickness:g}: thickness must be positive and finite")
     part = make_part(design, PartRules(thickness=thickness, trim=trim), None, solved)
     return part, thickness
 

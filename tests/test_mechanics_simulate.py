@@ -195,7 +195,7 @@ def test_simulate_cli_writes_the_mesh_and_reports(fig1_design, run_cli, tmp_path
     fig1_design.save(path)
     mesh = tmp_path / "sphere.ply"
     code, out, _ = run_cli(
-        "simulate", path, "--stimulus", "1", "--trim", "5", "--refine", "2", "--out", mesh, "--json"
+        "simulate", path, "--stimulus", "1", "--refine", "2", "--out", mesh, "--json"
     )
     assert code == 0 and mesh.stat().st_size > 0
     assert json.loads(out)["rms"] <= 0.02
@@ -206,7 +206,7 @@ def test_simulate_cli_writes_the_mesh_and_reports(fig1_design, run_cli, tmp_path
 def test_simulate_cli_says_when_newton_stops_before_converging(fig1_design, run_cli, tmp_path):
     path = tmp_path / "design.npz"
     fig1_design.save(path)
-    args = ("simulate", path, "--stimulus", "1", "--trim", "5")
+    args = ("simulate", path, "--stimulus", "1")
     code, out, _ = run_cli(*args, "--max-iterations", "2")
     assert code == 0 and "not converged" in out and "--max-iterations" in out
     code, out, _ = run_cli(*args)

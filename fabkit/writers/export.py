@@ -109,7 +109,9 @@ def read_input(path: Path) -> tuple[str, Any]:
     raise FabkitError(f"{path}: neither a fabkit toolpath nor a design file")
 
 
-def _field(kind: str, path: Path, options: ExportOptions, machine: Any) -> FlatField:
+def _field(kind: str, path: Path, options: ExportOptions, process: Process) -> FlatField:
+    """The input's field; a design's cut to its part for ``process``'s road width and layer
+    height."""
     if kind == "director":
         flat = load_director_file(path)
         return flat if options.outline is None else flat.clipped(read_outline(options.outline))
@@ -120,7 +122,6 @@ def _field(kind: str, path: Path, options: ExportOptions, machine: Any) -> FlatF
             "a design is in design units: give its size (--size MM, longest side) "
             "or --scale MM_PER_UNIT"
         )
-    process = options.process or machine.process
     part = PartOptions(
         min_width_mm=options.min_width_mm,
         trim=options.trim,
@@ -153,7 +154,8 @@ def _dxf(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions
     if kind == "toolpath":
         toolpath = loaded
     elif "outline" not in layers:
-        layers["outline"] = _field(kind, loaded, options, machine).outline
+        process = options.process or machine.process
+        layers["outline"] = _field(kind, loaded, options, process).outline
     s = write_dxf(
         out,
         toolpath,
@@ -178,10 +180,11 @@ def _laser(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptio
         or (optics.pixel_pitch_mm if optics is not None else None)
         or machine.process.road_width_mm
     )
-    grid = sample_field(_field(kind, loaded, options, machine), pixel)
     settings = LaserSettings.for_machine(
         machine, **options.laser, process=options.process, ignore=options.ignore_features
     )
+    # the part of a pattern: the writer's own pixel and film, whatever --process encodes
+    grid = sample_field(_field(kind, loaded, options, machine.process), pixel)
     s = write_laser(grid, out, machine, settings, options.offset_mm)
     scan = f", {s.scan_lines} scan lines" if s.scan_lines else ""
     cures = len(s.manifest["cure_exposures"])
