@@ -49,7 +49,6 @@ from scipy import ndimage
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.outlines import read_outline
-from fabkit.spec import spec_from_json
 
 MARGIN_DEPTH = 1.415
 """Depth (grid steps to the nearest node outside the solved cells) of the margin contour:
@@ -237,7 +236,7 @@ def bending_length(design: Design, thickness: float) -> float | None:
     design carries no spec with targets (a design made by other means than the solver:
     nothing to say how curved it becomes)."""
     try:
-        spec = spec_from_json(design.spec)
+        spec = design.problem
     except FabkitError:
         return None
     scales = [

@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from fabkit.design.design import Design
-from fabkit.spec import Spec, spec_from_json
+from fabkit.spec import Spec
 
 MIN_SCALE = 0.2
 """Points with alpha or beta below this are left out of the statistics."""
@@ -126,7 +126,7 @@ def residual_maps(design: Design, region: float | None = None) -> tuple[Residual
 
     ``region``: only points with |u|, |v| <= region are checked (None: all interior points).
     """
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     interior = _interior(design, region)
     eps = np.where(design.valid, design.eps, 0.0)
     response = spec.material.response(eps, design.stimuli)

@@ -20,7 +20,6 @@ from fabkit.design.check import RESIDUALS, ResidualMaps  # noqa: E402
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.patches import grid_triangles  # noqa: E402
 from fabkit.part import Part, PartRules, make_part  # noqa: E402
-from fabkit.spec import spec_from_json  # noqa: E402
 
 CURVES = 24
 """About this many u-curves and v-curves are drawn on each picture."""
@@ -64,7 +63,7 @@ def flat_sheet(design: Design, path: str | Path, part: Part | None = None) -> No
     """The flat sheet: director lines (u-curves) coloured by the first feature, v-curves
     grey, the solved region's border grey and the part's outline black (``part``, default:
     the margin outline of :func:`fabkit.part.make_part` without a trim or minimum width)."""
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     flat = design.r[0]
     figure, axes = plt.subplots(figsize=(6.5, 6))
     for line in _lines(flat, design.valid, 1, _stride(design, 1)):
@@ -100,7 +99,7 @@ def _outline(axes, design: Design, part: Part) -> None:
 
 def eps_maps(design: Design, path: str | Path) -> None:
     """Every feature on the flat sheet (left column) and on the (u, v) grid (right column)."""
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     points, triangles = grid_triangles(design.valid)
     features = spec.material.features
     figure, axes = plt.subplots(
@@ -142,7 +141,7 @@ def _zoom(axes, design: Design) -> None:
 
 def actuated_surfaces(design: Design, path: str | Path) -> None:
     """Every target in 3D: the surface near the patch, with the patch's u- and v-curves."""
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     targets = [
         (j, t)
         for j, t in enumerate(spec.targets)

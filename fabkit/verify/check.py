@@ -40,7 +40,6 @@ from fabkit.mechanics.simulate import Settings
 from fabkit.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
 from fabkit.process import Encode, Process, Resolution
 from fabkit.readfile import read_json
-from fabkit.spec import spec_from_json
 from fabkit.surfaces.analytic import number
 from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.process import DEFAULT_MACHINE, load_process
@@ -594,7 +593,7 @@ def _simulate(
     if asked, the sheet as designed on the same mesh)."""
     stride = options.stride or _stride(design)
     settings = Settings(max_iterations=options.max_iterations)
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     reference = None
     if options.reference:
         own = design_fields(design)
