@@ -17,7 +17,14 @@ import shapely
 
 from fabkit.design.design import Design
 from fabkit.machines import load_machine
-from fabkit.part import PartOptions, make_part, print_part, scale_for_size, solved_region
+from fabkit.part import (
+    PartOptions,
+    PartRules,
+    make_part,
+    print_part,
+    scale_for_size,
+    solved_region,
+)
 from fabkit.pipeline import RunOptions, run_pipeline
 from fabkit.toolpath.model import load_toolpath
 from tests.conftest import EXAMPLES
@@ -125,7 +132,7 @@ def test_the_outline_has_no_saw_tooth(run):
 def test_the_outline_never_leaves_the_solved_cells(run):
     part, design = run["part"], run["design"]
     assert part.outline.difference(part.solved).area <= 1e-9 * part.solved.area
-    margin_only = make_part(design, part.rules.__class__())
+    margin_only = make_part(design, PartRules())
     assert margin_only.outline.difference(part.solved).area <= 1e-9 * part.solved.area
     assert margin_only.outline.area < part.solved.area  # the staircase's teeth are cut
 
