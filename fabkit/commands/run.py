@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from fabkit.commands import add_overwrite, help_of
+from fabkit.commands.toolpath import part_arguments
 from fabkit.design.patches import MESH_TYPES
 from fabkit.pipeline import (
     BAROMORPH_MACHINE,
@@ -87,6 +88,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
     )
     add_overwrite(parser)
+    part_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -106,6 +108,9 @@ def run(args: argparse.Namespace) -> int:
         ignore_features=tuple(args.ignore_feature),
         verify=not args.no_verify,
         overwrite=args.overwrite,
+        outline=args.outline,
+        min_width_mm=args.min_width,
+        trim=args.trim,
     )
     figures = run_pipeline(options)
     print(

@@ -10,6 +10,7 @@ import argparse
 import json
 
 from fabkit.commands import help_of
+from fabkit.commands.toolpath import part_arguments
 from fabkit.progress import ProgressBar, add_progress
 
 
@@ -78,14 +79,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="coarsen the design's grid by this for the simulations (default: about 800 triangles)",
     )
     simulation.add_argument(
-        "--trim", type=int, default=0, help="drop regions fewer than TRIM grid cells across"
-    )
-    simulation.add_argument(
         "--max-iterations",
         type=int,
         default=100,
         help="Newton iterations per ramp step (default %(default)s)",
     )
+    part_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     add_progress(parser)
     parser.set_defaults(func=run)
@@ -115,9 +114,11 @@ def run(args: argparse.Namespace) -> int:
         simulate=not args.no_simulate,
         reference=args.reference,
         stride=args.stride,
-        trim=args.trim,
         max_iterations=args.max_iterations,
         baromorph=args.baromorph,
+        outline=args.outline,
+        min_width_mm=args.min_width,
+        trim=args.trim,
     )
     bar = ProgressBar("simulating the sheet as made", force=args.progress)
     try:
