@@ -396,6 +396,7 @@ def extents(draw) -> list[float]:
     return [x0, x0 + width, y0, y0 + height]
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     z=hnp.arrays(np.float64, st.tuples(st.integers(8, 14), st.integers(8, 14)), elements=heights),

@@ -44,6 +44,7 @@ def test_kernel_is_symmetric_and_far_field_is_the_stokeslet():
     assert np.allclose(matrix[:3, :3], np.eye(3) / (4 * np.pi * 1e-3))
 
 
+@pytest.mark.slow
 def test_sphere_drag_and_torque_within_2_percent():
     stokes = sphere(400, radius=0.5)
     drag = 6 * np.pi * 2.0 * 0.5

@@ -57,11 +57,13 @@ def test_prescribed_cycle_swims_along_the_axis_only(cycle_motion):
     assert np.all(np.abs(cycle_motion[3:]) < 0.01 * abs(axial))
 
 
+@pytest.mark.slow
 def test_prescribed_reciprocal_path_goes_nowhere():
     motion = prescribed_stroke(RECIPROCAL)
     assert np.all(np.abs(motion) < 1e-8)
 
 
+@pytest.mark.slow
 def test_prescribed_reversed_cycle_goes_back(cycle_motion):
     reversed_motion = prescribed_stroke(REVERSED)
     assert reversed_motion[2] == pytest.approx(-cycle_motion[2], rel=1e-9)
