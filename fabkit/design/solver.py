@@ -1126,15 +1126,19 @@ class _Grid:
                 failed_parts.append((failed[0], failed[1], d - failed[1], self.codes[d]))
             valid = [np.concatenate(x) for x in zip(*valid_parts, strict=True)]
             failed = [np.concatenate(x) for x in zip(*failed_parts, strict=True)]
-            values = {k: np.concatenate([v[k] for v in self.values]) for k in DESIGN_KEYS}
+            values = {}
+            for key in DESIGN_KEYS:
+                values[key] = np.concatenate([v.pop(key) for v in self.values])
             failed_r = np.concatenate(self.failed_r)
+            self.values, self.failed_r = [], []
             candidate = self.problem.candidate
             count = int(candidate.max()) + 1
             gathered = []
             for arrays, extra in ((valid, values), (failed, {"r": failed_r})):
-                order = np.argsort(candidate[arrays[0]], kind="stable")
-                arrays = [x[order] for x in arrays]
-                extra = {k: v[order] for k, v in extra.items()}
+                if count > 1:
+                    order = np.argsort(candidate[arrays[0]], kind="stable")
+                    arrays = [x[order] for x in arrays]
+                    extra = {k: v[order] for k, v in extra.items()}
                 edges = np.searchsorted(candidate[arrays[0]], np.arange(count + 1))
                 gathered.append((edges, arrays, extra))
             self._gathered = tuple(gathered)
