@@ -145,8 +145,9 @@ def solve_batch(
     by the same elementwise operations). A candidate the solver refuses (initial data not
     finite at the first step, a bad start point) gives its :class:`FabkitError` in place of
     a solution. ``Solution.seconds`` is the wall time of the whole batch. With ``crop``,
-    each design's grid spans only its solved points (a search needs no more; the design
-    file of a solve spans the full grid of the spec's diagonals).
+    each design's grid spans only its solved points and :data:`CROP_MARGIN` more lines (a
+    search needs no more; the design file of a solve spans the full grid of the spec's
+    diagonals).
     """
     started = time.perf_counter()
     specs = list(specs)
@@ -347,6 +348,11 @@ def _influence(sources: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return reached, inherited
 
 
+CROP_MARGIN = 3
+"""Unsolved grid lines a cropped design keeps around its points: the reach of the check's
+widest stencil, so that the check sees the same neighbourhood as on the full grid."""
+
+
 def _design(
     problem: _Problem, spec: Spec, points: _Points, error: np.ndarray, crop: bool = False
 ) -> Design:
@@ -355,8 +361,9 @@ def _design(
     size = problem.diagonals[COARSE]
     full = 2 * size + 1
     rows, cols = np.divmod(points.index, full)
-    low = (rows.min(), cols.min()) if crop else (0, 0)
-    high = (rows.max() + 1, cols.max() + 1) if crop else (full, full)
+    margin = CROP_MARGIN if crop else full
+    low = (max(rows.min() - margin, 0), max(cols.min() - margin, 0))
+    high = (min(rows.max() + 1 + margin, full), min(cols.max() + 1 + margin, full))
     shape = (high[0] - low[0], high[1] - low[1])
     flat = (rows - low[0]) * shape[1] + (cols - low[1])
     axis = spec.solver.step * np.arange(-size, size + 1)

@@ -1,0 +1,215 @@
+"""The objective of a search: the realised area a candidate's design covers.
+
+A candidate is the search's spec with other parameter values. Its design counts only if
+it passes ``fabkit check`` (the default tolerances); the solver has already dropped every
+point beyond the strain limit (``solver.max_strain``) or its error tolerance. The realised
+area of a surface is the one ``design.json`` reports (:func:`fabkit.design.report.
+realised_areas`: the sum of alpha beta lambda1 lambda2 du dv over the counted points), in
+design units squared. The objective is that area on the flat sheet (``flat``), or the
+smallest of the targets' (``smallest``).
+
+With a process (``--machine`` / ``--process``) a point counts only if the process can make
+it (:class:`Limits`): every feature inside its channel's calibrated range (a joint channel:
+the eps pair inside the region its measured grid covers), and the counted part no narrower
+than the minimum width anywhere (:func:`wide_enough`).
+
+Candidates are evaluated in batches (:func:`evaluate_batch`), one call per batch in any
+worker process: the spec is rebuilt there once and every batch is solved together
+(:func:`fabkit.design.solver.solve_batch`), so a candidate's value is the same whichever
+worker evaluates it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from fabkit.design.check import check_design
+from fabkit.design.design import Design
+from fabkit.design.report import realised_areas
+from fabkit.design.solver import solve_batch
+from fabkit.errors import FabkitError
+from fabkit.process import JointCalibration, Process
+from fabkit.spec import Spec, spec_from_json
+
+SPECS_KEPT = 4
+"""Specs a worker process keeps built (a search sends the same one with every batch)."""
+_specs: dict[str, Spec] = {}
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What a process can make. ``ranges``: (feature index, lowest, highest eps) of every
+    single channel; ``regions``: (feature i, feature j, boundary (M, 2) of the eps pairs a
+    joint channel's grid covers); ``min_width``: the narrowest part it can make, in design
+    units (0: no limit)."""
+
+    ranges: tuple[tuple[int, float, float], ...] = ()
+    regions: tuple[tuple[int, int, np.ndarray], ...] = ()
+    min_width: float = 0.0
+
+
+@dataclass(frozen=True)
+class Objective:
+    """``kind``: ``flat`` or ``smallest`` (see the module docstring); ``limits``: a
+    process's, or None to count every point the design solves."""
+
+    kind: str = "flat"
+    limits: Limits | None = None
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """A candidate's objective ``value`` (design units squared; 0 when it is refused or
+    fails the check, ``note`` says why), the realised ``areas`` of its counted points by
+    surface, its solved and counted ``points``, and whether it passed the check."""
+
+    value: float
+    areas: dict[str, float] = field(default_factory=dict)
+    points: int = 0
+    counted: int = 0
+    passed: bool = False
+    note: str = ""
+
+
+def process_limits(
+    process: Process,
+    features: Sequence[str],
+    mm_per_unit: float,
+    min_width_mm: float | None = None,
+    ignore: Sequence[str] = (),
+) -> Limits:
+    """The :class:`Limits` of ``process`` for a design with ``features``; the minimum width
+    is ``min_width_mm`` (default: the process's road width), made design units by
+    ``mm_per_unit``. A feature without a channel is refused (:meth:`Process.resolve`)."""
+    resolution = process.resolve(tuple(features), tuple(ignore))
+    ranges, regions = [], []
+    for channel in resolution.channels:
+        index = [list(features).index(name) for name in channel.features]
+        table = channel.table
+        if isinstance(table, JointCalibration):
+            regions.append((index[0], index[1], _joint_boundary(table)))
+        else:
+            ranges.append((index[0], *table.eps_range))
+    width = process.road_width_mm if min_width_mm is None else min_width_mm
+    return Limits(tuple(ranges), tuple(regions), width / mm_per_unit)
+
+
+def _joint_boundary(table: JointCalibration) -> np.ndarray:
+    """The eps pairs (M, 2) along the edge of a joint table's grid, in order: its cells are
+    bilinear, so their edges are straight and this ring bounds what the table can make."""
+    eps = np.moveaxis(np.asarray(table.measured, dtype=float), 0, -1)
+    return np.concatenate([eps[:, 0], eps[-1, 1:], eps[-2::-1, -1], eps[0, -2:0:-1]])
+
+
+def evaluate_batch(
+    spec_json: str, names: Sequence[str], points: Sequence[Sequence[float]], objective: Objective
+) -> list[Evaluation]:
+    """Evaluate the candidates at ``points`` of the space whose parameters are ``names``,
+    the spec being ``spec_json`` (:meth:`Spec.to_json`); solved as one batch."""
+    spec = _spec(spec_json)
+    candidates: list[Spec | FabkitError] = []
+    for point in points:
+        try:
+            candidates.append(spec.with_parameters(dict(zip(names, point, strict=True))))
+        except FabkitError as exc:
+            candidates.append(exc)
+    specs = [c for c in candidates if isinstance(c, Spec)]
+    solved = iter(solve_batch(specs, crop=True) if specs else [])
+    results = []
+    for candidate in candidates:
+        outcome = next(solved) if isinstance(candidate, Spec) else candidate
+        if isinstance(outcome, FabkitError):
+            results.append(Evaluation(0.0, note=f"refused: {outcome}"))
+        else:
+            results.append(score(outcome.design, candidate, objective))
+    return results
+
+
+def _spec(text: str) -> Spec:
+    """The spec of ``text``, built once per worker process."""
+    if text not in _specs:
+        if len(_specs) >= SPECS_KEPT:
+            del _specs[next(iter(_specs))]
+        _specs[text] = spec_from_json(text)
+    return _specs[text]
+
+
+def score(design: Design, spec: Spec, objective: Objective) -> Evaluation:
+    """The objective of one solved design (``spec`` is its spec)."""
+    points = int(design.valid.sum())
+    check = check_design(design, spec=spec)
+    if not check.passed:
+        failed = ", ".join(s.name for s in check.surfaces if not s.passes(check.tolerances))
+        return Evaluation(0.0, points=points, note=f"check failed on {failed}")
+    counted = design.valid
+    if objective.limits is not None:
+        counted = counted & makeable(design, objective.limits)
+        counted = wide_enough(design, counted, objective.limits.min_width)
+    areas = realised_areas(replace(design, valid=counted), spec) if counted.any() else {}
+    if not areas:
+        return Evaluation(0.0, points=points, passed=True, note="no point the process can make")
+    names = [t.name for t in spec.targets]
+    value = areas[names[0]] if objective.kind == "flat" else min(areas[n] for n in names[1:])
+    return Evaluation(value, areas, points, int(counted.sum()), True)
+
+
+def makeable(design: Design, limits: Limits) -> np.ndarray:
+    """Points (nu, nv) whose eps the process can make: inside every single channel's range
+    and every joint channel's region (its boundary included)."""
+    import shapely
+
+    eps = np.where(design.valid, design.eps, 0.0)
+    inside = design.valid.copy()
+    for index, low, high in limits.ranges:
+        inside &= (eps[index] >= low) & (eps[index] <= high)
+    for first, second, boundary in limits.regions:
+        region = shapely.Polygon(boundary)
+        inside &= shapely.intersects_xy(region, eps[first], eps[second])
+    return inside
+
+
+def wide_enough(design: Design, counted: np.ndarray, width: float) -> np.ndarray:
+    """The counted points (nu, nv) that lie in a part of the flat sheet at least ``width``
+    (design units) wide: the counted cells are drawn on a raster of the flat sheet and
+    opened with a disc of that diameter (what a disc of the width cannot reach is
+    narrower). 0 keeps every point.
+
+    This stands alone on purpose: the part outline of issue 17 (``--min-width``) will be
+    fabkit's one rule for a part's narrowest width, and this function should then ask it.
+    """
+    if width <= 0 or not counted.any():
+        return counted
+    from PIL import Image, ImageDraw
+    from scipy import ndimage
+
+    h = design.step
+    centre = design.r[0][counted]  # (P, 2) on the flat sheet
+    along = design.n[0][counted]  # the u-curve's unit tangent there
+    across = np.stack([-along[:, 1], along[:, 0]], -1)
+    half_u = 0.5 * h * design.alpha[counted][:, None] * along
+    half_v = 0.5 * h * design.beta[counted][:, None] * across
+    corners = np.stack(
+        [centre - half_u - half_v, centre + half_u - half_v, centre + half_u + half_v],
+        1,
+    )
+    corners = np.concatenate([corners, (centre - half_u + half_v)[:, None]], 1)  # (P, 4, 2)
+    low = corners.reshape(-1, 2).min(0) - width
+    extent = float((corners.reshape(-1, 2).max(0) + width - low).max())
+    pixel = max(width / 8, extent / 2000)
+    size = int(np.ceil(extent / pixel)) + 1
+    image = Image.new("1", (size, size), 0)
+    draw = ImageDraw.Draw(image)
+    for quad in (corners - low) / pixel:
+        draw.polygon([tuple(p) for p in quad], fill=1, outline=1)
+    raster = np.array(image, dtype=bool).T  # [x, y]
+    radius = width / 2 / pixel
+    grid = np.arange(-int(radius), int(radius) + 1)
+    disc = grid[:, None] ** 2 + grid[None, :] ** 2 <= radius**2
+    opened = ndimage.binary_opening(raster, structure=disc)
+    at = np.clip(np.floor((centre - low) / pixel).astype(int), 0, size - 1)
+    kept = counted.copy()
+    kept[counted] = opened[at[:, 0], at[:, 1]]
+    return kept
