@@ -99,11 +99,12 @@ def optimise(job: Job, report: Callable[[str], None] = lambda line: None) -> Out
     kind = job.objective or spec.optimise.objective
     objective = Objective(kind, job.limits)
     spec_json = spec.to_json()
-    (start,) = evaluate_batch(given.to_json(), (), [()], objective)
     checkpoint = Checkpoint(
         Path(job.checkpoint) if job.checkpoint else files["checkpoint"],
         fingerprint(spec_json, space, objective),
     )
+    checkpoint.load()  # refuse a checkpoint of another search before any work
+    (start,) = evaluate_batch(given.to_json(), (), [()], objective)
     pool = _pool(job)
     try:
         result = run_search(

@@ -10,8 +10,8 @@ same seed gives the same candidates, the same values and the same best on one wo
 many, locally or on Dask.
 
 Every evaluated batch is added to the checkpoint (a JSON file, rewritten atomically) as
-soon as it returns. A stopped search run again with the same checkpoint replays: the candidates
-it has are answered from it (the seed reproduces them), the others are evaluated.
+soon as it returns. A stopped search run again with the same checkpoint replays: the
+candidates it has are answered from it (the seed reproduces them), the others are evaluated.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from fabkit.optimise.space import Space
 from fabkit.readfile import read_json
 
 CHECKPOINT_FORMAT = 1
-"""Version of the checkpoint's first line."""
+"""Version of the checkpoint file's format."""
 CHECKPOINT_BYTES = 1 << 28
 """Largest checkpoint read (about half a million evaluations of a dozen parameters)."""
 
@@ -115,11 +115,16 @@ class Checkpoint:
     def __init__(self, path: Path, fingerprint: str):
         self.path, self.fingerprint = Path(path), fingerprint
         self.records: list[dict[str, Any]] = []
+        self.loaded: dict[tuple[float, ...], Evaluation] | None = None
 
     def load(self) -> dict[tuple[float, ...], Evaluation]:
-        """The evaluations kept (none without a file); a file of another search is refused."""
-        if not self.path.exists():
-            return {}
+        """The evaluations kept (none without a file), read once; a file of another search
+        is refused."""
+        if self.loaded is None:
+            self.loaded = self._read() if self.path.exists() else {}
+        return dict(self.loaded)
+
+    def _read(self) -> dict[tuple[float, ...], Evaluation]:
         data = read_json(self.path, "checkpoint", CHECKPOINT_BYTES)
         if not isinstance(data, dict) or data.get("fabkit_optimise") != CHECKPOINT_FORMAT:
             raise FabkitError(f"{self.path}: not a fabkit optimise checkpoint")
@@ -312,18 +317,23 @@ class DaskPool:
     loopback interface. Dask schedules the batches."""
 
     def __init__(self, address: str, workers: int):
+        import logging
+
         from distributed import Client, LocalCluster
 
         self.cluster = None
         if address == "local":
-            self.cluster = LocalCluster(
-                n_workers=workers,
-                threads_per_worker=1,
-                processes=True,
-                host="127.0.0.1",
-                dashboard_address=None,
-                silence_logs="error",
-            )
+            try:
+                self.cluster = LocalCluster(
+                    n_workers=workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    host="127.0.0.1",
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
+            except (OSError, RuntimeError, TimeoutError) as exc:
+                raise FabkitError(f"--dask local: cannot start a LocalCluster ({exc})") from None
             self.client = Client(self.cluster)
         else:
             try:
