@@ -925,9 +925,11 @@ def _trim(state: State, rates, window: _Window):
     width = max(int((last - first).max(initial=0)) + 1, 1)
     if width == length:
         return state, rates, window
+    # every row's window is a stretch of its own diagonal: a row whose span is narrower
+    # than the widest starts earlier rather than running past the diagonal's end (the
+    # march reads the window's last point as the diagonal's end when the two meet)
+    first = np.minimum(first, length - width)
     index = first[:, None] + np.arange(width)
-    inside = index < length
-    index = np.minimum(index, length - 1)
     rows = np.arange(len(first))[:, None]
 
     def cut(value: np.ndarray) -> np.ndarray:
@@ -935,7 +937,7 @@ def _trim(state: State, rates, window: _Window):
 
     state = {key: cut(value) for key, value in state.items()}
     rates = tuple({key: cut(value) for key, value in part.items()} for part in rates)
-    return state, rates, _Window(window.offset + first, cut(valid) & inside)
+    return state, rates, _Window(window.offset + first, cut(valid))
 
 
 def _rates_where(problem: _Problem, state: State, mask: np.ndarray):
