@@ -15,7 +15,14 @@ from fabkit.design.check import check_design
 from fabkit.design.report import realised_areas
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
-from fabkit.optimise.objective import Limits, Objective, evaluate_batch, makeable, score
+from fabkit.optimise.objective import (
+    Limits,
+    Objective,
+    evaluate_batch,
+    makeable,
+    score,
+    wide_enough,
+)
 from fabkit.optimise.run import Job, optimise, outputs
 from fabkit.optimise.search import Budget, Checkpoint
 from fabkit.optimise.space import search_space
@@ -191,3 +198,16 @@ def test_declared_parameters_vary_a_curve(tmp_path):
     written = space.table_at((3.0,))
     assert written["optimise"]["parameters"]["R"]["value"] == 3.0
     assert build_spec(written, EXAMPLES).optimise.values == {"R": 3.0}
+
+
+def test_parts_narrower_than_the_minimum_width_do_not_count():
+    spec = build_spec(coarse_fig1(), EXAMPLES)
+    design = solve(spec).design
+    extent = np.ptp(design.r[0][design.valid], axis=0)  # the flat sheet's size (x, y)
+    assert wide_enough(design, design.valid, 0.0).sum() == design.valid.sum()
+    kept = wide_enough(design, design.valid, 0.05 * float(extent.min()))
+    assert 0.8 * design.valid.sum() < kept.sum() <= design.valid.sum()
+    assert wide_enough(design, design.valid, 2 * float(extent.max())).sum() == 0
+    limits = Limits(min_width=2 * float(extent.max()))
+    evaluation = score(design, spec, Objective("flat", limits))
+    assert evaluation.value == 0 and evaluation.passed
