@@ -13,7 +13,7 @@ eps differ (0.45 to 0.55), marched together; it prints the wall time per candida
 valid points per second over the batch, and checks that every candidate's design is the
 one the single solve gives it (valid points and eps bitwise equal).
 
-    python benchmarks/solve.py [--repeat 5] [--batch 16]
+    python benchmarks/solve.py [--repeat 5] [--batch 64]
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ def measure_batch(name: str, batch: int, repeat: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)
-    parser.add_argument("--batch", type=int, default=16, help="candidates per batch")
+    parser.add_argument("--batch", type=int, default=64, help="candidates per batch")
     args = parser.parse_args()
     for name in ("two_shapes.toml", "three_shapes.toml"):
         measure(name, args.repeat)

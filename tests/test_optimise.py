@@ -211,3 +211,40 @@ def test_parts_narrower_than_the_minimum_width_do_not_count():
     limits = Limits(min_width=2 * float(extent.max()))
     evaluation = score(design, spec, Objective("flat", limits))
     assert evaluation.value == 0 and evaluation.passed
+
+
+PROCESS = """[process]
+road_width_mm = 0.4
+layer_height_mm = 0.2
+print_speed_mm_s = 8
+travel_speed_mm_s = 30
+
+[[process.encode]]
+feature = "eps"
+parameter = "print_speed_mm_s"
+eps = [0.0, 0.25, 0.5]
+value = [2.0, 4.0, 7.0]
+clip = false
+"""
+
+
+def test_with_a_process_only_what_it_can_make_counts(spec_file, tmp_path, run_cli):
+    """A process calibrated for eps in [0, 0.5] only: the points of the Fig. 1 design with
+    eps above 0.5 (about half) do not count."""
+    process = tmp_path / "process.toml"
+    process.write_text(PROCESS)
+    out = tmp_path / "best.toml"
+    args = ["--generations", "1", "--popsize", "2", "--workers", "1", "--seed", "2"]
+    vary = ["--vary", "initial.eps[0]=0.2:0.6", "--vary", "initial.slope[0]=-1:1"]
+    limit = ["--process", process, "--scale", "20"]
+    code, text, err = run_cli("optimise", spec_file, "--out", out, *vary, *args, *limit)
+    assert code == 0, err
+    assert "generation 1/1" in err and "best solved again" in text
+    summary = json.loads(outputs(out)["summary"].read_text())
+    assert summary["process_limits"]["eps_ranges"] == [[0, 0.0, 0.5]]
+    assert summary["process_limits"]["min_width_design_units"] == pytest.approx(0.4 / 20)
+    design = solve(build_spec(coarse_fig1(), EXAMPLES)).design
+    eps = design.eps[0][design.valid]
+    start = summary["start"]
+    assert start["points"] == eps.size and 0 < start["value"] < realised_areas(design)["flat"]
+    assert (eps > 0.5).sum() > 0.2 * eps.size

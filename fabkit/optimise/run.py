@@ -26,6 +26,7 @@ from typing import Any
 
 from fabkit.atomic import atomic_path
 from fabkit.design.check import check_design
+from fabkit.design.design import Design
 from fabkit.design.report import realised_areas
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
@@ -116,13 +117,14 @@ def optimise(job: Job, report: Callable[[str], None] = lambda line: None) -> Out
         pool.close()
     best_table = _with_absolute_files(space.table_at(result.best), base_dir)
     best = build_spec(best_table, base_dir)
-    summary = _summary(job, space, objective, start, result, best, given, workers)
+    solved = solve(best).design
+    summary = _summary(job, space, objective, start, result, best, solved, given, workers)
     _write_spec(files["spec"], best_table, summary)
     _write_json(files["summary"], summary)
     from fabkit.optimise.pictures import search_picture, sheets_picture
 
     search_picture(result, start.value, kind, files["progress"])
-    sheets_picture(solve(given).design, solve(best).design, summary, files["sheets"])
+    sheets_picture(solve(given).design, solved, summary, files["sheets"])
     written = (files["spec"], files["summary"], files["progress"], files["sheets"])
     return Outcome(summary, (*written, checkpoint.path))
 
@@ -162,13 +164,14 @@ def _summary(
     start: Evaluation,
     result: Result,
     best: Spec,
+    solved: Design,
     given: Spec,
     workers: int,
 ) -> dict[str, Any]:
-    """The figures of a search (``best.search.json``)."""
-    solved = solve(best)
-    check = check_design(solved.design, spec=best)
-    final = score(solved.design, best, objective)
+    """The figures of a search (``best.search.json``); ``solved``: the best spec's design
+    on its own full grid (the ordinary solve)."""
+    check = check_design(solved, spec=best)
+    final = score(solved, best, objective)
     ratio = result.evaluation.value / start.value if start.value > 0 else None
     return {
         "spec": str(job.spec),
@@ -184,8 +187,8 @@ def _summary(
         "ratio": ratio,
         "best_solved_again": {
             "value": final.value,
-            "areas": realised_areas(solved.design, best),
-            "valid_points": int(solved.design.valid.sum()),
+            "areas": realised_areas(solved, best),
+            "valid_points": int(solved.valid.sum()),
             "check": check.to_dict(),
         },
         "bounds": {d.key: [d.low, d.high] for d in space.dimensions},
