@@ -105,9 +105,9 @@ def optimise(job: Job, report: Callable[[str], None] = lambda line: None) -> Out
         fingerprint(spec_json, space, objective),
     )
     checkpoint.load()  # refuse a checkpoint of another search before any work
-    (start,) = evaluate_batch(given.to_json(), (), [()], objective)
     pool = _pool(job)
     try:
+        (start,) = evaluate_batch(given.to_json(), (), [()], objective)
         result = run_search(
             space, spec_json, objective, job.budget, pool, checkpoint, start.value,
             lambda progress: report(progress_line(progress)),

@@ -36,6 +36,8 @@ from fabkit.readfile import read_json
 
 CHECKPOINT_FORMAT = 1
 """Version of the checkpoint file's format."""
+CONNECT_SECONDS = 10
+"""How long ``--dask ADDRESS`` waits for the scheduler to answer."""
 CHECKPOINT_BYTES = 1 << 28
 """Largest checkpoint read (about half a million evaluations of a dozen parameters)."""
 
@@ -337,7 +339,7 @@ class DaskPool:
             self.client = Client(self.cluster)
         else:
             try:
-                self.client = Client(address, timeout=30)
+                self.client = Client(address, timeout=CONNECT_SECONDS)
             except OSError as exc:
                 raise FabkitError(f"--dask {address}: cannot reach the scheduler ({exc})") from None
         self.workers = len(self.client.scheduler_info()["workers"])
