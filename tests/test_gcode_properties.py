@@ -23,6 +23,7 @@ from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
 from fabkit.errors import FabkitError
+from fabkit.link.arcs import NEAR_FULL
 from fabkit.link.check import check_job
 from fabkit.link.gcode import GcodeError, commands_from_lines, read_grbl, read_marlin
 from fabkit.link.sim_grbl import grbl_clean
@@ -156,9 +157,13 @@ def standard_centre(s, e, r: float, clockwise: bool):
 
 
 def arc_points(s, c, e, clockwise: bool, turns: int = 0):
+    """Points along the arc; a sweep within NEAR_FULL of none or a whole turn is the full
+    circle, as the check reads it (single-precision firmware may land on either side)."""
     radius = math.hypot(s[0] - c[0], s[1] - c[1])
     a0 = math.atan2(s[1] - c[1], s[0] - c[0])
     sweep = _sweep(a0, math.atan2(e[1] - c[1], e[0] - c[0]), clockwise)
+    if not NEAR_FULL < abs(sweep) < 2 * math.pi - NEAR_FULL:
+        sweep = math.copysign(2 * math.pi, sweep)
     sweep += math.copysign(2 * math.pi * turns, sweep)
     angles = [a0 + sweep * k / SAMPLES for k in range(SAMPLES + 1)]
     return [(c[0] + radius * math.cos(a), c[1] + radius * math.sin(a)) for a in angles]

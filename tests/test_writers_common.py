@@ -7,8 +7,10 @@ The G-code replay runs the independent parser ``gcodeparser`` and keeps the mach
 
 from __future__ import annotations
 
+import atexit
 import functools
 import math
+import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +40,7 @@ FIG1_SIZE_MM = 40.0
 def fig1_design_path() -> Path:
     """The Fig. 1 design, solved once (about 1 s) into a temporary folder."""
     folder = Path(tempfile.mkdtemp(prefix="fabkit-writers-"))
+    atexit.register(shutil.rmtree, folder, True)
     path = folder / "design.npz"
     solve(load_spec(ROOT / "examples" / "two_shapes.toml")).design.save(path)
     return path

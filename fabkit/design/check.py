@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from fabkit.design.design import Design
-from fabkit.spec import Spec, spec_from_json
+from fabkit.spec import Spec
 
 MIN_SCALE = 0.2
 """Points with alpha or beta below this are left out of the statistics."""
@@ -127,9 +127,10 @@ def residual_maps(
     """Residual maps of every surface of ``design``.
 
     ``region``: only points with |u|, |v| <= region are checked (None: all interior points).
-    ``spec``: the design's spec when the caller has it (else rebuilt from the design file).
+    ``spec``: the design's spec when the caller has it (else the design's own,
+    :attr:`Design.problem`).
     """
-    spec = spec_from_json(design.spec) if spec is None else spec
+    spec = design.problem if spec is None else spec
     interior = _interior(design, region)
     eps = np.where(design.valid, design.eps, 0.0)
     response = spec.material.response(eps, design.stimuli)
@@ -157,7 +158,7 @@ def check_design(
     spec: Spec | None = None,
 ) -> CheckReport:
     """Median and 95th percentile of every residual of every surface of ``design``
-    (``spec``: the design's spec when the caller has it, else rebuilt from the file)."""
+    (``spec``: the design's spec when the caller has it, else the design's own)."""
     surfaces = []
     for surface in residual_maps(design, region, spec):
         points = int(np.isfinite(surface.maps["length_u"]).sum())

@@ -6,6 +6,8 @@ features, k stimuli and an (nu, nv) material grid:
 ======== =============== ===========================================================
 key      shape           meaning
 ======== =============== ===========================================================
+format   0-d str         ``fabkit-design/2`` (files without it are format 1: the same
+                         arrays, perhaps without ``error``)
 u, v     (nu,), (nv,)    uniform material grids containing 0 (design units)
 valid    (nu, nv) bool   solved points
 alpha    (nu, nv)        arc-length scale of u-curves on the flat sheet
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -38,11 +41,14 @@ from fabkit.errors import FabkitError
 from fabkit.limits import DESIGN_FEATURES, DESIGN_NODES, DESIGN_SURFACES, MAGNITUDE
 from fabkit.npzfile import ArrayHeader, check_magnitude, read_npz
 from fabkit.readfile import parse_json
+from fabkit.spec import Spec, spec_from_json
 
+FORMAT = "fabkit-design/2"
+"""The format tag this version writes; a file without a tag is format 1 and still read."""
 KEYS = ("u", "v", "valid", "alpha", "beta", "eps", "r", "n", "error", "stimuli", "spec")
-OPTIONAL = ("error",)
+OPTIONAL = ("error", "format")
 """Keys a design file written before they existed lacks: ``error`` reads as NaN there
-(not estimated)."""
+(not estimated), no ``format`` means format 1."""
 
 
 @dataclass(frozen=True)
@@ -61,6 +67,11 @@ class Design:
     stimuli: np.ndarray
     spec: str
 
+    @cached_property
+    def problem(self) -> Spec:
+        """The spec this design solves, rebuilt once from the embedded JSON ``spec``."""
+        return spec_from_json(self.spec)
+
     @property
     def step(self) -> float:
         """Grid step in u and v (design units)."""
@@ -70,7 +81,7 @@ class Design:
         """Write ``design.npz`` atomically (no half-written file on failure)."""
         arrays = {key: getattr(self, key) for key in KEYS if key != "spec"}
         with atomic_path(path) as tmp, open(tmp, "wb") as handle:
-            np.savez_compressed(handle, spec=np.array(self.spec), **arrays)
+            np.savez_compressed(handle, format=np.array(FORMAT), spec=np.array(self.spec), **arrays)
 
     @classmethod
     def load(cls, path: str | Path) -> Design:
@@ -84,11 +95,12 @@ class Design:
         arrays = read_npz(
             path,
             f"{path}: cannot read design file",
-            text=("spec",),
+            text=("spec", "format"),
             keys=lambda found: _check_keys(found, path),
             check=lambda headers: _check_headers(headers, path),
         )
         spec = str(arrays.pop("spec"))
+        _check_format(str(arrays.pop("format", "")), path)
         valid = arrays["valid"]
         arrays.setdefault("error", np.full(valid.shape, np.nan))
         for key in ("alpha", "beta", "eps", "r", "n"):
@@ -143,9 +155,18 @@ def _check_keys(found: set[str], path: Path) -> None:
     missing = [key for key in KEYS if key not in found and key not in OPTIONAL]
     if missing:
         raise FabkitError(f"{path}: not a fabkit design file (no '{missing[0]}' array)")
-    unknown = sorted(found - set(KEYS))
+    unknown = sorted(found - set(KEYS) - set(OPTIONAL))
     if unknown:
         raise FabkitError(f"{path}: not a fabkit design file (unknown array '{unknown[0]}')")
+
+
+def _check_format(tag: str, path: Path) -> None:
+    """Refuse a design file tagged with a format this version does not read."""
+    if tag and tag != FORMAT:
+        raise FabkitError(
+            f"{path}: a design file of format '{tag[:40]}', this fabkit reads {FORMAT} "
+            "(or untagged format 1)"
+        )
 
 
 def _check_headers(headers: Mapping[str, ArrayHeader], path: Path) -> None:

@@ -10,7 +10,7 @@ import numpy as np
 from fabkit.atomic import atomic_path, check_name, inside
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.spec import Target, spec_from_json
+from fabkit.spec import Target
 
 MESH_FORMATS = (".ply", ".stl", ".glb", ".obj")
 MESH_TYPES = tuple(suffix.lstrip(".") for suffix in MESH_FORMATS)
@@ -44,7 +44,7 @@ def patch_mesh(design: Design, surface: int) -> tuple[np.ndarray, np.ndarray]:
     Surface 0 is the flat sheet (z = 0). A surface given only by its metric has no
     embedding and is refused.
     """
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     target = spec.targets[surface]
     points, triangles = grid_triangles(design.valid)
     chart = design.r[surface][points[:, 0], points[:, 1]]
@@ -91,7 +91,7 @@ def write_patch_meshes(
 ) -> list[Path]:
     """Write the patch on every surface with a 3D embedding (see :func:`patch_paths`);
     returns the paths written. Surfaces given only by their metric are skipped."""
-    paths = patch_paths(spec_from_json(design.spec).targets, folder, mesh_format, prefix)
+    paths = patch_paths(design.problem.targets, folder, mesh_format, prefix)
     for index, path in paths:
         write_patch_mesh(design, index, path)
     return [path for _, path in paths]

@@ -17,13 +17,13 @@ from fabkit.design.solver import Solution, solve
 from fabkit.errors import FabkitError
 from fabkit.limits import DESIGN_NODES
 from fabkit.progress import ProgressBar
-from fabkit.spec import Spec, spec_from_json
+from fabkit.spec import Spec
 
 
 def realised_areas(design: Design, spec: Spec | None = None) -> dict[str, float]:
     """Area of the solved patch on every surface, sum of alpha beta lambda1 lambda2 du dv
-    (``spec``: the design's spec when the caller has it, else rebuilt from the file)."""
-    spec = spec_from_json(design.spec) if spec is None else spec
+    (``spec``: the design's spec when the caller has it, else the design's own)."""
+    spec = design.problem if spec is None else spec
     eps = np.where(design.valid, design.eps, 0.0)
     response = spec.material.response(eps, design.stimuli)
     cell = design.step**2
@@ -37,7 +37,7 @@ def realised_areas(design: Design, spec: Spec | None = None) -> dict[str, float]
 def summary(solution: Solution, check: CheckReport) -> dict[str, Any]:
     """Solve time, grid, valid points, areas, stops and residuals as plain JSON data."""
     design = solution.design
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     stops = [
         {"reason": s.reason, "u": round(s.u, 12), "v": round(s.v, 12), "surface": s.surface}
         for s in solution.stops

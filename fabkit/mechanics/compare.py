@@ -17,7 +17,6 @@ import numpy as np
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.mechanics.simulate import DesignSimulation, diameter
-from fabkit.spec import spec_from_json
 
 
 @dataclass(frozen=True)
@@ -159,7 +158,7 @@ def target_points(design: Design, simulation: DesignSimulation) -> np.ndarray:
     On a refined mesh the chart points between the design's grid points are
     interpolated bilinearly in (u, v) (they lie on the target surface).
     """
-    surface = spec_from_json(design.spec).targets[simulation.surface].surface
+    surface = design.problem.targets[simulation.surface].surface
     embedded = surface.embed(simulation.mesh.sample(design.r[simulation.surface]))
     if embedded is None:
         raise FabkitError(

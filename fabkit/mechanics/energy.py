@@ -33,7 +33,6 @@ import numpy as np
 from fabkit.atomic import atomic_path
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.spec import spec_from_json
 
 Density = Callable[[np.ndarray, np.ndarray, float, float], np.ndarray]
 
@@ -128,7 +127,7 @@ def design_work(
 ) -> tuple[SurfaceWork, ...]:
     """Work bounds of ``design`` at every surface's stimulus (surface 0 gives zero)."""
     _check(youngs, poisson, thickness)
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     valid, step = design.valid, design.step
     alpha, beta = np.where(valid, design.alpha, 0.0), np.where(valid, design.beta, 0.0)
     eps = np.where(valid[None], design.eps, 0.0)

@@ -35,7 +35,6 @@ from fabkit.errors import FabkitError
 from fabkit.mechanics.mesh import DesignMesh, counter_clockwise, design_mesh
 from fabkit.mechanics.metric import metric_from_director, metric_from_lengths
 from fabkit.mechanics.simulate import DesignSimulation, Settings, diameter, simulate
-from fabkit.spec import spec_from_json
 
 PointFunction = Callable[[np.ndarray], np.ndarray]
 """A function of (n, 2) flat-sheet points (design units)."""
@@ -144,7 +143,7 @@ def _edge_lengths(
     design: Design, mesh: DesignMesh, surface: int, theta: np.ndarray, eps: np.ndarray
 ) -> np.ndarray:
     """Reference lengths (F, 3) of every face's edges (module docstring)."""
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     response = spec.material.response(eps, design.stimuli[surface : surface + 1])
     director = np.column_stack([np.cos(theta), np.sin(theta)])
     flat = metric_from_director(director, response.lambda1[0], response.lambda2[0])
@@ -233,5 +232,5 @@ def simulate_sheet(
         settings or Settings(),
         start_metrics=made,
     )
-    name = spec_from_json(design.spec).targets[surface].name
+    name = design.problem.targets[surface].name
     return coarse, DesignSimulation(surface, name, mesh, metrics, thickness, result)

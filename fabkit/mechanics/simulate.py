@@ -26,7 +26,6 @@ from fabkit.errors import FabkitError
 from fabkit.mechanics.mesh import DesignMesh, design_mesh
 from fabkit.mechanics.metric import grid_edge_lengths, metric_from_lengths
 from fabkit.mechanics.shell import Sheet, Shell, build_shell
-from fabkit.spec import spec_from_json
 
 SEEDS = ("dome", "saddle")
 ARMIJO = 1e-4
@@ -253,7 +252,7 @@ class DesignSimulation:
 
 def surface_index(design: Design, stimulus: str) -> int:
     """The surface selected by name or index (``"1"``, ``"sphere"``)."""
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     names = [t.name for t in spec.targets]
     if stimulus in names:
         return names.index(stimulus)
@@ -273,7 +272,7 @@ def design_metrics(design: Design, mesh: DesignMesh, surface: int) -> np.ndarray
     every vertex's eps. Edge lengths follow by the trapezoidal rule in (u, v); each face's
     metric in flat-sheet coordinates fits its three edge lengths.
     """
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     eps = np.moveaxis(mesh.sample(np.moveaxis(design.eps, 0, -1)), -1, 0)
     response = spec.material.response(eps, design.stimuli[surface : surface + 1])
     stretch_u = mesh.sample(design.alpha) * response.lambda1[0]
@@ -299,7 +298,7 @@ def simulate_design(
     domain (design units; trimming does not change it); ``trim`` and ``refine`` as in
     :func:`~fabkit.mechanics.mesh.design_mesh`.
     """
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     mesh = design_mesh(design, trim, refine)
     if thickness is None:
         thickness = 0.01 * diameter(design_mesh(design).points)

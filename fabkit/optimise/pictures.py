@@ -19,7 +19,6 @@ from fabkit.atomic import atomic_path  # noqa: E402
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.patches import grid_triangles  # noqa: E402
 from fabkit.optimise.search import Result  # noqa: E402
-from fabkit.spec import spec_from_json  # noqa: E402
 
 
 def _save(figure: plt.Figure, path: str | Path) -> None:
@@ -69,7 +68,7 @@ def sheets_picture(given: Design, best: Design, summary: dict[str, Any], path: s
         ax.set_aspect("equal")
         ax.set_xlabel("x (design units)")
         ax.set_ylabel("y (design units)")
-    feature = spec_from_json(best.spec).material.features[0]
+    feature = best.problem.material.features[0]
     figure.colorbar(mappable, ax=list(axes), label=feature, shrink=0.85)
     _save(figure, path)
 

@@ -18,7 +18,6 @@ from fabkit.atomic import atomic_path  # noqa: E402
 from fabkit.design.check import RESIDUALS, ResidualMaps  # noqa: E402
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.patches import grid_triangles  # noqa: E402
-from fabkit.spec import spec_from_json  # noqa: E402
 
 CURVES = 24
 """About this many u-curves and v-curves are drawn on each picture."""
@@ -60,7 +59,7 @@ def _runs(mask: np.ndarray) -> list[np.ndarray]:
 
 def flat_sheet(design: Design, path: str | Path) -> None:
     """The flat sheet: director lines (u-curves) coloured by the first feature, v-curves grey."""
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     flat = design.r[0]
     figure, axes = plt.subplots(figsize=(6.5, 6))
     for line in _lines(flat, design.valid, 1, _stride(design, 1)):
@@ -101,7 +100,7 @@ def _outline(axes, design: Design) -> None:
 
 def eps_maps(design: Design, path: str | Path) -> None:
     """Every feature on the flat sheet (left column) and on the (u, v) grid (right column)."""
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     points, triangles = grid_triangles(design.valid)
     features = spec.material.features
     figure, axes = plt.subplots(
@@ -143,7 +142,7 @@ def _zoom(axes, design: Design) -> None:
 
 def actuated_surfaces(design: Design, path: str | Path) -> None:
     """Every target in 3D: the surface near the patch, with the patch's u- and v-curves."""
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     targets = [
         (j, t)
         for j, t in enumerate(spec.targets)

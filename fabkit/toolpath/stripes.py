@@ -355,6 +355,13 @@ def lbfgs(
 
     Stops after ``iterations`` steps, when the RMS gradient falls below ``tolerance``, or
     when a line search makes no progress (at a minimum to working precision).
+
+    Kept in preference to ``scipy.optimize.minimize(method="L-BFGS-B")`` by measurement
+    (100 mm sheet, "bend" field, 128,018 unknowns, 150 steps, scipy 1.17, 2 busy cores):
+    the whole stripe solve takes 2.2 s here; scipy's minimiser alone takes 3.9 s with
+    one BLAS thread (2.1 s with ``maxcor=5``) and 14-25 s with threaded BLAS, whose
+    threads spin on these long dot products when the cores are shared. The fill quality
+    is the same either way (to 0.05 %).
     """
     value, gradient = function(x)
     steps: list[tuple[np.ndarray, np.ndarray, float]] = []

@@ -39,7 +39,6 @@ from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_she
 from fabkit.mechanics.simulate import Settings
 from fabkit.process import Encode, Process, Resolution
 from fabkit.readfile import read_json
-from fabkit.spec import spec_from_json
 from fabkit.surfaces.analytic import number
 from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.process import DEFAULT_MACHINE, load_process
@@ -555,7 +554,7 @@ def _simulate(
     designed on the same mesh)."""
     stride = options.stride or _stride(design)
     settings = Settings(max_iterations=options.max_iterations)
-    spec = spec_from_json(design.spec)
+    spec = design.problem
     reference = None
     if options.reference:
         own = design_fields(design)

@@ -93,10 +93,10 @@ def read_input(path: Path) -> tuple[str, Any]:
     if path.suffix != ".npz":
         raise FabkitError(f"input '{path}': expected a toolpath or design .npz, or a .toml")
     names = npz_keys(path, f"{path}: cannot read")
-    if "format" in names:
-        return "toolpath", load_toolpath(path)
     if {"valid", "r", "n", "eps"} <= names:
         return "design", path
+    if "format" in names:
+        return "toolpath", load_toolpath(path)
     raise FabkitError(f"{path}: neither a fabkit toolpath nor a design file")
 
 
