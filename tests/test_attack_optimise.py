@@ -8,6 +8,7 @@ import json
 
 import pytest
 
+from fabkit.optimise.search import CHECKPOINT_FORMAT
 from fabkit.optimise.tomlout import dumps
 from tests.attack import assert_refused, case
 from tests.conftest import example_table
@@ -138,7 +139,7 @@ def places(tmp_path_factory) -> dict[str, str]:
         path = folder / f"{name}.toml"
         path.write_text(dumps({**base, **change}))
         paths[name] = str(path)
-    other = {"fabkit_optimise": 1, "fingerprint": "0" * 64, "evaluations": []}
+    other = {"fabkit_optimise": CHECKPOINT_FORMAT, "fingerprint": "0" * 64, "evaluations": []}
     files = {
         "other_checkpoint": json.dumps(other),
         "not_checkpoint": json.dumps({"evaluations": []}),

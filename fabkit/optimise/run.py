@@ -187,7 +187,8 @@ def _summary(
         "ratio": ratio,
         "best_solved_again": {
             "value": final.value,
-            "areas": realised_areas(solved, best),
+            "areas": final.areas,
+            "realised_areas_design_json": realised_areas(solved, best),
             "valid_points": int(solved.valid.sum()),
             "check": check.to_dict(),
         },

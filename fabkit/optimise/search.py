@@ -34,7 +34,7 @@ from fabkit.optimise.objective import Evaluation, Objective, evaluate_batch
 from fabkit.optimise.space import Space
 from fabkit.readfile import read_json
 
-CHECKPOINT_FORMAT = 1
+CHECKPOINT_FORMAT = 2
 """Version of the checkpoint file's format."""
 CONNECT_SECONDS = 10
 """How long ``--dask ADDRESS`` waits for the scheduler to answer."""
