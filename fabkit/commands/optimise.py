@@ -12,8 +12,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="vary a spec's initial data to cover the most area (docs/optimise.md)",
         description="Differential evolution over the initial data (curve parameters, eps and "
         "slopes on the curves, the targets' start points and directors) maximising the "
-        "realised area that passes the check; writes the best spec, its figures and "
-        "pictures beside --out, and a checkpoint a stopped search resumes from.",
+        "area covered by the cells of a design that passes the check; writes the best "
+        "spec, its figures and pictures beside --out, and a checkpoint a stopped search "
+        "resumes from.",
     )
     parser.add_argument("spec", help="spec file (TOML); [optimise.parameters] declares parameters")
     parser.add_argument("--out", default="best.toml", help="best spec to write (.toml)")
@@ -28,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--objective",
         choices=("flat", "smallest"),
-        help="flat: realised area on the flat sheet; smallest: the smallest realised area "
+        help="flat: area covered on the flat sheet; smallest: the smallest covered area "
         "over the targets (default: the spec's [optimise] objective, else flat)",
     )
     budget = parser.add_argument_group("budget")

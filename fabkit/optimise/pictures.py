@@ -37,7 +37,7 @@ def search_picture(result: Result, start: float, objective: str, path: str | Pat
     axes.plot(number, np.maximum.accumulate(values), color="C3", lw=1.8, label="best so far")
     axes.axhline(start, color="C0", ls="--", lw=1.2, label=f"spec as given ({start:.3g})")
     axes.set_xlabel("evaluation")
-    label = "realised flat area" if objective == "flat" else "smallest realised target area"
+    label = "covered flat area" if objective == "flat" else "smallest covered target area"
     axes.set_ylabel(f"{label} (design units²)")
     best = values.max(initial=0.0)
     ratio = f", {best / start:.2f}x" if start > 0 else ""
