@@ -42,6 +42,8 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.expr import parse, shorten
 from fabkit.npzfile import ArrayHeader, read_npz
+from fabkit.outlines import parse_shape
+from fabkit.part import Part, PartOptions, print_part, scale_for_size, solved_region
 from fabkit.shipped import user_or_example
 from fabkit.surfaces.analytic import check_keys, number
 from fabkit.tomlfile import read_toml
@@ -66,7 +68,8 @@ class FlatField:
     and each feature came from (an option, a key, a file), for error messages.
     ``mm_per_unit``: the scale of a design's field (mm per design unit), None for fields
     given in mm. ``joint_fn`` (optional) gives [theta, *features] at once, cheaper than
-    one call each (a design locates each point in its mesh once).
+    one call each (a design locates each point in its mesh once). ``part``: a design's
+    :class:`~fabkit.part.Part`, whose outline (in mm) is ``outline``.
     """
 
     outline: shapely.Polygon | shapely.MultiPolygon
@@ -76,6 +79,7 @@ class FlatField:
     keys: Mapping[str, str] = field(default_factory=dict)
     mm_per_unit: float | None = None
     joint_fn: Callable[[np.ndarray, np.ndarray], list[np.ndarray]] | None = None
+    part: Part | None = None
 
     def theta(self, points: np.ndarray) -> np.ndarray:
         """Director angle (n,) in (-pi/2, pi/2] at (n, 2) points.
@@ -220,40 +224,6 @@ def planar_expression(text: Any, where: str) -> PlaneFunction:
     return evaluate
 
 
-def parse_shape(text: Any, where: str = "shape") -> shapely.Polygon:
-    """A named outline centred on the origin, in mm.
-
-    ``disc:R`` (radius R), ``annulus:R1,R2``, ``square:S`` (side S), ``rect:W,H``,
-    ``ellipse:A,B`` (semi-axes).
-    """
-    if not isinstance(text, str) or ":" not in text:
-        raise FabkitError(f"{where}: expected e.g. 'disc:10' or 'square:20', got {text!r}")
-    kind, _, arguments = text.partition(":")
-    try:
-        values = [float(v) for v in arguments.split(",")]
-    except ValueError:
-        raise FabkitError(f"{where}: '{arguments}' is not a list of numbers") from None
-    counts = {"disc": 1, "square": 1, "annulus": 2, "rect": 2, "ellipse": 2}
-    if kind not in counts:
-        raise FabkitError(f"{where}: unknown shape '{kind}' (use {', '.join(counts)})")
-    if len(values) != counts[kind] or not all(np.isfinite(v) and v > 0 for v in values):
-        raise FabkitError(f"{where}: '{kind}' needs {counts[kind]} positive number(s)")
-    if kind == "disc":
-        return shapely.Point(0, 0).buffer(values[0], quad_segs=128)
-    if kind == "square":
-        return shapely.box(-values[0] / 2, -values[0] / 2, values[0] / 2, values[0] / 2)
-    if kind == "rect":
-        return shapely.box(-values[0] / 2, -values[1] / 2, values[0] / 2, values[1] / 2)
-    if kind == "ellipse":
-        circle = shapely.Point(0, 0).buffer(1.0, quad_segs=128)
-        return shapely.affinity.scale(circle, values[0], values[1], origin=(0, 0))
-    inner, outer = sorted(values)
-    if inner == outer:
-        raise FabkitError(f"{where}: the annulus radii must differ")
-    disc = shapely.Point(0, 0).buffer(outer, quad_segs=128)
-    return disc.difference(shapely.Point(0, 0).buffer(inner, quad_segs=128))
-
-
 def field_from_expression(
     theta: str,
     outline: shapely.Geometry,
@@ -395,29 +365,41 @@ def field_from_design(
     path: str | Path,
     size_mm: float | None = None,
     mm_per_unit: float | None = None,
+    part: Part | PartOptions | None = None,
 ) -> FlatField:
-    """The flat-sheet field of a solved ``design.npz``, scaled to millimetres.
+    """The flat-sheet field of a solved ``design.npz`` on its part, scaled to millimetres.
 
-    Give exactly one of ``size_mm`` (the longest side of the outline's bounding box, mm) and
-    ``mm_per_unit`` (mm per design unit). Every feature of the design is carried, named as
-    in its spec.
+    ``part``: a :class:`~fabkit.part.Part` made already (its scale is the field's; then give
+    neither size nor scale), or the options to make one (default :class:`PartOptions`: the
+    smooth margin outline only). Otherwise give exactly one of ``size_mm`` (the longest
+    side of the solved region's bounding box, mm) and ``mm_per_unit`` (mm per design unit).
+    Every feature of the design is carried, named as in its spec.
     """
-    if (size_mm is None) == (mm_per_unit is None):
-        raise FabkitError("design: give the size (--size MM, longest side) or --scale MM_PER_UNIT")
     design = Design.load(path)
+    if isinstance(part, Part):
+        if part.mm_per_unit is None:
+            raise FabkitError(f"{path}: the part has no scale in mm")
+        if size_mm is not None or mm_per_unit is not None:
+            raise FabkitError(f"{path}: the part sets the scale; give no --size or --scale")
+        scale = part.mm_per_unit
+    else:
+        if (size_mm is None) == (mm_per_unit is None):
+            raise FabkitError(
+                "design: give the size (--size MM, longest side) or --scale MM_PER_UNIT"
+            )
+        solved = solved_region(design, str(path))
+        if size_mm is not None:
+            mm_per_unit = scale_for_size(solved, number(size_mm, "--size", positive=True))
+        scale = number(mm_per_unit, "--scale", positive=True)
+        part = print_part(design, scale, part or PartOptions(), solved, str(path))
     arrays = {key: getattr(design, key) for key in DESIGN_KEYS}
     names = feature_names(design, str(path))
-    mesh = _DesignMesh.build(arrays, 1.0, str(path))
-    outline = mesh.outline()
-    if size_mm is not None:
-        low_x, low_y, high_x, high_y = outline.bounds
-        mm_per_unit = number(size_mm, "--size", positive=True) / max(high_x - low_x, high_y - low_y)
-    scale = number(mm_per_unit, "--scale", positive=True)
     mesh = _DesignMesh.build(arrays, scale, str(path))
-    outline = shapely.affinity.scale(outline, scale, scale, origin=(0, 0))
     features = {name: mesh.feature_function(k) for k, name in enumerate(names)}
     keys = {"theta": f"{path}: theta", **{name: f"{path}: {name}" for name in names}}
-    return FlatField(outline, mesh.theta, features, f"{path}", keys, scale, mesh.everything)
+    return FlatField(
+        part.outline_mm(), mesh.theta, features, f"{path}", keys, scale, mesh.everything, part
+    )
 
 
 def feature_names(design: Design, where: str = "design") -> tuple[str, ...]:
@@ -488,25 +470,6 @@ class _DesignMesh:
             locator=TriangleLocator(points, triangles),
             nodes=cKDTree(points),
         )
-
-    def outline(self) -> shapely.Geometry:
-        """Union of the images of the grid cells (mm)."""
-        quads = self.points[
-            np.column_stack([self.triangles[0::2, :], self.triangles[1::2, 2]])
-        ]  # (C, 4, 2): corners a, b, c, d of each cell
-        cells = shapely.polygons(quads)
-        cells = cells[shapely.area(cells) > 0]
-        try:  # cheap and exact when the image does not overlap itself
-            outline = shapely.coverage_union_all(cells)
-            overlaps = abs(outline.area - float(shapely.area(cells).sum())) > 1e-9 * outline.area
-        except shapely.errors.GEOSException:
-            overlaps = True
-        if overlaps:
-            outline = shapely.union_all(shapely.make_valid(cells))
-        outline = _polygonal(outline)
-        if outline.is_empty:
-            raise FabkitError(f"{self.where}: the design's flat-sheet image has no area")
-        return outline
 
     def theta(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         cos2, sin2 = self._interpolate(x, y, self.cos2, self.sin2)

@@ -1,6 +1,11 @@
 """``fabkit run``: spec to machine files in one go, by calling each stage in turn.
 
-spec -> solve -> check -> pictures -> toolpath -> export -> verify (-> send). Every
+spec -> solve -> check -> part -> pictures -> toolpath -> export -> verify (-> send). The
+part of the flat sheet that is made (:mod:`fabkit.part`: a smooth outline inside the
+solved cells, trimmed of regions too narrow to take their shape, no narrower than the
+minimum width, within ``--outline``) is cut once, right after the solve, and every later
+stage takes it: the pictures, the print lines, channels or laser patterns, and the
+verification. Every
 feature of the design goes to the machine through its own channel of the process (a
 feature the process does not encode is refused before any work, unless it is named with
 ``--ignore-feature``, which the report then says on its first line); the machine file is
@@ -34,10 +39,21 @@ from pathlib import Path
 from typing import Any
 
 from fabkit.atomic import atomic_path, check_folder
+from fabkit.design.design import Design
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
 from fabkit.design.report import solve_to_file
 from fabkit.errors import FabkitError
 from fabkit.machines import load_machine
+from fabkit.part import (
+    MIN_WIDTH_PITCHES,
+    MIN_WIDTH_ROADS,
+    Part,
+    PartOptions,
+    check_part_options,
+    print_part,
+    scale_for_size,
+    solved_region,
+)
 from fabkit.plot import render_design
 from fabkit.plot.report import html_report
 from fabkit.spec import Spec, load_spec
@@ -64,7 +80,8 @@ class RunOptions:
     ``formats`` None: DXF for baromorph channels, laser patterns on a laser writer, else
     G-code. ``machine`` None: laser_cutter for baromorph channels, else a pneumatic DIW.
     ``ignore_features`` are left out of the machine file on purpose; ``verify`` reads the
-    machine file back and checks it (:mod:`fabkit.verify`).
+    machine file back and checks it (:mod:`fabkit.verify`). ``outline``, ``min_width_mm``
+    and ``trim`` cut the part (:class:`fabkit.part.PartOptions`; None: the defaults).
     """
 
     spec: str
@@ -80,6 +97,9 @@ class RunOptions:
     mesh_format: str = "ply"
     ignore_features: tuple[str, ...] = ()
     verify: bool = True
+    outline: str | None = None
+    min_width_mm: float | None = None
+    trim: float | None = None
 
 
 def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dict[str, Any]:
@@ -102,22 +122,24 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
         f"      {solved['valid_points']} valid points in {solved['solve_seconds']:.2f} s; "
         f"check {'passed' if check.passed else 'FAILED'}"
     )
+    part = _part(options, solution.design)
+    say(f"      {part.summary()}")
 
     say("[2/7] drawing pictures and patch meshes")
-    pictures = render_design(solution.design, out / "pictures")
+    pictures = render_design(solution.design, out / "pictures", part)
     meshes = [
         str(path)
         for path in write_patch_meshes(solution.design, out / "patches", options.mesh_format)
     ]
 
     if options.baromorph:
-        fabricated = _channels(options, out, say)
+        fabricated = _channels(options, out, part, say)
     elif load_machine(options.machine).kind == LASER_WRITER:
-        fabricated = _laser_patterns(options, out, say)
+        fabricated = _laser_patterns(options, out, part, say)
     else:
-        fabricated = _print_lines(options, out, say)
+        fabricated = _print_lines(options, out, part, say)
 
-    verification = _verify(options, out, fabricated, say)
+    verification = _verify(options, out, part, say)
 
     sent = None
     if options.send:
@@ -135,6 +157,7 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
         "machine": options.machine,
         "solve": {k: solved[k] for k in ("solve_seconds", "valid_points", "areas", "stop_counts")},
         "check": check.to_dict(),
+        "part": part.to_dict(),
         **fabricated.figures,
         "verify": verification,
         "sent": sent,
@@ -166,6 +189,7 @@ def _check_inputs(options: RunOptions) -> Spec:
     if not (math.isfinite(options.size_mm) and options.size_mm > 0):
         raise FabkitError(f"--size {options.size_mm:g}: expected a positive finite number")
     check_folder(options.out, f"--out {options.out}")
+    check_part_options(options.min_width_mm, options.trim, options.outline)
     spec = load_spec(options.spec)
     patch_paths(spec.targets, Path(options.out) / "patches", options.mesh_format)
     if options.step is not None or options.diagonals is not None:
@@ -207,8 +231,37 @@ def _notice(options: RunOptions) -> str:
     )
 
 
+def _part(options: RunOptions, design: Design) -> Part:
+    """The part of the flat sheet that is made, at the run's size, for its process: the
+    road width (a baromorph's: two channel pitches) and one layer's height (a baromorph's
+    part thickness) set the default minimum width and the trim."""
+    if options.baromorph:
+        settings = load_baromorph(options.baromorph)
+        road, thickness = settings.pitch_mm, settings.part_thickness_mm
+        roads = MIN_WIDTH_PITCHES
+    else:
+        machine = load_machine(options.machine)
+        process = load_process(options.process_file) if options.process_file else machine.process
+        road, thickness = process.road_width_mm, process.layer_height_mm
+        roads = MIN_WIDTH_ROADS
+    solved = solved_region(design)
+    return print_part(
+        design,
+        scale_for_size(solved, options.size_mm),
+        PartOptions(
+            min_width_mm=options.min_width_mm,
+            trim=options.trim,
+            outline=options.outline,
+            road_width_mm=road,
+            thickness_mm=thickness,
+            roads=roads,
+        ),
+        solved,
+    )
+
+
 def _verify(
-    options: RunOptions, out: Path, fabricated: _Fabricated, say: Callable[[str], None]
+    options: RunOptions, out: Path, part: Part, say: Callable[[str], None]
 ) -> dict[str, Any] | None:
     """Read the first machine file back and check it (None with --no-verify)."""
     if not options.verify:
@@ -226,6 +279,7 @@ def _verify(
             process_file=options.process_file,
             ignore_features=options.ignore_features,
             baromorph=options.baromorph,
+            part=part,
         ),
     )
     for line in result.table().splitlines()[1:-1]:
@@ -255,7 +309,9 @@ class _Fabricated:
     picture: tuple[str, Path]
 
 
-def _print_lines(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
+def _print_lines(
+    options: RunOptions, out: Path, part: Part, say: Callable[[str], None]
+) -> _Fabricated:
     """Print lines along the director, then the machine files."""
     say(f"[3/7] planning print lines for {options.machine} at {options.size_mm:g} mm")
     job = run_job(
@@ -266,6 +322,7 @@ def _print_lines(options: RunOptions, out: Path, say: Callable[[str], None]) -> 
             size_mm=options.size_mm,
             ignore_features=options.ignore_features,
             out=str(out / "toolpath"),
+            part=part,
         )
     )
     say(f"[4/7] writing {', '.join(options.formats)}")
@@ -285,7 +342,9 @@ def _print_lines(options: RunOptions, out: Path, say: Callable[[str], None]) -> 
     return _Fabricated(figures, (caption, out / "toolpath" / "preview.png"))
 
 
-def _laser_patterns(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
+def _laser_patterns(
+    options: RunOptions, out: Path, part: Part, say: Callable[[str], None]
+) -> _Fabricated:
     """Photoalignment patterns straight from the design (no print lines)."""
     say("[3/7] no print lines: a laser writer exposes the director field directly")
     say("[4/7] writing laser/")
@@ -295,18 +354,18 @@ def _laser_patterns(options: RunOptions, out: Path, say: Callable[[str], None]) 
         options.machine,
         "laser",
         out / "laser",
-        ExportOptions(
-            size_mm=options.size_mm, process=process, ignore_features=options.ignore_features
-        ),
+        ExportOptions(process=process, ignore_features=options.ignore_features, part=part),
     )
     caption = "Photoalignment pattern: binned director angle and the dose of each exposure (mm)"
     return _Fabricated({"exports": {"laser": summary}}, (caption, out / "laser" / "preview.png"))
 
 
-def _channels(options: RunOptions, out: Path, say: Callable[[str], None]) -> _Fabricated:
+def _channels(
+    options: RunOptions, out: Path, part: Part, say: Callable[[str], None]
+) -> _Fabricated:
     """Baromorph channels whose width encodes eps, their mould, and a DXF for a cutter."""
     say(f"[3/7] laying out baromorph channels at {options.size_mm:g} mm")
-    fields = ToolpathJob(inputs=(str(out / "design.npz"),), size_mm=options.size_mm)
+    fields = ToolpathJob(inputs=(str(out / "design.npz"),), part=part)
     result = run_channel_job(
         ChannelJob(fields=fields, baromorph=options.baromorph, out=str(out / "channels"))
     )

@@ -80,12 +80,14 @@ def test_design_field_follows_the_grid(tmp_path):
     expected = np.arctan2(director[:, 1], director[:, 0])
     assert np.abs(field.theta(points) - expected).max() < 2e-3
     assert np.abs(field.eps(points) - (0.3 + 0.2 * u)).max() < 1e-4  # O(h^2)
-    sized = field_from_design(path, size_mm=30.0)
-    low_x, low_y, high_x, high_y = sized.outline.bounds
-    assert max(high_x - low_x, high_y - low_y) == pytest.approx(30.0)
+    sized = field_from_design(path, size_mm=30.0)  # the size is the solved region's
+    low_x, low_y, high_x, high_y = sized.part.solved.bounds
+    assert max(high_x - low_x, high_y - low_y) * sized.mm_per_unit == pytest.approx(30.0)
+    assert sized.outline.difference(sized.part.outline_mm()).area == 0.0
 
 
-def test_design_outline_is_the_union_of_cell_images(tmp_path):
+def test_design_solved_region_is_the_union_of_cell_images(tmp_path):
+    """The part (the field's outline) is cut from the union of the solved cells' images."""
     field = field_from_design(write_design(tmp_path / "d.npz"), mm_per_unit=1.0)
     u = 0.05 * np.arange(-40, 41)
     grid_u, grid_v = np.meshgrid(u, u, indexing="ij")
@@ -102,8 +104,11 @@ def test_design_outline_is_the_union_of_cell_images(tmp_path):
         ],
         axis=1,
     )
-    assert field.outline.is_valid
-    assert field.outline.area == pytest.approx(shapely.area(shapely.polygons(quads)).sum())
+    solved = field.part.solved
+    assert solved.is_valid and field.outline.is_valid
+    assert solved.area == pytest.approx(shapely.area(shapely.polygons(quads)).sum())
+    assert field.outline.difference(solved).area <= 1e-9 * solved.area
+    assert 0.85 * solved.area < field.outline.area < solved.area
 
 
 def test_self_overlapping_design_takes_the_preimage_nearest_the_origin(tmp_path):

@@ -22,6 +22,7 @@ from fabkit.mechanics.simulate import (
     simulate_design,
     surface_index,
 )
+from fabkit.part import simulation_part
 from fabkit.spec import build_spec
 from tests.conftest import ROOT
 
@@ -128,13 +129,14 @@ def fig1_design():
 
 @pytest.mark.parametrize(("stimulus", "whole"), [("sphere", 0.075), ("bump", 0.026)])
 def test_fig1_targets_are_reproduced_where_the_sheet_is_wide_enough(fig1_design, stimulus, whole):
-    """Thickness 1 % of the flat domain's size. Without the arms (regions under 0.5 in
-    (u, v) across: --trim 5 on this step-0.1 grid), each cell split 3 x 3, both targets
-    are met within 2 % of the patch size. The whole domain misses (see docs/mechanics.md,
-    Limits): the sphere's narrow arms unroll (measured 6.9 %), the bump relaxes towards a
-    near-isometric shape of lower bending energy (2.4 %)."""
+    """Thickness 1 % of the flat domain's size. On the default part (fabkit simulate's:
+    without the regions under 4 bending lengths across), each cell split 3 x 3, both
+    targets are met within 2 % of the patch size. The whole domain misses (see
+    docs/mechanics.md, Limits): the sphere's narrow arms unroll (measured 6.9 %), the bump
+    relaxes towards a near-isometric shape of lower bending energy (2.4 %)."""
     surface = surface_index(fig1_design, stimulus)
-    report = compare(fig1_design, simulate_design(fig1_design, surface, trim=5, refine=3))
+    part, _ = simulation_part(fig1_design, None)
+    report = compare(fig1_design, simulate_design(fig1_design, surface, part=part, refine=3))
     assert report.converged
     assert report.rms <= 0.02, report.table()
     assert report.strain_median <= 5e-3
@@ -145,7 +147,9 @@ def test_fig1_targets_are_reproduced_where_the_sheet_is_wide_enough(fig1_design,
 def test_trimming_keeps_the_thickness_of_the_whole_sheet(fig1_design):
     settings = Settings(max_iterations=1)
     whole = simulate_design(fig1_design, 1, settings=settings)
-    trimmed = simulate_design(fig1_design, 1, settings=settings, trim=5)
+    part, thickness = simulation_part(fig1_design, None)
+    trimmed = simulate_design(fig1_design, 1, settings=settings, part=part)
+    assert thickness == pytest.approx(whole.thickness, rel=0.05)
     assert trimmed.thickness == whole.thickness
 
 
@@ -158,7 +162,8 @@ def test_design_mesh_carries_material_coordinates(fig1_design):
     mesh = design_mesh(fig1_design)
     flat = fig1_design.r[0][mesh.grid[:, 0], mesh.grid[:, 1]]
     assert np.array_equal(flat, mesh.points)
-    assert len(design_mesh(fig1_design, trim=3).triangles) < len(mesh.triangles)
+    part, _ = simulation_part(fig1_design, None)
+    assert len(design_mesh(fig1_design, part).triangles) < len(mesh.triangles)
 
 
 def test_refined_design_mesh_splits_every_cell(fig1_design):
@@ -190,7 +195,7 @@ def test_simulate_cli_writes_the_mesh_and_reports(fig1_design, run_cli, tmp_path
     fig1_design.save(path)
     mesh = tmp_path / "sphere.ply"
     code, out, _ = run_cli(
-        "simulate", path, "--stimulus", "1", "--trim", "5", "--refine", "2", "--out", mesh, "--json"
+        "simulate", path, "--stimulus", "1", "--refine", "2", "--out", mesh, "--json"
     )
     assert code == 0 and mesh.stat().st_size > 0
     assert json.loads(out)["rms"] <= 0.02
@@ -201,7 +206,7 @@ def test_simulate_cli_writes_the_mesh_and_reports(fig1_design, run_cli, tmp_path
 def test_simulate_cli_says_when_newton_stops_before_converging(fig1_design, run_cli, tmp_path):
     path = tmp_path / "design.npz"
     fig1_design.save(path)
-    args = ("simulate", path, "--stimulus", "1", "--trim", "5")
+    args = ("simulate", path, "--stimulus", "1")
     code, out, _ = run_cli(*args, "--max-iterations", "2")
     assert code == 0 and "not converged" in out and "--max-iterations" in out
     code, out, _ = run_cli(*args)

@@ -371,7 +371,7 @@ def test_an_ignored_feature_is_the_reports_first_line(run_cli, tmp_path):
 
 def test_verify_reads_a_run_back_and_simulates_it(fig1_run, run_cli):
     design, gcode = fig1_run / "design.npz", fig1_run / "sheet.gcode"
-    code, text, err = run_cli("verify", design, gcode, "--reference", "--trim", "5", "--json")
+    code, text, err = run_cli("verify", design, gcode, "--reference", "--json")
     assert code == 0, err
     report = json.loads(text)
     # the coverage read back from the G-code agrees with the planner's own measure

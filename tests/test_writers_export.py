@@ -9,8 +9,11 @@ import ezdxf
 import numpy as np
 import pytest
 import shapely
+import shapely.affinity
 
+from fabkit.fields import field_from_design
 from fabkit.machines import load_machine
+from fabkit.part import PartOptions
 from fabkit.toolpath import load_toolpath, save_toolpath
 from tests.test_writers_common import (
     baromorph,
@@ -84,8 +87,16 @@ def test_dxf_for_both_examples(run_cli, tmp_path, toolpaths):
     assert code == 0 and "OUTLINE 1" in out
     doc = ezdxf.readfile(tmp_path / "sheet.dxf")
     (outline,) = doc.modelspace().query("LWPOLYLINE[layer=='OUTLINE']")
-    x0, y0, x1, y1 = shapely.Polygon(outline.get_points("xy")).bounds
-    assert max(x1 - x0, y1 - y0) == pytest.approx(40.0)
+    # the outline is the design's part, cut as export cuts it (sized by the solved region)
+    process = load_machine("laser_cutter").process
+    options = PartOptions(road_width_mm=process.road_width_mm, thickness_mm=process.layer_height_mm)
+    part = field_from_design(fig1_design_path(), 40.0, None, options)
+    x0, y0, x1, y1 = part.part.solved.bounds
+    assert max(x1 - x0, y1 - y0) * part.mm_per_unit == pytest.approx(40.0)
+    drawn = shapely.Polygon(outline.get_points("xy"))  # placed on the machine's bed
+    low = np.subtract(part.outline.bounds[:2], drawn.bounds[:2])
+    drawn = shapely.affinity.translate(drawn, *low)
+    assert drawn.symmetric_difference(part.outline).area <= 1e-3 * part.outline.area
 
     shapes = baromorph()
     geometry = tmp_path / "plate.geojson"

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fabkit.commands.toolpath import part_arguments
 from fabkit.machines import RELATIONS
 from fabkit.writers.common import FORMATS, IMAGE_FORMATS
 from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
@@ -43,6 +44,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     design.add_argument(
         "--process", metavar="FILE", help="laser: TOML whose [process] replaces the machine's"
     )
+    part_arguments(parser)
     gcode = parser.add_argument_group("gcode")
     gcode.add_argument("--e-mode", choices=E_MODES, help="default: the profile's start G-code")
     gcode.add_argument("--e-units", choices=E_UNITS, help="default: filament (hyrel: volume)")
@@ -91,6 +93,9 @@ def run(args: argparse.Namespace) -> int:
         mm_per_unit=args.scale,
         process=load_process(args.process) if args.process else None,
         ignore_features=tuple(args.ignore_feature),
+        outline=args.outline,
+        min_width_mm=args.min_width,
+        trim=args.trim,
         gcode=GcodeOptions(
             e_mode=args.e_mode,
             e_units=args.e_units,

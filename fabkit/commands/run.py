@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from fabkit.commands.toolpath import part_arguments
 from fabkit.design.patches import MESH_TYPES
 from fabkit.pipeline import (
     BAROMORPH_MACHINE,
@@ -85,6 +86,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PORT",
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
     )
+    part_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -103,6 +105,9 @@ def run(args: argparse.Namespace) -> int:
         mesh_format=args.mesh_format,
         ignore_features=tuple(args.ignore_feature),
         verify=not args.no_verify,
+        outline=args.outline,
+        min_width_mm=args.min_width,
+        trim=args.trim,
     )
     figures = run_pipeline(options)
     print(

@@ -12,6 +12,7 @@ from fabkit.errors import FabkitError
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.simulate import SEEDS, Settings, simulate_design, surface_index
+from fabkit.part import simulation_part
 from fabkit.progress import ProgressBar
 
 
@@ -43,7 +44,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--seed", choices=SEEDS, default=defaults.seed, help="initial out-of-plane perturbation"
     )
     parser.add_argument(
-        "--trim", type=int, default=0, help="drop regions fewer than TRIM grid cells across"
+        "--trim",
+        type=float,
+        metavar="N",
+        help="simulate the part without the regions narrower than N bending lengths "
+        "sqrt(thickness R) (default 4; 0: no trim; docs/part.md)",
     )
     parser.add_argument(
         "--refine",
@@ -62,15 +67,16 @@ def run(args: argparse.Namespace) -> int:
     design = Design.load(args.design)
     surface = surface_index(design, args.stimulus)
     settings = Settings(steps=args.steps, seed=args.seed, max_iterations=args.max_iterations)
+    part, thickness = simulation_part(design, args.thickness, args.trim)
     bar = ProgressBar("simulating")
     try:
         simulation = simulate_design(
             design,
             surface,
-            args.thickness,
+            thickness,
             args.poisson,
             settings,
-            args.trim,
+            part,
             args.refine,
             progress=bar,
         )
@@ -79,8 +85,11 @@ def run(args: argparse.Namespace) -> int:
     report = compare(design, simulation)
     if args.out is not None:
         save_mesh(args.out, simulation.result.positions, simulation.mesh.triangles)
-    print(json.dumps(report.to_dict(), indent=2) if args.json else report.table())
-    if not args.json:
+    if args.json:
+        print(json.dumps({**report.to_dict(), "part": part.to_dict()}, indent=2))
+    else:
+        print(part.summary())
+        print(report.table())
         if not simulation.result.converged:
             print(
                 f"  not converged: Newton stopped at {settings.max_iterations} iterations per "

@@ -76,7 +76,34 @@ def _field_arguments(parser: argparse.ArgumentParser, inputs_help: str) -> None:
     scale = parser.add_argument_group("design scale").add_mutually_exclusive_group()
     scale.add_argument("--size", type=float, metavar="MM", help="longest side of the sheet, mm")
     scale.add_argument("--scale", type=float, metavar="MM_PER_UNIT", help="mm per design unit")
-    parser.add_argument("--clip", metavar="SHAPE", help="clip every outline by this shape (mm)")
+    part_arguments(parser)
+
+
+def part_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options that cut a design's part (docs/part.md), shared by every command that
+    makes one from a design (their defaults, None, are fabkit.part's: a test checks that
+    the help states them)."""
+    part = parser.add_argument_group("the part of a design that is made (docs/part.md)")
+    part.add_argument(
+        "--outline",
+        metavar="SHAPE|FILE",
+        help="intersect the part with a shape (disc:R, ...) or the closed paths of a "
+        ".dxf, .svg, .geojson or .csv file (mm, sheet frame); clips a director field too",
+    )
+    part.add_argument(
+        "--min-width",
+        type=float,
+        metavar="MM",
+        help="remove parts narrower than this (default 4 road widths, channels 2 pitches; "
+        "0: keep them)",
+    )
+    part.add_argument(
+        "--trim",
+        type=float,
+        metavar="N",
+        help="remove regions narrower than N bending lengths sqrt(h R), too narrow to "
+        "take their shape (h: the layers' height; default 4; 0: keep them)",
+    )
 
 
 def _fields(args: argparse.Namespace, **extra) -> ToolpathJob:
@@ -87,13 +114,17 @@ def _fields(args: argparse.Namespace, **extra) -> ToolpathJob:
         eps=args.eps,
         size_mm=args.size,
         mm_per_unit=args.scale,
-        clip=args.clip,
+        outline=args.outline,
+        min_width_mm=args.min_width,
+        trim=args.trim,
         **extra,
     )
 
 
 def run_channels(args: argparse.Namespace) -> int:
     result = run_channel_job(ChannelJob(_fields(args), args.baromorph, args.out))
+    if result.part is not None:
+        print(result.part.summary())
     print(result.report.summary())
     for path in result.files:
         print(f"wrote {path}")
@@ -119,6 +150,8 @@ def run(args: argparse.Namespace) -> int:
     result = run_job(job)
     for warning in result.plan.warnings:
         print(f"fabkit: warning: {warning}", file=sys.stderr)
+    for part in result.parts:
+        print(part.summary())
     for index, quality in enumerate(result.plan.quality):
         print(f"layer {index + 1}: {quality.summary()}")
     for path in result.files:

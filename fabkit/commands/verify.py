@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from fabkit.commands.toolpath import part_arguments
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
@@ -76,14 +78,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="coarsen the design's grid by this for the simulations (default: about 800 triangles)",
     )
     simulation.add_argument(
-        "--trim", type=int, default=0, help="drop regions fewer than TRIM grid cells across"
-    )
-    simulation.add_argument(
         "--max-iterations",
         type=int,
         default=100,
         help="Newton iterations per ramp step (default %(default)s)",
     )
+    part_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     parser.set_defaults(func=run)
 
@@ -112,9 +112,11 @@ def run(args: argparse.Namespace) -> int:
         simulate=not args.no_simulate,
         reference=args.reference,
         stride=args.stride,
-        trim=args.trim,
         max_iterations=args.max_iterations,
         baromorph=args.baromorph,
+        outline=args.outline,
+        min_width_mm=args.min_width,
+        trim=args.trim,
     )
     result = verify(args.design, args.machine_file, options)
     print(json.dumps(result.to_dict(), indent=2) if args.json else result.table())

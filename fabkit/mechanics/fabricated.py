@@ -35,6 +35,7 @@ from fabkit.errors import FabkitError
 from fabkit.mechanics.mesh import DesignMesh, counter_clockwise, design_mesh
 from fabkit.mechanics.metric import metric_from_director, metric_from_lengths
 from fabkit.mechanics.simulate import DesignSimulation, Settings, diameter, simulate
+from fabkit.part import SIMULATE_THICKNESS, Part
 
 PointFunction = Callable[[np.ndarray], np.ndarray]
 """A function of (n, 2) flat-sheet points (design units)."""
@@ -108,10 +109,10 @@ def coarsened(design: Design, stride: int) -> Design:
     )
 
 
-def made_mesh(design: Design, made: PointFunction, trim: int = 0) -> DesignMesh:
-    """The design's mesh with only the faces whose centroid was made (unused vertices
-    dropped); a one-line error if nothing is left."""
-    mesh = design_mesh(design, trim)
+def made_mesh(design: Design, made: PointFunction, part: Part | None = None) -> DesignMesh:
+    """The design's mesh (the cells of ``part``) with only the faces whose centroid was
+    made (unused vertices dropped); a one-line error if nothing is left."""
+    mesh = design_mesh(design, part)
     centroids = mesh.points[mesh.triangles].mean(axis=1)
     return _faces(mesh, np.asarray(made(centroids), dtype=bool))
 
@@ -195,21 +196,21 @@ def simulate_sheet(
     thickness: float | None = None,
     poisson: float = 0.5,
     settings: Settings | None = None,
-    trim: int = 0,
+    part: Part | None = None,
     stride: int = 1,
 ) -> tuple[Design, DesignSimulation]:
     """Simulate the sheet of ``fields`` under surface ``surface``'s stimulus.
 
-    The mesh is the design's grid coarsened by ``stride`` (and trimmed as in
+    The mesh is the design's grid coarsened by ``stride`` (its cells in ``part``, as in
     :func:`~fabkit.mechanics.mesh.design_mesh`), restricted to where the sheet was made.
     ``thickness`` defaults to 1 % of the diameter of the design's whole solved flat domain
     (as ``fabkit simulate``). Returns the coarsened design (compare against it) and the
     simulation.
     """
     coarse = coarsened(design, stride)
-    mesh = made_mesh(coarse, fields.made, trim)
+    mesh = made_mesh(coarse, fields.made, part)
     if thickness is None:
-        thickness = 0.01 * diameter(design_mesh(design).points)
+        thickness = SIMULATE_THICKNESS * diameter(design_mesh(design).points)
 
     def sample(mesh: DesignMesh) -> tuple[np.ndarray, np.ndarray]:
         theta = np.asarray(fields.theta(mesh.points), dtype=float)

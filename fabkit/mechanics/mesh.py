@@ -11,13 +11,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 from scipy.spatial import Delaunay
 
 from fabkit.atomic import atomic_path
 from fabkit.design.design import Design
-from fabkit.design.patches import MESH_FORMATS, grid_triangles
+from fabkit.design.patches import MESH_FORMATS
 from fabkit.errors import FabkitError
+from fabkit.part import Part, solved_cells
 
 
 @dataclass(frozen=True)
@@ -75,31 +75,36 @@ class Topology:
     flaps: np.ndarray
 
 
-def design_mesh(design: Design, trim: int = 0, refine: int = 1) -> DesignMesh:
-    """Triangulate every solved grid cell of ``design`` (two triangles per cell).
+def design_mesh(design: Design, part: Part | None = None, refine: int = 1) -> DesignMesh:
+    """Triangulate the solved grid cells of ``design`` (two triangles per cell).
 
-    With ``trim`` = k > 1, only cells inside a solved block of k x k cells are kept
-    (a morphological opening): it cuts away spikes fewer than k cells across, which a
-    mesh cannot resolve (a one-cell ribbon bends freely whatever its metric).
-    With ``refine`` = n > 1 every kept cell is split into n x n sub-cells, uniform in
-    material coordinates; the new vertices' flat positions interpolate the design's
-    flat sheet r[0] bilinearly (they only chart the sheet: its reference metric comes
-    from the designed metric in (u, v), see
+    With ``part`` (:class:`~fabkit.part.Part`), only the cells whose centre lies in the
+    part are kept (the part's trim removes regions too narrow for the sheet's thickness:
+    a ribbon a few bending lengths wide bends freely whatever its metric). With ``refine``
+    = n > 1 every solved cell is split into n x n sub-cells, uniform in material
+    coordinates, each kept when its own centre lies in the part; the new vertices' flat
+    positions interpolate the design's flat sheet r[0] bilinearly (they only chart the
+    sheet: its reference metric comes from the designed metric in (u, v), see
     :func:`~fabkit.mechanics.simulate.design_metrics`).
     """
     if refine < 1:
         raise FabkitError(f"refine must be a positive integer, got {refine}")
-    valid = design.valid
-    cells = valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:] & valid[1:, 1:]
-    if trim > 1:
-        cells = ndimage.binary_opening(cells, structure=np.ones((trim, trim), dtype=bool))
-    fine = np.kron(cells, np.ones((refine, refine), dtype=bool))
-    used = np.zeros((fine.shape[0] + 1, fine.shape[1] + 1), dtype=bool)
-    for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
-        used[di : di + fine.shape[0], dj : dj + fine.shape[1]] |= fine
-    grid, triangles = grid_triangles(used)
-    if len(triangles) == 0:
-        raise FabkitError("the design has no solved grid cell to simulate")
+    fine = np.kron(solved_cells(design), np.ones((refine, refine), dtype=bool))
+    i, j = np.nonzero(fine)
+    corners = np.stack([(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)], axis=1)  # (2, 4, F)
+    if part is not None and len(i):
+        probe = DesignMesh(
+            np.zeros((4 * len(i), 2)), np.zeros((0, 3), int), corners.reshape(2, -1).T, refine
+        )
+        centres = probe.sample(np.nan_to_num(design.r[0])).reshape(4, len(i), 2).mean(axis=0)
+        keep = part.contains(centres)
+        i, j, corners = i[keep], j[keep], corners[:, :, keep]
+    if len(i) == 0:
+        raise FabkitError("the design has no solved grid cell to simulate (in the part)")
+    flat = corners.reshape(2, -1)
+    grid, inverse = np.unique(flat.T, axis=0, return_inverse=True)
+    a, b, c, d = inverse.reshape(4, -1)
+    triangles = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)])
     mesh = DesignMesh(np.zeros((len(grid), 2)), triangles, grid, refine)
     points = mesh.sample(design.r[0])
     return DesignMesh(points, counter_clockwise(points, triangles), grid, refine)

@@ -26,6 +26,7 @@ from fabkit.errors import FabkitError
 from fabkit.mechanics.mesh import DesignMesh, design_mesh
 from fabkit.mechanics.metric import grid_edge_lengths, metric_from_lengths
 from fabkit.mechanics.shell import Sheet, Shell, build_shell
+from fabkit.part import SIMULATE_THICKNESS, Part
 
 SEEDS = ("dome", "saddle")
 ARMIJO = 1e-4
@@ -288,20 +289,21 @@ def simulate_design(
     thickness: float | None = None,
     poisson: float = 0.5,
     settings: Settings = Settings(),
-    trim: int = 0,
+    part: Part | None = None,
     refine: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> DesignSimulation:
-    """Simulate ``design``'s flat domain under surface ``surface``'s stimulus.
+    """Simulate ``design``'s flat domain (the cells of ``part``, else every solved cell)
+    under surface ``surface``'s stimulus.
 
     ``thickness`` defaults to 1 % of the diameter of the design's whole solved flat
-    domain (design units; trimming does not change it); ``trim`` and ``refine`` as in
+    domain (design units; the part does not change it); ``part`` and ``refine`` as in
     :func:`~fabkit.mechanics.mesh.design_mesh`.
     """
     spec = design.problem
-    mesh = design_mesh(design, trim, refine)
+    mesh = design_mesh(design, part, refine)
     if thickness is None:
-        thickness = 0.01 * diameter(design_mesh(design).points)
+        thickness = SIMULATE_THICKNESS * diameter(design_mesh(design).points)
     metrics = design_metrics(design, mesh, surface)
     made = design_metrics(design, mesh, 0)
     result = simulate(

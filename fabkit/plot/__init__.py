@@ -6,13 +6,14 @@ from pathlib import Path
 
 from fabkit.design.check import residual_maps
 from fabkit.design.design import Design
+from fabkit.part import Part
 from fabkit.plot import design as pictures
 
 DESIGN_PICTURES = (
     (
         "flat_sheet.png",
         "The flat sheet: director lines coloured by the first feature, "
-        "v-curves grey, domain outline black",
+        "v-curves grey, solved region grey, the part that is made black",
     ),
     ("eps.png", "Designable features on the flat sheet and on the material grid"),
     (
@@ -24,11 +25,14 @@ DESIGN_PICTURES = (
 )
 
 
-def render_design(design: Design, folder: str | Path) -> list[tuple[str, Path]]:
-    """Draw the design pictures into ``folder``; returns (caption, path) pairs."""
+def render_design(
+    design: Design, folder: str | Path, part: Part | None = None
+) -> list[tuple[str, Path]]:
+    """Draw the design pictures into ``folder`` (the flat sheet with its ``part``, default:
+    the part of :class:`fabkit.part.PartRules`' defaults); returns (caption, path) pairs."""
     folder = Path(folder)
     paths = {name: folder / name for name, _ in DESIGN_PICTURES}
-    pictures.flat_sheet(design, paths["flat_sheet.png"])
+    pictures.flat_sheet(design, paths["flat_sheet.png"], part)
     pictures.eps_maps(design, paths["eps.png"])
     pictures.actuated_surfaces(design, paths["surfaces.png"])
     pictures.residual_maps(design, residual_maps(design), paths["residuals.png"])

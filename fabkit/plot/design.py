@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import shapely  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
 from matplotlib.tri import Triangulation  # noqa: E402
@@ -18,6 +19,7 @@ from fabkit.atomic import atomic_path  # noqa: E402
 from fabkit.design.check import RESIDUALS, ResidualMaps  # noqa: E402
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.patches import grid_triangles  # noqa: E402
+from fabkit.part import Part, PartRules, make_part  # noqa: E402
 
 CURVES = 24
 """About this many u-curves and v-curves are drawn on each picture."""
@@ -57,8 +59,10 @@ def _runs(mask: np.ndarray) -> list[np.ndarray]:
     return [np.arange(a, b) for a, b in zip(starts, stops, strict=True)]
 
 
-def flat_sheet(design: Design, path: str | Path) -> None:
-    """The flat sheet: director lines (u-curves) coloured by the first feature, v-curves grey."""
+def flat_sheet(design: Design, path: str | Path, part: Part | None = None) -> None:
+    """The flat sheet: director lines (u-curves) coloured by the first feature, v-curves
+    grey, the solved region's border grey and the part's outline black (``part``, default:
+    the margin outline of :func:`fabkit.part.make_part` without a trim or minimum width)."""
     spec = design.problem
     flat = design.r[0]
     figure, axes = plt.subplots(figsize=(6.5, 6))
@@ -75,7 +79,7 @@ def flat_sheet(design: Design, path: str | Path) -> None:
     collection = LineCollection(segments, array=np.array(colours), cmap="viridis", lw=1.4)
     axes.add_collection(collection)
     figure.colorbar(collection, ax=axes, label=f"{spec.material.features[0]}")
-    _outline(axes, design)
+    _outline(axes, design, part or make_part(design, PartRules()))
     axes.set_aspect("equal")
     axes.autoscale()
     axes.set_xlabel("x (design units)")
@@ -84,18 +88,13 @@ def flat_sheet(design: Design, path: str | Path) -> None:
     save(figure, path)
 
 
-def _outline(axes, design: Design) -> None:
-    """Draw the border of the solved domain on the flat sheet."""
-    points, triangles = grid_triangles(design.valid)
-    if len(triangles) == 0:
-        return
-    edges = np.sort(
-        np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1
-    )
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
-    border = unique[counts == 1]
-    xy = design.r[0][points[:, 0], points[:, 1]]
-    axes.add_collection(LineCollection(xy[border], colors="black", lw=1.0))
+def _outline(axes, design: Design, part: Part) -> None:
+    """Draw the border of the solved region (grey) and the part's outline (black)."""
+    for geometry, colour, width in ((part.solved, "0.55", 0.8), (part.outline, "black", 1.4)):
+        for polygon in shapely.get_parts(geometry):
+            for ring in (polygon.exterior, *polygon.interiors):
+                xy = np.asarray(ring.coords)
+                axes.plot(xy[:, 0], xy[:, 1], color=colour, lw=width, zorder=3)
 
 
 def eps_maps(design: Design, path: str | Path) -> None:

@@ -33,6 +33,8 @@ from fabkit.fields import (
     parse_shape,
 )
 from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES
+from fabkit.outlines import read_outline
+from fabkit.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
 from fabkit.process import Process
 from fabkit.toolpath.baromorph import (
     ChannelLayout,
@@ -51,7 +53,13 @@ from fabkit.toolpath.process import load_process, machine_process, resolve_chann
 
 @dataclass(frozen=True)
 class ToolpathJob:
-    """What to make (see ``fabkit toolpath --help``); lengths in mm."""
+    """What to make (see ``fabkit toolpath --help``); lengths in mm.
+
+    A design input is cut to its part (:mod:`fabkit.part`): ``outline`` (also a clip of a
+    director field), ``min_width_mm`` (None: 4 road widths) and ``trim`` (bending lengths
+    of a sheet as thick as the layers; 0: none); ``part``: a part made already (``fabkit
+    run``) for the one design input.
+    """
 
     inputs: tuple[str, ...] = ()
     director: str | None = None
@@ -59,7 +67,10 @@ class ToolpathJob:
     eps: str | None = None
     size_mm: float | None = None
     mm_per_unit: float | None = None
-    clip: str | None = None
+    outline: str | None = None
+    min_width_mm: float | None = None
+    trim: float | None = None
+    part: Part | None = None
     machine: str | None = None
     process_file: str | None = None
     road_width_mm: float | None = None
@@ -76,10 +87,11 @@ class ToolpathJob:
 
 @dataclass(frozen=True)
 class JobResult:
-    """The plan and the files written."""
+    """The plan, the files written, and the part of every design input."""
 
     plan: Plan
     files: tuple[Path, ...]
+    parts: tuple[Part, ...] = ()
 
 
 def run_job(job: ToolpathJob) -> JobResult:
@@ -87,8 +99,8 @@ def run_job(job: ToolpathJob) -> JobResult:
     if not 0 <= job.end_inset <= 1:
         raise FabkitError(f"--end-inset {job.end_inset:g}: expected a fraction of w in [0, 1]")
     check_folder(job.out, f"--out {job.out}")
-    fields = load_fields(job)
     process = job_process(job)
+    fields = load_fields(job, process.road_width_mm, job.layers * process.layer_height_mm)
     if job.encode:
         for flat in fields:  # a feature without a channel is refused before planning
             ignore = tuple(name for name in job.ignore_features if name in flat.names)
@@ -105,12 +117,13 @@ def run_job(job: ToolpathJob) -> JobResult:
     out = Path(job.out)
     files = [out / "toolpath.npz", out / "quality.json", out / "preview.png", out / "preview.svg"]
     save_toolpath(plan.toolpath, files[0])
-    _save_quality(plan, process, files[1])
+    _save_quality(plan, process, files[1], fields)
     save_preview(plan.toolpath, [f.outline for f in fields], files[2:4])
     if job.json:
         files.append(out / "toolpath.json")
         save_toolpath(plan.toolpath, files[-1])
-    return JobResult(plan, tuple(files))
+    parts = tuple(f.part for f in fields if f.part is not None)
+    return JobResult(plan, tuple(files), parts)
 
 
 MAX_ROADS_ACROSS = 5000
@@ -139,9 +152,26 @@ def _check_extent(fields: list[FlatField], road_width_mm: float, layers: int) ->
         )
 
 
-def load_fields(job: ToolpathJob) -> list[FlatField]:
-    """The flat-sheet fields of the job's inputs, in order (bottom layer first)."""
-    fields = [_load_input(path, job) for path in job.inputs]
+def load_fields(
+    job: ToolpathJob,
+    road_width_mm: float | None = None,
+    thickness_mm: float | None = None,
+    roads: float = MIN_WIDTH_ROADS,
+) -> list[FlatField]:
+    """The flat-sheet fields of the job's inputs, in order (bottom layer first); a design
+    is cut to its part for a process of this road width (mm) making a sheet this thick
+    (mm), by default no narrower than ``roads`` road widths."""
+    options = PartOptions(
+        min_width_mm=job.min_width_mm,
+        trim=job.trim,
+        outline=job.outline,
+        road_width_mm=road_width_mm,
+        thickness_mm=thickness_mm,
+        roads=roads,
+    )
+    if job.part is not None and len(job.inputs) != 1:
+        raise FabkitError("a part made already goes with one design input")
+    fields = [_load_input(path, job, job.part or options) for path in job.inputs]
     if job.director is not None:
         if job.shape is None:
             raise FabkitError("--director needs --shape (e.g. --shape disc:10)")
@@ -152,16 +182,18 @@ def load_fields(job: ToolpathJob) -> list[FlatField]:
         raise FabkitError("--shape and --eps go with --director")
     if not fields:
         raise FabkitError("give a design.npz or director .toml input, or --director with --shape")
-    if job.clip is not None:
-        clip = parse_shape(job.clip, "--clip")
-        fields = [f.clipped(clip) for f in fields]
+    if job.outline is not None:
+        clip = read_outline(job.outline)
+        fields = [f if f.part is not None else f.clipped(clip) for f in fields]
     return fields
 
 
-def _load_input(path: str, job: ToolpathJob) -> FlatField:
+def _load_input(path: str, job: ToolpathJob, part: Part | PartOptions) -> FlatField:
     suffix = Path(path).suffix
     if suffix == ".npz":
-        return field_from_design(path, job.size_mm, job.mm_per_unit)
+        if isinstance(part, Part):
+            return field_from_design(path, part=part)
+        return field_from_design(path, job.size_mm, job.mm_per_unit, part)
     if suffix == ".toml":
         return load_director_file(path)
     raise FabkitError(f"input '{path}': expected a design .npz or a director .toml file")
@@ -178,8 +210,9 @@ def job_process(job: ToolpathJob) -> Process:
     return process.with_clip() if job.clip_eps else process
 
 
-def _save_quality(plan: Plan, process: Process, path: Path) -> None:
+def _save_quality(plan: Plan, process: Process, path: Path, fields: list[FlatField]) -> None:
     report = {
+        "parts": [f.part.to_dict() for f in fields if f.part is not None],
         "layers": [q.to_dict() for q in plan.quality],
         "road_width_mm": process.road_width_mm,
         "layer_height_mm": process.layer_height_mm,
@@ -211,15 +244,18 @@ class ChannelResult:
     report: ChannelReport
     files: tuple[Path, ...]
     mm_per_unit: float | None = None
+    part: Part | None = None
 
 
 def run_channel_job(job: ChannelJob) -> ChannelResult:
     """Lay out, check and write baromorph channels and their mould."""
     check_folder(job.out, f"--out {job.out}")
-    fields = load_fields(job.fields)
+    settings = load_baromorph(job.baromorph)
+    fields = load_fields(
+        job.fields, settings.pitch_mm, settings.part_thickness_mm, MIN_WIDTH_PITCHES
+    )
     if len(fields) != 1:
         raise FabkitError("channels: give exactly one input field")
-    settings = load_baromorph(job.baromorph)
     layout = layout_channels(fields[0], settings)
     report = check_channels(layout, settings)
     out = Path(job.out)
@@ -228,7 +264,7 @@ def run_channel_job(job: ChannelJob) -> ChannelResult:
         tmp.write_text(json.dumps(_channels_json(layout, report)), encoding="utf-8")
     save_mould(mould_mesh(layout, settings), files[1])
     save_channel_preview(layout, list(files[2:]))
-    return ChannelResult(layout, report, files, fields[0].mm_per_unit)
+    return ChannelResult(layout, report, files, fields[0].mm_per_unit, fields[0].part)
 
 
 def _channels_json(layout: ChannelLayout, report: ChannelReport) -> dict:

@@ -37,6 +37,7 @@ from fabkit.machines import MachineProfile, load_machine
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
 from fabkit.mechanics.simulate import Settings
+from fabkit.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
 from fabkit.process import Encode, Process, Resolution
 from fabkit.readfile import read_json
 from fabkit.surfaces.analytic import number
@@ -62,9 +63,13 @@ class VerifyOptions:
     sheet's scale and ``offset_mm`` its placement (default: the file's records);
     ``cell_mm`` the grid (default w / 4, or the laser pixel); ``simulate`` runs the
     forward simulations, ``reference`` adds the sheet as designed; ``stride`` coarsens
-    the design's grid for them (default: about :data:`TARGET_TRIANGLES` triangles),
-    ``trim`` as ``fabkit simulate --trim``; ``baromorph`` the channel settings of a
-    baromorph drawing (its channels are read instead of roads).
+    the design's grid for them (default: about :data:`TARGET_TRIANGLES` triangles);
+    ``baromorph`` the channel settings of a baromorph drawing (its channels are read
+    instead of roads). The design's part (:mod:`fabkit.part`) is ``part`` when made
+    already (``fabkit run``), else made as the file's maker made it: by ``outline``,
+    ``min_width_mm`` and ``trim`` for the process's road width and a sheet as thick as
+    the layers the file prints (a baromorph drawing: its part thickness). Coverage is
+    measured on the part, and the simulations mesh its cells.
     """
 
     machine: str | None = None
@@ -77,9 +82,12 @@ class VerifyOptions:
     simulate: bool = True
     reference: bool = False
     stride: int | None = None
-    trim: int = 0
     max_iterations: int = 100
     baromorph: str | None = None
+    part: Part | None = None
+    outline: str | None = None
+    min_width_mm: float | None = None
+    trim: float | None = None
 
 
 @dataclass(frozen=True)
@@ -156,6 +164,7 @@ class Verification:
         lines += [
             f"verify {self.file} ({self.kind}, machine {self.machine}, {self.process}; "
             f"placement from {self.placement}; cells {self.cell_mm:.3g} mm)",
+            *([f"  {self.extra['part']['summary']}"] if "part" in self.extra else []),
             f"  coverage: empty {100 * self.empty_fraction:.2f} %, overlap "
             f"{100 * self.mean_overlap:.2f} %",
             f"  director error: mean {self.director_mean_deg:.2f} deg, p95 "
@@ -200,8 +209,8 @@ def verify(
     machine = _machine(options, machine_file, kind)
     process = _process(options, machine)
     resolution = process.resolve(names, options.ignore_features)
-    readback, placement = _read(machine_file, kind, machine, process, resolution, options)
-    flat = _flat_field(design_path, options, placement)
+    readback, placement, layers = _read(machine_file, kind, machine, process, resolution, options)
+    flat = _flat_field(design_path, options, placement, _part_options(options, process, layers))
     scale = float(flat.mm_per_unit)
     sheet = _Sheet.of(readback, flat)
     features = _features(readback, resolution, sheet, design, names)
@@ -216,7 +225,7 @@ def verify(
         notes.append("not simulated: a feature of the design is not in the machine file")
     else:
         fields = _sheet_fields(readback, resolution, sheet, scale, names)
-        targets = _simulate(design, fields, options)
+        targets = _simulate(design, fields, options, flat.part)
     return Verification(
         file=str(machine_file),
         kind=kind,
@@ -233,6 +242,30 @@ def verify(
         ignored=resolution.ignored,
         notes=tuple(notes),
         seconds=time.perf_counter() - started,
+        extra={"part": _part_figures(flat.part)} if flat.part is not None else {},
+    )
+
+
+def _part_figures(part: Part) -> dict[str, Any]:
+    return {"summary": part.summary(), **part.to_dict()}
+
+
+def _part_options(options: VerifyOptions, process: Process, layers: int) -> PartOptions:
+    """How the file's maker cut the part: the options, the process's road width, and a
+    sheet as thick as the layers the file prints (a baromorph drawing: its part)."""
+    if options.baromorph:
+        settings = load_baromorph(options.baromorph)
+        road, thickness, roads = settings.pitch_mm, settings.part_thickness_mm, MIN_WIDTH_PITCHES
+    else:
+        road, thickness = process.road_width_mm, layers * process.layer_height_mm
+        roads = MIN_WIDTH_ROADS
+    return PartOptions(
+        min_width_mm=options.min_width_mm,
+        trim=options.trim,
+        outline=options.outline,
+        road_width_mm=road,
+        thickness_mm=thickness,
+        roads=roads,
     )
 
 
@@ -248,7 +281,6 @@ def _check_options(options: VerifyOptions) -> None:
     for name, value, least in (
         ("--stride", options.stride, 1),
         ("--max-iterations", options.max_iterations, 1),
-        ("--trim", options.trim, 0),
     ):
         if value is not None and value < least:
             raise FabkitError(f"{name} {value}: expected an integer >= {least}")
@@ -306,8 +338,9 @@ def _read(
     process: Process,
     resolution: Resolution,
     options: VerifyOptions,
-) -> tuple[Readback, Placement]:
-    """The file on a grid of the sheet's frame, and where the placement came from."""
+) -> tuple[Readback, Placement, int]:
+    """The file on a grid of the sheet's frame, where the placement came from, and how
+    many layers the file prints."""
     if kind in ("laser", "channels"):
         if kind == "laser":
             readback, found, _ = read_laser(path)
@@ -316,7 +349,7 @@ def _read(
         placement = _placement(options, found)
         shift = np.asarray(placement.offset_mm)
         moved = (readback.origin[0] - shift[0], readback.origin[1] - shift[1])
-        return _replace_origin(readback, moved), placement
+        return _replace_origin(readback, moved), placement, 1
     cell = options.cell_mm or process.road_width_mm / CELL_PER_WIDTH
     if kind == "dxf":
         start, end, width, road, values, found = read_dxf(path, process.road_width_mm)
@@ -328,7 +361,8 @@ def _read(
         found = printed.placement
         roads = _gcode_roads(printed, machine, process, resolution)
     placement = _placement(options, found)
-    return rasterise(roads.shifted(np.asarray(placement.offset_mm)), cell), placement
+    readback = rasterise(roads.shifted(np.asarray(placement.offset_mm)), cell)
+    return readback, placement, roads.layers
 
 
 def _read_channels(path: Path, baromorph: str) -> tuple[Readback, Placement]:
@@ -358,18 +392,23 @@ def _placement(options: VerifyOptions, found: Placement) -> Placement:
     return found
 
 
-def _flat_field(design_path: str | Path, options: VerifyOptions, placement: Placement) -> FlatField:
-    """The design's flat sheet in mm: at --scale, else at --size, else at the file's scale."""
+def _flat_field(
+    design_path: str | Path, options: VerifyOptions, placement: Placement, part: PartOptions
+) -> FlatField:
+    """The design's flat sheet in mm on its part: the part made already, else at --scale,
+    at --size, or at the file's scale."""
+    if options.part is not None:
+        return field_from_design(design_path, part=options.part)
     if options.mm_per_unit is not None:
-        return field_from_design(design_path, None, options.mm_per_unit)
+        return field_from_design(design_path, None, options.mm_per_unit, part)
     if options.size_mm is not None:
-        return field_from_design(design_path, options.size_mm, None)
+        return field_from_design(design_path, options.size_mm, None, part)
     if placement.mm_per_unit is None:
         raise FabkitError(
             f"{placement.source.split(' ')[0]}: the file does not record the sheet's scale; "
             "give --size MM (its longest side, as fabkit run --size) or --scale MM_PER_UNIT"
         )
-    return field_from_design(design_path, None, placement.mm_per_unit)
+    return field_from_design(design_path, None, placement.mm_per_unit, part)
 
 
 def _gcode_roads(
@@ -548,10 +587,10 @@ def _disc(radius: float) -> np.ndarray:
 
 
 def _simulate(
-    design: Design, fields: SheetFields, options: VerifyOptions
+    design: Design, fields: SheetFields, options: VerifyOptions, part: Part | None
 ) -> tuple[TargetDistance, ...]:
-    """The sheet of ``fields`` under every target's stimulus (and, if asked, the sheet as
-    designed on the same mesh)."""
+    """The sheet of ``fields`` on the cells of ``part`` under every target's stimulus (and,
+    if asked, the sheet as designed on the same mesh)."""
     stride = options.stride or _stride(design)
     settings = Settings(max_iterations=options.max_iterations)
     spec = design.problem
@@ -565,14 +604,14 @@ def _simulate(
             continue  # intrinsic target: nothing to compare in 3D
         started = time.perf_counter()
         coarse, simulation = simulate_sheet(
-            design, fields, surface, settings=settings, trim=options.trim, stride=stride
+            design, fields, surface, settings=settings, part=part, stride=stride
         )
         made = compare(coarse, simulation)
         seconds = time.perf_counter() - started
         designed = None
         if reference is not None:
             coarse, simulation = simulate_sheet(
-                design, reference, surface, settings=settings, trim=options.trim, stride=stride
+                design, reference, surface, settings=settings, part=part, stride=stride
             )
             designed = compare(coarse, simulation)
         out.append(

@@ -29,6 +29,8 @@ from fabkit.errors import FabkitError
 from fabkit.fields import FlatField, field_from_design, load_director_file
 from fabkit.machines import load_machine
 from fabkit.npzfile import npz_keys
+from fabkit.outlines import read_outline
+from fabkit.part import Part, PartOptions
 from fabkit.process import Process
 from fabkit.readfile import read_json
 from fabkit.toolpath.model import Toolpath, load_toolpath
@@ -48,6 +50,9 @@ class ExportOptions:
     pixel pitch (default: the profile's ``laser.pixel_pitch_mm``, else its road width);
     ``process`` replaces the profile's process for laser patterns (its dose channels);
     ``ignore_features`` are features left out of the laser patterns on purpose.
+    A design is cut to its part (:mod:`fabkit.part`): ``part`` made already (``fabkit
+    run``), else made by ``outline``, ``min_width_mm`` and ``trim`` for the process's road
+    width and layer height; ``outline`` also clips a director file's field.
     """
 
     offset_mm: tuple[float, ...] | None = None
@@ -60,6 +65,10 @@ class ExportOptions:
     inlet_radius_mm: float = DEFAULT_INLET_RADIUS_MM
     pixel_mm: float | None = None
     laser: dict[str, Any] = field(default_factory=dict)
+    part: Part | None = None
+    outline: str | None = None
+    min_width_mm: float | None = None
+    trim: float | None = None
 
 
 def export(
@@ -100,15 +109,27 @@ def read_input(path: Path) -> tuple[str, Any]:
     raise FabkitError(f"{path}: neither a fabkit toolpath nor a design file")
 
 
-def _field(kind: str, path: Path, options: ExportOptions) -> FlatField:
+def _field(kind: str, path: Path, options: ExportOptions, process: Process) -> FlatField:
+    """The input's field; a design's cut to its part for ``process``'s road width and layer
+    height."""
     if kind == "director":
-        return load_director_file(path)
+        flat = load_director_file(path)
+        return flat if options.outline is None else flat.clipped(read_outline(options.outline))
+    if options.part is not None:
+        return field_from_design(path, part=options.part)
     if options.size_mm is None and options.mm_per_unit is None:
         raise FabkitError(
             "a design is in design units: give its size (--size MM, longest side) "
             "or --scale MM_PER_UNIT"
         )
-    return field_from_design(path, options.size_mm, options.mm_per_unit)
+    part = PartOptions(
+        min_width_mm=options.min_width_mm,
+        trim=options.trim,
+        outline=options.outline,
+        road_width_mm=process.road_width_mm,
+        thickness_mm=process.layer_height_mm,
+    )
+    return field_from_design(path, options.size_mm, options.mm_per_unit, part)
 
 
 def _gcode(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions) -> str:
@@ -133,7 +154,8 @@ def _dxf(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions
     if kind == "toolpath":
         toolpath = loaded
     elif "outline" not in layers:
-        layers["outline"] = _field(kind, loaded, options).outline
+        process = options.process or machine.process
+        layers["outline"] = _field(kind, loaded, options, process).outline
     s = write_dxf(
         out,
         toolpath,
@@ -158,10 +180,11 @@ def _laser(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptio
         or (optics.pixel_pitch_mm if optics is not None else None)
         or machine.process.road_width_mm
     )
-    grid = sample_field(_field(kind, loaded, options), pixel)
     settings = LaserSettings.for_machine(
         machine, **options.laser, process=options.process, ignore=options.ignore_features
     )
+    # the part of a pattern: the writer's own pixel and film, whatever --process encodes
+    grid = sample_field(_field(kind, loaded, options, machine.process), pixel)
     s = write_laser(grid, out, machine, settings, options.offset_mm)
     scan = f", {s.scan_lines} scan lines" if s.scan_lines else ""
     cures = len(s.manifest["cure_exposures"])
