@@ -17,8 +17,9 @@ strip of sheet that is not there. A search finds such designs: one Fig. 1 candid
 
 With a process (``--machine`` / ``--process``) a point counts only if the process can make
 it (:class:`Limits`): every feature inside its channel's calibrated range (a joint channel:
-the eps pair inside the region its measured grid covers), and the counted part no narrower
-than the minimum width anywhere (:func:`wide_enough`).
+the eps pair inside the region its measured grid covers), and inside the part that
+:func:`fabkit.part.make_part` cuts from the counted points with the minimum width
+(:func:`wide_enough`).
 
 Candidates are evaluated in batches (:func:`evaluate_batch`), one call per batch in any
 worker process: the spec is rebuilt there once and every batch is solved together
@@ -29,7 +30,7 @@ worker evaluates it.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -196,44 +197,19 @@ def makeable(design: Design, limits: Limits) -> np.ndarray:
 
 
 def wide_enough(design: Design, counted: np.ndarray, width: float) -> np.ndarray:
-    """The counted points (nu, nv) that lie in a part of the flat sheet at least ``width``
-    (design units) wide: the counted cells are drawn on a raster of the flat sheet and
-    opened with a disc of that diameter (what a disc of the width cannot reach is
-    narrower). 0 keeps every point.
-
-    This stands alone on purpose: the part outline of issue 17 (``--min-width``) will be
-    fabkit's one rule for a part's narrowest width, and this function should then ask it.
-    """
+    """The counted points (nu, nv) inside the part that fabkit cuts from them with a
+    minimum width of ``width`` design units (:func:`fabkit.part.make_part`: the smooth
+    margin outline inside the counted cells, then a closing and an opening with a disc of
+    that diameter), i.e. the points that ``fabkit run`` would make with that width. 0 keeps
+    every point; a part with nothing left keeps none."""
     if width <= 0 or not counted.any():
         return counted
-    from PIL import Image, ImageDraw
-    from scipy import ndimage
+    from fabkit.part import PartRules, make_part
 
-    h = design.step
-    centre = design.r[0][counted]  # (P, 2) on the flat sheet
-    along = design.n[0][counted]  # the u-curve's unit tangent there
-    across = np.stack([-along[:, 1], along[:, 0]], -1)
-    half_u = 0.5 * h * design.alpha[counted][:, None] * along
-    half_v = 0.5 * h * design.beta[counted][:, None] * across
-    corners = np.stack(
-        [centre - half_u - half_v, centre + half_u - half_v, centre + half_u + half_v],
-        1,
-    )
-    corners = np.concatenate([corners, (centre - half_u + half_v)[:, None]], 1)  # (P, 4, 2)
-    low = corners.reshape(-1, 2).min(0) - width
-    extent = float((corners.reshape(-1, 2).max(0) + width - low).max())
-    pixel = max(width / 8, extent / 2000)
-    size = int(np.ceil(extent / pixel)) + 1
-    image = Image.new("1", (size, size), 0)
-    draw = ImageDraw.Draw(image)
-    for quad in (corners - low) / pixel:
-        draw.polygon([tuple(p) for p in quad], fill=1, outline=1)
-    raster = np.array(image, dtype=bool).T  # [x, y]
-    radius = width / 2 / pixel
-    grid = np.arange(-int(radius), int(radius) + 1)
-    disc = grid[:, None] ** 2 + grid[None, :] ** 2 <= radius**2
-    opened = ndimage.binary_opening(raster, structure=disc)
-    at = np.clip(np.floor((centre - low) / pixel).astype(int), 0, size - 1)
+    try:
+        part = make_part(replace(design, valid=counted), PartRules(min_width=width))
+    except FabkitError:  # nothing of the counted region is left
+        return np.zeros_like(counted)
     kept = counted.copy()
-    kept[counted] = opened[at[:, 0], at[:, 1]]
+    kept[counted] = part.contains(design.r[0][counted])
     return kept
