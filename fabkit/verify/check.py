@@ -161,8 +161,10 @@ class Verification:
     def table(self) -> str:
         """The report as text (the first line says when features were left out)."""
         lines = [self.notice()] if self.ignored else []
+        own = self.process == f"machine {self.machine}"
+        process = "its own process" if own else f"process {self.process}"
         lines += [
-            f"verify {self.file} ({self.kind}, machine {self.machine}, {self.process}; "
+            f"verify {self.file} ({self.kind}, machine {self.machine}, {process}; "
             f"placement from {self.placement}; cells {self.cell_mm:.3g} mm)",
             *([f"  {self.extra['part']['summary']}"] if "part" in self.extra else []),
             f"  coverage: empty {100 * self.empty_fraction:.2f} %, overlap "
