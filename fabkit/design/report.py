@@ -20,9 +20,10 @@ from fabkit.progress import ProgressBar
 from fabkit.spec import Spec
 
 
-def realised_areas(design: Design) -> dict[str, float]:
-    """Area of the solved patch on every surface, sum of alpha beta lambda1 lambda2 du dv."""
-    spec = design.problem
+def realised_areas(design: Design, spec: Spec | None = None) -> dict[str, float]:
+    """Area of the solved patch on every surface, sum of alpha beta lambda1 lambda2 du dv
+    (``spec``: the design's spec when the caller has it, else the design's own)."""
+    spec = design.problem if spec is None else spec
     eps = np.where(design.valid, design.eps, 0.0)
     response = spec.material.response(eps, design.stimuli)
     cell = design.step**2
