@@ -32,8 +32,9 @@ import ast
 import math
 import sys
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
 
@@ -456,16 +457,23 @@ class Expression:
         return not self.tree.variables
 
 
-def parse(text: str, names: Sequence[str], where: str = "expression") -> Expression:
+def parse(
+    text: str,
+    names: Sequence[str],
+    where: str = "expression",
+    constants: Mapping[str, float] = MappingProxyType({}),
+) -> Expression:
     """Parse ``text`` as an expression in the variables ``names``.
 
     ``where`` names the spec field in error messages (e.g. ``"material.lambda2"``).
+    ``constants`` are further names with a fixed value (a spec's parameters), computed
+    into the tree like ``pi``.
     Raises :class:`FabkitError` for anything outside the whitelist, beyond the limits
     (:data:`MAX_LENGTH`, :data:`MAX_NODES`, :data:`MAX_DEPTH`) or with a constant part
     that is not a finite real number.
     """
     names = tuple(names)
-    for name in names:
+    for name in (*names, *constants):
         if not name.isidentifier() or name in RESERVED:
             raise FabkitError(f"{where}: '{name}' cannot be used as a variable name")
     if isinstance(text, bool | int | float):
@@ -486,7 +494,7 @@ def parse(text: str, names: Sequence[str], where: str = "expression") -> Express
             f"{where}: cannot parse '{shorten(text)}': {_syntax_reason(exc)}"
         ) from None
     _check_size(tree.body, where)
-    builder = _Builder({n: i for i, n in enumerate(names)}, where, text, source)
+    builder = _Builder({n: i for i, n in enumerate(names)}, where, text, source, dict(constants))
     return Expression(text, names, builder.build(tree.body), where)
 
 
@@ -559,9 +567,10 @@ class _Builder:
     where: str
     text: str
     source: str
+    constants: dict[str, float]
 
     def refuse(self, what: str) -> FabkitError:
-        allowed = ", ".join([*self.variables, "pi", "e"])
+        allowed = ", ".join([*self.variables, *self.constants, "pi", "e"])
         return FabkitError(
             f"{self.where}: {what} is not allowed in '{shorten(self.text)}' (names allowed: "
             f"{allowed}; "
@@ -621,6 +630,8 @@ class _Builder:
         if identifier in self.variables:
             index = self.variables[identifier]
             return Node("var", index=index, variables=frozenset([index]))
+        if identifier in self.constants:
+            return _const(float(self.constants[identifier]))
         if identifier in CONSTANTS:
             return _const(CONSTANTS[identifier])
         if identifier in FUNCTIONS:

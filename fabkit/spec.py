@@ -17,7 +17,7 @@ import numpy as np
 
 from fabkit.atomic import check_name
 from fabkit.errors import FabkitError
-from fabkit.expr import Expression, parse, shorten
+from fabkit.expr import RESERVED, Expression, parse, shorten
 from fabkit.material import ALONG, Material, check_unstretched
 from fabkit.shipped import user_or_example
 from fabkit.surfaces import Surface, build_surface
@@ -81,6 +81,34 @@ class SolverSettings:
     tolerance: float = 1e-2
 
 
+OBJECTIVES = ("flat", "smallest")
+"""What ``fabkit optimise`` maximises: the realised area on the flat sheet, or the smallest
+realised area over the targets (see docs/optimise.md)."""
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A number the initial data and the targets' start points and directors may use by
+    name (``[optimise.parameters]``), and the range a search may give it."""
+
+    name: str
+    value: float
+    low: float
+    high: float
+
+
+@dataclass(frozen=True)
+class OptimiseSettings:
+    """The ``[optimise]`` table: the objective and the parameters (none without it)."""
+
+    objective: str = "flat"
+    parameters: tuple[Parameter, ...] = ()
+
+    @property
+    def values(self) -> dict[str, float]:
+        return {p.name: p.value for p in self.parameters}
+
+
 @dataclass(frozen=True)
 class Spec:
     """A validated design problem."""
@@ -91,6 +119,7 @@ class Spec:
     initial: InitialData
     solver: SolverSettings
     normalised: dict[str, Any]
+    optimise: OptimiseSettings = OptimiseSettings()
 
     @property
     def stimuli(self) -> np.ndarray:
@@ -113,6 +142,32 @@ class Spec:
         solver, normalised = _solver(solver_table, len(self.material.features), labels)
         return replace(self, solver=solver, normalised={**self.normalised, "solver": normalised})
 
+    def with_parameters(self, values: Mapping[str, float]) -> Spec:
+        """A copy whose parameters (``[optimise.parameters]``) take ``values`` (name ->
+        number; the others keep theirs): the initial data and the targets' start points
+        and directors are read again with them, the material and surfaces are kept."""
+        unknown = sorted(set(values) - set(self.optimise.values))
+        if unknown:
+            raise FabkitError(f"optimise.parameters: no parameter '{unknown[0]}'")
+        parameters = tuple(
+            replace(p, value=float(values.get(p.name, p.value))) for p in self.optimise.parameters
+        )
+        optimise = replace(self.optimise, parameters=parameters)
+        table = self.normalised
+        targets = [self.targets[0]]
+        for index, target in enumerate(self.targets[1:], start=1):
+            start, director = _placement(
+                target.surface, table["surfaces"][index], f"surfaces[{index}]", optimise.values
+            )
+            targets.append(replace(target, start=start, director=director))
+        initial, _ = _initial(table["initial"], self.material, self.classes, optimise.values)
+        targets = _with_flat_start(tuple(targets), initial)
+        _check_material_at_start(self.material, initial, targets)
+        normalised = {**table, "optimise": _optimise_table(optimise)}
+        return replace(
+            self, targets=targets, initial=initial, optimise=optimise, normalised=normalised
+        )
+
 
 def load_spec(path: str | Path) -> Spec:
     """Read and validate a TOML spec file (or a shipped example, see
@@ -132,18 +187,19 @@ def spec_from_json(text: str) -> Spec:
 
 def build_spec(table: Mapping[str, Any], base_dir: Path) -> Spec:
     """Validate a spec given as nested tables; ``base_dir`` resolves data file paths."""
-    check_keys(table, {"material", "surfaces", "initial", "solver"}, "spec")
+    check_keys(table, {"material", "surfaces", "initial", "solver", "optimise"}, "spec")
     for key in ("material", "surfaces", "initial"):
         if key not in table:
             raise FabkitError(f"spec: missing section [{key}]")
+    optimise = _optimise(_table(table.get("optimise", {}), "optimise"))
     material, material_table = _material(_table(table["material"], "material"))
-    targets, surface_tables = _targets(table["surfaces"], material, base_dir)
+    targets, surface_tables = _targets(table["surfaces"], material, base_dir, optimise.values)
     stimuli = np.array([t.stimulus for t in targets])
     classes = material.classify(stimuli[1:])
-    initial, initial_table = _initial(_table(table["initial"], "initial"), material, classes)
-    u_start, director = _check_curves(initial)
-    flat = targets[0]
-    targets = (Target(flat.name, flat.surface, flat.stimulus, u_start, director), *targets[1:])
+    initial, initial_table = _initial(
+        _table(table["initial"], "initial"), material, classes, optimise.values
+    )
+    targets = _with_flat_start(targets, initial)
     _check_material_at_start(material, initial, targets)
     solver, solver_table = _solver(
         _table(table.get("solver", {}), "solver"), len(material.features)
@@ -154,7 +210,55 @@ def build_spec(table: Mapping[str, Any], base_dir: Path) -> Spec:
         "initial": initial_table,
         "solver": solver_table,
     }
-    return Spec(material, classes, targets, initial, solver, normalised)
+    if "optimise" in table:
+        normalised["optimise"] = _optimise_table(optimise)
+    return Spec(material, classes, targets, initial, solver, normalised, optimise)
+
+
+def _with_flat_start(targets: tuple[Target, ...], initial: InitialData) -> tuple[Target, ...]:
+    """The targets with the flat sheet's start point and director from the initial curves."""
+    u_start, director = _check_curves(initial)
+    flat = targets[0]
+    return (Target(flat.name, flat.surface, flat.stimulus, u_start, director), *targets[1:])
+
+
+def _optimise(table: Mapping[str, Any]) -> OptimiseSettings:
+    """The ``[optimise]`` table: ``objective`` and ``[optimise.parameters]``, each a table
+    ``{ value = V, min = LO, max = HI }`` (LO < HI, LO <= V <= HI)."""
+    check_keys(table, {"objective", "parameters"}, "optimise")
+    objective = table.get("objective", "flat")
+    if objective not in OBJECTIVES:
+        raise FabkitError(f"optimise.objective: expected one of {', '.join(OBJECTIVES)}")
+    parameters = []
+    for name, entry in _table(table.get("parameters", {}), "optimise.parameters").items():
+        where = f"optimise.parameters.{name}"
+        if not name.isidentifier() or name in RESERVED or name == "t":
+            raise FabkitError(
+                f"{where}: a parameter needs a name like 'radius' (letters, digits, _; not t, "
+                "pi, e or a function name)"
+            )
+        entry = _table(entry, where)
+        check_keys(entry, {"value", "min", "max"}, where)
+        for key in ("value", "min", "max"):
+            if key not in entry:
+                raise FabkitError(f"{where}: missing key '{key}' (value = V, min = LO, max = HI)")
+        value, low, high = (number(entry[k], f"{where}.{k}") for k in ("value", "min", "max"))
+        if not low < high:
+            raise FabkitError(f"{where}: min must be below max")
+        if not low <= value <= high:
+            raise FabkitError(f"{where}: value {value:g} lies outside [{low:g}, {high:g}]")
+        parameters.append(Parameter(name, value, low, high))
+    return OptimiseSettings(objective, tuple(parameters))
+
+
+def _optimise_table(settings: OptimiseSettings) -> dict[str, Any]:
+    """The normalised ``[optimise]`` table."""
+    return {
+        "objective": settings.objective,
+        "parameters": {
+            p.name: {"value": p.value, "min": p.low, "max": p.high} for p in settings.parameters
+        },
+    }
 
 
 def _table(value: Any, where: str) -> Mapping[str, Any]:
@@ -194,21 +298,30 @@ def _material(table: Mapping[str, Any]) -> tuple[Material, dict[str, Any]]:
     return Material(features, stimuli, lambda1, lambda2), normalised
 
 
-def _vector(value: Any, length: int, where: str, what: str) -> np.ndarray:
+def _vector(
+    value: Any,
+    length: int,
+    where: str,
+    what: str,
+    parameters: Mapping[str, float] = MappingProxyType({}),
+) -> np.ndarray:
     if not isinstance(value, list) or len(value) != length:
         raise FabkitError(f"{where}: expected {what}, a list of {length} numbers")
-    return np.array([_constant(v, where) for v in value])
+    return np.array([_constant(v, where, parameters) for v in value])
 
 
-def _constant(value: Any, where: str) -> float:
-    """A number given as a TOML number or a constant expression such as "pi/2"."""
+def _constant(
+    value: Any, where: str, parameters: Mapping[str, float] = MappingProxyType({})
+) -> float:
+    """A number given as a TOML number or a constant expression such as "pi/2" (which may
+    use the spec's ``parameters``)."""
     if isinstance(value, str):
-        expression = parse(value, (), where)
+        expression = parse(value, (), where, parameters)
         return number(float(expression()), where)
     return number(value, where)
 
 
-def _targets(value: Any, material: Material, base_dir: Path):
+def _targets(value: Any, material: Material, base_dir: Path, parameters: Mapping[str, float]):
     count = len(material.features) + 2
     if not isinstance(value, list) or not all(isinstance(v, Mapping) for v in value):
         raise FabkitError("surfaces: expected [[surfaces]] tables")
@@ -219,7 +332,7 @@ def _targets(value: Any, material: Material, base_dir: Path):
         )
     targets, tables, seen = [], [], set()
     for index, table in enumerate(value):
-        target, normalised = _target(index, table, material, base_dir)
+        target, normalised = _target(index, table, material, base_dir, parameters)
         if target.name in seen:
             raise FabkitError(f"surfaces[{index}].name: '{target.name}' is used twice")
         seen.add(target.name)
@@ -228,7 +341,13 @@ def _targets(value: Any, material: Material, base_dir: Path):
     return tuple(targets), tables
 
 
-def _target(index: int, table: Mapping[str, Any], material: Material, base_dir: Path):
+def _target(
+    index: int,
+    table: Mapping[str, Any],
+    material: Material,
+    base_dir: Path,
+    parameters: Mapping[str, float],
+):
     where = f"surfaces[{index}]"
     allowed = {"name", "stimulus", "geometry"} | ({"start", "director"} if index else set())
     check_keys(table, allowed, where)
@@ -250,11 +369,25 @@ def _target(index: int, table: Mapping[str, Any], material: Material, base_dir: 
             raise FabkitError(f'{where}.geometry: the flat sheet must be kind = "plane"')
         check_unstretched(material, stimulus, f"{where}.stimulus")
         return Target(name, surface, tuple(stimulus), np.zeros(2), np.array([1.0, 0.0])), normalised
+    start, director = _placement(surface, table, where, parameters)
+    normalised |= {key: _entries(table[key]) for key in ("start", "director")}
+    return Target(name, surface, tuple(stimulus), start, director), normalised
+
+
+def _entries(value: list) -> list:
+    """A start or director as normalised: numbers as floats, expressions as their text."""
+    return [v if isinstance(v, str) else float(v) for v in value]
+
+
+def _placement(
+    surface: Surface, table: Mapping[str, Any], where: str, parameters: Mapping[str, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """A target's start point (chart) and director (unit in the metric) from its table."""
     for key in ("start", "director"):
         if key not in table:
             raise FabkitError(f"{where}: missing key '{key}' (a 2-vector in chart coordinates)")
-    start = _vector(table["start"], 2, f"{where}.start", "a chart point")
-    direction = _vector(table["director"], 2, f"{where}.director", "chart components")
+    start = _vector(table["start"], 2, f"{where}.start", "a chart point", parameters)
+    direction = _vector(table["director"], 2, f"{where}.director", "chart components", parameters)
     _check_geometry_at_start(surface, start, f"{where}.geometry")
     if not surface.contains(start[None])[0]:
         raise FabkitError(f"{where}.start: {start.tolist()} lies outside the {surface.kind} chart")
@@ -262,9 +395,7 @@ def _target(index: int, table: Mapping[str, Any], material: Material, base_dir: 
     length_squared = direction @ g @ direction
     if not length_squared > 0:
         raise FabkitError(f"{where}.director: must be a non-zero vector")
-    director = direction / np.sqrt(length_squared)
-    normalised |= {"start": start.tolist(), "director": direction.tolist()}
-    return Target(name, surface, tuple(stimulus), start, director), normalised
+    return start, direction / np.sqrt(length_squared)
 
 
 def _check_geometry_at_start(surface: Surface, start: np.ndarray, where: str) -> None:
@@ -293,7 +424,12 @@ def _absolute_files(geometry: dict[str, Any], base_dir: Path) -> dict[str, Any]:
     return geometry
 
 
-def _initial(table: Mapping[str, Any], material: Material, classes: tuple[str, ...]):
+def _initial(
+    table: Mapping[str, Any],
+    material: Material,
+    classes: tuple[str, ...],
+    parameters: Mapping[str, float],
+):
     check_keys(table, {"u_curve", "v_curve", "eps", "slope"}, "initial")
     count = len(material.features)
     curves = []
@@ -301,7 +437,7 @@ def _initial(table: Mapping[str, Any], material: Material, classes: tuple[str, .
         value = table.get(key)
         if not isinstance(value, list) or len(value) != 2:
             raise FabkitError(f'initial.{key}: expected two expressions in t, like ["t", "0"]')
-        curves.append(tuple(parse(v, ("t",), f"initial.{key}") for v in value))
+        curves.append(tuple(parse(v, ("t",), f"initial.{key}", parameters) for v in value))
     series = []
     for key in ("eps", "slope"):
         value = table.get(key)
@@ -310,7 +446,9 @@ def _initial(table: Mapping[str, Any], material: Material, classes: tuple[str, .
                 f"initial.{key}: expected {count} expression(s) in t, one per feature "
                 f"{list(material.features)}"
             )
-        series.append(tuple(parse(v, ("t",), f"initial.{key}[{i}]") for i, v in enumerate(value)))
+        series.append(
+            tuple(parse(v, ("t",), f"initial.{key}[{i}]", parameters) for i, v in enumerate(value))
+        )
     initial = InitialData(curves[0], curves[1], series[0], series[1])
     normalised = {
         "u_curve": [e.text for e in initial.u_curve],
@@ -453,8 +591,10 @@ def solver_memory(settings: SolverSettings, features: int) -> int:
     together (their difference is the error estimate). Three designs of (2D + 1)^2 nodes
     (2 + N + 4S floats and a flag each) are budgeted at the end, and assembling a design
     needs the stored r (2S floats per point) twice more. The total, plus 20 % for
-    temporaries, was 1.02 to 1.19 times the peak traced by tracemalloc for Fig. 1 grids of
-    40 to 320 diagonals whose points are all solved (the worst case).
+    temporaries, was 1.07 to 1.35 times the peak traced by tracemalloc for Fig. 1 and
+    Fig. 3 grids of 40 to 160 diagonals whose points are all solved (the worst case; the
+    march keeps only the design's variables at solved points, so this errs on the safe
+    side).
     """
     n, surfaces, d = features, features + 2, settings.diagonals
     points = len(settings.quadrants) * sum((m + 1) * (m + 2) // 2 for m in (d, 2 * d))

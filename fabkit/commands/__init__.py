@@ -29,6 +29,9 @@ COMMANDS: dict[str, Command] = {
     "energy": Command("energy", "work bounds: frustrated stretching energy of a design held flat"),
     "export": Command("export", "write G-code, DXF or laser-writer patterns for a machine"),
     "machines": Command("machines", "list the machine profiles"),
+    "optimise": Command(
+        "optimise", "vary a spec's initial data to cover the most area (docs/optimise.md)"
+    ),
     "plot": Command("plot", "draw a design: pictures, actuated patches as meshes, HTML report"),
     "run": Command(
         "run", "spec to machine files in one go: solve, check, pictures, toolpath, export, send"

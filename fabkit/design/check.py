@@ -126,12 +126,16 @@ class ResidualMaps:
     maps: dict[str, np.ndarray]
 
 
-def residual_maps(design: Design, region: float | None = None) -> tuple[ResidualMaps, ...]:
+def residual_maps(
+    design: Design, region: float | None = None, spec: Spec | None = None
+) -> tuple[ResidualMaps, ...]:
     """Residual maps of every surface of ``design``.
 
     ``region``: only points with |u|, |v| <= region are checked (None: all interior points).
+    ``spec``: the design's spec when the caller has it (else the design's own,
+    :attr:`Design.problem`).
     """
-    spec = design.problem
+    spec = design.problem if spec is None else spec
     interior = _interior(design, region)
     eps = np.where(design.valid, design.eps, 0.0)
     response = spec.material.response(eps, design.stimuli)
@@ -153,11 +157,15 @@ def residual_maps(design: Design, region: float | None = None) -> tuple[Residual
 
 
 def check_design(
-    design: Design, tolerances: Tolerances = Tolerances(), region: float | None = None
+    design: Design,
+    tolerances: Tolerances = Tolerances(),
+    region: float | None = None,
+    spec: Spec | None = None,
 ) -> CheckReport:
-    """Median and 95th percentile of every residual of every surface of ``design``."""
+    """Median and 95th percentile of every residual of every surface of ``design``
+    (``spec``: the design's spec when the caller has it, else the design's own)."""
     surfaces = []
-    for surface in residual_maps(design, region):
+    for surface in residual_maps(design, region, spec):
         points = int(np.isfinite(surface.maps["length_u"]).sum())
         stats = (_stats(surface.maps[key]) for key in RESIDUALS)
         surfaces.append(SurfaceCheck(surface.name, points, *stats))

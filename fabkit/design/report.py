@@ -21,10 +21,11 @@ from fabkit.progress import ProgressBar
 from fabkit.spec import Spec
 
 
-def realised_areas(design: Design) -> dict[str, float]:
+def realised_areas(design: Design, spec: Spec | None = None) -> dict[str, float]:
     """Area of the solved patch on every surface (design units^2): alpha beta lambda1 lambda2
-    integrated over the solved cells (:func:`fabkit.figures.cell_integral`)."""
-    spec = design.problem
+    integrated over the solved cells (:func:`fabkit.figures.cell_integral`); ``spec``: the
+    design's spec when the caller has it, else the design's own."""
+    spec = design.problem if spec is None else spec
     eps = np.where(design.valid, design.eps, 0.0)
     response = spec.material.response(eps, design.stimuli)
     valid = design.valid

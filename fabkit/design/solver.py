@@ -28,9 +28,10 @@ error estimate, kept in the design. A point whose estimate exceeds
 
 from __future__ import annotations
 
+import json
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -88,10 +89,13 @@ COARSE, FINE = 0, 1
 
 @dataclass(frozen=True)
 class _Problem:
-    """Constants of one solve, derived once from the spec.
+    """Constants of one solve, derived once from the specs of a batch.
 
-    Row k of every array is one quadrant of one march: march ``k // Q`` (COARSE, FINE),
-    quadrant ``k % Q``. Both marches advance together, diagonal d of each at once.
+    Row k of every array is one quadrant of one march of one candidate (a spec of the
+    batch): candidate ``k // 2Q``, march ``(k // Q) % 2`` (COARSE, FINE), quadrant ``k % Q``.
+    Every row advances together, diagonal d of each at once. The candidates share the
+    material, the surfaces and the solver settings (``spec`` is the first one's); they
+    differ only in their initial data and their targets' start points and directors.
     """
 
     spec: Spec
@@ -101,6 +105,7 @@ class _Problem:
     sign_v: np.ndarray  # (R, 1) quadrant sign of v
     step: np.ndarray  # (R, 1) grid step of the row's march (design units)
     march: np.ndarray  # (R,) COARSE or FINE
+    candidate: np.ndarray  # (R,) index of the row's spec in the batch
     diagonals: tuple[int, int]  # diagonals of the coarse and the fine march
     axis_pairs: tuple[tuple[np.ndarray, np.ndarray], ...]  # rows sharing u = 0, v = 0
 
@@ -119,25 +124,128 @@ def solve(spec: Spec, progress: Callable[[int, int], None] | None = None) -> Sol
     ``solver.tolerance`` are dropped (:func:`_error_control`). The stops reported are the
     fine march's, the more precise of the two, and the error control's.
     """
+    (result,) = solve_batch([spec], progress)
+    if isinstance(result, FabkitError):
+        raise result
+    return result
+
+
+def solve_batch(
+    specs: Sequence[Spec],
+    progress: Callable[[int, int], None] | None = None,
+    crop: bool = False,
+) -> list[Solution | FabkitError]:
+    """Solve several specs that differ only in their initial data, marching them together.
+
+    The specs must share the material, the surfaces (geometry and stimulus) and the solver
+    settings: what a search over initial data varies is the curves, eps and slopes on
+    them, and the targets' start points and directors. Each candidate's rows are more rows
+    of the same arrays, so the per-diagonal cost of numpy calls is paid once for the batch.
+    Every candidate's design is the one :func:`solve` gives it alone (its rows are computed
+    by the same elementwise operations). A candidate the solver refuses (initial data not
+    finite at the first step, a bad start point) gives its :class:`FabkitError` in place of
+    a solution. ``Solution.seconds`` is the wall time of the whole batch. With ``crop``,
+    each design's grid spans only its solved points and :data:`CROP_MARGIN` more lines (a
+    search needs no more; the design file of a solve spans the full grid of the spec's
+    diagonals).
+    """
     started = time.perf_counter()
-    settings = spec.solver
+    specs = list(specs)
+    _check_batch(specs)
+    settings = specs[0].solver
     total = settings.diagonals * 3
 
     def report(done: int) -> None:
         if progress:
             progress(done, total)
 
+    results: list[Solution | FabkitError | None] = [None] * len(specs)
     with np.errstate(all="ignore"):  # overflow and NaN are stops, checked point by point
-        problem = _problem(spec)
-        coarse, fine, stops = _march(problem, report)
-        common, in_coarse, in_fine = np.intersect1d(coarse.index, fine.index, return_indices=True)
-        coarse, fine = coarse.take(in_coarse), fine.take(in_fine)
-        points = _extrapolate(spec, coarse, fine) if settings.extrapolate else coarse
-        error = error_estimate(spec, coarse, fine)
-        keep, dropped = _error_control(problem, common, error)
-        design = _design(problem, points.take(keep), error[keep])
-        stops = tuple(sorted(stops + dropped, key=_stop_order))
-    return Solution(design, stops, time.perf_counter() - started)
+        problem, u_data, v_data, origin, rates, kept = _start(specs, results)
+        if kept:
+            grid = _march(problem, u_data, v_data, origin, rates, report)
+        for slot, index in enumerate(kept):
+            results[index] = _finish(problem, specs[index], grid, slot, crop)
+    seconds = time.perf_counter() - started
+    return [
+        replace(result, seconds=seconds) if isinstance(result, Solution) else result
+        for result in results
+    ]
+
+
+def _check_batch(specs: Sequence[Spec]) -> None:
+    """Refuse (ValueError: a caller's mistake) a batch whose specs differ in anything but
+    their initial data and their targets' start points and directors."""
+    if not specs:
+        raise ValueError("solve_batch needs at least one spec")
+    shared = {_shared(spec) for spec in specs}
+    if len(shared) != 1:
+        raise ValueError("the specs of a batch must share material, surfaces and solver")
+
+
+def _shared(spec: Spec) -> str:
+    """What the specs of a batch must have in common, as text."""
+    table = spec.normalised
+    surfaces = [
+        {k: v for k, v in s.items() if k not in ("start", "director")} for s in table["surfaces"]
+    ]
+    return json.dumps([table["material"], surfaces, table["solver"]], sort_keys=True)
+
+
+def _start(specs: Sequence[Spec], results: list):
+    """The batch's problem and its data at the start, for the candidates the solver does
+    not refuse; ``results`` gets the refusals. Returns (problem, u_data, v_data, origin,
+    rates at the origin, indices of the kept specs)."""
+    kept, data = [], []
+    for index, spec in enumerate(specs):
+        try:
+            data.append(_curve_data(_problem([spec]), spec))
+            kept.append(index)
+        except FabkitError as exc:
+            results[index] = exc
+    while True:
+        batch = [specs[i] for i in kept]
+        problem = _problem(batch or specs[:1])
+        u_data = _concatenate([d[0] for d in data])
+        v_data = _concatenate([d[1] for d in data])
+        if not kept:
+            return problem, u_data, v_data, {}, None, kept
+        origin = _origin(problem, batch, u_data, v_data)
+        rates, failed = _rates(problem, origin)
+        first_rows = np.searchsorted(problem.candidate, np.arange(len(kept)))
+        refused = set()
+        for slot, row in enumerate(first_rows):
+            try:
+                _refuse_bad_start(failed[row : row + 1])
+            except FabkitError as exc:
+                results[kept[slot]] = exc
+                refused.add(slot)
+        if not refused:
+            return problem, u_data, v_data, origin, rates, kept
+        data = [d for slot, d in enumerate(data) if slot not in refused]
+        kept = [index for slot, index in enumerate(kept) if slot not in refused]
+
+
+def _concatenate(parts: Sequence[State]) -> State:
+    """Curve data of several candidates, row after row."""
+    if not parts:
+        return {}
+    return {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
+
+
+def _finish(problem: _Problem, spec: Spec, grid: _Grid, slot: int, crop: bool) -> Solution:
+    """One candidate's solution from the marched batch: extrapolation, error estimate,
+    error control, its design and its stops."""
+    settings = spec.solver
+    coarse, fine = grid.assemble(COARSE, slot), grid.assemble(FINE, slot)
+    common, in_coarse, in_fine = np.intersect1d(coarse.index, fine.index, return_indices=True)
+    coarse, fine = coarse.take(in_coarse), fine.take(in_fine)
+    points = _extrapolate(spec, coarse, fine) if settings.extrapolate else coarse
+    error = error_estimate(spec, coarse, fine)
+    keep, dropped = _error_control(problem, common, error)
+    design = _design(problem, spec, points.take(keep), error[keep], crop)
+    stops = tuple(sorted(grid.stops(slot) + dropped, key=_stop_order))
+    return Solution(design, stops, 0.0)
 
 
 def _stop_order(stop: Stop) -> tuple[float, float, float]:
@@ -240,26 +348,40 @@ def _influence(sources: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return reached, inherited
 
 
-def _design(problem: _Problem, points: _Points, error: np.ndarray) -> Design:
-    """The design file's arrays: the points on the full grid, NaN elsewhere."""
+CROP_MARGIN = 3
+"""Unsolved grid lines a cropped design keeps around its points: the reach of the check's
+widest stencil, so that the check sees the same neighbourhood as on the full grid."""
+
+
+def _design(
+    problem: _Problem, spec: Spec, points: _Points, error: np.ndarray, crop: bool = False
+) -> Design:
+    """The design file's arrays: the points on the full grid (with ``crop``, on the part of
+    it that spans the points), NaN elsewhere."""
     size = problem.diagonals[COARSE]
     full = 2 * size + 1
-    axis = problem.spec.solver.step * np.arange(-size, size + 1)
-    valid = np.zeros(full * full, dtype=bool)
-    valid[points.index] = True
+    rows, cols = np.divmod(points.index, full)
+    margin = CROP_MARGIN if crop else full
+    low = (max(rows.min() - margin, 0), max(cols.min() - margin, 0))
+    high = (min(rows.max() + 1 + margin, full), min(cols.max() + 1 + margin, full))
+    shape = (high[0] - low[0], high[1] - low[1])
+    flat = (rows - low[0]) * shape[1] + (cols - low[1])
+    axis = spec.solver.step * np.arange(-size, size + 1)
+    valid = np.zeros(shape[0] * shape[1], dtype=bool)
+    valid[flat] = True
 
     def spread(values: np.ndarray) -> np.ndarray:
-        """(P, *rest) at the points -> (*rest[:1], full, full, *rest[1:])."""
-        out = np.full((full * full,) + values.shape[1:], np.nan)
-        out[points.index] = values
-        out = out.reshape((full, full) + values.shape[1:])
+        """(P, *rest) at the points -> (*rest[:1], nu, nv, *rest[1:])."""
+        out = np.full((valid.size,) + values.shape[1:], np.nan)
+        out[flat] = values
+        out = out.reshape(shape + values.shape[1:])
         return np.moveaxis(out, 2, 0) if values.ndim > 1 else out
 
     v = points.values
     return Design(
-        u=axis,
-        v=axis.copy(),
-        valid=valid.reshape(full, full),
+        u=axis[low[0] : high[0]],
+        v=axis[low[1] : high[1]].copy(),
+        valid=valid.reshape(shape),
         alpha=spread(v["alpha"]),
         beta=spread(v["beta"]),
         eps=spread(v["eps"]),
@@ -267,69 +389,67 @@ def _design(problem: _Problem, points: _Points, error: np.ndarray) -> Design:
         n=spread(v["n"]),
         error=spread(error),
         stimuli=problem.stimuli,
-        spec=problem.spec.to_json(),
+        spec=spec.to_json(),
     )
 
 
-def _march(problem: _Problem, report):
-    """March both marches out to their diagonals; returns the coarse and the fine march
-    on the coarse grid, and the fine march's stops.
+def _march(problem: _Problem, u_data: State, v_data: State, origin: State, rates, report):
+    """March every row out to its march's diagonals; returns the grid of solved points.
 
-    A march ends early once a diagonal has no solved interior point in any of its
-    quadrants: beyond, only the bare initial curves could go on, no area of design.
+    A candidate's march ends early once a diagonal has no solved interior point in any of
+    its quadrants: beyond, only the bare initial curves could go on, no area of design.
     """
-    u_data, v_data = _curve_data(problem)
-    origin = _origin(problem, u_data, v_data)
     grid = _Grid(problem, origin)
-    old = origin
-    rates_old, failed = _rates(problem, old)
-    _refuse_bad_start(failed)
-    last = list(problem.diagonals)
-    live = np.ones(len(problem.march), dtype=bool)
+    old, rates_old = origin, rates
+    rows = len(problem.march)
+    window = _Window(np.zeros(rows, dtype=int), np.ones((rows, 1), dtype=bool))
+    groups = 2 * problem.candidate + problem.march  # rows of one march of one candidate
+    live = np.ones(rows, dtype=bool)
     for d in range(max(problem.diagonals)):
-        old, rates_old = _advance(problem, grid, old, rates_old, d, u_data, v_data, live)
-        report(min(d + 1, last[COARSE]) + d + 1)
-        for march in (COARSE, FINE):
-            rows = problem.march == march
-            done = d + 1 == last[march] or (
-                d >= 1 and not grid.valid_diagonal(d + 1)[rows, 1:-1].any()
-            )
-            if live[rows].any() and done:
-                live[rows], last[march] = False, d + 1
+        old, rates_old, window = _advance(
+            problem, grid, old, rates_old, window, d, u_data, v_data, live
+        )
+        report(min(d + 1, problem.diagonals[COARSE]) + d + 1)
+        position = window.position()
+        interior = (window.valid & (position > 0) & (position < d + 1)).any(1)
+        solved = np.zeros(groups.max() + 1, dtype=bool)
+        np.logical_or.at(solved, groups, interior)
+        ended = np.array(problem.diagonals)[problem.march] == d + 1
+        live &= ~ended & (solved[groups] | (d < 1))
         if not live.any():
             break
-    return grid.assemble(COARSE), grid.assemble(FINE), grid.stops()
+    return grid
 
 
-def _problem(spec: Spec) -> _Problem:
-    quadrants = np.tile(np.array(spec.solver.quadrants, dtype=float), (2, 1))
+def _problem(specs: Sequence[Spec]) -> _Problem:
+    """The problem of a batch of specs (see :class:`_Problem` for the rows)."""
+    spec = specs[0]
     count = len(spec.solver.quadrants)
+    quadrants = np.tile(np.array(spec.solver.quadrants, dtype=float), (2 * len(specs), 1))
     step = spec.solver.step
-    march = np.repeat([COARSE, FINE], count)
+    march = np.tile(np.repeat([COARSE, FINE], count), len(specs))
+    candidate = np.repeat(np.arange(len(specs)), 2 * count)
+    group = 2 * candidate + march
     return _Problem(
         spec=spec,
         along=np.array([c == ALONG for c in spec.classes]),
         stimuli=spec.stimuli,
         sign_u=quadrants[:, :1],
         sign_v=quadrants[:, 1:],
-        step=np.repeat([step, step / 2], count)[:, None],
+        step=np.where(march == COARSE, step, step / 2)[:, None],
         march=march,
+        candidate=candidate,
         diagonals=(spec.solver.diagonals, 2 * spec.solver.diagonals),
-        axis_pairs=(_pairs(quadrants[:, 1], march), _pairs(quadrants[:, 0], march)),
+        axis_pairs=(_pairs(quadrants[:, 1], group), _pairs(quadrants[:, 0], group)),
     )
 
 
-def _pairs(signs: np.ndarray, march: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows (first, second) of one march with the same sign: the two quadrants that share
-    the half-axis on which the other coordinate has that sign."""
-    rows = range(len(signs))
-    pairs = [
-        (a, b)
-        for a in rows
-        for b in rows
-        if a < b and signs[a] == signs[b] and march[a] == march[b]
-    ]
-    return np.array([a for a, _ in pairs], dtype=int), np.array([b for _, b in pairs], dtype=int)
+def _pairs(signs: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (first, second) of one march of one candidate with the same sign: the two
+    quadrants that share the half-axis on which the other coordinate has that sign."""
+    first, second = np.triu_indices(len(signs), 1)
+    same = (signs[first] == signs[second]) & (group[first] == group[second])
+    return first[same], second[same]
 
 
 # --- initial data -------------------------------------------------------------------------
@@ -419,14 +539,47 @@ def _panel_lengths(speed, start: np.ndarray, end: np.ndarray) -> np.ndarray:
     return np.abs(half) * (speed(nodes) @ _GAUSS_WEIGHTS)
 
 
-def _curve_data(problem: _Problem) -> tuple[State, State]:
-    """Exact data along the initial u-curve (index i) and v-curve (index j), (R, 2D+1, ...).
+CURVE_CACHE = 32
+"""Curves whose arc-length parameters a process keeps (a search varies few of them)."""
+_curves: dict[tuple, tuple[np.ndarray, ...]] = {}
+
+
+def _curve_geometry(curve: tuple[Expression, Expression], lengths: np.ndarray, where: str):
+    """Parameters t at arc lengths ``lengths`` (Q, L) along a curve, and there its point,
+    speed, unit tangent and signed curvature.
+
+    Kept for the last :data:`CURVE_CACHE` curves by their expression trees (with the
+    constants they hold) and the lengths: the candidates of a search often share a curve,
+    and measuring arc length is the costliest part of a small solve. The arrays returned
+    are read-only.
+    """
+    key = (tuple(_tree_key(c.tree) for c in curve), lengths.shape, lengths.tobytes())
+    if key not in _curves:
+        parts = _Curve.of(curve)
+        t = arc_length_parameters(parts, lengths, where)
+        found = (t, *_curve(parts, t))
+        for array in found:
+            array.setflags(write=False)
+        if len(_curves) >= CURVE_CACHE:
+            del _curves[next(iter(_curves))]
+        _curves[key] = found
+    return _curves[key]
+
+
+def _tree_key(node) -> tuple:
+    """A hashable copy of an expression tree: equal for trees that compute the same way."""
+    return (node.kind, node.value, node.index, tuple(_tree_key(a) for a in node.args))
+
+
+def _curve_data(problem: _Problem, spec: Spec) -> tuple[State, State]:
+    """Exact data along the initial u-curve (index i) and v-curve (index j), (R, 2D+1, ...),
+    for the problem of the one spec ``spec``.
 
     Grid coordinates are arc length along the curves, so alpha = 1 on the u-curve and
     beta = 1 on the v-curve. The data is computed once at the fine step; the coarse rows
     take every other point (the same arc lengths), NaN past their last diagonal.
     """
-    initial = problem.spec.initial
+    initial = spec.initial
     fine = problem.march == FINE
     h, diagonals = problem.step[fine][0, 0], problem.diagonals[FINE]
     index = np.arange(diagonals + 1)
@@ -436,9 +589,7 @@ def _curve_data(problem: _Problem) -> tuple[State, State]:
         (initial.u_curve, problem.sign_u[fine], "initial.u_curve"),
         (initial.v_curve, problem.sign_v[fine], "initial.v_curve"),
     ):
-        curve = _Curve.of(curve)
-        t = arc_length_parameters(curve, sign * index * h, name)
-        point, speed, tangent, curvature = _curve(curve, t)
+        t, point, speed, tangent, curvature = _curve_geometry(curve, sign * index * h, name)
         eps = np.stack([e(t) for e in initial.eps], -1)
         eps_s = np.stack([e(t) for e in slopes], -1) / speed[..., None]
         slope = np.stack([e(t) for e in initial.slope], -1)
@@ -501,13 +652,13 @@ def _refuse_first_step(problem: _Problem, name: str, t, curve_parts, eps, eps_s,
             )
 
 
-def _origin(problem: _Problem, u_data: State, v_data: State) -> State:
-    """Complete data at (u, v) = (0, 0) for every quadrant, as a diagonal of length 1."""
+def _origin(problem: _Problem, specs: Sequence[Spec], u_data: State, v_data: State) -> State:
+    """Complete data at (u, v) = (0, 0) for every row, as a diagonal of length 1."""
     along = problem.along
-    quadrants = problem.sign_u.shape[0]
-    targets = problem.spec.targets
-    r = np.stack([t.start for t in targets])[None, None].repeat(quadrants, 0)
-    n = np.stack([t.director for t in targets])[None, None].repeat(quadrants, 0)
+    starts = np.array([[t.start for t in spec.targets] for spec in specs])  # (B, S, 2)
+    directors = np.array([[t.director for t in spec.targets] for spec in specs])
+    r = starts[problem.candidate][:, None].copy()
+    n = directors[problem.candidate][:, None].copy()
     r[:, :, 0], n[:, :, 0] = u_data["r0"][:, :1], u_data["n0"][:, :1]
     first_u = {k: val[:, :1] for k, val in u_data.items()}
     first_v = {k: val[:, :1] for k, val in v_data.items()}
@@ -557,54 +708,47 @@ def _rates(problem: _Problem, state: State) -> tuple[tuple[State, State], np.nda
     l1ee = np.moveaxis(response.l1_ee, (0, 1, 2), (-3, -2, -1))  # (Q, L, S, N, N)
     l2ee = np.moveaxis(response.l2_ee, (0, 1, 2), (-3, -2, -1))
 
-    l1q = np.einsum("...sn,...n->...s", l1e, q)
-    l2q = np.einsum("...sn,...n->...s", l2e, q)
-    l1p = np.einsum("...sn,...n->...s", l1e, p)
-    l2p = np.einsum("...sn,...n->...s", l2e, p)
+    l1q, l2q = _contract(l1e, q), _contract(l2e, q)  # (Q, L, S)
+    l1p, l2p = _contract(l1e, p), _contract(l2e, p)
     ku = (b[..., None] - l1q) / lam2
     kv = (s[..., None] + l2p) / lam1
 
     g, gamma, curvature, inside = _geometry(problem, r)
-    gn = np.einsum("...ij,...j->...i", g, n)
-    norm = np.sqrt(np.einsum("...i,...i->...", n, gn))
-    n = n / norm[..., None]
-    gn = gn / norm[..., None]
-    det_g = g[..., 0, 0] * g[..., 1, 1] - g[..., 0, 1] ** 2
-    n_perp = np.stack([-gn[..., 1], gn[..., 0]], -1) / np.sqrt(det_g)[..., None]
+    g00, g01, g10, g11 = g[..., 0, 0], g[..., 0, 1], g[..., 1, 0], g[..., 1, 1]
+    n0, n1 = n[..., 0], n[..., 1]
+    gn0, gn1 = g00 * n0 + g01 * n1, g10 * n0 + g11 * n1
+    norm = np.sqrt(n0 * gn0 + n1 * gn1)
+    n0, n1, gn0, gn1 = n0 / norm, n1 / norm, gn0 / norm, gn1 / norm
+    root_det = np.sqrt(g00 * g11 - g01**2)
+    m0, m1 = -gn1 / root_det, gn0 / root_det  # n_perp
 
     stretch_u = alpha[..., None] * lam1  # (Q, L, S): alpha lambda1
     stretch_v = beta[..., None] * lam2
-    gamma_nn = np.einsum("...ikl,...k,...l->...i", gamma, n, n)
-    gamma_pn = np.einsum("...ikl,...k,...l->...i", gamma, n_perp, n)
+    gamma_nn = _christoffel(gamma, n0, n1, n0, n1)
+    gamma_pn = _christoffel(gamma, m0, m1, n0, n1)
 
     matrix = _curvature_matrix(problem.along, lam1, lam2, l1e, l2e)
     k_bar = (
         -(ku**2)
         - kv**2
-        - (
-            np.einsum("...ij,...i,...j->...", l1ee, q[..., None, :], q[..., None, :])
-            + (b[..., None] - l1q) * l2q
-        )
-        / lam2**2
-        - (
-            np.einsum("...ij,...i,...j->...", l2ee, p[..., None, :], p[..., None, :])
-            - (s[..., None] + l2p) * l1p
-        )
-        / lam1**2
+        - (_quadratic(l1ee, q) + (b[..., None] - l1q) * l2q) / lam2**2
+        - (_quadratic(l2ee, p) - (s[..., None] + l2p) * l1p) / lam1**2
     )
     singular = _singular(matrix)
     safe = np.where(singular[..., None, None], np.eye(matrix.shape[-1]), matrix)
     with np.errstate(all="ignore"):
         w = np.linalg.solve(safe, (curvature - k_bar)[..., None])[..., 0]  # (Q, L, S)
 
+    n_unit = np.stack([n0, n1], -1)
+    n_perp = np.stack([m0, m1], -1)
     du = {
         "beta": alpha * beta * s,
         "s": alpha * w[..., 1],
         "eps": alpha[..., None] * p,
         "p": alpha[..., None] * w[..., 2:],
-        "r": stretch_u[..., None] * n,
+        "r": stretch_u[..., None] * n_unit,
         "n": stretch_u[..., None] * (ku[..., None] * n_perp - gamma_nn),
-        "n_unit": n,
+        "n_unit": n_unit,
     }
     dv = {
         "alpha": -alpha * beta * b,
@@ -630,6 +774,39 @@ def _geometry(problem: _Problem, r: np.ndarray):
     return g, gamma, curvature, inside
 
 
+def _contract(derivative: np.ndarray, slope: np.ndarray) -> np.ndarray:
+    """sum_i derivative[..., s, i] slope[..., i]: (..., S, N) and (..., N) -> (..., S)."""
+    total = derivative[..., 0] * slope[..., None, 0]
+    for i in range(1, slope.shape[-1]):
+        total = total + derivative[..., i] * slope[..., None, i]
+    return total
+
+
+def _quadratic(hessian: np.ndarray, slope: np.ndarray) -> np.ndarray:
+    """sum_ij hessian[..., s, i, j] slope[..., i] slope[..., j]: (..., S, N, N) -> (..., S)."""
+    count = slope.shape[-1]
+    total = None
+    for i in range(count):
+        for j in range(count):
+            term = hessian[..., i, j] * (slope[..., None, i] * slope[..., None, j])
+            total = term if total is None else total + term
+    return total
+
+
+def _christoffel(gamma: np.ndarray, a0, a1, b0, b1) -> np.ndarray:
+    """Gamma^i_kl a^k b^l (..., S, 2) from gamma (..., S, 2, 2, 2) and vectors' components."""
+    return np.stack(
+        [
+            gamma[..., i, 0, 0] * a0 * b0
+            + gamma[..., i, 0, 1] * a0 * b1
+            + gamma[..., i, 1, 0] * a1 * b0
+            + gamma[..., i, 1, 1] * a1 * b1
+            for i in (0, 1)
+        ],
+        -1,
+    )
+
+
 def _curvature_matrix(along, lam1, lam2, l1e, l2e) -> np.ndarray:
     """M (Q, L, S, S): K_j = M_j . w + Kbar_j with w = (d_v b/beta, d_u s/alpha, w_1..w_N)."""
     columns = [1 / lam2**2, -1 / lam1**2]
@@ -652,7 +829,9 @@ def _failures(problem, state, lam1, lam2, inside, singular, du, dv) -> np.ndarra
     values = [state[k] for k in ("alpha", "beta", "b", "s", "eps", "p", "q", "r", "n")]
     values += [du["n"], dv["n"], du["s"], dv["b"], du["p"], dv["q"]]
     shape = state["alpha"].shape
-    finite = np.isfinite(np.concatenate([x.reshape(*shape, -1) for x in values], -1)).all(-1)
+    finite = np.ones(shape, dtype=bool)
+    for x in values:
+        finite &= np.isfinite(x.reshape(*shape, -1)).all(-1)
     targets = slice(1, None)
     with np.errstate(invalid="ignore"):
         checks = [
@@ -687,10 +866,33 @@ U_SET = ("beta", "s")
 V_SET = ("alpha", "b")
 
 
-def _advance(problem, grid, old, rates_old, d, u_data, v_data, live):
-    """One Heun step from diagonal d to d+1 in every live row; stores and returns the result."""
-    sources = grid.valid_diagonal(d) & live[:, None]
-    ok_new = np.concatenate([sources[:, :1], sources[:, 1:] & sources[:, :-1], sources[:, -1:]], 1)
+@dataclass(frozen=True)
+class _Window:
+    """The part of a diagonal the march keeps: per row, ``width`` points from global
+    index ``offset`` (R,) on (index i along u; j = d - i), holding every solved point."""
+
+    offset: np.ndarray
+    valid: np.ndarray  # (R, width) bool
+
+    def position(self) -> np.ndarray:
+        """Global index of every point of the window (R, width)."""
+        return self.offset[:, None] + np.arange(self.valid.shape[1])
+
+
+def _advance(problem, grid, old, rates_old, window: _Window, d, u_data, v_data, live):
+    """One Heun step from diagonal d to d+1 in every live row; stores the new diagonal and
+    returns it trimmed to the window of its solved points, with its rates.
+
+    The new points of a row are those of the old window and one more (its west and south
+    sources lie in the old window); the ends of the diagonal, on the initial curves, need
+    only one source, and only a window that reaches them holds them.
+    """
+    sources = window.valid & live[:, None]
+    at_start = (window.offset == 0)[:, None]
+    at_end = (window.offset + sources.shape[1] == d + 1)[:, None]
+    ok_new = np.concatenate(
+        [sources[:, :1] & at_start, sources[:, 1:] & sources[:, :-1], sources[:, -1:] & at_end], 1
+    )
     predicted = _propagate(problem, old, rates_old, None, d, u_data, v_data)
     fail_predicted = _cross_derive(problem, predicted, ok_new, d, u_data, v_data)
     rates_predicted, failed = _rates_where(problem, predicted, ok_new & (fail_predicted == 0))
@@ -705,11 +907,37 @@ def _advance(problem, grid, old, rates_old, d, u_data, v_data, live):
     failed = np.where(failed, failed, np.where(fail_corrected, fail_corrected, failed_new))
     failed = np.where(ok_new, failed, 0)
     valid = ok_new & (failed == 0)
-    grid.store(d + 1, corrected, valid, failed)
+    grid.store(d + 1, corrected, _Window(window.offset, valid), failed)
     for key, value in corrected.items():
         mask = valid.reshape(valid.shape + (1,) * (value.ndim - 2))
         corrected[key] = np.where(mask, value, np.nan)
-    return corrected, rates_new
+    return _trim(corrected, rates_new, _Window(window.offset, valid))
+
+
+def _trim(state: State, rates, window: _Window):
+    """The state, its rates and the window cut to the span of every row's solved points
+    (the next diagonal's points all have their sources there)."""
+    valid = window.valid
+    length = valid.shape[1]
+    has = valid.any(1)
+    first = np.where(has, valid.argmax(1), 0)
+    last = np.where(has, length - 1 - valid[:, ::-1].argmax(1), 0)
+    width = max(int((last - first).max(initial=0)) + 1, 1)
+    if width == length:
+        return state, rates, window
+    # every row's window is a stretch of its own diagonal: a row whose span is narrower
+    # than the widest starts earlier rather than running past the diagonal's end (the
+    # march reads the window's last point as the diagonal's end when the two meet)
+    first = np.minimum(first, length - width)
+    index = first[:, None] + np.arange(width)
+    rows = np.arange(len(first))[:, None]
+
+    def cut(value: np.ndarray) -> np.ndarray:
+        return value[rows, index]
+
+    state = {key: cut(value) for key, value in state.items()}
+    rates = tuple({key: cut(value) for key, value in part.items()} for part in rates)
+    return state, rates, _Window(window.offset + first, cut(valid))
 
 
 def _rates_where(problem: _Problem, state: State, mask: np.ndarray):
@@ -865,45 +1093,86 @@ def _diagonal_difference(values: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray
 
 
 class _Grid:
-    """The solution, diagonal by diagonal, for every row (local indices i, j >= 0)."""
+    """The solution, diagonal by diagonal, for every row (local indices i, j >= 0).
+
+    A diagonal keeps its valid mask and failure codes (R, L), the design's variables at its
+    valid points and the chart points r at its failed ones (those name the surface a
+    point left); :meth:`points` gathers one candidate's.
+    """
 
     def __init__(self, problem: _Problem, origin: State):
         self.problem = problem
-        self.diagonals: list[tuple[State, np.ndarray, np.ndarray]] = []
+        self.points: list[tuple[np.ndarray, np.ndarray]] = []  # valid, failed (row, i)
+        self.codes: list[np.ndarray] = []
+        self.values: list[State] = []
+        self.failed_r: list[np.ndarray] = []
         rows = origin["alpha"].shape[0]
-        self.store(0, origin, np.ones((rows, 1), dtype=bool), np.zeros((rows, 1), int))
+        window = _Window(np.zeros(rows, dtype=int), np.ones((rows, 1), dtype=bool))
+        self.store(0, origin, window, np.zeros((rows, 1), int))
+        self._gathered: tuple | None = None
 
-    def store(self, d: int, state: State, valid: np.ndarray, failed: np.ndarray) -> None:
-        """Keep diagonal d (must be the next one) with its valid mask and failure codes."""
-        assert d == len(self.diagonals)
-        self.diagonals.append((dict(state), valid, failed))
-
-    def valid_diagonal(self, d: int) -> np.ndarray:
-        return self.diagonals[d][1]
-
-    def _points(self, pick: int, march: int):
-        """(row, i, j, diagonal) of the march's points whose mask (valid: 1, failed: 2) is set."""
-        mine = self.problem.march == march
+    def store(self, d: int, state: State, window: _Window, failed: np.ndarray) -> None:
+        """Keep diagonal d (must be the next one): its valid points and their values, its
+        failed points, their codes and chart points."""
+        assert d == len(self.points)
+        valid = window.valid
         found = []
-        for d, (_, valid, failed) in enumerate(self.diagonals):
-            mask = (valid if pick == 1 else failed > 0) & mine[:, None]
+        for mask in (valid, failed > 0):
             row, k = np.nonzero(mask)
-            found.append((row, k, d - k, np.full(len(k), d)))
-        return tuple(np.concatenate(x) for x in zip(*found, strict=True))
+            found.append((row, window.offset[row] + k))
+        self.points.append(tuple(found))
+        self.codes.append(failed[failed > 0])
+        self.values.append({key: state[key][valid] for key in DESIGN_KEYS})
+        self.failed_r.append(state["r"][failed > 0])
 
-    def stops(self) -> tuple[Stop, ...]:
-        """Every failed point of the fine march, nearest the origin first."""
-        names = [t.name for t in self.problem.spec.targets]
+    def _gather(self):
+        """Every stored point of the batch, sorted by candidate: (slices per candidate,
+        valid points (row, i, j), their values), (failed points (row, i, j, code), r)."""
+        if self._gathered is None:
+            valid_parts, failed_parts = [], []
+            for d, (valid, failed) in enumerate(self.points):
+                valid_parts.append((valid[0], valid[1], d - valid[1]))
+                failed_parts.append((failed[0], failed[1], d - failed[1], self.codes[d]))
+            valid = [np.concatenate(x) for x in zip(*valid_parts, strict=True)]
+            failed = [np.concatenate(x) for x in zip(*failed_parts, strict=True)]
+            values = {}
+            for key in DESIGN_KEYS:
+                values[key] = np.concatenate([v.pop(key) for v in self.values])
+            failed_r = np.concatenate(self.failed_r)
+            self.values, self.failed_r = [], []
+            candidate = self.problem.candidate
+            count = int(candidate.max()) + 1
+            gathered = []
+            for arrays, extra in ((valid, values), (failed, {"r": failed_r})):
+                if count > 1:
+                    order = np.argsort(candidate[arrays[0]], kind="stable")
+                    arrays = [x[order] for x in arrays]
+                    extra = {k: v[order] for k, v in extra.items()}
+                edges = np.searchsorted(candidate[arrays[0]], np.arange(count + 1))
+                gathered.append((edges, arrays, extra))
+            self._gathered = tuple(gathered)
+        return self._gathered
+
+    def _candidate(self, which: int, slot: int):
+        """(row, i, j, ...) and the kept values of one candidate's valid (which = 0) or
+        failed (1) points."""
+        edges, arrays, extra = self._gather()[which]
+        pick = slice(edges[slot], edges[slot + 1])
+        return [x[pick] for x in arrays], {k: v[pick] for k, v in extra.items()}
+
+    def stops(self, slot: int) -> tuple[Stop, ...]:
+        """Every failed point of the candidate's fine march, nearest the origin first."""
         problem = self.problem
+        names = [t.name for t in problem.spec.targets]
+        (rows, i, j, codes), extra = self._candidate(1, slot)
         stops = []
-        for row, i, j, d in zip(*self._points(2, FINE), strict=True):
-            state, _, failed = self.diagonals[d]
-            code = int(failed[row, i])
-            u = float(problem.sign_u[row, 0] * i * problem.step[row, 0])
-            v = float(problem.sign_v[row, 0] * j * problem.step[row, 0])
+        for row, ii, jj, code, r in zip(rows, i, j, codes, extra["r"], strict=True):
+            if problem.march[row] != FINE:
+                continue
+            u = float(problem.sign_u[row, 0] * ii * problem.step[row, 0])
+            v = float(problem.sign_v[row, 0] * jj * problem.step[row, 0])
             surface = None
             if code == CHART:
-                r = state["r"][row, i]
                 outside = [
                     k for k, t in enumerate(problem.surfaces) if not t.contains(r[k][None])[0]
                 ]
@@ -911,28 +1180,25 @@ class _Grid:
             stops.append(Stop(REASONS[code], u, v, surface))
         return tuple(sorted(stops, key=_stop_order))
 
-    def assemble(self, march: int) -> _Points:
-        """The march's quadrants on the design grid of step h (the fine march keeps every
+    def assemble(self, march: int, slot: int) -> _Points:
+        """The candidate's march on the design grid of step h (the fine march keeps every
         other grid line: it is only needed there); quadrants sharing an axis point give it
         the mean of their values."""
         problem = self.problem
         every = 1 if march == COARSE else 2
         size = problem.diagonals[COARSE]
-        rows, i, j, _ = self._points(1, march)
-        keep = (i % every == 0) & (j % every == 0)
+        (rows, i, j), values = self._candidate(0, slot)
+        keep = (problem.march[rows] == march) & (i % every == 0) & (j % every == 0)
         rows, i, j = rows[keep], i[keep] // every, j[keep] // every
         g_rows = size + (problem.sign_u[rows, 0] * i).astype(int)
         g_cols = size + (problem.sign_v[rows, 0] * j).astype(int)
         index, where = np.unique(g_rows * (2 * size + 1) + g_cols, return_inverse=True)
         counts = np.zeros(len(index))
         np.add.at(counts, where, 1.0)
-        mine = problem.march == march
         mean = {}
         for key in DESIGN_KEYS:
-            values = np.concatenate(
-                [state[key][valid & mine[:, None]] for state, valid, _ in self.diagonals]
-            )[keep]
-            sums = np.zeros((len(index),) + values.shape[1:])
-            np.add.at(sums, where, values)
-            mean[key] = sums / counts.reshape((-1,) + (1,) * (values.ndim - 1))
+            kept = values[key][keep]
+            sums = np.zeros((len(index),) + kept.shape[1:])
+            np.add.at(sums, where, kept)
+            mean[key] = sums / counts.reshape((-1,) + (1,) * (kept.ndim - 1))
         return _Points(index, mean)

@@ -1,0 +1,157 @@
+"""Attack rows for ``fabkit optimise``: keys that vary nothing, bad ranges and tables, bad
+budgets and options, and checkpoints that are not this search's. Each is refused in one
+line before any work, writing nothing."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from fabkit.optimise.search import CHECKPOINT_FORMAT
+from fabkit.optimise.tomlout import dumps
+from tests.attack import assert_refused, case
+from tests.conftest import example_table
+
+OPT = "optimise {fig1} --out {out}/best.toml"
+VARY = "--vary initial.eps[0]=0.2:0.7"
+
+CASES = [
+    case(
+        f"{OPT} --vary initial.colour[0]=0:1",
+        "not a key the search can vary",
+        "initial.colour[0]",
+        id="optimise_unknown_key",
+    ),
+    case(
+        f"{OPT} --vary initial.eps[2]=0:1",
+        "the spec has no",
+        "initial.eps[2]",
+        id="optimise_no_such_index",
+    ),
+    case(
+        f"{OPT} --vary surfaces.torus.start[0]=0:1",
+        "no target surface",
+        "torus",
+        "targets: sphere, bump",
+        id="optimise_unknown_surface",
+    ),
+    case(
+        f"{OPT} --vary surfaces.flat.director[0]=0:1",
+        "no target surface",
+        "flat",
+        id="optimise_flat_sheet_start",
+    ),
+    case(
+        f"{OPT} --vary initial.eps[0]=0.7:0.2", "LO must be below HI", id="optimise_range_reversed"
+    ),
+    case(
+        f"{OPT} --vary initial.eps[0]=0.2:inf", "expected KEY=LO:HI", id="optimise_range_infinite"
+    ),
+    case(f"{OPT} --vary initial.eps[0]", "expected KEY=LO:HI", id="optimise_range_missing"),
+    case(OPT, "nothing to vary", id="optimise_nothing_to_vary"),
+    case(
+        "optimise {curve_in_t} --out {out}/best.toml --vary initial.eps[0]=0:1",
+        "depends on t",
+        id="optimise_key_depends_on_t",
+    ),
+    case(
+        "optimise {value_outside} --out {out}/best.toml",
+        "lies outside",
+        "optimise.parameters.R",
+        id="optimise_value_outside_range",
+    ),
+    case(
+        "optimise {min_above_max} --out {out}/best.toml",
+        "min must be below max",
+        "optimise.parameters.R",
+        id="optimise_table_range_reversed",
+    ),
+    case(
+        "optimise {bad_name} --out {out}/best.toml",
+        "a parameter needs a name like",
+        "optimise.parameters.sin",
+        id="optimise_parameter_name",
+    ),
+    case(
+        "optimise {bad_objective} --out {out}/best.toml",
+        "optimise.objective: expected one of",
+        id="optimise_unknown_objective",
+    ),
+    case(
+        "optimise {unknown_table_key} --out {out}/best.toml",
+        "unknown key",
+        "budget",
+        id="optimise_unknown_table_key",
+    ),
+    case(f"{OPT} {VARY} --generations 0", "expected a positive integer", id="optimise_generations"),
+    case(f"{OPT} {VARY} --batch -1", "expected a positive integer", id="optimise_batch"),
+    case(
+        f"optimise {{fig1}} --out {{out}}/best.json {VARY}",
+        "the best spec is written as TOML",
+        id="optimise_out_not_toml",
+    ),
+    case(
+        f"{OPT} {VARY} --scale 0.5",
+        "applies with --machine or --process only",
+        id="optimise_scale_without_process",
+    ),
+    case(
+        f"{OPT} {VARY} --machine marlin_diw_pneumatic",
+        "give --scale",
+        id="optimise_process_without_scale",
+    ),
+    case(
+        f"{OPT} {VARY} --checkpoint {{other_checkpoint}}",
+        "belongs to another search",
+        id="optimise_checkpoint_of_another_search",
+    ),
+    case(
+        f"{OPT} {VARY} --checkpoint {{not_checkpoint}}",
+        "not a fabkit optimise checkpoint",
+        id="optimise_checkpoint_not_one",
+    ),
+    case(
+        f"{OPT} {VARY} --checkpoint {{garbage}}",
+        "not valid JSON",
+        id="optimise_checkpoint_garbage",
+    ),
+]
+
+
+@pytest.fixture(scope="module")
+def places(tmp_path_factory) -> dict[str, str]:
+    folder = tmp_path_factory.mktemp("optimise_inputs")
+    base = example_table("two_shapes.toml")
+    base["solver"] = {"step": 0.1, "diagonals": 10, "quadrants": "all"}
+    radius = {"R": {"value": 2.0, "min": 1.0, "max": 4.0}}
+    tables = {
+        "fig1": {},
+        "curve_in_t": {"initial": {**base["initial"], "eps": ["1/2 + t/10"]}},
+        "value_outside": {"optimise": {"parameters": {"R": {"value": 5.0, "min": 1, "max": 4}}}},
+        "min_above_max": {"optimise": {"parameters": {"R": {"value": 2.0, "min": 4, "max": 1}}}},
+        "bad_name": {"optimise": {"parameters": {"sin": radius["R"]}}},
+        "bad_objective": {"optimise": {"objective": "volume", "parameters": radius}},
+        "unknown_table_key": {"optimise": {"budget": 3, "parameters": radius}},
+    }
+    paths = {}
+    for name, change in tables.items():
+        path = folder / f"{name}.toml"
+        path.write_text(dumps({**base, **change}))
+        paths[name] = str(path)
+    other = {"fabkit_optimise": CHECKPOINT_FORMAT, "fingerprint": "0" * 64, "evaluations": []}
+    files = {
+        "other_checkpoint": json.dumps(other),
+        "not_checkpoint": json.dumps({"evaluations": []}),
+        "garbage": "{ not json",
+    }
+    for name, text in files.items():
+        path = folder / f"{name}.json"
+        path.write_text(text)
+        paths[name] = str(path)
+    return paths
+
+
+@pytest.mark.parametrize("bad", CASES)
+def test_bad_optimise_input_is_one_line_and_writes_nothing(bad, places, run_cli, tmp_path):
+    assert_refused(bad, places, tmp_path, run_cli)
