@@ -2,7 +2,11 @@
 
 Each module in :mod:`fabkit.commands` defines ``register(subparsers)``, which adds
 its sub-command(s) with a handler ``func(args) -> int``. The CLI holds no logic:
-handlers parse nothing beyond their arguments and call one stage function.
+handlers parse nothing beyond their arguments and call one stage function. Only the
+module of the command being run is imported (the others are listed from
+:data:`fabkit.commands.COMMANDS`), and a handler imports its stage itself, so that
+``fabkit --version``, ``--help`` and the quick commands start at once
+(``python benchmarks/startup.py``).
 A :class:`~fabkit.errors.FabkitError`, a bad command line and an operating-system error
 (a path that cannot be written, a full disk) become one line on stderr and exit code 2.
 Ctrl-C at any moment, the sub-commands' imports included, becomes one line and exit code
@@ -14,13 +18,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import pkgutil
 import sys
 import traceback
+from collections.abc import Iterable
 from typing import NoReturn
 
 import fabkit
-import fabkit.commands
+from fabkit.commands import COMMANDS
 from fabkit.errors import FabkitError
 
 
@@ -35,8 +39,13 @@ class _Parser(argparse.ArgumentParser):
         raise _UsageError(f"{message} (see {self.prog} --help)")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every sub-command found in :mod:`fabkit.commands`."""
+def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
+    """The argument parser; ``commands`` are registered in full (None: every one).
+
+    Every other sub-command is only listed, by its name and one-line help, so that its
+    module is not imported.
+    """
+    modules = {COMMANDS[name].module for name in (COMMANDS if commands is None else commands)}
     parser = _Parser(
         prog="fabkit",
         description="Design flat active sheets that morph into several shapes, and make them.",
@@ -46,10 +55,17 @@ def build_parser() -> argparse.ArgumentParser:
         "--debug", action="store_true", help="print the traceback of an internal error"
     )
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for info in sorted(pkgutil.iter_modules(fabkit.commands.__path__), key=lambda m: m.name):
-        module = importlib.import_module(f"fabkit.commands.{info.name}")
-        module.register(subparsers)
+    for name, command in COMMANDS.items():
+        if command.module not in modules:
+            subparsers.add_parser(name, help=command.help)
+        elif command.module == name:  # the module registers all of its sub-commands
+            importlib.import_module(f"fabkit.commands.{command.module}").register(subparsers)
     return parser
+
+
+def _command(argv: list[str]) -> str | None:
+    """The sub-command named on the command line (the global options take no value)."""
+    return next((arg for arg in argv if not arg.startswith("-")), None)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(argv: list[str]) -> int:
-    parser = build_parser()
+    command = _command(argv)
+    parser = build_parser([command] if command in COMMANDS else [])
     try:
         args = parser.parse_args(argv)
     except _UsageError as exc:

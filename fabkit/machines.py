@@ -127,6 +127,9 @@ class Tool:
     "relative" (M83), None = what the start G-code selects; ``e_units`` one of E_UNITS,
     None = "volume" for flavour hyrel, else "filament"; ``filament_diameter_mm`` converts
     volume to filament length; ``pulses_per_mm3`` converts it to pulses (None = unknown).
+    ``nominal_e``: a machine without an E axis (valve or pressure dispenser, Marlin) also
+    writes E words, the road's volume as filament, for slicer G-code viewers; its
+    firmware ignores them (no extruder, or a cold one) and the valve still switches the flow.
     """
 
     nozzle_diameter_mm: float
@@ -137,6 +140,7 @@ class Tool:
     e_units: str | None = None
     filament_diameter_mm: float = 1.75
     pulses_per_mm3: float | None = None
+    nominal_e: bool = False
 
 
 @dataclass(frozen=True)
@@ -601,6 +605,7 @@ def _tool(t: _Table) -> Tool:
         e_units=t.optional("e_units", lambda key: t.text(key, E_UNITS), None),
         filament_diameter_mm=t.optional("filament_diameter_mm", _positive(t), 1.75),
         pulses_per_mm3=t.optional("pulses_per_mm3", _positive(t), None),
+        nominal_e=t.optional("nominal_e", t.flag, False),
     )
     t.finish()
     return out

@@ -12,7 +12,10 @@ feature the process does not encode is refused before any work, unless it is nam
 then read back and checked (``fabkit verify``, skipped with ``--no-verify``). Every stage
 writes
 through :func:`fabkit.atomic.atomic_path`, so an interrupted run leaves no half-written
-file under a final name, and re-running into the same folder replaces the files whole.
+file under a final name. The output folder is claimed first
+(:func:`fabkit.atomic.output_folder`): a folder holding an earlier run's files is refused
+unless ``--overwrite``, which removes exactly the files that run wrote (listed in the
+folder's ``.fabkit-files``); a folder holding files fabkit did not write is refused.
 
 Files in the output folder:
 
@@ -36,13 +39,14 @@ import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from fabkit.atomic import atomic_path, check_folder
+from fabkit.atomic import atomic_path, check_folder, output_folder, record
 from fabkit.design.design import Design
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
-from fabkit.design.report import solve_to_file
+from fabkit.design.report import checked_points, solve_to_file
 from fabkit.errors import FabkitError
+from fabkit.figures import AREA_UNIT
 from fabkit.machines import load_machine
 from fabkit.part import (
     MIN_WIDTH_PITCHES,
@@ -61,7 +65,10 @@ from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.process import load_process, resolve_channels
 from fabkit.writers.dxf import layout_layers, write_dxf
-from fabkit.writers.export import ExportOptions, export
+from fabkit.writers.export import ExportOptions, describe_dxf, export
+
+if TYPE_CHECKING:
+    from fabkit.link.session import SendReport
 
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
 DEFAULT_MACHINE = "marlin_diw_pneumatic"
@@ -80,8 +87,10 @@ class RunOptions:
     ``formats`` None: DXF for baromorph channels, laser patterns on a laser writer, else
     G-code. ``machine`` None: laser_cutter for baromorph channels, else a pneumatic DIW.
     ``ignore_features`` are left out of the machine file on purpose; ``verify`` reads the
-    machine file back and checks it (:mod:`fabkit.verify`). ``outline``, ``min_width_mm``
-    and ``trim`` cut the part (:class:`fabkit.part.PartOptions`; None: the defaults).
+    machine file back and checks it (:mod:`fabkit.verify`). ``overwrite`` replaces the
+    files an earlier run wrote into ``out`` (else such a folder is refused). ``outline``,
+    ``min_width_mm`` and ``trim`` cut the part (:class:`fabkit.part.PartOptions`; None: the
+    defaults).
     """
 
     spec: str
@@ -97,6 +106,7 @@ class RunOptions:
     mesh_format: str = "ply"
     ignore_features: tuple[str, ...] = ()
     verify: bool = True
+    overwrite: bool = False
     outline: str | None = None
     min_width_mm: float | None = None
     trim: float | None = None
@@ -110,6 +120,12 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     """
     options = _with_defaults(options)
     spec = _check_inputs(options)
+    with output_folder(options.out, f"--out {options.out}", options.overwrite):
+        return _stages(options, spec, say)
+
+
+def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict[str, Any]:
+    """Every stage in turn, into the claimed output folder; returns the key figures."""
     out = Path(options.out)
     notice = _notice(options)
     if notice:
@@ -121,6 +137,11 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     say(
         f"      {solved['valid_points']} valid points in {solved['solve_seconds']:.2f} s; "
         f"check {'passed' if check.passed else 'FAILED'}"
+    )
+    say(f"      {checked_points(solved['check'])}")
+    say(
+        f"      area over the solved cells ({AREA_UNIT}): "
+        + ", ".join(f"{k} {v:.4g}" for k, v in solved["area_design_units2"].items())
     )
     part = _part(options, solution.design)
     say(f"      {part.summary()}")
@@ -146,7 +167,7 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
         say(f"[6/7] sending sheet.gcode to {options.send}")
         from fabkit.link.send import send_file
 
-        sent = send_file(out / "sheet.gcode", options.send, machine=options.machine).summary()
+        sent = _sent(send_file(out / "sheet.gcode", options.send, machine=options.machine))
     else:
         say("[6/7] not sending (no --send)")
 
@@ -155,7 +176,10 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
         **({"notice": notice} if notice else {}),
         "spec": str(options.spec),
         "machine": options.machine,
-        "solve": {k: solved[k] for k in ("solve_seconds", "valid_points", "areas", "stop_counts")},
+        "solve": {
+            k: solved[k]
+            for k in ("solve_seconds", "valid_points", "area_design_units2", "stop_counts")
+        },
         "check": check.to_dict(),
         "part": part.to_dict(),
         **fabricated.figures,
@@ -287,6 +311,22 @@ def _verify(
     return result.to_dict()
 
 
+def _sent(report: SendReport) -> dict[str, Any]:
+    """What ``--send`` did, each figure named with its unit (report.json, report.html)."""
+    return {
+        "port": report.port,
+        "protocol": report.protocol,
+        "job_lines": report.job_lines,
+        "file_lines": f"{report.first_file_line}-{report.last_file_line}",
+        "seconds": round(report.elapsed_s, 3),
+        "lines_per_second": round(report.lines_per_s, 1),
+        "resent_lines": report.resends,
+        "status_queries_between_lines": report.probes,
+        "recoveries_from_lost_answers": report.recoveries,
+        "warnings": list(report.warnings),
+    }
+
+
 def _with_defaults(options: RunOptions) -> RunOptions:
     """Fill in the machine and the formats that suit the route (see :class:`RunOptions`)."""
     machine = options.machine or (BAROMORPH_MACHINE if options.baromorph else DEFAULT_MACHINE)
@@ -356,6 +396,7 @@ def _laser_patterns(
         out / "laser",
         ExportOptions(process=process, ignore_features=options.ignore_features, part=part),
     )
+    record(out / "laser")  # the laser writer renames a whole folder into place
     caption = "Photoalignment pattern: binned director angle and the dose of each exposure (mm)"
     return _Fabricated({"exports": {"laser": summary}}, (caption, out / "laser" / "preview.png"))
 
@@ -379,7 +420,10 @@ def _channels(
     figures = {
         "channels": asdict(result.report),
         "mould": str(out / "channels" / "mould.stl"),
-        "exports": {"dxf": f"wrote {out / 'channels.dxf'}: {drawing}"},
+        "exports": {"dxf": describe_dxf(out / "channels.dxf", drawing, options.machine)},
     }
-    caption = "Baromorph channels coloured by width (walls grey), inlet red"
+    caption = (
+        "Baromorph channels coloured by their local width (mm), manifold dark grey, sheet "
+        "(walls) light grey, inlet red"
+    )
     return _Fabricated(figures, (caption, out / "channels" / "channels.png"))

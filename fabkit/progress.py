@@ -1,4 +1,13 @@
-"""A small progress bar for long jobs, drawn on stderr only when it is a terminal."""
+"""Progress of long jobs on stderr: a redrawn bar on a terminal, plain lines when asked.
+
+The rule, the same for every command that can take more than a few seconds (``solve``,
+``simulate``, ``verify``, ``swimmer``; ``run`` prints its stages on stdout and shows its
+solve's bar): progress goes to stderr only, never stdout, so a command's output is the
+same whether it is watched or piped. On a terminal it is shown by default, a bar redrawn
+in place. Where stderr is not a terminal (a pipe, a log file, the test suite) nothing is
+shown unless the command's ``--progress`` asks for it; then it is written as plain
+lines, one per tenth of the job (no carriage returns in a log).
+"""
 
 from __future__ import annotations
 
@@ -6,31 +15,82 @@ import sys
 import time
 from typing import TextIO
 
+STEPS = 10
+"""Lines a job writes when stderr is not a terminal (one per tenth, and the end)."""
+
 
 class ProgressBar:
-    """``bar(done, total)`` redraws ``label [#####.....] 50% ETA 3 s``; ``bar.close()`` ends it."""
+    """``bar(done, total)`` shows ``label [#####.....] 50% ETA 3 s``; ``bar.close()`` ends it.
 
-    def __init__(self, label: str, stream: TextIO | None = None, width: int = 30):
+    Shown when ``stream`` (default stderr) is a terminal, or when ``force`` is true (the
+    ``--progress`` option), as plain lines then if it is not a terminal. The clock (elapsed
+    time, ETA) starts when the bar is made, or when the bar ``after`` (the stage before,
+    made at the same time) finished.
+    """
+
+    def __init__(
+        self,
+        label: str,
+        stream: TextIO | None = None,
+        width: int = 30,
+        force: bool = False,
+        after: ProgressBar | None = None,
+    ):
         self.label, self.width = label, width
         self.stream = stream if stream is not None else sys.stderr
-        self.enabled = self.stream.isatty()
-        self.started = time.perf_counter()
+        self.terminal = self.stream.isatty()
+        self.enabled = self.terminal or force
+        self.made = time.perf_counter()
+        self.after = after
+        self.finished: float | None = None
         self.drawn = False
+        self.last_step = -1
+
+    @property
+    def started(self) -> float:
+        """When this bar's job started (perf_counter s)."""
+        before = self.after.finished if self.after is not None else None
+        return max(self.made, before) if before is not None else self.made
 
     def __call__(self, done: int, total: int) -> None:
         if not self.enabled or total <= 0:
             return
         fraction = min(done / total, 1.0)
-        elapsed = time.perf_counter() - self.started
+        now = time.perf_counter()
+        if fraction >= 1 and self.finished is None:
+            self.finished = now
+        elapsed = now - self.started
         eta = elapsed * (1 - fraction) / fraction if fraction > 0 else float("nan")
-        filled = int(round(self.width * fraction))
-        bar = "#" * filled + "." * (self.width - filled)
-        self.stream.write(f"\r{self.label} [{bar}] {100 * fraction:3.0f}% ETA {eta:4.0f} s")
+        if self.terminal:
+            filled = int(round(self.width * fraction))
+            bar = "#" * filled + "." * (self.width - filled)
+            self.stream.write(f"\r{self.label} [{bar}] {100 * fraction:3.0f}% ETA {eta:4.0f} s")
+            self.drawn = fraction < 1
+            if not self.drawn:  # done: the next bar starts on a line of its own
+                self.stream.write("\n")
+        else:
+            step = int(fraction * STEPS)
+            if step == self.last_step:
+                return
+            self.last_step = step
+            self.stream.write(
+                f"{self.label}: {done}/{total} ({100 * fraction:.0f}%), "
+                f"{elapsed:.0f} s, ETA {eta:.0f} s\n"
+            )
         self.stream.flush()
-        self.drawn = True
 
     def close(self) -> None:
         if self.drawn:
             self.stream.write("\n")
             self.stream.flush()
             self.drawn = False
+
+
+def add_progress(parser) -> None:
+    """The ``--progress`` option of a command that can take more than a few seconds."""
+    parser.add_argument(
+        "--progress",
+        action="store_true",
+        help="show progress on stderr even when it is not a terminal (plain lines, one "
+        "per tenth; on a terminal a bar is always shown)",
+    )

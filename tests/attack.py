@@ -52,9 +52,12 @@ def case(
     id: str,
     seconds: float = SECONDS,
     code: int = 2,
+    slow: bool = False,
 ):
-    """One row, as a pytest parameter with its id."""
-    return pytest.param(Case(args, says, outputs, seconds, code), id=id)
+    """One row, as a pytest parameter with its id (marked ``slow``, out of the quick
+    subset, if ``slow``)."""
+    marks = (pytest.mark.slow,) if slow else ()
+    return pytest.param(Case(args, says, outputs, seconds, code), id=id, marks=marks)
 
 
 class TookTooLong(Exception):

@@ -433,7 +433,7 @@ CASES = [
     ),
     case(
         "export {design} --machine dmd_photoalign --format laser -o {blocker} --size 5",
-        "exists and is not a directory",
+        "exists and is not a folder",
         outputs=(),
         id="export-laser-out-is-file",
     ),
@@ -731,6 +731,7 @@ CASES = [
         "cannot open port",
         outputs=("{out}/report.json", "{out}/report.html"),
         id="run-send-no-such-device",
+        slow=True,  # a whole (coarse) run before the port
     ),
 ]
 

@@ -109,6 +109,7 @@ def test_heightmap_curvature_and_christoffel_match_analytic(tmp_path, expression
     assert np.max(np.abs(gamma - gamma_true)) <= 1e-2 * np.max(np.abs(gamma_true))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("expression, extent", [BUMP, WAVY], ids=["bump", "wavy"])
 def test_stl_curvature_matches_analytic(tmp_path, expression, extent):
     write_stl(tmp_path / "map.stl", *sampled(expression, extent))
@@ -128,6 +129,7 @@ def test_noisy_heightmap_curvature_within_five_percent(tmp_path, expression, ext
     assert "chosen from noise" in surface.describe()
 
 
+@pytest.mark.slow
 def test_irregular_mesh_is_fitted_through_its_vertices(tmp_path):
     """A jittered Delaunay mesh (not a lattice) is resampled by local quadratics."""
     from scipy.spatial import Delaunay
@@ -182,6 +184,7 @@ def test_explicit_smoothing_is_used_and_reported(tmp_path):
 # --- holes and the footprint ------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_holes_leave_the_footprint_and_the_rest_stays_accurate(tmp_path):
     expression, extent = BUMP
     z = sampled(expression, extent)[2]
@@ -212,6 +215,7 @@ def test_contains_is_false_outside_the_extent_and_for_nan(tmp_path):
     assert surface.contains(points).tolist() == [True, False, False, False, True]
 
 
+@pytest.mark.slow
 def test_npz_mask_and_nodata_make_holes(tmp_path):
     z = sampled(*BUMP, n=60)[2]
     mask = np.zeros(z.shape, dtype=bool)
@@ -485,6 +489,7 @@ def test_shipped_face_files_are_what_the_script_makes(tmp_path):
     assert sum(p.stat().st_size for p in (EXAMPLES / "data").iterdir()) < 2_000_000
 
 
+@pytest.mark.slow
 def test_face_heightmap_and_stl_follow_the_face_function():
     points = np.stack(np.meshgrid(np.linspace(-14, 14, 60), np.linspace(2, 38, 80)), -1)
     points = points.reshape(-1, 2)
@@ -555,6 +560,7 @@ def stl_files(tmp_path_factory):
     return folder
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["heightmap", "mesh"])
 def test_fig1_design_against_data_bump(stl_files, kind, fig1):
     fig1["solver"].update(step=0.05, diagonals=40)
@@ -569,6 +575,7 @@ def test_fig1_design_against_data_bump(stl_files, kind, fig1):
     assert_isometry_within_twice(solved_check(fig1), exact)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["heightmap", "mesh"])
 def test_fig3_design_against_data_wavy(stl_files, kind, fig3):
     fig3["solver"].update(step=0.1, diagonals=40)
@@ -583,6 +590,7 @@ def test_fig3_design_against_data_wavy(stl_files, kind, fig3):
     assert_isometry_within_twice(solved_check(fig3), exact)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "geometry", [FACE_GEOMETRY, {"kind": "mesh", "file": "data/face.stl"}], ids=["npy", "stl"]
 )
@@ -596,6 +604,7 @@ def test_three_shapes_with_the_face_passes_check(geometry):
     assert face.points > 1000
 
 
+@pytest.mark.slow
 def test_a_hole_in_the_data_stops_the_design(stl_files, fig3, tmp_path):
     """Marching into a hole of the wavy height map is a chart stop on that surface, and no
     solved point of the design lands in the hole."""

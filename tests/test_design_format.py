@@ -43,6 +43,7 @@ def test_a_foreign_tag_is_refused_in_one_line(saved, tmp_path):
     assert "\n" not in str(caught.value)
 
 
+@pytest.mark.slow
 def test_export_still_tells_a_design_from_a_toolpath(saved, run_cli, tmp_path):
     path, _ = saved
     out = tmp_path / "mask"

@@ -58,6 +58,7 @@ def run_of(folder: str) -> str:
     return command
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("command", example_commands(), ids=out_name)
 def test_example_runs(command, run_cli, tmp_path):
     args = shlex.split(command)[1:]

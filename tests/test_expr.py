@@ -265,6 +265,7 @@ def _evaluate(text: str) -> str:
     return "parsed"
 
 
+@pytest.mark.slow
 @settings(max_examples=300, deadline=None)
 @given(GRAMMAR)
 def test_any_text_of_the_grammar_parses_to_an_evaluable_expression_or_is_refused(text):
@@ -291,6 +292,7 @@ SMOOTH = st.recursive(
 """Random smooth expressions (no singularity), to check derivatives against differences."""
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=None)
 @given(SMOOTH, st.floats(-1.5, 1.5), st.floats(-1.5, 1.5))
 def test_derivatives_match_finite_differences(text, x, y):
@@ -347,6 +349,7 @@ TOKENS = st.sampled_from(
 )
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(st.lists(TOKENS, min_size=1, max_size=14))
 def test_fuzz_parses_to_a_function_or_refuses(tmp_path_factory, tokens):

@@ -278,9 +278,10 @@ def test_grid_fields_must_be_finite_on_their_mask(tmp_path):
         ({"mask": np.array([["a"] * 4] * 4)}, "'mask' holds <U1 values; expected real"),
         ({"origin": np.zeros(3)}, "origin must be 2 finite numbers"),
         ({"origin": np.array([np.nan, 0.0])}, "origin must be 2 finite numbers"),
-        (
+        pytest.param(
             {"theta": np.random.default_rng(0).integers(0, 9, (5001, 5001), np.int8)},
             "more than 25000000",
+            marks=pytest.mark.slow,  # writes a 25 MB file
         ),
     ],
 )

@@ -75,6 +75,7 @@ def plain_reading(line: str) -> tuple[list[str], dict[str, float]]:
     return codes, values
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(st.data())
 def test_grbl_reads_a_line_as_if_its_blanks_were_not_there(data):
@@ -104,6 +105,7 @@ def marlin_lines(draw) -> tuple[str, dict[str, float]]:
     return text, values
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(marlin_lines())
 def test_marlin_reads_a_line_as_gcodeparser_does(case):
@@ -114,6 +116,7 @@ def test_marlin_reads_a_line_as_gcodeparser_does(case):
     assert {k: float(v) for k, v in parsed.params.items()} == values
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(marlin_lines(), st.data())
 def test_a_blank_inside_a_marlin_number_is_refused(case, data):
@@ -194,6 +197,7 @@ def arcs(draw):
     return s, e, standard_centre(s, e, r, clockwise), clockwise, words
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("machine", "preamble"),
     [("grbl_diw", ["G21", "G90", "G94", "G17"]), ("marlin_generic", ["G21", "G90", "G28"])],
@@ -252,6 +256,7 @@ def jobs(draw, grbl: bool):
     return lines
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("machine", "url"),
     [

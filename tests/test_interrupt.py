@@ -21,6 +21,7 @@ import pytest
 import trimesh
 from PIL import Image
 
+from fabkit.atomic import MANIFEST
 from fabkit.design.design import Design
 from tests.conftest import EXAMPLES
 
@@ -54,11 +55,16 @@ def assert_complete(out: Path) -> list[str]:
             assert path.read_text().rstrip().endswith("</html>")
         elif suffix == ".gcode":
             assert path.read_text().endswith("\n")
+        elif name == MANIFEST:  # every file the run finished is listed for --overwrite
+            listed = set(path.read_text().split())
+            present = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()}
+            assert present - {MANIFEST} <= listed
         else:
             raise AssertionError(f"unexpected file {name}")
     return names
 
 
+@pytest.mark.slow
 def test_ctrl_c_while_writing_gcode(run_cli, tmp_path, monkeypatch):
     real_replace = os.replace
 
@@ -79,6 +85,7 @@ def test_ctrl_c_while_writing_gcode(run_cli, tmp_path, monkeypatch):
     assert {"design.npz", "design.json", "toolpath/toolpath.npz"} <= set(names)
 
 
+@pytest.mark.slow
 def test_ctrl_c_while_drawing_pictures(run_cli, tmp_path, monkeypatch):
     real_savefig = matplotlib.figure.Figure.savefig
     saved = []
@@ -100,6 +107,7 @@ def test_ctrl_c_while_drawing_pictures(run_cli, tmp_path, monkeypatch):
     assert not (out / "toolpath").exists() and not (out / "sheet.gcode").exists()
 
 
+@pytest.mark.slow
 def test_ctrl_c_while_writing_a_laser_pattern(run_cli, tmp_path, monkeypatch):
     real_save = Image.Image.save
 
@@ -134,6 +142,7 @@ run()
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("module", ["fabkit.cli", "fabkit.pipeline", "matplotlib", "scipy"])
 def test_ctrl_c_while_the_command_starts_is_one_line(tmp_path, module):
     """Ctrl-C while the CLI and its stages are imported: exit 130, one line, no traceback.

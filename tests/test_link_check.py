@@ -458,6 +458,7 @@ MODELLED = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("machine", "preamble"), [("marlin_generic", MARLIN), ("grbl_diw", GRBL)])
 def test_every_other_command_is_refused(machine, preamble):
     """The check is an allow-list: of every G0-G199 (and .1, .2), M0-M999 and T0-T9 given

@@ -171,6 +171,7 @@ def test_a_machine_other_than_the_header_needs_force(tmp_path, capsys):
     )
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_safely_exits_130_and_names_the_resume_line(tmp_path, capsys, monkeypatch):
     # docs/troubleshooting.md: Ctrl-C exits with 130; fabkit send stops the machine first
     ports = []
@@ -200,6 +201,7 @@ def test_ctrl_c_stops_safely_exits_130_and_names_the_resume_line(tmp_path, capsy
     assert [e.command for e in emulator.trace[-len(safe_stop) :]] == safe_stop
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_run_send_names_the_resume_line_too(tmp_path, capsys, monkeypatch):
     """One behaviour everywhere: fabkit run --send stops like fabkit send (exit 130, the
     line where the machine stopped and the --resume-from that continues)."""

@@ -22,6 +22,7 @@ from tests.test_link_support import executed, marlin_job, quick, run_sim, runs_t
 FAST = "sim://marlin?time_scale=0&baud=0"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dialect", list(DIALECTS))
 def test_corruption_and_lost_oks_in_every_dialect(dialect):
     job = marlin_job(1500, seed=4)
@@ -33,6 +34,7 @@ def test_corruption_and_lost_oks_in_every_dialect(dialect):
     assert report.resends > 0 and report.recoveries == 0  # no long silences
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("dialect", list(DIALECTS))
 def test_noisy_answers_and_a_busy_machine_in_every_dialect(dialect):
     # lines pile up behind moves that take time, answers are garbled or interleaved with
@@ -60,6 +62,7 @@ def test_disconnect_and_resume_in_every_dialect(dialect):
     assert first + executed(emulator) == [c.text for c in job]
 
 
+@pytest.mark.slow
 def test_marlin_2_0_recovers_in_a_probe_not_in_seconds():
     # Marlin 2.0.x sends no ok after a resend request: each recovery used to wait 5 s
     job = marlin_job(3000)
@@ -171,6 +174,7 @@ def test_each_dialect_words_a_bad_line_as_its_source_does():
     assert answers("reprapfirmware") == ["ok", "ok"]  # dropped without a word
 
 
+@pytest.mark.slow
 def test_an_unknown_error_is_fatal_unless_a_resend_request_follows():
     class Scripted(LatencyResponder):
         """Answers line 5 with an error worded as nobody here wrote it."""

@@ -19,6 +19,7 @@ from tests.test_link_support import executed, grbl_job, quick, run_sim
 FAST = "sim://grbl?time_scale=0&baud=0"
 
 
+@pytest.mark.slow
 def test_20k_lines_with_lost_garbled_and_spurious_answers_arrive_exactly_once_in_order():
     job = grbl_job(20_000)
     url = f"{FAST}&drop_ok=0.001&garble=0.01&noise=0.01&seed=2"
@@ -29,6 +30,7 @@ def test_20k_lines_with_lost_garbled_and_spurious_answers_arrive_exactly_once_in
     assert report.recoveries > 0  # '?' found the machine idle: the lost oks were settled
 
 
+@pytest.mark.slow
 def test_character_counting_keeps_the_receive_buffer_from_overflowing():
     job = grbl_job(200, seed=3)
     url = "sim://grbl?time_scale=0.001&baud=1000000&drop_ok=0.005&seed=4"
@@ -38,6 +40,7 @@ def test_character_counting_keeps_the_receive_buffer_from_overflowing():
     assert stats.overflow_bytes == 0 and 100 < stats.max_rx_bytes <= 127
 
 
+@pytest.mark.slow
 def test_an_error_lets_the_buffered_lines_run_and_resume_runs_no_line_twice():
     # the machine is busy (moves take time), so lines pile up in GRBL's 127-byte buffer
     # behind the rejected one: they run anyway, and the resume line must come after them
@@ -79,6 +82,7 @@ def test_a_profile_buffer_larger_than_the_machine_reports_is_refused():
         assert port.emulator.trace == []
 
 
+@pytest.mark.slow
 def test_a_larger_buffer_is_used_and_silence_about_it_is_a_warning():
     job = grbl_job(300, seed=3)
     url = "sim://grbl?time_scale=0.001&baud=1000000&rx=256"
@@ -117,6 +121,7 @@ def test_abort_holds_resets_sends_the_safe_stop_and_names_the_line_it_stopped_in
     assert not port.emulator.firmware.alarm  # reset after the hold completed: no alarm
 
 
+@pytest.mark.slow
 def test_pause_is_a_feed_hold_and_resume_a_cycle_start():
     job = grbl_job(150)
     port = open_port("sim://grbl?time_scale=0.001&baud=0", 115200)

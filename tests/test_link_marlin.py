@@ -28,6 +28,7 @@ FAST = "sim://marlin?time_scale=0&baud=0"
 FAULTS = "corrupt=0.01&drop_ok=0.001"
 
 
+@pytest.mark.slow
 def test_20k_lines_with_1_percent_corruption_and_lost_oks_arrive_exactly_once_in_order():
     job = marlin_job(20_000)
     report, emulator = run_sim(f"{FAST}&{FAULTS}&seed=3", job, "marlin_generic")
@@ -103,6 +104,7 @@ class Rewriting:
         return self.port.write(data)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("spelling", [b"Resend:", b"rs ", b"rs N"])
 def test_other_resend_spellings(spelling):
     port = open_port(f"{FAST}&corrupt=0.02&seed=1", 115200)
@@ -112,6 +114,7 @@ def test_other_resend_spellings(spelling):
     assert executed(port.emulator) == [c.text for c in job] and report.resends > 10
 
 
+@pytest.mark.slow
 def test_lost_oks_are_detected_by_probing_and_recovered():
     job = marlin_job(3000)
     report, emulator = run_sim(f"{FAST}&drop_ok=0.01&seed=2", job, "marlin_generic")
@@ -119,6 +122,7 @@ def test_lost_oks_are_detected_by_probing_and_recovered():
     assert executed(emulator) == [c.text for c in job]
 
 
+@pytest.mark.slow
 def test_heating_waits_report_temperatures_and_busy_lines_keep_the_link_alive():
     job = commands_from_lines(["G21", "M109 S210", "G4 S0.4", "G1 X10 F600"])
     url = "sim://marlin?time_scale=1&baud=0&heat_tau_s=0.15&keepalive_s=0.1"
@@ -131,6 +135,7 @@ def test_heating_waits_report_temperatures_and_busy_lines_keep_the_link_alive():
     assert report.probes == 0  # busy and temperature lines count as answers
 
 
+@pytest.mark.slow
 def test_disconnect_names_the_last_acknowledged_line_and_resume_is_continuous():
     job = marlin_job(3000)
     port = open_port(f"{FAST}&disconnect_after=1202", 115200)
@@ -182,6 +187,7 @@ def _file_line(job, entry):
     return next(c.file_line for c in job if c.text == entry.command)
 
 
+@pytest.mark.slow
 def test_pause_stops_sending_and_resume_completes_the_job():
     job = marlin_job(400)
     port = open_port("sim://marlin?time_scale=0.0003&baud=0", 115200)

@@ -15,6 +15,7 @@ from fabkit.machines import load_machine
 from tests.test_link_support import executed, grbl_job, marlin_job, numbers_are_contiguous, quick
 
 
+@pytest.mark.slow
 def test_marlin_over_a_pty_with_faults_arrives_exactly_once_in_order():
     job = marlin_job(3000)
     config = config_from_url("sim://marlin?time_scale=0&baud=0&corrupt=0.01&drop_ok=0.002", 0)

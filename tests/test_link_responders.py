@@ -29,6 +29,7 @@ import time
 import tty
 from collections import deque
 
+import pytest
 import serial
 
 from fabkit.link.gcode import Command, frame_marlin, marlin_checksum
@@ -284,6 +285,7 @@ def fabkit_send(path: str, job: list[Command], machine: str = "marlin_generic") 
     return report.lines_per_s
 
 
+@pytest.mark.slow
 def test_fabkit_sends_ahead_where_the_firmware_buffers_lines():
     job = marlin_job(400)
     with LatencyResponder(0.002) as machine:
@@ -292,6 +294,7 @@ def test_fabkit_sends_ahead_where_the_firmware_buffers_lines():
     assert machine.max_unanswered >= 2  # two lines in flight: twice a ping-pong's rate
 
 
+@pytest.mark.slow
 def test_a_64_byte_ring_that_drops_bytes_is_found_and_never_costs_a_line():
     # marlin_generic says 128 bytes; this ring holds 64 and loses what does not fit:
     # the lines it loses come back as line errors, the window shrinks to what fits
@@ -302,6 +305,7 @@ def test_a_64_byte_ring_that_drops_bytes_is_found_and_never_costs_a_line():
     assert 0 < machine.lost_bytes < 100  # it had to find out, and did so at once
 
 
+@pytest.mark.slow
 def test_busy_and_wait_lines_keep_the_link_going():
     job = marlin_job(300)
     with BusyResponder() as machine:

@@ -95,6 +95,7 @@ def test_neo_hookean_agrees_with_small_strain_to_quadratic_order():
             assert neo / small == pytest.approx(1, abs=10 * strain)
 
 
+@pytest.mark.slow
 def test_fig1_design_work_bounds():
     table = example_table("two_shapes.toml")
     table["solver"].update(diagonals=60)
@@ -107,6 +108,7 @@ def test_fig1_design_work_bounds():
     assert sphere.target_area > flat.flat_area
 
 
+@pytest.mark.slow
 def test_energy_cli_writes_the_cycle_plot(run_cli, tmp_path):
     plot = tmp_path / "fig4d.png"
     code, out, _ = run_cli("energy", "--cycle", plot, "--epsilon", "0.5", "--json")

@@ -10,8 +10,8 @@ from scipy.spatial import Delaunay
 
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
+from fabkit.figures import cell_integral
 from fabkit.mechanics.compare import align, compare, integrated_curvature
-from fabkit.mechanics.energy import grid_integral
 from fabkit.mechanics.mesh import design_mesh, disc_mesh
 from fabkit.mechanics.metric import edge_lengths, metric_from_director, metric_from_lengths
 from fabkit.mechanics.shell import Sheet
@@ -48,6 +48,7 @@ def radial(p):
     return p
 
 
+@pytest.mark.slow
 def test_azimuthal_director_makes_a_cone():
     points, triangles = disc_mesh(1.0, 20)  # 2400 triangles
     metrics = director_metrics(points, triangles, azimuthal)
@@ -57,6 +58,7 @@ def test_azimuthal_director_makes_a_cone():
     assert integrated_curvature(result.positions, triangles) == pytest.approx(exact, rel=0.01)
 
 
+@pytest.mark.slow
 def test_radial_director_makes_an_anticone():
     points, triangles = disc_mesh(1.0, 10)  # 600 triangles
     metrics = director_metrics(points, triangles, radial)
@@ -67,6 +69,7 @@ def test_radial_director_makes_an_anticone():
     assert integrated_curvature(result.positions, triangles) == pytest.approx(-excess, rel=0.01)
 
 
+@pytest.mark.slow
 def test_isotropic_stereographic_metric_makes_a_spherical_cap():
     """a = (2 / (1 + r^2))^2 I on the disc r <= 0.7 is a cap of the unit sphere."""
     points, triangles = disc_mesh(1.0, 10)
@@ -84,6 +87,7 @@ def test_isotropic_stereographic_metric_makes_a_spherical_cap():
     assert alignment.max <= 0.02  # pointwise distance / R bounds the Hausdorff distance
 
 
+@pytest.mark.slow
 def test_bilayer_curls_with_timoshenko_curvature_towards_its_contracting_top():
     """Top layer contracting along x by 1 %, bottom unchanged, equal thicknesses, nu = 0:
     a cylinder of curvature 1.5 |strain| / h about y, bending towards the top layer."""
@@ -127,6 +131,7 @@ def fig1_design():
     return solve(build_spec(table, ROOT)).design
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("stimulus", "whole"), [("sphere", 0.075), ("bump", 0.026)])
 def test_fig1_targets_are_reproduced_where_the_sheet_is_wide_enough(fig1_design, stimulus, whole):
     """Thickness 1 % of the flat domain's size. On the default part (fabkit simulate's:
@@ -175,7 +180,7 @@ def test_refined_design_mesh_splits_every_cell(fig1_design):
     # the sheet as made: its area in the reference metric against the designed flat area
     # iint alpha beta du dv; unrefined cells are too long and curved to carry it
     design = fig1_design
-    designed = grid_integral(design.alpha * design.beta, design.valid, design.step)
+    designed = cell_integral(design.alpha * design.beta, design.valid, design.step)
     coarse_error = abs(made_area(design, mesh) / designed - 1)
     fine_error = abs(made_area(design, fine) / designed - 1)
     assert fine_error < 0.005 and fine_error < 0.5 * coarse_error
@@ -190,6 +195,7 @@ def made_area(design, mesh) -> float:
     return float(np.sum(np.sqrt(np.linalg.det(metrics)) * flat))
 
 
+@pytest.mark.slow
 def test_simulate_cli_writes_the_mesh_and_reports(fig1_design, run_cli, tmp_path):
     path = tmp_path / "design.npz"
     fig1_design.save(path)

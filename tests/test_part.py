@@ -29,6 +29,8 @@ from fabkit.pipeline import RunOptions, run_pipeline
 from fabkit.toolpath.model import load_toolpath
 from tests.conftest import EXAMPLES
 
+pytestmark = pytest.mark.slow  # every test reads a full fabkit run of Fig. 1 and Fig. 3
+
 MACHINE = "marlin_diw_pneumatic"
 SIZE_MM = 60.0
 FIGURES = {"fig1": "two_shapes.toml", "fig3": "three_shapes.toml"}

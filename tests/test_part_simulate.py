@@ -22,6 +22,7 @@ def fig1(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("stimulus", "bound"), [("sphere", 0.02), ("bump", 0.025)])
 def test_simulate_meets_the_targets_on_the_default_part(fig1, run_cli, stimulus, bound):
     code, text, err = run_cli("simulate", fig1, "--stimulus", stimulus, "--json")

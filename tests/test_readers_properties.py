@@ -121,6 +121,7 @@ TOML_READERS = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", list(TOML_READERS))
 @FEW
 @given(data=st.data())
@@ -167,6 +168,7 @@ def inline(value) -> str:
     return "{" + ", ".join(f"{k} = {inline(v)}" for k, v in value.items()) + "}"
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(value=values)
 def test_the_depth_scan_sees_the_nesting_of_any_value(value):
@@ -209,6 +211,7 @@ REAL_DTYPES = hnp.boolean_dtypes() | hnp.integer_dtypes() | hnp.floating_dtypes(
 OTHER_DTYPES = hnp.complex_number_dtypes() | hnp.datetime64_dtypes() | hnp.byte_string_dtypes()
 
 
+@pytest.mark.slow
 @FEW
 @given(
     arrays=st.dictionaries(
@@ -279,6 +282,7 @@ def test_a_mutated_toolpath_is_loaded_or_refused(data, toolpath_file, folder):
     refused_or(lambda: load_toolpath(path), Toolpath)
 
 
+@pytest.mark.slow
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data())
 def test_a_toolpath_with_edited_members_is_loaded_or_refused(data, toolpath_file, folder):
@@ -313,6 +317,7 @@ def _grid_reader(path: Path):
     return lambda: read_grid(path, "surfaces[1].geometry")
 
 
+@pytest.mark.slow
 @FEW
 @given(data=st.data())
 def test_a_mutated_csv_height_map_is_read_or_refused(data, folder):
@@ -321,6 +326,7 @@ def test_a_mutated_csv_height_map_is_read_or_refused(data, folder):
     refused_or(_grid_reader(path), tuple)
 
 
+@pytest.mark.slow
 @FEW
 @given(data=st.data())
 def test_a_mutated_png_height_map_is_read_or_refused(data, folder):
@@ -390,6 +396,7 @@ def extents(draw) -> list[float]:
     return [x0, x0 + width, y0, y0 + height]
 
 
+@pytest.mark.slow
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     z=hnp.arrays(np.float64, st.tuples(st.integers(8, 14), st.integers(8, 14)), elements=heights),

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from tests.conftest import EXAMPLES
 
 
+@pytest.mark.slow
 def test_run_writes_every_file(run_cli, tmp_path):
     out = tmp_path / "out"
     code, text, err = run_cli(
@@ -67,6 +70,7 @@ def test_run_bad_inputs_are_one_line(run_cli, tmp_path):
     assert code == 2 and err.count("\n") == 1 and "nope" in err
 
 
+@pytest.mark.slow
 def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
     import ezdxf
     import trimesh
@@ -89,6 +93,8 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
     channels = json.loads((out / "report.json").read_text())["channels"]
     assert channels["valid"] and channels["connected"]
     assert channels["max_width_error"] <= 0.01 and channels["min_wall_mm"] >= 0.6
+    drawing = json.loads((out / "report.json").read_text())["exports"]["dxf"]
+    assert "entities per layer CHANNELS" in drawing and "Summary(" not in drawing  # no repr
     document = ezdxf.readfile(out / "channels.dxf")
     assert len(document.audit().errors) == 0
     layers = {entity.dxf.layer for entity in document.modelspace()}
@@ -107,6 +113,7 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
     assert code == 2 and "DXF only" in err
 
 
+@pytest.mark.slow
 def test_run_photoalignment_pattern(run_cli, tmp_path):
     out = tmp_path / "laser"
     code, _, err = run_cli(

@@ -24,6 +24,7 @@ def reasons(solution) -> set[str]:
     return {s.reason for s in solution.stops}
 
 
+@pytest.mark.slow
 def test_fig1_passes_check_at_step_one_twentieth(fig1):
     solution = solved(fig1, step=0.05, diagonals=60)
     report = check_design(solution.design)
@@ -34,6 +35,7 @@ def test_fig1_passes_check_at_step_one_twentieth(fig1):
         assert surface.curvature.median <= 1e-2
 
 
+@pytest.mark.slow
 def test_fig1_observed_order(fig1):
     medians = []
     for step in (0.1, 0.05, 0.025):
@@ -47,6 +49,7 @@ def test_fig1_observed_order(fig1):
     assert np.all(orders >= 1.8), orders
 
 
+@pytest.mark.slow
 def test_plain_march_is_second_order(fig1):
     """Without Richardson extrapolation, quadrant (-1, 1) converges at order 2."""
     errors = []
@@ -65,6 +68,7 @@ def test_plain_march_is_second_order(fig1):
     assert np.all(orders >= 1.8), orders
 
 
+@pytest.mark.slow
 def test_fig3_passes_check(fig3):
     solution = solved(fig3, step=0.1, diagonals=40)
     report = check_design(solution.design)
@@ -148,6 +152,7 @@ def test_stop_isotropic_point(fig1):
     assert REASONS[6] in reasons(solved(fig1, step=0.05, diagonals=10))
 
 
+@pytest.mark.slow
 def test_stop_no_neighbours(fig3):
     assert REASONS[9] in reasons(solved(fig3, step=0.1, diagonals=40))
 
@@ -188,7 +193,7 @@ def test_cli_solve_and_check(run_cli, tmp_path):
     assert code == 0 and "valid points" in text
     summary = json.loads(out.with_suffix(".json").read_text())
     assert summary["valid_points"] > 500 and summary["check"]["passed"]
-    assert set(summary["areas"]) == {"flat", "sphere", "bump"}
+    assert set(summary["area_design_units2"]) == {"flat", "sphere", "bump"}
     assert summary["stop_counts"]
     code, text, _ = run_cli("check", out)
     assert code == 0 and "sphere" in text

@@ -57,6 +57,7 @@ def solved(table: dict, **solver):
     return solve(build_spec(table, EXAMPLES))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", HARD)
 def test_hard_case_fails_check_without_error_control_and_passes_with_it(name):
     before = solved(hard_table(name, tolerance=NO_CONTROL))
@@ -105,6 +106,7 @@ def test_error_estimate_is_second_order(fig1):
     assert 3.0 < ratio < 5.5, ratio
 
 
+@pytest.mark.slow
 def test_tight_tolerance_stops_and_drops_quarter_planes(fig1):
     loose = solved(json.loads(json.dumps(fig1)), step=0.1, diagonals=20).design
     tight = solved(fig1, step=0.1, diagonals=20, tolerance=1e-3)
@@ -150,6 +152,7 @@ def test_tolerance_key(fig1):
         build_spec(fig1, EXAMPLES)
 
 
+@pytest.mark.slow
 def test_extrapolate_false_keeps_the_step_h_march_with_its_estimate(fig1):
     richardson = solved(json.loads(json.dumps(fig1)), step=0.1, diagonals=20).design
     plain = solved(fig1, step=0.1, diagonals=20, extrapolate=False).design
@@ -160,6 +163,7 @@ def test_extrapolate_false_keeps_the_step_h_march_with_its_estimate(fig1):
     assert np.allclose(plain.error[both], richardson.error[both], rtol=0, atol=0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("example", "options"),
     [

@@ -44,6 +44,7 @@ def test_same_design_as_the_previous_algorithm(name):
             )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CASES)
 def test_error_control_only_removes_points(name):
     design = coarse(name)

@@ -221,6 +221,7 @@ def test_classification_needs_no_computer_algebra(fig1):
     refuse(fig1, "changes neither lambda1 nor lambda2")
 
 
+@pytest.mark.slow
 def test_solver_memory_is_estimated_before_solving(fig1):
     import tracemalloc
 

@@ -44,6 +44,7 @@ def test_kernel_is_symmetric_and_far_field_is_the_stokeslet():
     assert np.allclose(matrix[:3, :3], np.eye(3) / (4 * np.pi * 1e-3))
 
 
+@pytest.mark.slow
 def test_sphere_drag_and_torque_within_2_percent():
     stokes = sphere(400, radius=0.5)
     drag = 6 * np.pi * 2.0 * 0.5
@@ -52,17 +53,20 @@ def test_sphere_drag_and_torque_within_2_percent():
     assert np.allclose(stokes.resistance, stokes.resistance.T, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_sphere_drag_converges():
     errors = [abs(sphere(n).resistance[0, 0] / (6 * np.pi * 2.0) - 1) for n in (100, 200, 400)]
     assert errors[0] > errors[1] > errors[2]
 
 
+@pytest.mark.slow
 def test_disc_drag_broadside_and_edgewise_within_5_percent():
     broadside, edgewise = disc_errors(14)
     assert abs(broadside) < 0.05
     assert abs(edgewise) < 0.05
 
 
+@pytest.mark.slow
 def test_disc_drag_converges_as_points_and_epsilon_are_refined():
     errors = np.abs([disc_errors(rings) for rings in (6, 10, 14)])
     assert np.all(np.diff(errors, axis=0) < 0)
@@ -135,6 +139,7 @@ def three_sphere_displacement(corners: np.ndarray, radius: float, per_leg: int) 
     return swim(shapes, epsilon).displacement
 
 
+@pytest.mark.slow
 def test_three_sphere_swimmer_matches_golestanian_ajdari_within_2_percent():
     radius = 0.02
     corners = np.array([[1.0, 1.0], [1.2, 1.0], [1.2, 1.2], [1.0, 1.2], [1.0, 1.0]])

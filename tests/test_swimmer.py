@@ -49,6 +49,7 @@ def cycle_motion() -> np.ndarray:
     return prescribed_stroke(CYCLE)
 
 
+@pytest.mark.slow
 def test_prescribed_cycle_swims_along_the_axis_only(cycle_motion):
     axial = cycle_motion[2]
     assert abs(axial) > 1e-3
@@ -56,16 +57,19 @@ def test_prescribed_cycle_swims_along_the_axis_only(cycle_motion):
     assert np.all(np.abs(cycle_motion[3:]) < 0.01 * abs(axial))
 
 
+@pytest.mark.slow
 def test_prescribed_reciprocal_path_goes_nowhere():
     motion = prescribed_stroke(RECIPROCAL)
     assert np.all(np.abs(motion) < 1e-8)
 
 
+@pytest.mark.slow
 def test_prescribed_reversed_cycle_goes_back(cycle_motion):
     reversed_motion = prescribed_stroke(REVERSED)
     assert reversed_motion[2] == pytest.approx(-cycle_motion[2], rel=1e-9)
 
 
+@pytest.mark.slow
 def test_prescribed_half_loop_goes_a_quarter(cycle_motion):
     """Displacement ~ loop area for small loops: ratios 0.30, 0.26, 0.25 on halving."""
     half = prescribed_stroke(0.5 * CYCLE)[2]
@@ -74,6 +78,7 @@ def test_prescribed_half_loop_goes_a_quarter(cycle_motion):
     assert quarter / half == pytest.approx(0.25, abs=0.02)
 
 
+@pytest.mark.slow
 def test_prescribed_motion_converges_in_the_stations(cycle_motion):
     """Second order in the station spacing (midpoint rule on the shape increments)."""
     coarse, fine = prescribed_stroke(CYCLE, 2)[2], prescribed_stroke(CYCLE, 8)[2]
@@ -81,6 +86,7 @@ def test_prescribed_motion_converges_in_the_stations(cycle_motion):
     assert abs(fine - cycle_motion[2]) < 0.01 * abs(fine)
 
 
+@pytest.mark.slow
 def test_prescribed_motion_does_not_depend_on_the_pace(cycle_motion):
     """Uneven stations (slow at first, fast later on every leg) give the same motion."""
     fractions = np.linspace(0, 1, 9) ** 2
@@ -134,6 +140,7 @@ def elastic_cycle(coarse):
     return run_stroke(coarse)
 
 
+@pytest.mark.slow
 def test_bilayer_swims_along_its_axis(elastic_cycle):
     displacement = elastic_cycle.displacement
     assert elastic_cycle.shapes.converged.all()
@@ -143,16 +150,19 @@ def test_bilayer_swims_along_its_axis(elastic_cycle):
     assert np.linalg.norm(elastic_cycle.rotation) < 0.01 * abs(displacement[2])
 
 
+@pytest.mark.slow
 def test_bilayer_reciprocal_path_goes_nowhere(coarse):
     stroke = run_stroke(coarse.with_path(RECIPROCAL))
     assert np.all(np.abs(stroke.displacement) < 1e-8)
 
 
+@pytest.mark.slow
 def test_bilayer_reversed_cycle_goes_back(coarse, elastic_cycle):
     stroke = run_stroke(coarse.with_path(REVERSED))
     assert stroke.displacement[2] == pytest.approx(-elastic_cycle.displacement[2], rel=0.01)
 
 
+@pytest.mark.slow
 def test_bilayer_half_loop_goes_less_than_half(coarse, elastic_cycle):
     """The cone's height grows slower than linearly in the stimulus, so the measured ratio
     (0.2 here, see docs/swimmer.md) sits below the small-loop 1/4."""
@@ -160,6 +170,7 @@ def test_bilayer_half_loop_goes_less_than_half(coarse, elastic_cycle):
     assert 0.1 < half / elastic_cycle.displacement[2] < 0.3
 
 
+@pytest.mark.slow
 def test_one_active_layer_cannot_swim(coarse):
     """Purcell's scallop theorem: one stimulus can only make reciprocal strokes."""
     table = coarse_table()
@@ -169,6 +180,7 @@ def test_one_active_layer_cannot_swim(coarse):
     assert np.all(np.abs(stroke.displacement) < 1e-6)
 
 
+@pytest.mark.slow
 def test_refined_keeps_corners_and_refuses_a_bad_stride(elastic_cycle):
     with pytest.raises(FabkitError, match="stride"):
         elastic_cycle.refined(7, stride=2)
@@ -205,6 +217,7 @@ def test_negative_stretch_is_a_user_error(coarse):
         run_stroke(coarse.with_path(np.array([[0.0, 0.0], [6.0, 0.0]])))
 
 
+@pytest.mark.slow
 def test_command_writes_results_and_machine_file(tmp_path, run_cli):
     spec = tmp_path / "swimmer.toml"
     text = (EXAMPLES / "swimmer.toml").read_text()

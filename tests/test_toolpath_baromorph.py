@@ -15,6 +15,7 @@ from fabkit.toolpath.mould import mould_mesh, save_mould
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "directors" / "baromorph.toml"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("theta", ["phi + pi/2", "phi/2"], ids=["azimuthal loops", "+1/2 defect"])
 def test_channels_meet_the_specification(tmp_path, theta):
     settings = load_baromorph(EXAMPLE)

@@ -16,6 +16,7 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "directors"
 PROCESS = EXAMPLES / "process_lce.toml"
 
 
+@pytest.mark.slow
 def test_director_expression_to_toolpath(tmp_path, capsys):
     out = tmp_path / "out"
     code = main(
@@ -34,6 +35,7 @@ def test_director_expression_to_toolpath(tmp_path, capsys):
     assert toolpath.layers[0].moves[0].width[0] == 0.25
 
 
+@pytest.mark.slow
 def test_design_with_encoding_and_a_bilayer(tmp_path, capsys):
     design = write_design(tmp_path / "design.npz", eps=lambda u, v: 0.5 + 0.2 * u)
     out = tmp_path / "out"
@@ -105,6 +107,7 @@ def test_a_feature_without_a_channel_is_refused_unless_ignored(tmp_path, capsys)
     assert report["ignored_features"] == ["eps"]
 
 
+@pytest.mark.slow
 def test_clipped_eps_is_a_warning_with_the_fraction(tmp_path, capsys):
     arguments = ["--director", "0", "--shape", "disc:3", "--eps", "x/2", "--clip-eps"]
     assert main(["toolpath", *arguments, "--process", str(PROCESS), "--out", str(tmp_path)]) == 0
@@ -121,6 +124,7 @@ def test_a_broken_machine_profile_is_one_line(tmp_path, capsys):
     assert code == 2 and error.startswith("fabkit: error:") and "\n" not in error
 
 
+@pytest.mark.slow
 def test_alternate_layers_are_staggered(tmp_path):
     out = tmp_path / "out"
     arguments = ["--director", "0", "--shape", "square:4", "--road-width", "0.4", "--layers", "2"]
@@ -131,6 +135,7 @@ def test_alternate_layers_are_staggered(tmp_path):
     assert np.median(gaps) == pytest.approx(0.2, abs=0.01)  # halfway between the lines below
 
 
+@pytest.mark.slow
 def test_channels_command(tmp_path, capsys):
     out = tmp_path / "channels"
     code = main(

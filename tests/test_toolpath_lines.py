@@ -15,6 +15,7 @@ W = 0.2
 BOUND = 0.03  # empty <= 3 %, overlap <= 3 %, angle <= 3 degrees
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("theta", "shape"),
     [("arctan2(y, x)", "disc:10"), ("phi + pi/2", "disc:10"), ("phi/2", "square:20")],

@@ -222,6 +222,7 @@ def test_dxf_round_trip(tmp_path, parameters):
     assert road.max() + 1 == prints
 
 
+@pytest.mark.slow
 def test_laser_round_trip_of_both_doses(tmp_path):
     field = _field()
     machine = load_machine("dmd_photoalign")
@@ -338,6 +339,7 @@ def fig1_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_run_reports_the_verification(fig1_run):
     figures = json.loads((fig1_run / "report.json").read_text())
     verified = figures["verify"]
@@ -350,6 +352,7 @@ def test_run_reports_the_verification(fig1_run):
     assert "NOT ENCODED" not in page
 
 
+@pytest.mark.slow
 def test_an_ignored_feature_is_the_reports_first_line(run_cli, tmp_path):
     out = tmp_path / "fig3"
     spec = ROOT / "examples" / "three_shapes.toml"
@@ -369,6 +372,7 @@ def test_an_ignored_feature_is_the_reports_first_line(run_cli, tmp_path):
     assert ";fabkit channels: print_speed_mm_s (eps1)" in gcode
 
 
+@pytest.mark.slow
 def test_verify_reads_a_run_back_and_simulates_it(fig1_run, run_cli):
     design, gcode = fig1_run / "design.npz", fig1_run / "sheet.gcode"
     code, text, err = run_cli("verify", design, gcode, "--reference", "--json")
@@ -386,6 +390,7 @@ def test_verify_reads_a_run_back_and_simulates_it(fig1_run, run_cli):
     assert sphere["rms_pct"] < sphere["designed_rms_pct"] + 1.0
 
 
+@pytest.mark.slow
 def test_verify_notices_a_sabotaged_file(fig1_run, run_cli, tmp_path):
     lines = (fig1_run / "sheet.gcode").read_text().splitlines()
     slower = []

@@ -48,7 +48,7 @@ def test_gcode_for_both_examples(run_cli, tmp_path, toolpaths):
         "--e-mode",
         "relative",
     )
-    assert code == 0 and err == "" and "wrote" in out and "E relative (filament)" in out
+    assert code == 0 and err == "" and "wrote" in out and "E relative, in filament units" in out
     run = replay((tmp_path / "fig1.gcode").read_text())
     volume = run.e_step.sum() * 3.141592653589793 * 1.75**2 / 4
     assert volume == pytest.approx(
@@ -131,6 +131,7 @@ def test_dxf_for_both_examples(run_cli, tmp_path, toolpaths):
     assert counts == {"PATHS": 4, "TRAVEL": 2, "CHANNELS": 1, "OUTLINE": 1, "INLET": 1}
 
 
+@pytest.mark.slow
 def test_laser_for_both_examples(run_cli, tmp_path):
     code, out, _ = run_cli(
         "export",
@@ -199,6 +200,7 @@ def test_bad_requests_are_one_line_errors(run_cli, tmp_path, toolpaths, args, me
     assert not out.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("source", "machine"),
     [

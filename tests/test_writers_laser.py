@@ -72,6 +72,7 @@ def _check_masks(folder: Path, manifest: dict, grid: DirectorGrid) -> np.ndarray
     return np.where(grid.mask, masks.argmax(axis=0), -1)
 
 
+@pytest.mark.slow
 def test_fig1_masks_partition_the_domain_within_half_a_bin(tmp_path):
     grid = _fig1_grid()
     machine = load_machine("dmd_photoalign")
@@ -111,6 +112,7 @@ def test_fig1_masks_partition_the_domain_within_half_a_bin(tmp_path):
     assert manifest["files"]["scan"] is None and not (folder / "scan.gcode").exists()
 
 
+@pytest.mark.slow
 def test_image_rows_go_down_and_angles_go_counter_clockwise(tmp_path):
     theta = np.zeros((4, 3))
     theta[:2] = np.radians(30)  # top rows = largest y
@@ -131,6 +133,7 @@ def test_image_rows_go_down_and_angles_go_counter_clockwise(tmp_path):
     assert summary.origin_mm == (11.0, 22.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("relation", "offset"), [("perpendicular", 90.0), ("parallel", 0.0)])
 def test_polariser_and_half_wave_plate_follow_the_relation(tmp_path, relation, offset):
     grid = _baromorph_grid(pitch=1.0)
@@ -159,6 +162,7 @@ def test_the_profiles_light_table_and_dose_calibration_apply(tmp_path):
     assert LaserSettings.for_machine(machine, relation="perpendicular").relation == "perpendicular"
 
 
+@pytest.mark.slow
 def test_baromorph_scan_lines_cover_every_pixel_once(tmp_path):
     machine = load_machine("scan_photoalign")
     grid = _baromorph_grid()
@@ -233,6 +237,7 @@ def test_refusals_leave_nothing_behind(tmp_path):
     assert (taken / "notes.txt").read_text() == "mine"
 
 
+@pytest.mark.slow
 def test_rewriting_a_pattern_directory_replaces_it(tmp_path):
     machine = load_machine("dmd_photoalign")
     write_laser(

@@ -8,21 +8,12 @@ import math
 from dataclasses import asdict
 from pathlib import Path
 
-from fabkit.design.design import Design
+from fabkit.commands import help_of
 from fabkit.errors import FabkitError
-from fabkit.mechanics.energy import (
-    cycle_table,
-    describe_cycle,
-    describe_work,
-    design_work,
-    plot_cycle,
-)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "energy", help="work bounds: frustrated stretching energy of a design held flat"
-    )
+    parser = subparsers.add_parser("energy", help=help_of("energy"))
     parser.add_argument("design", nargs="?", help="design file (.npz) written by fabkit solve")
     parser.add_argument("--youngs", type=float, default=1.0, help="Young's modulus (default 1)")
     parser.add_argument("--poisson", type=float, default=0.5, help="Poisson ratio (default 0.5)")
@@ -39,6 +30,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fabkit.design.design import Design
+    from fabkit.mechanics.energy import (
+        cycle_table,
+        describe_cycle,
+        describe_work,
+        design_work,
+        plot_cycle,
+    )
+
     if args.design is None and args.cycle is None:
         raise FabkitError("give a design file, --cycle PLOT.png, or both")
     if args.cycle is not None:

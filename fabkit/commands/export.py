@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fabkit.commands import add_overwrite, help_of
 from fabkit.commands.toolpath import part_arguments
 from fabkit.machines import RELATIONS
 from fabkit.writers.common import FORMATS, IMAGE_FORMATS
@@ -18,7 +19,7 @@ from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "export",
-        help="write G-code, DXF or laser-writer patterns for a machine",
+        help=help_of("export"),
         description="Write a toolpath or design as a machine file; everything is checked "
         "against the machine profile before anything is written (see docs/export.md).",
     )
@@ -26,6 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--machine", required=True, help="profile name or .toml path")
     parser.add_argument("--format", required=True, choices=FORMATS)
     parser.add_argument("-o", "--out", required=True, help="output file (laser: a directory)")
+    add_overwrite(parser, "-o (laser: a directory)")
     parser.add_argument(
         "--offset",
         type=_numbers,
@@ -50,6 +52,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     gcode.add_argument("--e-units", choices=E_UNITS, help="default: filament (hyrel: volume)")
     gcode.add_argument("--filament-diameter", type=float, help="mm (default 1.75)")
     gcode.add_argument("--pulses-per-mm3", type=float, help="pulse extruder calibration")
+    gcode.add_argument(
+        "--nominal-e",
+        action="store_true",
+        default=None,
+        help="a Marlin valve machine: also write E (the roads' volume as filament) that the "
+        "firmware ignores, so that slicer viewers show the roads as extrusions (default: "
+        "the profile's [tool] nominal_e)",
+    )
     gcode.add_argument(
         "--min-travel",
         type=float,
@@ -102,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
             filament_diameter_mm=args.filament_diameter,
             pulses_per_mm3=args.pulses_per_mm3,
             retract_min_travel_mm=args.min_travel,
+            nominal_e=args.nominal_e,
         ),
         geometry=args.geometry,
         inlet_radius_mm=args.inlet_radius,
@@ -118,5 +129,13 @@ def run(args: argparse.Namespace) -> int:
             "image_format": args.image_format,
         },
     )
-    print(export(args.input, args.machine, args.format, args.out, options))
+    if args.format != "laser":
+        print(export(args.input, args.machine, args.format, args.out, options))
+        return 0
+    from fabkit.atomic import output_folder, record
+
+    with output_folder(args.out, f"-o {args.out}", args.overwrite, whole=True):
+        summary = export(args.input, args.machine, args.format, args.out, options)
+        record(args.out)
+    print(summary)
     return 0

@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import sys
 
+from fabkit.commands import help_of
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "optimise",
-        help="vary a spec's initial data to cover the most area (docs/optimise.md)",
+        help=help_of("optimise"),
         description="Differential evolution over the initial data (curve parameters, eps and "
         "slopes on the curves, the targets' start points and directors) maximising the "
         "area covered by the cells of a design that passes the check; writes the best "

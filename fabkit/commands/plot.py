@@ -5,17 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fabkit.design.check import check_design
-from fabkit.design.design import Design
-from fabkit.design.patches import MESH_TYPES, write_patch_meshes
-from fabkit.plot import render_design
-from fabkit.plot.report import html_report
+from fabkit.commands import add_overwrite, help_of
+from fabkit.design.patches import MESH_TYPES
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "plot", help="draw a design: pictures, actuated patches as meshes, HTML report"
-    )
+    parser = subparsers.add_parser("plot", help=help_of("plot"))
     parser.add_argument("design", help="design file (.npz) written by fabkit solve")
     parser.add_argument("--out", default="plots", help="output folder (default %(default)s)")
     parser.add_argument(
@@ -24,10 +19,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=list(MESH_TYPES),
         help="format of the patch meshes (default %(default)s)",
     )
+    add_overwrite(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from fabkit.atomic import output_folder
+
+    with output_folder(args.out, f"--out {args.out}", args.overwrite):
+        return _plot(args)
+
+
+def _plot(args: argparse.Namespace) -> int:
+    from fabkit.design.check import check_design
+    from fabkit.design.design import Design
+    from fabkit.design.patches import write_patch_meshes
+    from fabkit.plot import render_design
+    from fabkit.plot.report import html_report
+
     design = Design.load(args.design)
     out = Path(args.out)
     pictures = render_design(design, out)

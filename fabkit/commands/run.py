@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from fabkit.commands import add_overwrite, help_of
 from fabkit.commands.toolpath import part_arguments
 from fabkit.design.patches import MESH_TYPES
 from fabkit.pipeline import (
@@ -19,7 +20,7 @@ from fabkit.pipeline import (
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "run",
-        help="spec to machine files in one go: solve, check, pictures, toolpath, export, send",
+        help=help_of("run"),
     )
     parser.add_argument("spec", help="spec file (TOML), e.g. examples/two_shapes.toml")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -86,6 +87,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PORT",
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
     )
+    add_overwrite(parser)
     part_arguments(parser)
     parser.set_defaults(func=run)
 
@@ -105,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         mesh_format=args.mesh_format,
         ignore_features=tuple(args.ignore_feature),
         verify=not args.no_verify,
+        overwrite=args.overwrite,
         outline=args.outline,
         min_width_mm=args.min_width,
         trim=args.trim,

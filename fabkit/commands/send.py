@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.link.send import send_file
+from fabkit.commands import help_of
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "send",
-        help="check a G-code file and stream it to a machine",
+        help=help_of("send"),
         description=(
             "Check FILE against the machine profile (envelope, speeds, temperatures, "
             "commands), estimate its duration, then stream it to PORT with the machine's "
@@ -48,6 +48,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fabkit.link.send import send_file
+
     def say(text: str) -> None:
         print(text, flush=True)
 

@@ -6,6 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
+from fabkit.commands import help_of
 from fabkit.design.design import Design
 from fabkit.design.patches import MESH_FORMATS
 from fabkit.errors import FabkitError
@@ -13,13 +14,11 @@ from fabkit.mechanics.compare import compare
 from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.simulate import SEEDS, Settings, simulate_design, surface_index
 from fabkit.part import simulation_part
-from fabkit.progress import ProgressBar
+from fabkit.progress import ProgressBar, add_progress
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "simulate", help="simulate the designed sheet at a stimulus and compare with its target"
-    )
+    parser = subparsers.add_parser("simulate", help=help_of("simulate"))
     parser.add_argument("design", help="design file (.npz) written by fabkit solve")
     parser.add_argument(
         "--stimulus", required=True, help="surface name or index whose stimulus to apply"
@@ -58,6 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--out", type=Path, help="mesh of the result (.ply, .stl, .glb, .obj)")
     parser.add_argument("--json", action="store_true", help="print the comparison as JSON")
+    add_progress(parser)
     parser.set_defaults(func=run)
 
 
@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     surface = surface_index(design, args.stimulus)
     settings = Settings(steps=args.steps, seed=args.seed, max_iterations=args.max_iterations)
     part, thickness = simulation_part(design, args.thickness, args.trim)
-    bar = ProgressBar("simulating")
+    bar = ProgressBar("simulating", force=args.progress)
     try:
         simulation = simulate_design(
             design,

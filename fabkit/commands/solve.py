@@ -5,18 +5,19 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fabkit.design.report import describe, solve_to_file
+from fabkit.commands import help_of
 from fabkit.errors import FabkitError
-from fabkit.spec import load_spec
+from fabkit.progress import add_progress
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("solve", help="solve a design spec into design.npz")
+    parser = subparsers.add_parser("solve", help=help_of("solve"))
     parser.add_argument("spec", help="spec file (TOML)")
     parser.add_argument("--out", default="design.npz", help="design file to write (.npz)")
     parser.add_argument("--step", type=float, help="grid step in u and v (design units)")
     parser.add_argument("--diagonals", type=int, help="diagonals to march per quadrant")
     parser.add_argument("--quadrants", type=parse_quadrants, help='"all" or signs like "1,1;-1,1"')
+    add_progress(parser)
     parser.set_defaults(func=run)
 
 
@@ -30,13 +31,16 @@ def parse_quadrants(text: str) -> list[list[int]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from fabkit.design.report import describe, solve_to_file
+    from fabkit.spec import load_spec
+
     out = Path(args.out)
     if out.suffix != ".npz":
         raise FabkitError(f"--out {out}: a design file must end in .npz")
     spec = load_spec(args.spec).with_solver(
         step=args.step, diagonals=args.diagonals, quadrants=args.quadrants
     )
-    solved = solve_to_file(spec, out)
+    solved = solve_to_file(spec, out, progress=args.progress)
     print(describe(solved.summary, solved.check))
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0

@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.spec import describe_spec, load_spec
+from fabkit.commands import help_of
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("spec", help="validate a design spec and print a summary")
+    parser = subparsers.add_parser("spec", help=help_of("spec"))
     parser.add_argument("file", help="spec file (TOML), e.g. examples/two_shapes.toml")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from fabkit.spec import describe_spec, load_spec
+
     print(describe_spec(load_spec(args.file)))
     return 0

@@ -6,8 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
-from fabkit.atomic import atomic_path, check_folder
-from fabkit.progress import ProgressBar
+from fabkit.atomic import atomic_path, output_folder
+from fabkit.commands import add_overwrite, help_of
+from fabkit.progress import ProgressBar, add_progress
 from fabkit.swimmer.cycle import convergence, run_stroke
 from fabkit.swimmer.fabricate import fabricate
 from fabkit.swimmer.report import (
@@ -24,7 +25,7 @@ from fabkit.swimmer.spec import load_swimmer
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "swimmer",
-        help="simulate the bilayer swimmer's cycle, its motion per cycle, and make it",
+        help=help_of("swimmer"),
         description="Equilibrium shapes along the stimulus path, the force- and torque-free "
         "motion in Stokes flow (regularised Stokeslets), plots, the work bound per stage, "
         "and both layers' toolpath and G-code (docs/swimmer.md).",
@@ -38,22 +39,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="skip the re-solves with half the stations and fewer Stokeslet points",
     )
     parser.add_argument("--no-fabricate", action="store_true", help="skip toolpath and G-code")
+    add_overwrite(parser)
+    add_progress(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    check_folder(args.out, f"--out {args.out}")
+    with output_folder(args.out, f"--out {args.out}", args.overwrite):
+        return _swimmer(args)
+
+
+def _swimmer(args: argparse.Namespace) -> int:
     spec = load_swimmer(args.spec)
     if args.stations is not None:
         spec = spec.with_path(spec.path, args.stations)
     out = Path(args.out)
-    bars = ProgressBar("shapes"), ProgressBar("flow")
+    labels = ("shapes", "flow", "flow, fewer points", "flow, half the stations")
+    bars: list[ProgressBar] = []
+    for label in labels:  # each stage's clock starts when the one before it finished
+        bars.append(ProgressBar(label, force=args.progress, after=bars[-1] if bars else None))
     try:
-        stroke = run_stroke(spec, *bars)
+        stroke = run_stroke(spec, *bars[:2])
+        converged = None if args.no_convergence else convergence(stroke, *bars[2:])
     finally:
         for bar in bars:
             bar.close()
-    data = summary(stroke, None if args.no_convergence else convergence(stroke))
+    data = summary(stroke, converged)
     with atomic_path(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(data, indent=2), encoding="utf-8")
     save_stroke(stroke, out / "stroke.npz")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from fabkit.atomic import output_folder
+from fabkit.commands import add_overwrite, help_of
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.plan import PATTERNS
 
@@ -12,7 +14,7 @@ from fabkit.toolpath.plan import PATTERNS
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "toolpath",
-        help="print lines along the director of a design or director field (docs/toolpath.md)",
+        help=help_of("toolpath"),
         description="Evenly spaced print lines along the director, ordered, layered and "
         "encoded; writes toolpath.npz, quality.json and preview.png/svg into --out.",
     )
@@ -48,11 +50,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--pattern", choices=PATTERNS, default="same", help="layer pattern")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--json", action="store_true", help="also write toolpath.json")
+    add_overwrite(parser)
     parser.set_defaults(func=run)
 
     channels = subparsers.add_parser(
         "channels",
-        help="baromorph channels along the director, and their casting mould (STL)",
+        help=help_of("channels"),
         description="Channels along the director with widths from eps, a manifold to one "
         "inlet, walls of at least min_wall_mm; writes channels.json, mould.stl and "
         "channels.png/svg into --out.",
@@ -62,6 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--baromorph", required=True, metavar="FILE", help="TOML with a [baromorph] table"
     )
     channels.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    add_overwrite(channels)
     channels.set_defaults(func=run_channels)
 
 
@@ -122,7 +126,8 @@ def _fields(args: argparse.Namespace, **extra) -> ToolpathJob:
 
 
 def run_channels(args: argparse.Namespace) -> int:
-    result = run_channel_job(ChannelJob(_fields(args), args.baromorph, args.out))
+    with output_folder(args.out, f"--out {args.out}", args.overwrite):
+        result = run_channel_job(ChannelJob(_fields(args), args.baromorph, args.out))
     if result.part is not None:
         print(result.part.summary())
     print(result.report.summary())
@@ -147,7 +152,8 @@ def run(args: argparse.Namespace) -> int:
         out=args.out,
         json=args.json,
     )
-    result = run_job(job)
+    with output_folder(args.out, f"--out {args.out}", args.overwrite):
+        result = run_job(job)
     for warning in result.plan.warnings:
         print(f"fabkit: warning: {warning}", file=sys.stderr)
     for part in result.parts:

@@ -9,14 +9,15 @@ from __future__ import annotations
 import argparse
 import json
 
+from fabkit.commands import help_of
 from fabkit.commands.toolpath import part_arguments
+from fabkit.progress import ProgressBar, add_progress
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "verify",
-        help="read a machine file back (G-code, DXF, laser pattern) and check it against "
-        "its design, then simulate the sheet as fabricated",
+        help=help_of("verify"),
         description="Read the machine file as the machine would, independent of "
         "toolpath.npz: director, every feature (its calibration inverted) and coverage "
         "on the flat sheet, compared with the design; then the sheet as fabricated under "
@@ -85,6 +86,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     part_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+    add_progress(parser)
     parser.set_defaults(func=run)
 
 
@@ -118,6 +120,10 @@ def run(args: argparse.Namespace) -> int:
         min_width_mm=args.min_width,
         trim=args.trim,
     )
-    result = verify(args.design, args.machine_file, options)
+    bar = ProgressBar("simulating the sheet as made", force=args.progress)
+    try:
+        result = verify(args.design, args.machine_file, options, bar)
+    finally:
+        bar.close()
     print(json.dumps(result.to_dict(), indent=2) if args.json else result.table())
     return 0

@@ -87,13 +87,18 @@ class CheckReport:
         return {
             "passed": self.passed,
             "tolerances": asdict(self.tolerances),
-            "surfaces": [asdict(s) | {"passed": s.passes(self.tolerances)} for s in self.surfaces],
+            "surfaces": [
+                {"name": s.name, "checked_points": s.points}
+                | {k: v for k, v in asdict(s).items() if k not in ("name", "points")}
+                | {"passed": s.passes(self.tolerances)}
+                for s in self.surfaces
+            ],
         }
 
     def table(self) -> str:
         """A plain-text table, one line per surface."""
         lines = [
-            f"{'surface':<12}{'points':>8}  {'length_u':>18}{'length_v':>18}{'angle':>18}"
+            f"{'surface':<12}{'checked':>8}  {'length_u':>18}{'length_v':>18}{'angle':>18}"
             f"{'curvature':>18}  result",
             f"{'':<12}{'':>8}  {'(median / p95)':>18}",
         ]

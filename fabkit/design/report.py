@@ -15,23 +15,27 @@ from fabkit.design.check import CheckReport, check_design
 from fabkit.design.design import Design
 from fabkit.design.solver import Solution, solve
 from fabkit.errors import FabkitError
+from fabkit.figures import AREA_UNIT, cell_integral
 from fabkit.limits import DESIGN_NODES
 from fabkit.progress import ProgressBar
 from fabkit.spec import Spec
 
 
 def realised_areas(design: Design, spec: Spec | None = None) -> dict[str, float]:
-    """Area of the solved patch on every surface, sum of alpha beta lambda1 lambda2 du dv
-    (``spec``: the design's spec when the caller has it, else the design's own)."""
+    """Area of the solved patch on every surface (design units^2): alpha beta lambda1 lambda2
+    integrated over the solved cells (:func:`fabkit.figures.cell_integral`); ``spec``: the
+    design's spec when the caller has it, else the design's own."""
     spec = design.problem if spec is None else spec
     eps = np.where(design.valid, design.eps, 0.0)
     response = spec.material.response(eps, design.stimuli)
-    cell = design.step**2
-    areas = {}
-    for j, target in enumerate(spec.targets):
-        density = design.alpha * design.beta * response.lambda1[j] * response.lambda2[j]
-        areas[target.name] = float(np.sum(density[design.valid]) * cell)
-    return areas
+    valid = design.valid
+    alpha, beta = np.where(valid, design.alpha, 0.0), np.where(valid, design.beta, 0.0)
+    return {
+        target.name: cell_integral(
+            alpha * beta * response.lambda1[j] * response.lambda2[j], valid, design.step
+        )
+        for j, target in enumerate(spec.targets)
+    }
 
 
 def summary(solution: Solution, check: CheckReport) -> dict[str, Any]:
@@ -52,7 +56,7 @@ def summary(solution: Solution, check: CheckReport) -> dict[str, Any]:
             "extrapolate": spec.solver.extrapolate,
         },
         "valid_points": int(design.valid.sum()),
-        "areas": realised_areas(design),
+        "area_design_units2": realised_areas(design),
         "stop_counts": dict(Counter(s.reason for s in solution.stops)),
         "stops": stops,
         "check": check.to_dict(),
@@ -81,14 +85,17 @@ def check_grid_size(spec: Spec) -> None:
         )
 
 
-def solve_to_file(spec: Spec, out: str | Path, label: str = "solving") -> Solved:
-    """Solve with a progress bar, check, and write ``out`` (.npz) and its .json summary.
+def solve_to_file(
+    spec: Spec, out: str | Path, label: str = "solving", progress: bool = False
+) -> Solved:
+    """Solve with a progress bar (:mod:`fabkit.progress`: on a terminal, or if
+    ``progress``), check, and write ``out`` (.npz) and its .json summary.
 
     A grid larger than a design file may hold (DESIGN_NODES) is refused before solving.
     """
     out = Path(out)
     check_grid_size(spec)
-    bar = ProgressBar(label)
+    bar = ProgressBar(label, force=progress)
     try:
         solution = solve(spec, progress=bar)
     finally:
@@ -105,6 +112,20 @@ def write_summary(path: str | Path, data: dict[str, Any]) -> None:
         tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
 
 
+def checked_points(check: dict[str, Any]) -> str:
+    """How many of the valid points the check uses (from a check report's data)."""
+    counts = {s["name"]: s["checked_points"] for s in check["surfaces"]}
+    each = (
+        f"{next(iter(counts.values()))} per surface"
+        if len(set(counts.values())) == 1
+        else ", ".join(f"{name} {n}" for name, n in counts.items())
+    )
+    return (
+        f"checked points: {each} (the valid points whose five-point stencils in u and v are "
+        "all solved, alpha and beta >= 0.2)"
+    )
+
+
 def describe(data: dict[str, Any], check: CheckReport) -> str:
     """One screen of text for the terminal."""
     grid = data["grid"]
@@ -112,7 +133,9 @@ def describe(data: dict[str, Any], check: CheckReport) -> str:
         f"solved in {data['solve_seconds']:.3f} s: {data['valid_points']} valid points on a "
         f"{grid['shape'][0]} x {grid['shape'][1]} grid (step {grid['step']:g}, "
         f"{'Richardson-extrapolated' if grid['extrapolate'] else 'second order'})",
-        "realised area: " + ", ".join(f"{k} {v:.4g}" for k, v in data["areas"].items()),
+        checked_points(data["check"]),
+        f"area over the solved cells ({AREA_UNIT}): "
+        + ", ".join(f"{k} {v:.4g}" for k, v in data["area_design_units2"].items()),
     ]
     if data["stop_counts"]:
         lines.append("stops:")

@@ -32,7 +32,9 @@ import numpy as np
 
 from fabkit.atomic import atomic_path
 from fabkit.design.design import Design
+from fabkit.design.report import realised_areas
 from fabkit.errors import FabkitError
+from fabkit.figures import AREA_UNIT, cell_integral
 
 Density = Callable[[np.ndarray, np.ndarray, float, float], np.ndarray]
 
@@ -72,18 +74,6 @@ def _check(youngs: float, poisson: float, thickness: float) -> None:
         raise FabkitError("thickness must be positive")
 
 
-def grid_integral(values: np.ndarray, valid: np.ndarray, step: float) -> float:
-    """Integral of ``values`` (nu, nv) du dv over the cells whose four corners are valid.
-
-    Each cell contributes step^2 times the mean of its corners (bilinear trapezoid).
-    """
-    corners = [values[:-1, :-1], values[1:, :-1], values[:-1, 1:], values[1:, 1:]]
-    masks = [valid[:-1, :-1], valid[1:, :-1], valid[:-1, 1:], valid[1:, 1:]]
-    cells = np.logical_and.reduce(masks)
-    total = sum(np.where(cells, corner, 0.0) for corner in corners)
-    return float(step**2 * total.sum() / 4)
-
-
 def work_bound(
     alpha: np.ndarray,
     beta: np.ndarray,
@@ -104,7 +94,7 @@ def work_bound(
     with np.errstate(all="ignore"):
         integrand = density(lambda1, lambda2, youngs, poisson) * lambda1 * lambda2 * alpha * beta
     valid = valid & np.isfinite(integrand)
-    return thickness * grid_integral(np.where(valid, integrand, 0.0), valid, step)
+    return thickness * cell_integral(np.where(valid, integrand, 0.0), valid, step)
 
 
 @dataclass(frozen=True)
@@ -132,7 +122,8 @@ def design_work(
     alpha, beta = np.where(valid, design.alpha, 0.0), np.where(valid, design.beta, 0.0)
     eps = np.where(valid[None], design.eps, 0.0)
     response = spec.material.response(eps, design.stimuli)
-    flat_area = grid_integral(alpha * beta, valid, step)
+    areas = realised_areas(design)  # the areas design.json and fabkit solve print
+    flat_area = areas[spec.targets[0].name]
     results = []
     for index, target in enumerate(spec.targets):
         l1, l2 = response.lambda1[index], response.lambda2[index]
@@ -140,7 +131,7 @@ def design_work(
             work_bound(alpha, beta, l1, l2, valid, step, youngs, poisson, thickness, density)
             for density in DENSITIES.values()
         ]
-        area = grid_integral(l1 * l2 * alpha * beta, valid, step)
+        area = areas[target.name]
         results.append(SurfaceWork(target.name, target.stimulus, flat_area, area, *energies))
     return tuple(results)
 
@@ -157,6 +148,10 @@ def describe_work(results: tuple[SurfaceWork, ...]) -> str:
             f"{item.name:12} {stimulus:>12} {item.flat_area:10.4g} {item.target_area:12.4g} "
             f"{item.small_strain:15.6g} {item.neo_hookean:15.6g}"
         )
+    lines.append(
+        f"areas over the solved cells in {AREA_UNIT} (as design.json); energies in "
+        "Young's modulus x design units^3"
+    )
     return "\n".join(lines)
 
 

@@ -198,6 +198,7 @@ def simulate_sheet(
     settings: Settings | None = None,
     part: Part | None = None,
     stride: int = 1,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[Design, DesignSimulation]:
     """Simulate the sheet of ``fields`` under surface ``surface``'s stimulus.
 
@@ -205,7 +206,7 @@ def simulate_sheet(
     :func:`~fabkit.mechanics.mesh.design_mesh`), restricted to where the sheet was made.
     ``thickness`` defaults to 1 % of the diameter of the design's whole solved flat domain
     (as ``fabkit simulate``). Returns the coarsened design (compare against it) and the
-    simulation.
+    simulation. ``progress(done, total)`` is called after each ramp step.
     """
     coarse = coarsened(design, stride)
     mesh = made_mesh(coarse, fields.made, part)
@@ -232,6 +233,7 @@ def simulate_sheet(
         poisson,
         settings or Settings(),
         start_metrics=made,
+        progress=progress,
     )
     name = design.problem.targets[surface].name
     return coarse, DesignSimulation(surface, name, mesh, metrics, thickness, result)

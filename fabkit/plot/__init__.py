@@ -18,10 +18,14 @@ DESIGN_PICTURES = (
     ("eps.png", "Designable features on the flat sheet and on the material grid"),
     (
         "surfaces.png",
-        "Every actuated surface in 3D with the patch's u-curves (red) and "
-        "v-curves (blue) drawn on the target",
+        "Every actuated surface in 3D (equal scales, design units) with the patch's "
+        "u-curves (red) and v-curves (blue) drawn on the target",
     ),
-    ("residuals.png", "Residual maps of fabkit check on the material grid (log scale)"),
+    (
+        "residuals.png",
+        "Residual maps of fabkit check on the material grid (log scale); each panel's "
+        "median and 95th percentile against the check's limits, marked on the colour bar",
+    ),
 )
 
 

@@ -16,7 +16,7 @@ from matplotlib.colors import LogNorm  # noqa: E402
 from matplotlib.tri import Triangulation  # noqa: E402
 
 from fabkit.atomic import atomic_path  # noqa: E402
-from fabkit.design.check import RESIDUALS, ResidualMaps  # noqa: E402
+from fabkit.design.check import RESIDUALS, ResidualMaps, Tolerances  # noqa: E402
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.patches import grid_triangles  # noqa: E402
 from fabkit.part import Part, PartRules, make_part  # noqa: E402
@@ -131,40 +131,56 @@ def eps_maps(design: Design, path: str | Path) -> None:
     save(figure, path)
 
 
-def _zoom(axes, design: Design) -> None:
-    rows = np.nonzero(design.valid.any(axis=1))[0]
-    cols = np.nonzero(design.valid.any(axis=0))[0]
+def _zoom(axes, design: Design, shown: np.ndarray | None = None) -> None:
+    """Limit a (u, v) panel to the grid points ``shown`` (default: the solved ones)."""
+    shown = design.valid if shown is None else shown
+    rows = np.nonzero(shown.any(axis=1))[0]
+    cols = np.nonzero(shown.any(axis=0))[0]
     if len(rows):
         axes.set_xlim(design.u[rows[0]], design.u[rows[-1]])
         axes.set_ylim(design.v[cols[0]], design.v[cols[-1]])
 
 
 def actuated_surfaces(design: Design, path: str | Path) -> None:
-    """Every target in 3D: the surface near the patch, with the patch's u- and v-curves."""
+    """Every target in 3D: the surface near the patch, with the patch's u- and v-curves.
+
+    Equal scales on x, y and z (a cube around the patch; the target surface is cut to it),
+    labelled axes in design units, a few ticks each.
+    """
     spec = design.problem
     targets = [
         (j, t)
         for j, t in enumerate(spec.targets)
         if j > 0 and t.surface.embed(t.start[None]) is not None
     ]
-    figure = plt.figure(figsize=(5.5 * max(len(targets), 1), 5.5))
+    figure = plt.figure(figsize=(5.5 * max(len(targets), 1), 5.8))
     for column, (j, target) in enumerate(targets):
         axes = figure.add_subplot(1, len(targets), column + 1, projection="3d")
         chart = design.r[j]
-        _surface_backdrop(axes, target.surface, chart[design.valid])
+        box = _cube(target.surface.embed(chart[design.valid]))
+        _surface_backdrop(axes, target.surface, chart[design.valid], box)
         for axis, colour in ((0, "tab:red"), (1, "tab:blue")):
             for line in _lines(chart, design.valid, axis, _stride(design, axis)):
                 xyz = target.surface.embed(line)
                 axes.plot(xyz[:, 0], xyz[:, 1], xyz[:, 2], color=colour, lw=0.8)
-        _equal_3d(axes, target.surface.embed(chart[design.valid]))
+        _equal_3d(axes, box)
         stimulus = ", ".join(f"{s:g}" for s in target.stimulus)
         axes.set_title(f"{target.name} (stimulus {stimulus})\nu-curves red, v-curves blue")
     save(figure, path)
 
 
-def _surface_backdrop(axes, surface, chart_points: np.ndarray) -> None:
-    """The target surface over the patch's chart bounding box, lightly shaded."""
-    if len(chart_points) == 0:
+def _cube(points: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """(centre (3,), half side) of the cube around ``points`` (n, 3); None if empty."""
+    if len(points) == 0:
+        return None
+    low, high = points.min(axis=0), points.max(axis=0)
+    return (low + high) / 2, float((high - low).max() / 2 * 1.05 + 1e-9)
+
+
+def _surface_backdrop(axes, surface, chart_points: np.ndarray, box) -> None:
+    """The target surface over the patch's chart bounding box, lightly shaded, cut to
+    ``box`` (matplotlib does not clip 3D surfaces to the axes)."""
+    if len(chart_points) == 0 or box is None:
         return
     low, high = chart_points.min(axis=0), chart_points.max(axis=0)
     margin = 0.08 * (high - low + 1e-9)
@@ -176,39 +192,82 @@ def _surface_backdrop(axes, surface, chart_points: np.ndarray) -> None:
     grid = np.stack([a, b], -1)
     inside = surface.contains(grid)
     xyz = surface.embed(np.where(inside[..., None], grid, np.nan))
+    centre, half = box
+    with np.errstate(invalid="ignore"):
+        outside = (np.abs(xyz - centre) > half).any(axis=-1)
+    xyz = np.where(outside[..., None], np.nan, xyz)
     axes.plot_surface(xyz[..., 0], xyz[..., 1], xyz[..., 2], color="0.85", alpha=0.35, linewidth=0)
 
 
-def _equal_3d(axes, points: np.ndarray) -> None:
-    if len(points) == 0:
-        return
-    low, high = points.min(axis=0), points.max(axis=0)
-    centre, half = (low + high) / 2, (high - low).max() / 2 + 1e-9
-    for setter, c in zip((axes.set_xlim, axes.set_ylim, axes.set_zlim), centre, strict=True):
-        setter(c - half, c + half)
+def _equal_3d(axes, box) -> None:
+    """Equal scales: the same span on x, y and z; labelled axes with four ticks each."""
+    from matplotlib.ticker import MaxNLocator
+
+    if box is not None:
+        centre, half = box
+        for setter, c in zip((axes.set_xlim, axes.set_ylim, axes.set_zlim), centre, strict=True):
+            setter(c - half, c + half)
     axes.set_box_aspect((1, 1, 1))
+    for axis, name in ((axes.xaxis, "x"), (axes.yaxis, "y"), (axes.zaxis, "z")):
+        axis.set_major_locator(MaxNLocator(4))
+        axis.set_tick_params(labelsize=8)
+        axis.set_label_text(f"{name} (design units)", fontsize=9)
+
+
+RESIDUAL_TITLES = {
+    "length_u": "length along u",
+    "length_v": "length along v",
+    "angle": "angle (|cos| in the metric)",
+    "curvature": "curvature (|K - K target| / K scale)",
+}
+FLOOR = 1e-7
+"""Residuals below this are drawn at it (the colour bar's bottom)."""
 
 
 def residual_maps(design: Design, maps: tuple[ResidualMaps, ...], path: str | Path) -> None:
-    """Residual maps on the (u, v) grid: one row per surface, one column per residual."""
+    """Residual maps on the (u, v) grid: one row per surface, one column per residual.
+
+    One log colour scale for every panel; its colour bar marks the check's tolerances
+    (:class:`~fabkit.design.check.Tolerances`), and every panel's title gives its median
+    and 95th percentile against the limits that apply to it.
+    """
+    tolerances = Tolerances()
     figure, axes = plt.subplots(
         len(maps),
         len(RESIDUALS),
-        figsize=(4 * len(RESIDUALS), 3.4 * len(maps)),
+        figsize=(4 * len(RESIDUALS) + 1.5, 3.4 * len(maps)),
         squeeze=False,
         layout="constrained",
     )
     extent = [design.u[0], design.u[-1], design.v[0], design.v[-1]]
-    norm = LogNorm(vmin=1e-7, vmax=1e-1)
+    norm = LogNorm(vmin=FLOOR, vmax=1e-1)
     for row, surface in enumerate(maps):
         for column, key in enumerate(RESIDUALS):
-            values = np.clip(surface.maps[key], 1e-7, None)
-            image = axes[row, column].imshow(
+            values = np.clip(surface.maps[key], FLOOR, None)
+            panel = axes[row, column]
+            image = panel.imshow(
                 values.T, origin="lower", extent=extent, norm=norm, cmap="magma", aspect="auto"
             )
-            axes[row, column].set_title(f"{surface.name}: {key}", fontsize=9)
-            axes[row, column].set_xlabel("u" if row == len(maps) - 1 else "")
-            axes[row, column].set_ylabel("v" if column == 0 else "")
-            _zoom(axes[row, column], design)
-        figure.colorbar(image, ax=axes[row, :].tolist(), label="residual")
+            finite = surface.maps[key][np.isfinite(surface.maps[key])]
+            median, p95 = np.percentile(finite, (50, 95)) if len(finite) else (np.nan,) * 2
+            if key == "curvature":
+                limits = f"limit {tolerances.curvature_median:.0e}"
+            else:
+                limits = f"limits {tolerances.isometry_median:.0e} / {tolerances.isometry_p95:.0e}"
+            panel.set_title(
+                f"{surface.name}: {RESIDUAL_TITLES[key]}\n"
+                f"median {median:.1e}, p95 {p95:.1e} ({limits})",
+                fontsize=9,
+            )
+            panel.set_xlabel("u" if row == len(maps) - 1 else "")
+            panel.set_ylabel("v" if column == 0 else "")
+            _zoom(panel, design, np.isfinite(surface.maps[key]))
+    bar = figure.colorbar(image, ax=axes.ravel().tolist(), shrink=0.9)
+    bar.set_label(
+        f"relative residual (log scale; below {FLOOR:.0e} drawn at it)\n"
+        f"cyan: the check's limits, {tolerances.isometry_median:.0e} (isometry median), "
+        f"{tolerances.isometry_p95:.0e} (isometry p95, curvature median)"
+    )
+    for value in {tolerances.isometry_median, tolerances.isometry_p95, tolerances.curvature_median}:
+        bar.ax.axhline(value, color="cyan", lw=2.5)
     save(figure, path)

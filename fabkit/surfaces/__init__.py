@@ -13,18 +13,19 @@ from typing import Any
 from fabkit.errors import FabkitError
 from fabkit.surfaces.analytic import Graph, Metric, Parametric, Plane, Sphere
 from fabkit.surfaces.base import Surface
-from fabkit.surfaces.data import HeightMap, MeshSurface
 
-KINDS = {
+ANALYTIC = {
     "plane": Plane,
     "sphere": Sphere,
     "graph": Graph,
     "parametric": Parametric,
     "metric": Metric,
-    "heightmap": HeightMap,
-    "mesh": MeshSurface,
 }
-"""Geometry kinds by name; each class has ``from_table(name, table, where, base_dir)``."""
+"""Analytic geometry kinds by name; each class has ``from_table(name, table, where, base_dir)``."""
+
+KINDS = (*ANALYTIC, "heightmap", "mesh")
+"""Every geometry kind; the data kinds' module (scipy) is imported only when a spec names one,
+so that reading an analytic spec starts fast."""
 
 
 def build_surface(
@@ -41,7 +42,12 @@ def build_surface(
         raise FabkitError(
             f"{where}.kind: unknown surface kind {kind!r} (known: {', '.join(KINDS)})"
         )
-    return KINDS[kind].from_table(name, geometry, where, base_dir)
+    if kind in ANALYTIC:
+        return ANALYTIC[kind].from_table(name, geometry, where, base_dir)
+    from fabkit.surfaces.data import HeightMap, MeshSurface
+
+    data = {"heightmap": HeightMap, "mesh": MeshSurface}
+    return data[kind].from_table(name, geometry, where, base_dir)
 
 
 __all__ = ["KINDS", "Surface", "build_surface"]

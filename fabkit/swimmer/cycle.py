@@ -242,11 +242,14 @@ class Stroke:
         """Net rotation vector (3,) in rad."""
         return self.trajectory.rotation
 
-    def refined(self, stokes_rings: int, stride: int = 1) -> Stroke:
+    def refined(
+        self, stokes_rings: int, stride: int = 1, progress: Progress | None = None
+    ) -> Stroke:
         """The same shapes with another Stokeslet point set and every ``stride``-th station.
 
         ``stride`` must divide the stations per leg (corners are kept). No simulation is
-        repeated: this is how the hydrodynamic convergence is measured.
+        repeated: this is how the hydrodynamic convergence is measured. ``progress`` as in
+        :func:`flow`.
         """
         if self.spec.stations % stride:
             raise FabkitError(f"stride {stride} does not divide {self.spec.stations} stations")
@@ -260,7 +263,7 @@ class Stroke:
             self.shapes.seconds,
         )
         sheet = Sheet.build(self.spec.radius, self.spec.mechanics.rings, stokes_rings)
-        return flow(self.spec, path, sheet, shapes)
+        return flow(self.spec, path, sheet, shapes, progress)
 
 
 def run_stroke(
@@ -318,9 +321,17 @@ class Convergence:
         return fine.displacement + (fine.displacement - coarse.displacement) / (ratio - 1)
 
 
-def convergence(stroke: Stroke) -> Convergence:
-    """Re-solve ``stroke``'s hydrodynamics coarser (see :class:`Convergence`); no new shapes."""
+def convergence(
+    stroke: Stroke,
+    coarse_progress: Progress | None = None,
+    half_progress: Progress | None = None,
+) -> Convergence:
+    """Re-solve ``stroke``'s hydrodynamics coarser (see :class:`Convergence`); no new shapes.
+
+    ``coarse_progress`` and ``half_progress`` follow the two re-solves, as in :func:`flow`.
+    """
     rings = stroke.spec.hydrodynamics.rings
-    coarse = stroke.refined(max(2, round(rings / COARSENING)))
-    half = stroke.refined(rings, 2) if stroke.spec.stations % 2 == 0 else None
+    coarse = stroke.refined(max(2, round(rings / COARSENING)), progress=coarse_progress)
+    even = stroke.spec.stations % 2 == 0
+    half = stroke.refined(rings, 2, half_progress) if even else None
     return Convergence(stroke, coarse, half)

@@ -22,6 +22,7 @@ from fabkit.mechanics.energy import DENSITIES
 from fabkit.swimmer.cycle import POINT_ORDER, Convergence, Stroke, barycentric
 from fabkit.swimmer.motion import align
 
+DENSITY_NAMES = {"small_strain": "small-strain", "neo_hookean": "neo-Hookean"}
 MM3_PA_TO_MJ = 1e-6
 """Pa x mm^3 in mJ."""
 
@@ -168,11 +169,14 @@ def _plane(stimuli: np.ndarray) -> np.ndarray:
 def plot_cycle(stroke: Stroke, path: Path) -> None:
     """The path in stimulus space with the equilibrium shape at corners and mid-legs.
 
-    Each shape is drawn in the body frame (best fit to the first) with two material
-    lines, the diameter y = 0 (red) and the circle r = R/2 (black), to show that the
-    points correspond across shapes.
+    Each shape is drawn in the body frame (best fit to the first), coloured by its height
+    along the swimmer's axis on one colour scale for every shape (the colour bar, mm),
+    with two material lines, the diameter y = 0 (red) and the circle r = R/2 (black), to
+    show that the points correspond across shapes. A legend names every mark.
     """
     plt = _pyplot()
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
     from matplotlib.lines import Line2D
 
     spec, sheet = stroke.spec, stroke.sheet
@@ -197,7 +201,11 @@ def plot_cycle(stroke: Stroke, path: Path) -> None:
     reference = stroke.shapes.positions[0]
     to_figure = axes.transData + figure.transFigure.inverted()
     middle = to_figure.transform(plane[:-1].mean(axis=0))
-    for index in _shown_stations(stroke.path.parameter):
+    shown = _shown_stations(stroke.path.parameter)
+    shapes = {index: align(stroke.shapes.positions[index], reference) for index in shown}
+    heights = np.concatenate([shape[:, 2] for shape in shapes.values()])
+    norm = Normalize(float(heights.min()), float(max(heights.max(), heights.min() + 1e-9)))
+    for index, shape in shapes.items():
         anchor = to_figure.transform(plane[index])
         outward = anchor - middle
         outward = outward / (np.linalg.norm(outward) or 1.0)
@@ -205,10 +213,10 @@ def plot_cycle(stroke: Stroke, path: Path) -> None:
         figure.add_artist(Line2D([anchor[0], x], [anchor[1], y], color="0.75", linewidth=0.6))
         inset = figure.add_axes((x - 0.12, y - 0.12, 0.24, 0.24), projection="3d")
         inset.set_facecolor((1.0, 1.0, 1.0, 0.0))
-        shape = align(stroke.shapes.positions[index], reference)
         inset.plot_trisurf(
-            *shape.T, triangles=sheet.triangles, cmap="viridis", linewidth=0, alpha=0.75
-        )
+            *shape.T, triangles=sheet.triangles, cmap="viridis", norm=norm, linewidth=0,
+            alpha=0.75,
+        )  # fmt: skip
         for (host, weights), color in zip(hosts, ("red", "black"), strict=True):
             line = np.einsum("nc,ncd->nd", weights, shape[sheet.triangles[host]])
             inset.plot(*line.T, color=color, linewidth=1.5, zorder=10)
@@ -216,8 +224,28 @@ def plot_cycle(stroke: Stroke, path: Path) -> None:
         inset.set(xlim=(-limit, limit), ylim=(-limit, limit), zlim=(-limit, limit))
         inset.set_axis_off()
         inset.view_init(elev=30, azim=-60)
-        label = ", ".join(f"{v:g}" for v in np.round(stroke.path.stimuli[index], 3))
-        inset.text2D(0.5, 0.82, f"({label})", transform=inset.transAxes, ha="center", fontsize=9)
+        label = ", ".join(
+            f"{name} {v:g}"
+            for name, v in zip(spec.stimuli, np.round(stroke.path.stimuli[index], 3), strict=True)
+        )
+        inset.text2D(0.5, 0.82, label, transform=inset.transAxes, ha="center", fontsize=9)
+    bar = figure.add_axes((0.93, 0.3, 0.015, 0.4))
+    figure.colorbar(
+        ScalarMappable(norm=norm, cmap="viridis"),
+        cax=bar,
+        label="height along the swimmer's axis (mm)",
+    )
+    figure.legend(
+        handles=[
+            Line2D([], [], color="0.3", marker="o", markersize=3, label="stations computed"),
+            Line2D([], [], color="C0", marker=">", ls="none", label="direction of the cycle"),
+            Line2D([], [], color="red", label="material diameter y = 0"),
+            Line2D([], [], color="black", label="material circle r = R/2"),
+        ],
+        loc="lower center",
+        ncol=4,
+        frameon=False,
+    )
     _save(figure, path)
 
 
@@ -246,7 +274,43 @@ def plot_position(stroke: Stroke, path: Path) -> None:
     axes.plot(parameter, position[:, 2], "o-", label="z (axis)", markersize=3)
     axes.plot(parameter, position[:, 0], "--", label="x", linewidth=0.8)
     axes.plot(parameter, position[:, 1], ":", label="y", linewidth=0.8)
-    for corner, stimulus in zip(parameter, stroke.path.stimuli, strict=True):
+    _mark_corners(axes, parameter, stroke.path.stimuli)
+    axes.set_xlabel("path coordinate (legs; corners at whole numbers)")
+    axes.set_ylabel("centroid position / R")
+    net = stroke.displacement[2]
+    axes.set_title(f"net displacement per cycle {net:+.4g} R", pad=16)
+    axes.legend()
+    _save(figure, path)
+
+
+def plot_energy(stroke: Stroke, path: Path) -> None:
+    """Work bound (held flat) along the path, and the free equilibria's elastic energy.
+
+    One colour and line style per bound, the corners of the path (whole path coordinates)
+    marked and labelled with their stimulus, as in the position plot.
+    """
+    plt = _pyplot()
+    parameter = stroke.path.parameter
+    figure, axes = plt.subplots(figsize=(7, 4), layout="constrained")
+    styles = {"small_strain": ("C0", "-"), "neo_hookean": ("C1", "--")}  # one per density
+    for name, values in energy_bounds(stroke).items():
+        colour, style = styles[name]
+        label = f"work bound held flat, {DENSITY_NAMES[name]}"
+        axes.plot(parameter, values, style, color=colour, label=label)
+    axes.plot(
+        parameter, stroke.shapes.energies * 1e3, "k.", label="elastic energy of the free shape"
+    )
+    _mark_corners(axes, parameter, stroke.path.stimuli)
+    axes.set_xlabel("path coordinate (legs; corners at whole numbers)")
+    axes.set_ylabel("energy (mJ)")
+    axes.set_title("work bound along the cycle", pad=16)
+    axes.legend(fontsize=8)
+    _save(figure, path)
+
+
+def _mark_corners(axes, parameter: np.ndarray, stimuli: np.ndarray) -> None:
+    """A grey line at every corner of the path, labelled with its stimulus above the axes."""
+    for corner, stimulus in zip(parameter, stimuli, strict=True):
         if np.isclose(corner, round(corner)):
             axes.axvline(corner, color="0.8", zorder=0)
             label = ",".join(f"{v:g}" for v in stimulus)
@@ -258,27 +322,3 @@ def plot_position(stroke: Stroke, path: Path) -> None:
                 fontsize=8,
                 transform=axes.get_xaxis_transform(),
             )
-    axes.set_xlabel("path coordinate (legs)")
-    axes.set_ylabel("centroid position / R")
-    net = stroke.displacement[2]
-    axes.set_title(f"net displacement per cycle {net:+.4g} R", pad=16)
-    axes.legend()
-    _save(figure, path)
-
-
-def plot_energy(stroke: Stroke, path: Path) -> None:
-    """Work bound (held flat) along the path per stage, and the equilibria's elastic energy."""
-    plt = _pyplot()
-    parameter = stroke.path.parameter
-    figure, axes = plt.subplots(figsize=(7, 4), layout="constrained")
-    for (name, values), style in zip(energy_bounds(stroke).items(), ("-", "--"), strict=True):
-        for leg in range(int(round(parameter[-1]))):
-            part = (parameter >= leg - 1e-9) & (parameter <= leg + 1 + 1e-9)
-            label = f"bound, {name.replace('_', '-')}" if leg == 0 else None
-            axes.plot(parameter[part], values[part], style, color=f"C{leg}", label=label)
-    axes.plot(parameter, stroke.shapes.energies * 1e3, "k.", label="equilibrium elastic energy")
-    axes.set_xlabel("path coordinate (stage)")
-    axes.set_ylabel("energy  [mJ]")
-    axes.set_title("work bound per stage (sheet held flat)")
-    axes.legend(fontsize=8)
-    _save(figure, path)

@@ -14,10 +14,11 @@ import matplotlib
 import numpy as np
 import shapely
 from matplotlib.cm import ScalarMappable
-from matplotlib.collections import LineCollection
+from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
-from matplotlib.patches import PathPatch
+from matplotlib.lines import Line2D
+from matplotlib.patches import Circle, Patch, PathPatch
 from matplotlib.path import Path as MplPath
 
 from fabkit.atomic import atomic_path
@@ -110,6 +111,16 @@ def _segments(xyz: np.ndarray) -> np.ndarray:
     return np.stack([xyz[:-1, :2], xyz[1:, :2]], axis=1)
 
 
+def _width_quads(line: np.ndarray, widths: np.ndarray) -> np.ndarray:
+    """(n - 1, 4, 2) quadrilaterals covering a centreline (n, 2) at its per-vertex widths
+    (mm): each segment's piece of the channel, to be coloured by its width."""
+    tangent = np.gradient(line, axis=0) if len(line) > 1 else np.zeros_like(line)
+    length = np.linalg.norm(tangent, axis=1, keepdims=True)
+    normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1) / np.where(length > 0, length, 1)
+    left, right = line + normal * widths[:, None] / 2, line - normal * widths[:, None] / 2
+    return np.stack([left[:-1], left[1:], right[1:], right[:-1]], axis=1)
+
+
 def _polygon_path(polygon: shapely.Polygon) -> MplPath:
     rings = [np.asarray(polygon.exterior.coords)] + [
         np.asarray(r.coords) for r in polygon.interiors
@@ -122,8 +133,9 @@ def _polygon_path(polygon: shapely.Polygon) -> MplPath:
 
 
 def save_channel_preview(layout, paths: list[str | Path], dpi: int = 200) -> None:
-    """Draw a baromorph :class:`~fabkit.toolpath.baromorph.ChannelLayout`: the sheet in
-    grey, channels coloured by their mean width, the manifold dark, the inlet as a dot."""
+    """Draw a baromorph :class:`~fabkit.toolpath.baromorph.ChannelLayout`: the sheet (its
+    walls) light grey, every channel coloured along its length by its local width (the
+    colour bar spans every width drawn), the manifold dark grey, the inlet as a red dot."""
     low_x, low_y, high_x, high_y = shapely.union_all([layout.outline, layout.network]).bounds
     margin = 0.03 * max(high_x - low_x, high_y - low_y)
     aspect = (high_x - low_x + 2 * margin) / (high_y - low_y + 2 * margin)
@@ -133,22 +145,43 @@ def save_channel_preview(layout, paths: list[str | Path], dpi: int = 200) -> Non
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
-    ax.set_title("baromorph channels (walls grey)")
+    ax.set_title("baromorph channels by local width")
     for polygon in shapely.get_parts(layout.outline):
         ax.add_patch(PathPatch(_polygon_path(polygon), facecolor="0.85", edgecolor="0.4", lw=0.5))
     for polygon in shapely.get_parts(layout.manifold):
         ax.add_patch(PathPatch(_polygon_path(polygon), facecolor="0.25", edgecolor="none"))
-    means = np.array([float(np.mean(w)) for w in layout.widths]) if layout.widths else np.zeros(1)
-    norm = Normalize(means.min(), means.max() if means.max() > means.min() else means.min() + 1)
+    widths = np.concatenate(layout.widths) if layout.widths else np.ones(1)
+    low, high = float(widths.min()), float(widths.max())
+    norm = Normalize(low, high if high > low else low + 1e-3)
     cmap = matplotlib.colormaps["viridis"]
-    for channel, mean in zip(layout.channels, means, strict=False):
-        for polygon in shapely.get_parts(channel):
-            ax.add_patch(PathPatch(_polygon_path(polygon), facecolor=cmap(norm(mean)), lw=0))
-    ax.plot(*layout.inlet, "o", color="tab:red", label="inlet")
-    ax.legend(loc="upper right")
+    for line, line_widths in zip(layout.centrelines, layout.widths, strict=True):
+        line, line_widths = np.asarray(line, float), np.asarray(line_widths, float)
+        quads = _width_quads(line, line_widths)
+        ax.add_collection(
+            PolyCollection(
+                quads, array=0.5 * (line_widths[:-1] + line_widths[1:]), cmap=cmap, norm=norm,
+                edgecolors="face", linewidths=0.4,
+            )
+        )  # fmt: skip
+        for end in (0, -1):  # the round ends, at their own width
+            ax.add_patch(
+                Circle(line[end], line_widths[end] / 2, color=cmap(norm(line_widths[end])), lw=0)
+            )
+    ax.plot(*layout.inlet, "o", color="tab:red")
+    ax.legend(
+        handles=[
+            Patch(facecolor="0.85", edgecolor="0.4", label="sheet (walls)"),
+            Patch(facecolor="0.25", label="manifold"),
+            Line2D([], [], marker="o", color="tab:red", ls="none", label="inlet"),
+        ],
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.09),
+        ncol=3,
+        fontsize="small",
+    )
     ax.set_xlim(low_x - margin, high_x + margin)
     ax.set_ylim(low_y - margin, high_y + margin)
-    figure.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, label="channel width (mm)")
+    figure.colorbar(ScalarMappable(norm=norm, cmap=cmap), ax=ax, label="local channel width (mm)")
     for path in paths:
         with atomic_path(path) as tmp:
             figure.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip("."))

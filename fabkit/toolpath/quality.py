@@ -10,7 +10,8 @@ and joins). ``hits`` of a pixel counts the *distinct* paths covering it. Then:
   180 degrees), weighted by printed length. Nothing is excluded near defects: the director
   is evaluated exactly where the path is, however close to the core (as Vector Slicer's
   metrics include the defect neighbourhood);
-* ``paths``, ``print_length_mm``, ``travel_length_mm``.
+* ``paths``, ``print_length_mm``, ``travel_length_mm`` (``travel_between_lines_mm`` in
+  :meth:`Quality.to_dict`: the straight travels from one line's end to the next's start).
 """
 
 from __future__ import annotations
@@ -38,14 +39,21 @@ class Quality:
     pixel_mm: float
 
     def to_dict(self) -> dict[str, float | int]:
-        return asdict(self)
+        """The figures by name; ``travel_between_lines_mm``: the straight in-plane travels
+        from one line's end to the next line's start (the G-code's non-printing moves add
+        lifts and the moves to and from the sheet)."""
+        data = asdict(self)
+        data["travel_between_lines_mm"] = data.pop("travel_length_mm")
+        data["pixel_mm"] = data.pop("pixel_mm")
+        return data
 
     def summary(self) -> str:
-        """One line, e.g. ``empty 1.2 %  overlap 0.8 %  angle 1.1 deg  ...``."""
+        """One line, e.g. ``empty 1.2 %  overlap 0.8 %  angle 1.1 deg  ...`` (lengths in mm)."""
         return (
             f"empty {100 * self.empty_fraction:.2f} %  overlap {100 * self.mean_overlap:.2f} %  "
             f"angle {self.mean_angle_error_deg:.2f} deg  paths {self.paths}  "
-            f"print {self.print_length_mm / 1e3:.3f} m  travel {self.travel_length_mm / 1e3:.3f} m"
+            f"printing {self.print_length_mm:.1f} mm  travel between lines "
+            f"{self.travel_length_mm:.1f} mm"
         )
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -197,9 +198,14 @@ class Verification:
 
 
 def verify(
-    design_path: str | Path, machine_file: str | Path, options: VerifyOptions
+    design_path: str | Path,
+    machine_file: str | Path,
+    options: VerifyOptions,
+    progress: Callable[[int, int], None] | None = None,
 ) -> Verification:
-    """Read ``machine_file`` back and check it against the design (module docstring)."""
+    """Read ``machine_file`` back and check it against the design (module docstring).
+
+    ``progress(done, total)`` follows the simulations: ramp steps over every target."""
     started = time.perf_counter()
     _check_options(options)
     design = Design.load(design_path)
@@ -227,7 +233,7 @@ def verify(
         notes.append("not simulated: a feature of the design is not in the machine file")
     else:
         fields = _sheet_fields(readback, resolution, sheet, scale, names)
-        targets = _simulate(design, fields, options, flat.part)
+        targets = _simulate(design, fields, options, flat.part, progress)
     return Verification(
         file=str(machine_file),
         kind=kind,
@@ -589,10 +595,15 @@ def _disc(radius: float) -> np.ndarray:
 
 
 def _simulate(
-    design: Design, fields: SheetFields, options: VerifyOptions, part: Part | None
+    design: Design,
+    fields: SheetFields,
+    options: VerifyOptions,
+    part: Part | None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> tuple[TargetDistance, ...]:
     """The sheet of ``fields`` on the cells of ``part`` under every target's stimulus (and,
-    if asked, the sheet as designed on the same mesh)."""
+    if asked, the sheet as designed on the same mesh); ``progress`` over all their ramp
+    steps."""
     stride = options.stride or _stride(design)
     settings = Settings(max_iterations=options.max_iterations)
     spec = design.problem
@@ -601,19 +612,42 @@ def _simulate(
         own = design_fields(design)
         reference = SheetFields(own.theta, own.features, fields.made)
     out = []
-    for surface in range(1, len(spec.targets)):
-        if spec.targets[surface].surface.embed(np.zeros((1, 2))) is None:
-            continue  # intrinsic target: nothing to compare in 3D
+    surfaces = [
+        s
+        for s in range(1, len(spec.targets))
+        if spec.targets[s].surface.embed(np.zeros((1, 2))) is not None  # else intrinsic
+    ]
+    runs = len(surfaces) * (2 if reference is not None else 1)
+
+    def share(k: int) -> Callable[[int, int], None] | None:
+        """The progress of the k-th simulation as a share of them all."""
+        if progress is None:
+            return None
+        return lambda done, total: progress(k * total + done, runs * total)
+
+    for surface in surfaces:
         started = time.perf_counter()
         coarse, simulation = simulate_sheet(
-            design, fields, surface, settings=settings, part=part, stride=stride
+            design,
+            fields,
+            surface,
+            settings=settings,
+            part=part,
+            stride=stride,
+            progress=share(len(out) * (runs // len(surfaces))),
         )
         made = compare(coarse, simulation)
         seconds = time.perf_counter() - started
         designed = None
         if reference is not None:
             coarse, simulation = simulate_sheet(
-                design, reference, surface, settings=settings, part=part, stride=stride
+                design,
+                reference,
+                surface,
+                settings=settings,
+                part=part,
+                stride=stride,
+                progress=share(2 * len(out) + 1),
             )
             designed = compare(coarse, simulation)
         out.append(

@@ -35,8 +35,8 @@ from fabkit.process import Process
 from fabkit.readfile import read_json
 from fabkit.toolpath.model import Toolpath, load_toolpath
 from fabkit.writers.common import FORMATS
-from fabkit.writers.dxf import DEFAULT_INLET_RADIUS_MM, write_dxf
-from fabkit.writers.gcode import GcodeOptions, write_gcode
+from fabkit.writers.dxf import DEFAULT_INLET_RADIUS_MM, DxfSummary, write_dxf
+from fabkit.writers.gcode import GcodeOptions, GcodeSummary, write_gcode
 from fabkit.writers.laser import LaserSettings, sample_field, write_laser
 
 GEOMETRY_LAYERS = ("outline", "channels", "inlet")
@@ -139,12 +139,25 @@ def _gcode(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptio
             "(fabkit toolpath), then export the toolpath"
         )
     gcode = replace(options.gcode, offset_mm=options.offset_mm)
-    s = write_gcode(loaded, machine, out, gcode)
+    return describe_gcode(out, write_gcode(loaded, machine, out, gcode), machine.name)
+
+
+def describe_gcode(out: Path, s: GcodeSummary, machine: str) -> str:
+    """The one-line summary of a written G-code file (``fabkit export``, ``report.json``)."""
+    if s.e_mode == "none":
+        extrusion = "no E axis: flow switched by the machine's flow on/off G-code"
+    elif s.nominal_e:
+        extrusion = (
+            "no E axis: flow switched by the machine's flow on/off G-code; nominal E "
+            f"{s.e_mode}, in {s.e_units} units, for G-code viewers (the firmware ignores it)"
+        )
+    else:
+        extrusion = f"E {s.e_mode}, in {s.e_units} units"
     return (
-        f"wrote {out}: {s.lines} lines ({s.motion_lines} moves), print path "
-        f"{s.print_length_mm:.1f} mm, travel {s.travel_length_mm:.1f} mm, volume "
-        f"{s.volume_mm3:.2f} mm^3, estimated {s.duration_s / 60:.1f} min; E {s.e_mode} "
-        f"({s.e_units}); offset {_xyz(s.offset_mm)} mm on {machine.name}"
+        f"wrote {out}: {s.lines} lines ({s.motion_lines} moves), printing {s.print_length_mm:.1f}"
+        f" mm, non-printing moves {s.travel_length_mm:.1f} mm (travels between lines, lifts, "
+        f"to and from the sheet), volume {s.volume_mm3:.2f} mm^3, estimated "
+        f"{s.duration_s / 60:.1f} min; {extrusion}; offset {_xyz(s.offset_mm)} mm on {machine}"
     )
 
 
@@ -164,8 +177,13 @@ def _dxf(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions
         inlet_radius_mm=options.inlet_radius_mm,
         **layers,
     )
+    return describe_dxf(out, s, machine.name)
+
+
+def describe_dxf(out: Path, s: DxfSummary, machine: str) -> str:
+    """The one-line summary of a written DXF file (``fabkit export``, ``report.json``)."""
     counts = ", ".join(f"{name} {n}" for name, n in s.entities.items() if n)
-    return f"wrote {out}: {counts} entities; offset {_xyz(s.offset_mm)} mm on {machine.name}"
+    return f"wrote {out}: entities per layer {counts}; offset {_xyz(s.offset_mm)} mm on {machine}"
 
 
 def _laser(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions) -> str:

@@ -16,7 +16,13 @@ all moves at once and formatted by :func:`fabkit.writers.lines.render`:
 * machines without an E axis (pneumatic dispensers, beams: the profile's
   ``flow_on_gcode`` is not empty) get ``flow_on_gcode`` before and ``flow_off_gcode``
   after every print move; at constant pressure the volume per mm goes as 1 / speed, so
-  the flow multiplier is written as feed = speed / flow.
+  the flow multiplier is written as feed = speed / flow. With *nominal E* (``[tool]
+  nominal_e``, ``fabkit export --nominal-e``; Marlin only) such a machine's print moves
+  also carry E, the road's volume as filament of ``filament_diameter_mm`` (M83 or M82),
+  so that slicer G-code viewers draw the roads as extrusions of their width; the
+  firmware ignores it (no extruder, or a cold one) and the valve still switches the flow.
+  Its rate is checked against ``[limits] e_mm_s`` all the same (as the link's check
+  does), so that a firmware with a working E axis could never slow a road for it.
 * channels (one per feature, :attr:`Toolpath.channels`): ``print_speed_mm_s`` is the
   feed ``F``; ``extrusion_multiplier`` the E volume (or the feed on a machine without an
   E axis, when speed is not a channel too); ``line_spacing_mm`` is in the road positions;
@@ -28,9 +34,13 @@ all moves at once and formatted by :func:`fabkit.writers.lines.render`:
   (two-dimensional error diffusion, :mod:`fabkit.writers.inks`), each run bracketed by
   its ink's on and off G-code. A channel the machine cannot emit is refused, naming it.
 
-Comments that slicer viewers read: a header with ``;FLAVOR:``, ``;TIME:`` (s),
+Comments that slicer viewers read (Cura's ``plugins/GCodeReader/FlavorParser.py``,
+PrusaSlicer's ``GCodeProcessor``): a header with ``;FLAVOR:``, ``;TIME:`` (s),
 ``;Filament used:`` (m), ``;LAYER_COUNT:``, the bounds, PrusaSlicer's estimated time and
-filament lines, then ``;LAYER:n`` and ``;TYPE:FILL`` at every layer. X, Y, Z are written
+filament lines; then at every layer ``;LAYER:n`` (n from 0), ``;TYPE:FILL`` (Cura's name
+for infill: every road of a sheet is fill) and ``;HEIGHT:h`` (mm), and ``;WIDTH:w`` (mm,
+to the micrometre) before the first print segment and wherever the road width changes.
+Viewers tell extrusions from travels by E, hence nominal E above. X, Y, Z are written
 only when they change, F when it changes or the motion word changes (G0 and G1 keep
 separate feeds on some firmware).
 
@@ -70,7 +80,7 @@ _FLAVOUR_NAMES = {
     "hyrel": "Hyrel",
 }
 # Columns of the row table, and how each is written.
-_L, _X, _Y, _Z, _E, _F, _S, _P = range(8)
+_L, _X, _Y, _Z, _E, _F, _S, _P, _W = range(9)
 _WORDS = (
     Word("", 0),
     Word(" X", 3),
@@ -80,12 +90,17 @@ _WORDS = (
     Word(" F", 1),
     Word(" S", 0),
     Word(" P", 2),
+    Word("", 3),
 )
 _XYZ_SCALE, _E_SCALE, _F_SCALE = 1e3, 1e5, 1e1
 # Row prefixes: the fixed vocabulary, then the profile's snippets.
-_G0, _G1, _LAYER, _TYPE, _M104, _M163, _M164 = range(7)
-_FLOW_ON, _FLOW_OFF, _INK2_ON, _INK2_OFF, _PRESSURE = range(7, 12)
-_PREFIXES = ("G0", "G1", ";LAYER:", ";TYPE:FILL", "M104", "M163", "M164")
+_G0, _G1, _LAYER, _TYPE, _HEIGHT, _WIDTH, _M104, _M163, _M164 = range(9)
+_FLOW_ON, _FLOW_OFF, _INK2_ON, _INK2_OFF, _PRESSURE = range(9, 14)
+_PREFIXES = (
+    "G0", "G1", ";LAYER:", ";TYPE:FILL", ";HEIGHT:", ";WIDTH:", "M104", "M163", "M164"
+)  # fmt: skip
+WIDTH_STEP_MM = 1e-3
+"""``;WIDTH:`` is written to the micrometre, and again only where that value changes."""
 # Order of rows inside one move (slot in the sort key). Vertex k's row comes at
 # _VERTEX + 2 k - 1, the channel commands for its segment just before it (for the first
 # segment: at _S_CHANNELS, before the flow is turned on).
@@ -111,6 +126,8 @@ class GcodeOptions:
     G-code selects, else relative. ``e_units``: "filament" (mm of filament), "volume"
     (mm^3 = uL) or "pulses"; default "volume" for flavour hyrel, else "filament".
     ``offset_mm``: sheet-to-machine offset (x, y[, z]); default: centred on the bed.
+    ``nominal_e``: write nominal E on a Marlin machine without an E axis (module
+    docstring); default: the profile's ``[tool] nominal_e``.
     """
 
     e_mode: str | None = None
@@ -119,6 +136,7 @@ class GcodeOptions:
     pulses_per_mm3: float | None = None
     offset_mm: tuple[float, ...] | None = None
     retract_min_travel_mm: float = DEFAULT_RETRACT_MIN_TRAVEL_MM
+    nominal_e: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -137,6 +155,7 @@ class GcodeSummary:
     offset_mm: tuple[float, float, float]
     e_mode: str
     e_units: str
+    nominal_e: bool = False
 
 
 @dataclass(frozen=True)
@@ -161,6 +180,7 @@ class _Setup:
     inks: str = ""
     piece_mm: float = 0.0
     s_per_kpa: float = 0.0
+    nominal_e: bool = False
 
 
 def write_gcode(
@@ -187,7 +207,7 @@ def gcode_bytes(
     rows = _rows(paths, setup, toolpath)
     rows = _slow_travels(rows, machine)
     kinematics = _Kinematics.of(rows)
-    _check(rows, kinematics, paths, machine, toolpath)
+    _check(rows, kinematics, paths, machine, toolpath, setup.nominal_e)
     summary = _summary(rows, kinematics, paths, setup)
     rows = rows.modal(setup)
     body = render(rows.prefix, _prefixes(setup), rows.values, rows.present, _WORDS)
@@ -202,22 +222,27 @@ def _setup(machine: MachineProfile, options: GcodeOptions) -> _Setup:
             f"machine {machine.name} takes no G-code (flavour none); use --format laser"
         )
     has_e = not machine.gcode.flow_on_gcode.strip()
+    nominal = _nominal_e(machine, options, has_e)
     e_mode = options.e_mode or _profile_e_mode(machine)
     if e_mode not in E_MODES:
         raise FabkitError(f"E mode '{e_mode}' is not one of {', '.join(E_MODES)}")
     units = (
-        options.e_units
-        or machine.tool.e_units
-        or ("volume" if machine.flavour == "hyrel" else "filament")
+        "filament"
+        if nominal
+        else (
+            options.e_units
+            or machine.tool.e_units
+            or ("volume" if machine.flavour == "hyrel" else "filament")
+        )
     )
     if units not in E_UNITS:
         raise FabkitError(f"E units '{units}' is not one of {', '.join(E_UNITS)}")
     tool, limits = machine.tool, machine.limits
     return _Setup(
         has_e=has_e,
-        e_mode=e_mode if has_e else "none",
-        e_units=units if has_e else "none",
-        e_per_mm3=_e_per_mm3(machine, options, units) if has_e else 0.0,
+        e_mode=e_mode if has_e or nominal else "none",
+        e_units=units if has_e or nominal else "none",
+        e_per_mm3=_e_per_mm3(machine, options, units) if has_e or nominal else 0.0,
         lift_mm=tool.travel_lift_mm,
         retract=tool.retract_mm if has_e else 0.0,
         retract_feed=tool.retract_speed_mm_s * 60.0,
@@ -234,7 +259,24 @@ def _setup(machine: MachineProfile, options: GcodeOptions) -> _Setup:
         s_per_kpa=(
             machine.pressure.s_max / machine.pressure.full_scale_kpa if machine.pressure else 0.0
         ),
+        nominal_e=nominal,
     )
+
+
+def _nominal_e(machine: MachineProfile, options: GcodeOptions, has_e: bool) -> bool:
+    """Whether to write nominal E (module docstring); refuses it where it is not safe."""
+    nominal = machine.tool.nominal_e if options.nominal_e is None else options.nominal_e
+    if nominal and has_e:
+        raise FabkitError(
+            f"nominal E is for machines without an E axis; the flow of {machine.name} "
+            "follows E already (its flow_on_gcode is empty)"
+        )
+    if nominal and machine.flavour != "marlin":
+        raise FabkitError(
+            f"nominal E needs flavour marlin (whose firmware ignores E without a hot "
+            f"extruder); {machine.name} is flavour {machine.flavour}, which may refuse E words"
+        )
+    return nominal
 
 
 def check_channels(toolpath: Toolpath, machine: MachineProfile) -> None:
@@ -424,7 +466,7 @@ class _Paths:
 
 @dataclass(frozen=True)
 class _Rows:
-    """The row table in output order: prefix (R,), values (R, 7), present (R, 7), the
+    """The row table in output order: prefix (R,), values (R, 9), present (R, 9), the
     E increment (R,) in E units and deposited volume (R,) mm^3 of each row, and
     provenance: move (R,) and vertex (R,) index (-1 for rows of no vertex)."""
 
@@ -493,11 +535,12 @@ class _RowBuilder:
         **columns: np.ndarray | float,
     ) -> None:
         """Rows for the moves ``move`` at ``slot``; ``columns`` name values of _WORDS
-        (L, X, Y, Z, E, F, S, P); a given column is present unless NaN."""
+        (L, X, Y, Z, E, F, S, P, W: a comment's value); a given column is present unless
+        NaN."""
         n = len(move)
         values = np.full((n, len(_WORDS)), np.nan)
         for name, column in columns.items():
-            values[:, "LXYZEFSP".index(name)] = column
+            values[:, "LXYZEFSPW".index(name)] = column
         self.groups.append(
             {
                 "key": move.astype(np.int64) * self.stride + slot,
@@ -567,6 +610,7 @@ def _rows(paths: _Paths, setup: _Setup, toolpath: Toolpath) -> _Rows:
     _travel_rows(build, paths, hop, z_hop, after, setup)
     printed = np.flatnonzero(printing_v & is_vertex)
     slot = np.where(local[printed] == 1, _S_CHANNELS, _VERTEX + 2 * local[printed] - 2)
+    _width_rows(build, paths, printed, owner[printed], slot)
     _channel_rows(build, paths, printed, owner[printed], slot, setup)
     _flow_rows(build, paths, segment, after, setup)
     return build.build()
@@ -643,9 +687,21 @@ def _layer_height(toolpath: Toolpath, layer: np.ndarray) -> np.ndarray:
 
 
 def _layer_rows(build: _RowBuilder, paths: _Paths, toolpath: Toolpath) -> None:
+    """``;LAYER:n``, ``;TYPE:FILL`` and ``;HEIGHT:h`` (mm) before every layer's first move."""
     first = np.flatnonzero(np.diff(paths.layer, prepend=-1) != 0)
     build.add(first, _S_LAYER, _LAYER, L=paths.layer[first].astype(float))
     build.add(first, _S_TYPE, _TYPE)
+    build.add(first, _S_TYPE, _HEIGHT, W=_layer_height(toolpath, paths.layer[first]))
+
+
+def _width_rows(
+    build: _RowBuilder, paths: _Paths, printed: np.ndarray, owner: np.ndarray, slot: np.ndarray
+) -> None:
+    """``;WIDTH:w`` (mm) before the first print segment and every one whose road width
+    (rounded to WIDTH_STEP_MM) differs from the last written."""
+    value = np.rint(paths.width[printed] / WIDTH_STEP_MM) * WIDTH_STEP_MM
+    fresh = _fresh(value)
+    build.add(owner[fresh], slot[fresh], _WIDTH, vertex=printed[fresh], W=value[fresh])
 
 
 def _travel_heights(paths: _Paths, hop: np.ndarray, setup: _Setup) -> np.ndarray:
@@ -760,6 +816,7 @@ def _check(
     paths: _Paths,
     machine: MachineProfile,
     toolpath: Toolpath,
+    nominal_e: bool = False,
 ) -> None:
     """Refuse the first row outside the envelope or above a limit (see module docstring)."""
 
@@ -815,10 +872,15 @@ def _check(
         e_rate = np.abs(rows.e_delta[kin.rows]) * kin.speed / kin.length
         bad = np.flatnonzero(moving & (e_rate > limits.e_mm_s * tolerance))
         if len(bad):
+            hint = (
+                "raise [limits] e_mm_s to the firmware's E limit, or leave out nominal E"
+                if nominal_e
+                else "print slower or thinner"
+            )
             fail(
                 bad[0],
                 f"E rate {e_rate[bad[0]]:g} per s is above the limit "
-                f"{limits.e_mm_s:g} of {machine.name}; print slower or thinner",
+                f"{limits.e_mm_s:g} of {machine.name}; {hint}",
             )
     _check_temperature(rows, paths, machine)
     _check_pressure(rows, paths, machine)
@@ -885,6 +947,7 @@ def _summary(rows: _Rows, kin: _Kinematics, paths: _Paths, setup: _Setup) -> Gco
         offset_mm=tuple(paths.offset.tolist()),
         e_mode=setup.e_mode,
         e_units=setup.e_units,
+        nominal_e=setup.nominal_e,
     )
 
 
@@ -923,7 +986,7 @@ def _header(
     if setup.e_units == "filament":
         lines.append(f"; filament used [mm] = {summary.e_total:.2f}")
     lines += [
-        f";fabkit print path {summary.print_length_mm:.3f} mm, travel path "
+        f";fabkit printing path {summary.print_length_mm:.3f} mm, non-printing path "
         f"{summary.travel_length_mm:.3f} mm, volume {summary.volume_mm3:.4f} mm^3, "
         f"time {summary.duration_s:.1f} s",
         f";fabkit E mode {setup.e_mode}, E units {setup.e_units}, "
@@ -936,9 +999,14 @@ def _header(
             or "none"
         ),
         *_scale_line(toolpath),
-        *machine.render("start_gcode"),
     ]
-    if setup.has_e:
+    if setup.nominal_e:
+        lines.append(
+            ";fabkit nominal E: for G-code viewers only; the firmware ignores it (no hot "
+            "extruder) and the valve G-code switches the flow"
+        )
+    lines += machine.render("start_gcode")
+    if setup.has_e or setup.nominal_e:
         lines += ["M82", "G92 E0"] if setup.e_mode == "absolute" else ["M83"]
     return _lines(lines)
 

@@ -1,0 +1,156 @@
+"""The same figure is equal wherever it is printed, and every printed figure is plain data.
+
+One coarse ``fabkit run`` (and the single-stage commands on its files): the areas, the
+valid and checked points, the print length, the travel between lines and the G-code's
+non-printing moves must agree across ``design.json``, ``report.json``, ``report.html``,
+``quality.json``, the G-code header and every command's output; a figure that means
+something else carries another name. No Python repr, no ``none (none)``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+
+from tests.conftest import EXAMPLES
+
+pytestmark = pytest.mark.slow  # every test reads one full fabkit run (about 15 s)
+
+SPEC = EXAMPLES / "two_shapes.toml"
+COARSE = ("--step", "0.1", "--diagonals", "30")
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory):
+    """Every file and every command's output, from one coarse run."""
+    import contextlib
+    import io
+
+    from fabkit.cli import main
+
+    folder = tmp_path_factory.mktemp("figures")
+    out = folder / "out"
+
+    def stdout(*args) -> str:
+        buffer = io.StringIO()
+        with contextlib.redirect_stdout(buffer):
+            assert main([str(a) for a in args]) == 0
+        return buffer.getvalue()
+
+    texts = {
+        "run": stdout(
+            "run",
+            SPEC,
+            "--out",
+            out,
+            *COARSE,
+            "--size",
+            "20",
+            "--no-verify",
+            "--send",
+            "sim://marlin?baud=0&time_scale=0",
+        )  # fmt: skip
+    }
+    design = out / "design.npz"
+    texts["solve"] = stdout("solve", SPEC, "--out", folder / "again.npz", *COARSE)
+    texts["energy"] = stdout("energy", design)
+    texts["check"] = stdout("check", design)
+    texts["check_json"] = stdout("check", design, "--json")
+    texts["toolpath"] = stdout("toolpath", design, "--size", "20", "--out", folder / "tp")
+    texts["export"] = stdout(
+        "export", out / "toolpath" / "toolpath.npz", "--machine", "marlin_diw_pneumatic",
+        "--format", "gcode", "-o", folder / "again.gcode",
+    )  # fmt: skip
+    return {
+        "out": out,
+        "texts": texts,
+        "design": json.loads((out / "design.json").read_text()),
+        "report": json.loads((out / "report.json").read_text()),
+        "html": (out / "report.html").read_text(),
+        "quality": json.loads((out / "toolpath" / "quality.json").read_text()),
+        "gcode": (out / "sheet.gcode").read_text(),
+    }
+
+
+def numbers_after(text: str, label: str) -> list[float]:
+    """The numbers on the line of ``text`` that holds ``label``, after it."""
+    line = next(line for line in text.splitlines() if label in line)
+    return [float(x) for x in re.findall(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?", line.split(label, 1)[1])]
+
+
+def test_areas_are_one_figure(made):
+    areas = made["design"]["area_design_units2"]
+    assert made["report"]["solve"]["area_design_units2"] == areas
+    names = list(areas)
+    for text in (made["texts"]["run"], made["texts"]["solve"]):
+        shown = numbers_after(text, "area over the solved cells (design units^2):")
+        assert shown == pytest.approx([areas[n] for n in names], rel=5e-4)
+    energy = made["texts"]["energy"].splitlines()
+    for name in names:
+        row = next(line for line in energy if line.startswith(name))
+        flat, target = (float(x) for x in row.split()[2:4])
+        assert flat == pytest.approx(areas[names[0]], rel=5e-4)
+        assert target == pytest.approx(areas[name], rel=5e-4)
+    for value in areas.values():
+        assert f"<td>{value:.4g}</td>" in made["html"]
+
+
+def test_valid_and_checked_points_are_named_apart(made):
+    valid = made["design"]["valid_points"]
+    assert made["report"]["solve"]["valid_points"] == valid
+    assert f"{valid} valid points" in made["texts"]["run"]
+    assert f"{valid} valid points" in made["texts"]["solve"]
+    checked = [s["checked_points"] for s in made["design"]["check"]["surfaces"]]
+    assert checked == [s["checked_points"] for s in made["report"]["check"]["surfaces"]]
+    assert checked == [
+        s["checked_points"] for s in json.loads(made["texts"]["check_json"])["surfaces"]
+    ]
+    table = made["texts"]["check"].splitlines()
+    assert table[0].split()[1] == "checked"
+    assert [int(line.split()[1]) for line in table[2:]] == checked
+    assert len(set(checked)) == 1 and checked[0] < valid
+    explained = f"checked points: {checked[0]} per surface (the valid points whose"
+    assert explained in made["texts"]["run"] and explained in made["texts"]["solve"]
+    assert "<th>checked_points</th>" in made["html"] and "<th>valid_points</th>" in made["html"]
+
+
+def test_lengths_are_one_figure_each(made):
+    (layer,) = made["quality"]["layers"]
+    (reported,) = made["report"]["toolpath quality"]
+    assert reported == layer
+    between, printing = layer["travel_between_lines_mm"], layer["print_length_mm"]
+    assert "travel_length_mm" not in layer
+    toolpath = made["texts"]["toolpath"]
+    assert numbers_after(toolpath, "travel between lines")[0] == pytest.approx(between, abs=0.05)
+    assert numbers_after(toolpath, "printing")[0] == pytest.approx(printing, abs=0.05)
+    header = made["gcode"]
+    printed = numbers_after(header, ";fabkit printing path")[0]
+    moving = numbers_after(header, "non-printing path")[0]
+    assert printed == pytest.approx(printing, rel=1e-4)
+    assert moving > between  # lifts and the moves to and from the sheet besides
+    for line in (made["report"]["exports"]["gcode"], made["texts"]["export"]):
+        assert numbers_after(line, "printing")[0] == pytest.approx(printing, abs=0.05)
+        assert numbers_after(line, "non-printing moves")[0] == pytest.approx(moving, abs=0.05)
+    assert f"<td>{between:.4g}</td>" in made["html"]
+
+
+def test_no_repr_and_no_empty_words(made):
+    pages = {
+        "report.json": json.dumps(made["report"]),
+        "report.html": re.sub(r"data:image/png;base64,[A-Za-z0-9+/=]+", "", made["html"]),
+        **made["texts"],
+    }
+    for name, text in pages.items():
+        assert not re.search(r"\b[A-Z]\w+\(\w+=", text), name  # a dataclass repr
+        assert "none (none)" not in text and "E none" not in text, name
+
+
+def test_the_send_figures_are_named_with_their_units(made):
+    sent = made["report"]["sent"]
+    assert sent["job_lines"] > 0 and sent["seconds"] >= 0 and sent["lines_per_second"] > 0
+    assert {"resent_lines", "status_queries_between_lines", "recoveries_from_lost_answers"} <= set(
+        sent
+    )
+    assert "<th>status_queries_between_lines</th>" in made["html"]

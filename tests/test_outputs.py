@@ -1,0 +1,125 @@
+"""``--out`` into a folder fabkit wrote before: refused, or ``--overwrite`` replaces exactly
+the earlier run's files (listed in the folder's manifest), never anything else."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from fabkit.atomic import MANIFEST
+from tests.conftest import EXAMPLES
+
+DISC = ["--director", "arctan2(y, x)", "--shape", "disc:5"]
+COARSE = ["--step", "0.1", "--diagonals", "30", "--size", "20", "--no-verify"]
+
+
+def files(folder: Path) -> set[str]:
+    """Every file under ``folder`` but the manifest, relative."""
+    return {
+        p.relative_to(folder).as_posix()
+        for p in folder.rglob("*")
+        if p.is_file() and p.name != MANIFEST
+    }
+
+
+def listed(folder: Path) -> set[str]:
+    return set((folder / MANIFEST).read_text().split())
+
+
+@pytest.mark.slow
+def test_overwrite_removes_exactly_the_earlier_files(run_cli, tmp_path):
+    out = tmp_path / "out"
+    assert run_cli("toolpath", *DISC, "--out", out, "--json")[0] == 0
+    assert "toolpath.json" in files(out) and listed(out) == files(out)
+    code, _, err = run_cli("toolpath", *DISC, "--out", out)
+    assert code == 2 and "of an earlier fabkit run" in err and "toolpath.json" in err
+    assert run_cli("toolpath", *DISC, "--out", out, "--overwrite")[0] == 0
+    assert "toolpath.json" not in files(out)  # the earlier run's file is gone ...
+    assert (
+        listed(out)
+        == files(out)
+        == {  # ... and the manifest lists this run's only
+            "toolpath.npz",
+            "quality.json",
+            "preview.png",
+            "preview.svg",
+        }
+    )
+
+
+@pytest.mark.slow
+def test_overwrite_with_bad_input_leaves_the_earlier_files(run_cli, tmp_path):
+    out = tmp_path / "out"
+    assert run_cli("toolpath", *DISC, "--out", out, "--json")[0] == 0
+    before = {name: (out / name).read_bytes() for name in files(out)}
+    code, _, err = run_cli(
+        "toolpath", "--director", "foo(x)", "--shape", "disc:5", "--out", out, "--overwrite"
+    )
+    assert code == 2 and "foo" in err
+    assert {name: (out / name).read_bytes() for name in files(out)} == before
+
+
+@pytest.mark.slow
+def test_an_interrupted_run_lists_what_it_wrote(run_cli, tmp_path, monkeypatch):
+    """Ctrl-C halfway: the files written so far are listed, so --overwrite clears them."""
+    real_replace = os.replace
+
+    def interrupted(src, dst):
+        if Path(dst).name == "preview.png":
+            raise KeyboardInterrupt
+        real_replace(src, dst)
+
+    monkeypatch.setattr("fabkit.atomic.os.replace", interrupted)
+    out = tmp_path / "out"
+    assert run_cli("toolpath", *DISC, "--out", out)[0] == 130
+    monkeypatch.setattr("fabkit.atomic.os.replace", real_replace)
+    assert files(out) and files(out) <= listed(out)
+    assert run_cli("toolpath", *DISC, "--out", out)[0] == 2
+    assert run_cli("toolpath", *DISC, "--out", out, "--overwrite")[0] == 0
+    assert listed(out) == files(out)
+
+
+@pytest.mark.slow
+def test_a_users_file_is_never_touched(run_cli, tmp_path):
+    out = tmp_path / "out"
+    assert run_cli("toolpath", *DISC, "--out", out)[0] == 0
+    (out / "sub").mkdir()
+    (out / "sub" / "mine.txt").write_text("mine\n")
+    code, _, err = run_cli("toolpath", *DISC, "--out", out, "--overwrite")
+    assert code == 2 and "fabkit did not write (sub/mine.txt)" in err
+    assert (out / "sub" / "mine.txt").read_text() == "mine\n" and "preview.png" in files(out)
+
+
+@pytest.mark.slow
+def test_a_run_with_another_machine_leaves_no_file_of_the_first(run_cli, tmp_path):
+    """The issue's case: G-code run, then a laser-writer run into the same --out."""
+    out, spec = tmp_path / "out", EXAMPLES / "two_shapes.toml"
+    assert run_cli("run", spec, "--out", out, *COARSE)[0] == 0
+    assert {"sheet.gcode", "toolpath/toolpath.npz"} <= files(out)
+    laser = ("--machine", "dmd_photoalign")
+    code, _, err = run_cli("run", spec, "--out", out, *COARSE, *laser)
+    assert code == 2 and "give --overwrite" in err
+    assert run_cli("run", spec, "--out", out, *COARSE, *laser, "--overwrite")[0] == 0
+    names = files(out)
+    assert "sheet.gcode" not in names and not (out / "toolpath").exists()
+    assert "laser/manifest.json" in names and listed(out) == names
+
+
+@pytest.mark.slow
+def test_laser_export_into_its_earlier_folder(run_cli, tmp_path):
+    design = tmp_path / "design.npz"
+    code, _, err = run_cli(
+        "solve", EXAMPLES / "two_shapes.toml", "--out", design, "--step", "0.1",
+        "--diagonals", "30",
+    )  # fmt: skip
+    assert code == 0, err
+    args = ("export", design, "--machine", "dmd_photoalign", "--format", "laser", "--size", "20")
+    out = tmp_path / "laser"
+    assert run_cli(*args, "-o", out)[0] == 0
+    assert listed(out) == files(out) and "manifest.json" in files(out)
+    code, _, err = run_cli(*args, "-o", out)
+    assert code == 2 and "give --overwrite" in err
+    assert run_cli(*args, "-o", out, "--overwrite")[0] == 0
+    assert listed(out) == files(out)
