@@ -54,8 +54,9 @@ _ZIP64_LOCATOR = b"PK\x06\x07"
 _ZIP64_END_RECORD = b"PK\x06\x06"
 _CENTRAL_ENTRY_BYTES = 1024
 """Bytes one central directory entry may take (fixed part, name, extra field, comment)."""
-_BAD_DATA = (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError)
-"""What zipfile and numpy raise on corrupt data."""
+_BAD_DATA = (zipfile.BadZipFile, zlib.error, EOFError, ValueError, OSError, NotImplementedError)
+"""What zipfile and numpy raise on corrupt data (zipfile raises NotImplementedError for
+encrypted or patched members, unknown methods and versions)."""
 
 
 @dataclass(frozen=True)
@@ -115,7 +116,7 @@ def _open_zip(path: str | Path, where: str) -> Iterator[zipfile.ZipFile]:
             _check_end_record(handle, where)
             with zipfile.ZipFile(handle) as archive:
                 yield archive
-    except (zipfile.BadZipFile, ValueError, EOFError) as exc:
+    except (zipfile.BadZipFile, ValueError, EOFError, NotImplementedError) as exc:
         raise FabkitError(f"{where}: not an .npz archive ({exc})") from None
     except OSError as exc:
         raise FabkitError(f"{where}: {exc.strerror or exc}") from None

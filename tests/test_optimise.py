@@ -139,6 +139,7 @@ def test_process_limits_count_only_the_points_inside_the_calibrated_range():
     assert limited.counted == inside.sum()
 
 
+@pytest.mark.slow
 def test_a_search_writes_a_best_spec_that_fabkit_run_accepts(spec_file, tmp_path, run_cli):
     out = tmp_path / "search" / "best.toml"
     outcome = optimise(Job(str(spec_file), str(out), VARY, budget=BUDGET, workers=1))

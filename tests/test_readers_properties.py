@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import json
+import struct
 import time
 import warnings
 from pathlib import Path
@@ -409,3 +410,37 @@ def test_any_height_grid_makes_a_surface_or_a_one_line_error(z, extent, z_scale,
     np.save(folder / "random_h.npy", z)
     table = {"kind": "heightmap", "file": "random_h.npy", "extent": extent, "z_scale": z_scale}
     refused_or(lambda: HeightMap.from_table("h", table, "surfaces[1].geometry", folder), HeightMap)
+
+
+def _zip_fields(raw: bytes, flag: int | None = None, version: int | None = None) -> bytes:
+    """``raw`` (a zip) with every local and central header's flag bits or needed version set."""
+    out = bytearray(raw)
+    for signature, flag_at, version_at in ((b"PK\x03\x04", 6, 4), (b"PK\x01\x02", 8, 6)):
+        at = out.find(signature)
+        while at >= 0:
+            if flag is not None:
+                out[at + flag_at : at + flag_at + 2] = struct.pack("<H", flag)
+            if version is not None:
+                out[at + version_at : at + version_at + 2] = struct.pack("<H", version)
+            at = out.find(signature, at + 4)
+    return bytes(out)
+
+
+@pytest.mark.parametrize(
+    ("fields", "phrase"),
+    [
+        ({"flag": 1}, "encrypted"),
+        ({"flag": 1 << 5}, "patched data"),
+        ({"flag": 1 << 6}, "strong encryption"),
+        ({"version": 109}, "version 10.9"),
+    ],
+    ids=["encrypted", "patched", "strong-encryption", "zip-version"],
+)
+def test_zip_features_zipfile_does_not_implement_are_refused_in_one_line(fields, phrase, folder):
+    """zipfile raises NotImplementedError for these (found by the mutation test above)."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, z=np.arange(4.0))
+    path = written(folder, "feature.npz", _zip_fields(buffer.getvalue(), **fields))
+    with pytest.raises(FabkitError, match=phrase) as caught:
+        read_npz(path, "x")
+    assert "\n" not in str(caught.value)
