@@ -17,6 +17,7 @@ from fabkit.design.report import realised_areas
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.optimise.objective import (
+    Evaluation,
     Limits,
     Objective,
     evaluate_batch,
@@ -24,8 +25,9 @@ from fabkit.optimise.objective import (
     score,
     wide_enough,
 )
+from fabkit.optimise.pictures import search_picture, sheets_picture
 from fabkit.optimise.run import Job, optimise, outputs
-from fabkit.optimise.search import CHECKPOINT_FORMAT, Budget, Checkpoint
+from fabkit.optimise.search import CHECKPOINT_FORMAT, Budget, Checkpoint, Result
 from fabkit.optimise.space import search_space
 from fabkit.optimise.tomlout import dumps
 from fabkit.spec import build_spec
@@ -160,6 +162,7 @@ def test_a_search_writes_a_best_spec_that_fabkit_run_accepts(spec_file, tmp_path
     assert flat_cell_area(design) == pytest.approx(summary["best"]["value"], rel=0.01)
 
 
+@pytest.mark.slow
 def test_a_stopped_search_resumes_from_its_checkpoint(spec_file, tmp_path):
     whole = optimise(Job(str(spec_file), str(tmp_path / "a" / "best.toml"), VARY, budget=BUDGET))
     saved = json.loads(outputs(tmp_path / "a" / "best.toml")["checkpoint"].read_text())
@@ -182,6 +185,7 @@ def test_a_stopped_search_resumes_from_its_checkpoint(spec_file, tmp_path):
     assert len(json.loads(stopped.read_text())["evaluations"]) == whole.summary["computed"]
 
 
+@pytest.mark.slow
 def test_a_checkpoint_of_another_search_is_refused(spec_file, tmp_path):
     optimise(Job(str(spec_file), str(tmp_path / "best.toml"), VARY, budget=BUDGET))
     other = replace(BUDGET, seed=4)
@@ -247,6 +251,7 @@ clip = false
 """
 
 
+@pytest.mark.slow
 def test_with_a_process_only_what_it_can_make_counts(spec_file, tmp_path, run_cli):
     """A process calibrated for eps in [0, 0.5] only: the points of the Fig. 1 design with
     eps above 0.5 (about half) do not count."""
@@ -267,3 +272,21 @@ def test_with_a_process_only_what_it_can_make_counts(spec_file, tmp_path, run_cl
     start = summary["start"]
     assert start["points"] == eps.size and 0 < start["value"] < 0.8 * flat_cell_area(design)
     assert (eps > 0.5).sum() > 0.2 * eps.size
+
+
+def test_the_search_pictures_are_drawn(tmp_path):
+    """The search picture and the two sheets side by side, from a made-up history (the
+    searches that draw them for real are slow tests)."""
+    design = solve(build_spec(coarse_fig1(), EXAMPLES)).design
+    values = [1.0, 0.0, 1.5, 1.2, 2.0]
+    history = tuple(((v,), Evaluation(v, passed=v > 0)) for v in values)
+    result = Result((2.0,), history[-1][1], history, 0, 1.0, 2)
+    search_picture(result, 1.0, "flat", tmp_path / "search.png")
+    sheets_picture(
+        design,
+        design,
+        {"start": {"value": 1.0}, "best_solved_again": {"value": 1.0}},
+        tmp_path / "s.png",
+    )
+    for name in ("search.png", "s.png"):
+        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
