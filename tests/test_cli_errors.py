@@ -731,7 +731,8 @@ CASES = [
         "cannot open port",
         outputs=("{out}/report.json", "{out}/report.html"),
         id="run-send-no-such-device",
-        slow=True,  # a whole (coarse) run before the port
+        seconds=40.0,  # a whole (coarse) run before the port: about 6 s alone
+        slow=True,
     ),
 ]
 

@@ -47,7 +47,8 @@ def test_an_error_lets_the_buffered_lines_run_and_resume_runs_no_line_twice():
     lines = ["G21", "G90", "F3000"] + [f"G1 X{100 if i % 2 else 10} Y{i % 7}" for i in range(150)]
     lines.insert(100, "G1 X10 Q5")  # Q: not a GRBL word here -> error:20
     job = commands_from_lines(lines)
-    url = "sim://grbl?time_scale=0.005&baud=1000000"
+    # slow enough (a move is 36 ms) that the host fills the buffer even on a loaded machine
+    url = "sim://grbl?time_scale=0.02&baud=1000000"
     port = open_port(url, 115200)
     machine = load_machine("grbl_diw")
     with pytest.raises(FabkitError) as caught:
