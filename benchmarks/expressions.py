@@ -15,9 +15,9 @@ import time
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.expr import MAX_NODES, parse
-from fabkit.material import Material
-from fabkit.surfaces.analytic import Metric, Parametric
+from fabkit.problem.expr import MAX_NODES, parse
+from fabkit.problem.material import Material
+from fabkit.problem.surfaces.analytic import Metric, Parametric
 
 FUNCTIONS = ("sin", "cos", "exp", "tanh", "log", "sqrt", "sinh", "arctan")
 

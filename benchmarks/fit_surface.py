@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from fabkit.surfaces import build_surface
-from fabkit.surfaces.fit import fit_grid
+from fabkit.problem.surfaces import build_surface
+from fabkit.problem.surfaces.fit import fit_grid
 
 CASES = {
     "bump": ("exp(-(x**2 + y**2/4))", (-4.0, 4.0, -6.0, 6.0)),

@@ -29,8 +29,7 @@ import shapely.affinity  # noqa: E402
 
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.solver import solve  # noqa: E402
-from fabkit.machines import load_machine  # noqa: E402
-from fabkit.part import (  # noqa: E402
+from fabkit.field.part import (  # noqa: E402
     Part,
     PartOptions,
     margin_outline,
@@ -38,7 +37,8 @@ from fabkit.part import (  # noqa: E402
     scale_for_size,
     solved_region,
 )
-from fabkit.spec import load_spec  # noqa: E402
+from fabkit.machines import load_machine  # noqa: E402
+from fabkit.problem.spec import load_spec  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZE_MM = 60.0

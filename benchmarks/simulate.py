@@ -38,7 +38,7 @@ from fabkit.mechanics.energy import (
 from fabkit.mechanics.mesh import design_mesh, disc_mesh
 from fabkit.mechanics.metric import edge_lengths, metric_from_director, metric_from_lengths
 from fabkit.mechanics.simulate import Settings, diameter, simulate, simulate_design
-from fabkit.spec import load_spec
+from fabkit.problem.spec import load_spec
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 ALONG, ACROSS = 0.8, 0.8**-0.5

@@ -28,7 +28,7 @@ import numpy as np
 
 from fabkit.design.check import check_design
 from fabkit.design.solver import solve, solve_batch
-from fabkit.spec import Spec, load_spec, spec_from_json
+from fabkit.problem.spec import Spec, load_spec, spec_from_json
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 PUBLISHED_FIG1_SECONDS = 49.8

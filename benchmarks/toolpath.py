@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from fabkit.fields import field_from_design, field_from_expression, parse_shape
+from fabkit.field.flat import field_from_design, field_from_expression, parse_shape
 from fabkit.toolpath.lines import (
     PIN_MARGIN,
     LineSettings,

@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 
 from fabkit.pipeline import RunOptions, run_pipeline
-from fabkit.verify import check
-from fabkit.verify.check import VerifyOptions, verify
+from fabkit.verify import machine_file
+from fabkit.verify.machine_file import VerifyOptions, verify
 
 ROOT = Path(__file__).resolve().parent.parent
 GOAL_S = 30.0
@@ -61,7 +61,7 @@ def main() -> None:
         "_features": "features read back",
         "simulate_sheet": "simulations",
     }
-    stages = [_Timed(check, name) for name in names]
+    stages = [_Timed(machine_file, name) for name in names]
     try:
         start = time.perf_counter()
         options = VerifyOptions(reference=args.reference)

@@ -1,7 +1,7 @@
 """``fabkit run``: spec to machine files in one go, by calling each stage in turn.
 
 spec -> solve -> check -> part -> pictures -> toolpath -> export -> verify (-> send). The
-part of the flat sheet that is made (:mod:`fabkit.part`: a smooth outline inside the
+part of the flat sheet that is made (:mod:`fabkit.field.part`: a smooth outline inside the
 solved cells, trimmed of regions too narrow to take their shape, no narrower than the
 minimum width, within ``--outline``) is cut once, right after the solve, and every later
 stage takes it: the pictures, the print lines, channels or laser patterns, and the
@@ -46,9 +46,7 @@ from fabkit.design.design import Design
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
 from fabkit.design.report import checked_points, solve_to_file
 from fabkit.errors import FabkitError
-from fabkit.figures import AREA_UNIT
-from fabkit.machines import load_machine
-from fabkit.part import (
+from fabkit.field.part import (
     MIN_WIDTH_PITCHES,
     MIN_WIDTH_ROADS,
     Part,
@@ -58,9 +56,11 @@ from fabkit.part import (
     scale_for_size,
     solved_region,
 )
+from fabkit.figures import AREA_UNIT
+from fabkit.machines import load_machine
 from fabkit.plot import render_design
 from fabkit.plot.report import html_report
-from fabkit.spec import Spec, load_spec
+from fabkit.problem.spec import Spec, load_spec
 from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.process import load_process, resolve_channels
@@ -68,7 +68,7 @@ from fabkit.writers.dxf import layout_layers, write_dxf
 from fabkit.writers.export import ExportOptions, describe_dxf, export
 
 if TYPE_CHECKING:
-    from fabkit.link.session import SendReport
+    from fabkit.link.host.session import SendReport
 
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
 DEFAULT_MACHINE = "marlin_diw_pneumatic"
@@ -89,7 +89,7 @@ class RunOptions:
     ``ignore_features`` are left out of the machine file on purpose; ``verify`` reads the
     machine file back and checks it (:mod:`fabkit.verify`). ``overwrite`` replaces the
     files an earlier run wrote into ``out`` (else such a folder is refused). ``outline``,
-    ``min_width_mm`` and ``trim`` cut the part (:class:`fabkit.part.PartOptions`; None: the
+    ``min_width_mm`` and ``trim`` cut the part (:class:`fabkit.field.part.PartOptions`; None: the
     defaults).
     """
 
@@ -165,7 +165,7 @@ def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict
     sent = None
     if options.send:
         say(f"[6/7] sending sheet.gcode to {options.send}")
-        from fabkit.link.send import send_file
+        from fabkit.link.host.send import send_file
 
         sent = _sent(send_file(out / "sheet.gcode", options.send, machine=options.machine))
     else:
@@ -291,7 +291,7 @@ def _verify(
     if not options.verify:
         say("[5/7] not verifying (--no-verify)")
         return None
-    from fabkit.verify.check import VerifyOptions, verify
+    from fabkit.verify.machine_file import VerifyOptions, verify
 
     target = out / ("channels.dxf" if options.baromorph else FORMAT_FILES[options.formats[0]])
     say(f"[5/7] verifying {target.name}: reading it back, simulating the sheet as fabricated")

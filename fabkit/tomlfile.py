@@ -1,5 +1,7 @@
 """Reading a user's TOML file (spec, process, machine, baromorph, director, swimmer) with
-one-line errors, bounded in size (TEXT_BYTES) and in nesting depth (NESTING_DEPTH).
+one-line errors, bounded in size (TEXT_BYTES) and in nesting depth (NESTING_DEPTH), and
+validating its tables: :func:`check_keys` (no unknown key) and :func:`number` (a finite
+number), the checks every reader of a user's table uses.
 
 Python's TOML parser recurses once per nested array or inline table and slows down on
 long dotted keys, so :func:`scan_depth` measures both in one cheap pass over the raw
@@ -10,6 +12,7 @@ from __future__ import annotations
 
 import re
 import tomllib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -71,3 +74,22 @@ def scan_depth(data: bytes) -> int:
     since[reset + 1] = dots[reset]
     since = np.maximum.accumulate(since)[1:]
     return int(np.max(level + dots - since, initial=0))
+
+
+def check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
+    """Refuse unknown keys with a message naming them and the allowed ones."""
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise FabkitError(
+            f"{where}: unknown key '{unknown[0]}' (allowed: {', '.join(sorted(allowed))})"
+        )
+
+
+def number(value: Any, where: str, positive: bool = False) -> float:
+    """A finite float from a spec value, with a one-line error otherwise."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise FabkitError(f"{where}: expected a number, got {value!r}")
+    value = float(value)
+    if not np.isfinite(value) or (positive and value <= 0):
+        raise FabkitError(f"{where}: expected a {'positive ' if positive else ''}finite number")
+    return value

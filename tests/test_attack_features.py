@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from fabkit.design.solver import solve
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from fabkit.toolpath.job import ToolpathJob, run_job
 from fabkit.toolpath.model import PRINT, Layer, Move, Toolpath, save_toolpath
 from fabkit.writers.export import export

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from fabkit.design.solver import solve
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from fabkit.toolpath.job import ToolpathJob, run_job
 from tests import hostile as h
 from tests.attack import assert_refused, case

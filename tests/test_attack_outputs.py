@@ -15,7 +15,7 @@ import pytest
 
 from fabkit.atomic import MANIFEST
 from fabkit.design.solver import solve
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.attack import assert_refused, case
 from tests.conftest import EXAMPLES, ROOT, example_table
 

@@ -14,7 +14,7 @@ import ezdxf
 import pytest
 
 from fabkit.design.solver import solve
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.attack import assert_refused, case
 from tests.conftest import EXAMPLES, example_table
 

@@ -21,9 +21,9 @@ from PIL import Image
 from fabkit.design.check import check_design
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
-from fabkit.spec import build_spec
-from fabkit.surfaces import build_surface
-from fabkit.surfaces.data import HOLE_MARGIN
+from fabkit.problem.spec import build_spec
+from fabkit.problem.surfaces import build_surface
+from fabkit.problem.surfaces.data import HOLE_MARGIN
 from tests.conftest import EXAMPLES, example_table
 
 N = 200

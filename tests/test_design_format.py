@@ -8,7 +8,7 @@ import pytest
 from fabkit.design.design import FORMAT, Design
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES, example_table
 
 

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fabkit.errors import FabkitError
-from fabkit.expr import MAX_DEPTH, MAX_LENGTH, MAX_NODES, parse
+from fabkit.problem.expr import MAX_DEPTH, MAX_LENGTH, MAX_NODES, parse
 from tests.attack import run_bounded
 
 

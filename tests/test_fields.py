@@ -10,7 +10,7 @@ import pytest
 import shapely
 
 from fabkit.errors import FabkitError
-from fabkit.fields import (
+from fabkit.field.flat import (
     field_from_design,
     field_from_expression,
     field_from_grid,

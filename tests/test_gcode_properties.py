@@ -24,9 +24,9 @@ from hypothesis import strategies as st
 
 from fabkit.errors import FabkitError
 from fabkit.link.arcs import NEAR_FULL
-from fabkit.link.check import check_job
+from fabkit.link.emulator.grbl import grbl_clean
 from fabkit.link.gcode import GcodeError, commands_from_lines, read_grbl, read_marlin
-from fabkit.link.sim_grbl import grbl_clean
+from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from tests.test_link_support import quick, run_sim
 

@@ -19,8 +19,8 @@ import pytest
 from gcodeparser import parse_gcode_lines
 
 from fabkit.errors import FabkitError
-from fabkit.link.check import check_job
 from fabkit.link.gcode import commands_from_lines
+from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from fabkit.toolpath import PRINT, Layer, Move, Toolpath
 from fabkit.writers.gcode import GcodeOptions, gcode_bytes

@@ -10,7 +10,6 @@ from pathlib import Path
 import pytest
 
 from fabkit.errors import FabkitError
-from fabkit.link.check import check_job
 from fabkit.link.gcode import (
     MAX_JOB_BYTES,
     MAX_LINE_CHARS,
@@ -21,6 +20,7 @@ from fabkit.link.gcode import (
     read_job,
     words,
 )
+from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from fabkit.writers.gcode import gcode_bytes
 from tests.test_writers_common import baromorph_toolpath, fig1_toolpath

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-import fabkit.link.send as send_module
+import fabkit.link.host.send as send_module
 from fabkit.cli import main
 from tests.test_link_support import grbl_job, marlin_job
 
@@ -205,7 +205,7 @@ def test_ctrl_c_stops_safely_exits_130_and_names_the_resume_line(tmp_path, capsy
 def test_ctrl_c_during_run_send_names_the_resume_line_too(tmp_path, capsys, monkeypatch):
     """One behaviour everywhere: fabkit run --send stops like fabkit send (exit 130, the
     line where the machine stopped and the --resume-from that continues)."""
-    from fabkit.link.session import SendInterrupted
+    from fabkit.link.host.session import SendInterrupted
 
     def interrupted(*_, **__):
         raise SendInterrupted("safe-stop sent; continue later with --resume-from 42")

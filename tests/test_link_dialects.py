@@ -10,11 +10,11 @@ import pytest
 from fabkit.errors import FabkitError
 from fabkit.link import dialects
 from fabkit.link.dialects import classify, identify
-from fabkit.link.emulator import Emulator, config_from_url
+from fabkit.link.emulator.dialects import DIALECTS
+from fabkit.link.emulator.port import Emulator, config_from_url
 from fabkit.link.gcode import frame_marlin
-from fabkit.link.ports import open_port
-from fabkit.link.send import stream_job
-from fabkit.link.sim_dialects import DIALECTS
+from fabkit.link.host.ports import open_port
+from fabkit.link.host.send import stream_job
 from fabkit.machines import load_machine
 from tests.test_link_responders import LatencyResponder
 from tests.test_link_support import executed, marlin_job, quick, run_sim, runs_the_file

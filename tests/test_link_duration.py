@@ -8,9 +8,9 @@ import random
 import pytest
 
 from fabkit.link.duration import Kinematics, estimate, trapezoid_time
-from fabkit.link.emulator import Emulator, config_from_url
+from fabkit.link.emulator.port import Emulator, config_from_url
 from fabkit.link.gcode import Command, commands_from_lines
-from fabkit.link.session import Progress
+from fabkit.link.host.session import Progress
 from fabkit.machines import load_machine
 
 DIW = load_machine("marlin_diw_pneumatic")  # 500 mm/s^2 in X/Y, 100 in Z, 0.013 mm

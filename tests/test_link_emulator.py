@@ -6,8 +6,8 @@ import pytest
 import serial
 
 import fabkit.link  # noqa: F401  (registers sim://)
-from fabkit.link import protocol_sim
-from fabkit.link.emulator import Emulator, config_from_url
+from fabkit.link.emulator import protocol_sim
+from fabkit.link.emulator.port import Emulator, config_from_url
 from fabkit.link.gcode import frame_marlin
 
 
@@ -31,7 +31,7 @@ def talk(emulator: Emulator, data: bytes, now: float = 0.0) -> list[str]:
 
 
 def test_sim_urls_open_the_emulator_through_pyserial():
-    assert "fabkit.link" in serial.protocol_handler_packages
+    assert "fabkit.link.emulator" in serial.protocol_handler_packages
     port = serial.serial_for_url("sim://marlin?time_scale=0", timeout=0.1)
     assert isinstance(port, protocol_sim.Serial)
     assert port.read(100).startswith(b"start\n")

@@ -10,9 +10,9 @@ import pytest
 
 from fabkit.errors import FabkitError
 from fabkit.link.gcode import commands_from_lines
-from fabkit.link.ports import open_port
-from fabkit.link.send import stream_job
-from fabkit.link.session import LinkControl
+from fabkit.link.host.ports import open_port
+from fabkit.link.host.send import stream_job
+from fabkit.link.host.session import LinkControl
 from fabkit.machines import load_machine
 from tests.test_link_support import executed, grbl_job, quick, run_sim
 

@@ -12,9 +12,9 @@ import pytest
 
 from fabkit.errors import FabkitError
 from fabkit.link.gcode import Command, commands_from_lines
-from fabkit.link.ports import open_port
-from fabkit.link.send import stream_job
-from fabkit.link.session import LinkControl, Progress
+from fabkit.link.host.ports import open_port
+from fabkit.link.host.send import stream_job
+from fabkit.link.host.session import LinkControl, Progress
 from fabkit.machines import load_machine
 from tests.test_link_support import (
     executed,

@@ -8,9 +8,9 @@ import re
 import pytest
 
 from fabkit.errors import FabkitError
-from fabkit.link.emulator import PtyEmulator, config_from_url
-from fabkit.link.ports import open_port
-from fabkit.link.send import stream_job
+from fabkit.link.emulator.port import PtyEmulator, config_from_url
+from fabkit.link.host.ports import open_port
+from fabkit.link.host.send import stream_job
 from fabkit.machines import load_machine
 from tests.test_link_support import executed, grbl_job, marlin_job, numbers_are_contiguous, quick
 

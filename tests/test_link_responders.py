@@ -4,7 +4,7 @@ Each responder serves the master side of a pseudo-terminal from a thread and ans
 Marlin-style line protocol (``N<n> ...*<xor>``, ``ok``, ``Error:`` + ``Resend:`` + ``ok``
 for a bad line, ``ok T:`` for M105, a ``FIRMWARE_NAME`` for M115 that names no known
 firmware) with its own model of time and buffers, written here independently of
-:mod:`fabkit.link.emulator`:
+:mod:`fabkit.link.emulator.port`:
 
 * :class:`LatencyResponder` acks every line after a fixed latency, whatever came before
   (no buffer model at all: a fast USB firmware behind a slow link);
@@ -33,9 +33,9 @@ import pytest
 import serial
 
 from fabkit.link.gcode import Command, frame_marlin, marlin_checksum
-from fabkit.link.ports import open_port
-from fabkit.link.send import stream_job
-from fabkit.link.session import LinkOptions
+from fabkit.link.host.ports import open_port
+from fabkit.link.host.send import stream_job
+from fabkit.link.host.session import LinkOptions
 from fabkit.machines import load_machine
 from tests.test_link_support import HOUSEKEEPING, marlin_job
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import random
 import time
 
-from fabkit.link.emulator import Emulator
+from fabkit.link.emulator.port import Emulator
 from fabkit.link.gcode import Command, commands_from_lines
-from fabkit.link.ports import open_port
-from fabkit.link.send import stream_job
-from fabkit.link.session import LinkOptions, SendReport
+from fabkit.link.host.ports import open_port
+from fabkit.link.host.send import stream_job
+from fabkit.link.host.session import LinkOptions, SendReport
 from fabkit.machines import load_machine
 
 HOUSEKEEPING = ("M110 N0", "M115", "M105", "M114")  # lines the Marlin sender adds

@@ -19,7 +19,7 @@ from fabkit.mechanics.energy import (
     small_strain_density,
     work_bound,
 )
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.conftest import ROOT, example_table
 
 YOUNGS, POISSON, THICKNESS, EPS = 2.5, 0.45, 0.1, 0.4

@@ -10,6 +10,7 @@ from scipy.spatial import Delaunay
 
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
+from fabkit.field.part import simulation_part
 from fabkit.figures import cell_integral
 from fabkit.mechanics.compare import align, compare, integrated_curvature
 from fabkit.mechanics.mesh import design_mesh, disc_mesh
@@ -22,8 +23,7 @@ from fabkit.mechanics.simulate import (
     simulate_design,
     surface_index,
 )
-from fabkit.part import simulation_part
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.conftest import ROOT
 
 ALONG, ACROSS = 0.8, 0.8**-0.5

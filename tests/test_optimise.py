@@ -30,7 +30,7 @@ from fabkit.optimise.run import Job, optimise, outputs
 from fabkit.optimise.search import CHECKPOINT_FORMAT, Budget, Checkpoint, Result
 from fabkit.optimise.space import search_space
 from fabkit.optimise.tomlout import dumps
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES, example_table
 
 COARSE = {"step": 0.1, "diagonals": 20, "quadrants": "all"}

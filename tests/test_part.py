@@ -16,8 +16,7 @@ import pytest
 import shapely
 
 from fabkit.design.design import Design
-from fabkit.machines import load_machine
-from fabkit.part import (
+from fabkit.field.part import (
     PartOptions,
     PartRules,
     make_part,
@@ -25,6 +24,7 @@ from fabkit.part import (
     scale_for_size,
     solved_region,
 )
+from fabkit.machines import load_machine
 from fabkit.pipeline import RunOptions, run_pipeline
 from fabkit.toolpath.model import load_toolpath
 from tests.conftest import EXAMPLES

@@ -12,9 +12,9 @@ import pytest
 import shapely
 
 from fabkit.design.solver import solve
-from fabkit.outlines import read_outline
-from fabkit.part import PartOptions, print_part, scale_for_size, solved_region
-from fabkit.spec import build_spec
+from fabkit.field.outlines import read_outline
+from fabkit.field.part import PartOptions, print_part, scale_for_size, solved_region
+from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES, example_table
 
 SQUARE = [(-5.0, -3.0), (5.0, -3.0), (5.0, 7.0), (-5.0, 7.0)]

@@ -10,7 +10,7 @@ import json
 import pytest
 
 from fabkit.design.solver import solve
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES, example_table
 
 

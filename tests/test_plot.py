@@ -11,7 +11,7 @@ from fabkit.design.design import Design
 from fabkit.design.patches import grid_triangles, patch_mesh, write_patch_mesh
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES
 
 

@@ -21,8 +21,8 @@ from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.machines import GCODE_KEYS, list_machines
 from fabkit.npzfile import read_npz
+from fabkit.problem.spec import build_spec, load_spec
 from fabkit.readfile import parse_json, read_limited, size_text
-from fabkit.spec import build_spec, load_spec
 from fabkit.tomlfile import read_toml, scan_depth
 from tests import hostile as h
 from tests.conftest import EXAMPLES, ROOT, example_table
@@ -234,7 +234,7 @@ def test_a_mesh_never_opens_the_files_it_names(tmp_path, monkeypatch, capsys):
     import PIL.Image
     import trimesh
 
-    from fabkit.surfaces.data import read_mesh
+    from fabkit.problem.surfaces.data import read_mesh
 
     h.png_bomb(tmp_path / "texture.png", 12_000)
     (tmp_path / "m.mtl").write_text("newmtl a\nmap_Kd texture.png\n")

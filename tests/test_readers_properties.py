@@ -27,9 +27,9 @@ from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile, load_machine
 from fabkit.npzfile import NUMBER_KINDS, read_npy, read_npz
+from fabkit.problem.spec import build_spec
+from fabkit.problem.surfaces.data import read_grid, read_mesh
 from fabkit.readfile import nesting_depth, parse_json
-from fabkit.spec import build_spec
-from fabkit.surfaces.data import read_grid, read_mesh
 from fabkit.swimmer.spec import SwimmerSpec, load_swimmer
 from fabkit.tomlfile import read_toml, scan_depth
 from fabkit.toolpath.baromorph import BaromorphSettings, load_baromorph
@@ -372,7 +372,7 @@ coordinates = st.one_of(
     )
 )
 def test_any_triangles_make_a_mesh_surface_or_a_one_line_error(triangles, folder):
-    from fabkit.surfaces.data import MeshSurface
+    from fabkit.problem.surfaces.data import MeshSurface
 
     path = h.ascii_stl(folder / "random.stl", triangles)
     table = {"kind": "mesh", "file": path.name}
@@ -405,7 +405,7 @@ def extents(draw) -> list[float]:
     z_scale=st.sampled_from([1.0, -2.0, 1e-300, 1e300]),
 )
 def test_any_height_grid_makes_a_surface_or_a_one_line_error(z, extent, z_scale, folder):
-    from fabkit.surfaces.data import HeightMap
+    from fabkit.problem.surfaces.data import HeightMap
 
     np.save(folder / "random_h.npy", z)
     table = {"kind": "heightmap", "file": "random_h.npy", "extent": extent, "z_scale": z_scale}

@@ -11,7 +11,7 @@ from fabkit.design.check import check_design
 from fabkit.design.design import Design
 from fabkit.design.solver import REASONS, solve
 from fabkit.errors import FabkitError
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from fabkit.design.solver import solve, solve_batch
 from fabkit.errors import FabkitError
-from fabkit.spec import Spec, build_spec, spec_from_json
+from fabkit.problem.spec import Spec, build_spec, spec_from_json
 from tests.conftest import EXAMPLES, example_table
 
 

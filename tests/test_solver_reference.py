@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from fabkit.design.solver import solve
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES, example_table
 
 REFERENCE = Path(__file__).parent / "data" / "solver_reference.npz"

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from fabkit.errors import FabkitError
-from fabkit.material import ACROSS, ALONG
-from fabkit.spec import MAX_SOLVER_BYTES, build_spec, load_spec, solver_memory
+from fabkit.problem.material import ACROSS, ALONG
+from fabkit.problem.spec import MAX_SOLVER_BYTES, build_spec, load_spec, solver_memory
 from tests.attack import run_bounded
 from tests.conftest import EXAMPLES
 
@@ -120,7 +120,7 @@ def test_flat_sheet_must_be_a_plane(fig1):
 
 
 def test_round_trip_through_json(fig3):
-    from fabkit.spec import spec_from_json
+    from fabkit.problem.spec import spec_from_json
 
     spec = build_spec(fig3, EXAMPLES)
     again = spec_from_json(spec.to_json())

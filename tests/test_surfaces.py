@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fabkit.surfaces import build_surface
+from fabkit.problem.surfaces import build_surface
 
 RNG = np.random.default_rng(7)
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fabkit.errors import FabkitError
-from fabkit.fields import field_from_expression, parse_shape
+from fabkit.field.flat import field_from_expression, parse_shape
 from fabkit.process import Calibration, Encode
 from fabkit.toolpath.model import PRINT
 from fabkit.toolpath.plan import PlanSettings, plan_toolpath

@@ -7,7 +7,7 @@ import pytest
 import shapely
 import shapely.affinity
 
-from fabkit.fields import field_from_expression
+from fabkit.field.flat import field_from_expression
 from fabkit.toolpath.quality import measure_quality
 
 W = 0.4

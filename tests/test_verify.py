@@ -13,7 +13,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from fabkit.errors import FabkitError
-from fabkit.fields import field_from_expression, parse_shape
+from fabkit.field.flat import field_from_expression, parse_shape
 from fabkit.machines import load_machine
 from fabkit.process import Calibration, Encode, JointCalibration, Process
 from fabkit.toolpath.model import PRINT, Toolpath

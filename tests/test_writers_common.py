@@ -24,10 +24,10 @@ from fabkit.design.design import Design
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile, load_machine
-from fabkit.spec import load_spec
+from fabkit.problem.spec import load_spec
 from fabkit.toolpath import PRINT, TRAVEL, Layer, Move, Toolpath
 from fabkit.writers.common import check_inside, placement_offset
-from fabkit.writers.lines import Word, render
+from fabkit.writers.line_table import Word, render
 
 ROOT = Path(__file__).resolve().parent.parent
 FIG1_SIZE_MM = 40.0

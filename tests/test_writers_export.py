@@ -11,9 +11,9 @@ import pytest
 import shapely
 import shapely.affinity
 
-from fabkit.fields import field_from_design
+from fabkit.field.flat import field_from_design
+from fabkit.field.part import PartOptions
 from fabkit.machines import load_machine
-from fabkit.part import PartOptions
 from fabkit.toolpath import load_toolpath, save_toolpath
 from tests.test_writers_common import (
     baromorph,

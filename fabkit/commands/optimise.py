@@ -122,7 +122,7 @@ def _limits(args: argparse.Namespace):
         return None
     from fabkit.machines import load_machine
     from fabkit.optimise.objective import process_limits
-    from fabkit.spec import load_spec
+    from fabkit.problem.spec import load_spec
     from fabkit.toolpath.process import load_process
 
     if args.scale is None or not 0 < args.scale < float("inf"):

@@ -48,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fabkit.link.send import send_file
+    from fabkit.link.host.send import send_file
 
     def say(text: str) -> None:
         print(text, flush=True)

@@ -10,10 +10,10 @@ from fabkit.commands import help_of
 from fabkit.design.design import Design
 from fabkit.design.patches import MESH_FORMATS
 from fabkit.errors import FabkitError
+from fabkit.field.part import simulation_part
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.simulate import SEEDS, Settings, simulate_design, surface_index
-from fabkit.part import simulation_part
 from fabkit.progress import ProgressBar, add_progress
 
 

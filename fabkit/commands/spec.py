@@ -14,7 +14,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fabkit.spec import describe_spec, load_spec
+    from fabkit.problem.spec import describe_spec, load_spec
 
     print(describe_spec(load_spec(args.file)))
     return 0

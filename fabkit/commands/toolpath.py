@@ -85,7 +85,7 @@ def _field_arguments(parser: argparse.ArgumentParser, inputs_help: str) -> None:
 
 def part_arguments(parser: argparse.ArgumentParser) -> None:
     """The options that cut a design's part (docs/part.md), shared by every command that
-    makes one from a design (their defaults, None, are fabkit.part's: a test checks that
+    makes one from a design (their defaults, None, are fabkit.field.part's: a test checks that
     the help states them)."""
     part = parser.add_argument_group("the part of a design that is made (docs/part.md)")
     part.add_argument(

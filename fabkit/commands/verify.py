@@ -101,7 +101,7 @@ def _numbers(text: str) -> tuple[float, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fabkit.verify.check import VerifyOptions, verify
+    from fabkit.verify.machine_file import VerifyOptions, verify
 
     options = VerifyOptions(
         machine=args.machine,

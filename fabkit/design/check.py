@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from fabkit.design.design import Design
-from fabkit.spec import Spec
+from fabkit.problem.spec import Spec
 
 MIN_SCALE = 0.2
 """Points with alpha or beta below this are left out of the statistics."""

@@ -40,8 +40,8 @@ from fabkit.atomic import atomic_path, check_name
 from fabkit.errors import FabkitError
 from fabkit.limits import DESIGN_FEATURES, DESIGN_NODES, DESIGN_SURFACES, MAGNITUDE
 from fabkit.npzfile import ArrayHeader, check_magnitude, read_npz
+from fabkit.problem.spec import Spec, spec_from_json
 from fabkit.readfile import parse_json
-from fabkit.spec import Spec, spec_from_json
 
 FORMAT = "fabkit-design/2"
 """The format tag this version writes; a file without a tag is format 1 and still read."""

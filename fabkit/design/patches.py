@@ -10,7 +10,7 @@ import numpy as np
 from fabkit.atomic import atomic_path, check_name, inside
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.spec import Target
+from fabkit.problem.spec import Target
 
 MESH_FORMATS = (".ply", ".stl", ".glb", ".obj")
 MESH_TYPES = tuple(suffix.lstrip(".") for suffix in MESH_FORMATS)

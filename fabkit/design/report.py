@@ -17,8 +17,8 @@ from fabkit.design.solver import Solution, solve
 from fabkit.errors import FabkitError
 from fabkit.figures import AREA_UNIT, cell_integral
 from fabkit.limits import DESIGN_NODES
+from fabkit.problem.spec import Spec
 from fabkit.progress import ProgressBar
-from fabkit.spec import Spec
 
 
 def realised_areas(design: Design, spec: Spec | None = None) -> dict[str, float]:

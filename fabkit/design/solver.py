@@ -37,9 +37,9 @@ import numpy as np
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.expr import Expression
-from fabkit.material import ALONG
-from fabkit.spec import Spec
+from fabkit.problem.expr import Expression
+from fabkit.problem.material import ALONG
+from fabkit.problem.spec import Spec
 
 REASONS = (
     "",

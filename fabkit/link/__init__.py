@@ -1,6 +1,10 @@
-"""The machine link: check G-code against a machine profile and stream it over serial."""
+"""The machine link: the host (:mod:`~fabkit.link.host`: check G-code against a machine
+profile, stream it over serial) and the emulated machine (:mod:`~fabkit.link.emulator`),
+sharing the G-code words and dialects (:mod:`~fabkit.link.gcode`,
+:mod:`~fabkit.link.dialects`, :mod:`~fabkit.link.arcs`, :mod:`~fabkit.link.duration`)."""
 
 import serial
 
-if "fabkit.link" not in serial.protocol_handler_packages:
-    serial.protocol_handler_packages.append("fabkit.link")
+# pyserial finds the sim:// handler as module protocol_sim of a registered package
+if "fabkit.link.emulator" not in serial.protocol_handler_packages:
+    serial.protocol_handler_packages.append("fabkit.link.emulator")

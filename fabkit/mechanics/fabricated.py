@@ -32,10 +32,10 @@ import numpy as np
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
+from fabkit.field.part import SIMULATE_THICKNESS, Part
 from fabkit.mechanics.mesh import DesignMesh, counter_clockwise, design_mesh
 from fabkit.mechanics.metric import metric_from_director, metric_from_lengths
 from fabkit.mechanics.simulate import DesignSimulation, Settings, diameter, simulate
-from fabkit.part import SIMULATE_THICKNESS, Part
 
 PointFunction = Callable[[np.ndarray], np.ndarray]
 """A function of (n, 2) flat-sheet points (design units)."""

@@ -17,7 +17,7 @@ from fabkit.atomic import atomic_path
 from fabkit.design.design import Design
 from fabkit.design.patches import MESH_FORMATS
 from fabkit.errors import FabkitError
-from fabkit.part import Part, solved_cells
+from fabkit.field.part import Part, solved_cells
 
 
 @dataclass(frozen=True)
@@ -78,7 +78,7 @@ class Topology:
 def design_mesh(design: Design, part: Part | None = None, refine: int = 1) -> DesignMesh:
     """Triangulate the solved grid cells of ``design`` (two triangles per cell).
 
-    With ``part`` (:class:`~fabkit.part.Part`), only the cells whose centre lies in the
+    With ``part`` (:class:`~fabkit.field.part.Part`), only the cells whose centre lies in the
     part are kept (the part's trim removes regions too narrow for the sheet's thickness:
     a ribbon a few bending lengths wide bends freely whatever its metric). With ``refine``
     = n > 1 every solved cell is split into n x n sub-cells, uniform in material

@@ -23,10 +23,10 @@ import scipy.sparse.linalg as splinalg
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
+from fabkit.field.part import SIMULATE_THICKNESS, Part
 from fabkit.mechanics.mesh import DesignMesh, design_mesh
 from fabkit.mechanics.metric import grid_edge_lengths, metric_from_lengths
 from fabkit.mechanics.shell import Sheet, Shell, build_shell
-from fabkit.part import SIMULATE_THICKNESS, Part
 
 SEEDS = ("dome", "saddle")
 ARMIJO = 1e-4

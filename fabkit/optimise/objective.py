@@ -18,7 +18,7 @@ strip of sheet that is not there. A search finds such designs: one Fig. 1 candid
 With a process (``--machine`` / ``--process``) a point counts only if the process can make
 it (:class:`Limits`): every feature inside its channel's calibrated range (a joint channel:
 the eps pair inside the region its measured grid covers), and inside the part that
-:func:`fabkit.part.make_part` cuts from the counted points with the minimum width
+:func:`fabkit.field.part.make_part` cuts from the counted points with the minimum width
 (:func:`wide_enough`).
 
 Candidates are evaluated in batches (:func:`evaluate_batch`), one call per batch in any
@@ -38,8 +38,8 @@ from fabkit.design.check import check_design
 from fabkit.design.design import Design
 from fabkit.design.solver import solve_batch
 from fabkit.errors import FabkitError
+from fabkit.problem.spec import Spec, spec_from_json
 from fabkit.process import JointCalibration, Process
-from fabkit.spec import Spec, spec_from_json
 
 SPECS_KEPT = 4
 """Specs a worker process keeps built (a search sends the same one with every batch)."""
@@ -198,13 +198,13 @@ def makeable(design: Design, limits: Limits) -> np.ndarray:
 
 def wide_enough(design: Design, counted: np.ndarray, width: float) -> np.ndarray:
     """The counted points (nu, nv) inside the part that fabkit cuts from them with a
-    minimum width of ``width`` design units (:func:`fabkit.part.make_part`: the smooth
+    minimum width of ``width`` design units (:func:`fabkit.field.part.make_part`: the smooth
     margin outline inside the counted cells, then a closing and an opening with a disc of
     that diameter), i.e. the points that ``fabkit run`` would make with that width. 0 keeps
     every point; a part with nothing left keeps none."""
     if width <= 0 or not counted.any():
         return counted
-    from fabkit.part import PartRules, make_part
+    from fabkit.field.part import PartRules, make_part
 
     try:
         part = make_part(replace(design, valid=counted), PartRules(min_width=width))

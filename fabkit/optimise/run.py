@@ -43,8 +43,8 @@ from fabkit.optimise.search import (
 )
 from fabkit.optimise.space import Space, search_space
 from fabkit.optimise.tomlout import dumps
+from fabkit.problem.spec import Spec, build_spec
 from fabkit.shipped import user_or_example
-from fabkit.spec import Spec, build_spec
 from fabkit.tomlfile import read_toml
 
 

@@ -12,7 +12,7 @@ key (``--vary KEY=LO:HI``, see :data:`KEY_FORMS`):
 
 A key of the second kind becomes a parameter of the spec (its number is replaced by the
 parameter's name), so every candidate is the spec with other parameter values
-(:meth:`fabkit.spec.Spec.with_parameters`). Only initial data can vary: candidates of one
+(:meth:`fabkit.problem.spec.Spec.with_parameters`). Only initial data can vary: candidates of one
 search share the material, the surfaces and the solver settings, and are solved together.
 """
 
@@ -27,8 +27,8 @@ from pathlib import Path
 from typing import Any
 
 from fabkit.errors import FabkitError
-from fabkit.expr import parse
-from fabkit.spec import Spec, build_spec
+from fabkit.problem.expr import parse
+from fabkit.problem.spec import Spec, build_spec
 
 KEY_FORMS = (
     "NAME (a parameter of [optimise.parameters])",

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from fabkit.design.check import residual_maps
 from fabkit.design.design import Design
-from fabkit.part import Part
+from fabkit.field.part import Part
 from fabkit.plot import design as pictures
 
 DESIGN_PICTURES = (
@@ -33,7 +33,7 @@ def render_design(
     design: Design, folder: str | Path, part: Part | None = None
 ) -> list[tuple[str, Path]]:
     """Draw the design pictures into ``folder`` (the flat sheet with its ``part``, default:
-    the part of :class:`fabkit.part.PartRules`' defaults); returns (caption, path) pairs."""
+    the part of :class:`fabkit.field.part.PartRules`' defaults); returns (caption, path) pairs."""
     folder = Path(folder)
     paths = {name: folder / name for name, _ in DESIGN_PICTURES}
     pictures.flat_sheet(design, paths["flat_sheet.png"], part)

@@ -19,7 +19,7 @@ from fabkit.atomic import atomic_path  # noqa: E402
 from fabkit.design.check import RESIDUALS, ResidualMaps, Tolerances  # noqa: E402
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.patches import grid_triangles  # noqa: E402
-from fabkit.part import Part, PartRules, make_part  # noqa: E402
+from fabkit.field.part import Part, PartRules, make_part  # noqa: E402
 
 CURVES = 24
 """About this many u-curves and v-curves are drawn on each picture."""
@@ -62,7 +62,7 @@ def _runs(mask: np.ndarray) -> list[np.ndarray]:
 def flat_sheet(design: Design, path: str | Path, part: Part | None = None) -> None:
     """The flat sheet: director lines (u-curves) coloured by the first feature, v-curves
     grey, the solved region's border grey and the part's outline black (``part``, default:
-    the margin outline of :func:`fabkit.part.make_part` without a trim or minimum width)."""
+    the margin outline of :func:`fabkit.field.part.make_part` without a trim or minimum width)."""
     spec = design.problem
     flat = design.r[0]
     figure, axes = plt.subplots(figsize=(6.5, 6))

@@ -16,9 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from fabkit.errors import FabkitError
-from fabkit.fields import field_from_expression, parse_shape
-from fabkit.surfaces.analytic import check_keys, number
+from fabkit.field.flat import field_from_expression, parse_shape
 from fabkit.swimmer.spec import SwimmerSpec
+from fabkit.tomlfile import check_keys, number
 from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.plan import PATTERNS, PlanSettings, plan_toolpath
 from fabkit.toolpath.preview import save_preview

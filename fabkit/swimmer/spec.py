@@ -17,13 +17,12 @@ from typing import Any
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.expr import Expression, parse, shorten
-from fabkit.fields import PlaneFunction, check_finite_on_sheet, parse_shape, planar_expression
+from fabkit.field.flat import PlaneFunction, check_finite_on_sheet, parse_shape, planar_expression
 from fabkit.limits import MAGNITUDE, SWIMMER_MESH_RINGS, SWIMMER_SHAPES, WORK_BYTES
+from fabkit.problem.expr import Expression, parse, shorten
 from fabkit.readfile import size_text
 from fabkit.shipped import user_or_example
-from fabkit.surfaces.analytic import check_keys, number
-from fabkit.tomlfile import read_toml
+from fabkit.tomlfile import check_keys, number, read_toml
 
 
 @dataclass(frozen=True)

@@ -33,7 +33,7 @@ import shapely
 from scipy.spatial import cKDTree
 
 from fabkit.errors import FabkitError
-from fabkit.fields import FlatField
+from fabkit.field.flat import FlatField
 from fabkit.limits import MAGNITUDE
 from fabkit.process import CHANNEL_WIDTH, Calibration
 from fabkit.shipped import user_or_example

@@ -25,16 +25,16 @@ import shapely
 
 from fabkit.atomic import atomic_path, check_folder
 from fabkit.errors import FabkitError
-from fabkit.fields import (
+from fabkit.field.flat import (
     FlatField,
     field_from_design,
     field_from_expression,
     load_director_file,
     parse_shape,
 )
+from fabkit.field.outlines import read_outline
+from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
 from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES
-from fabkit.outlines import read_outline
-from fabkit.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
 from fabkit.process import Process
 from fabkit.toolpath.baromorph import (
     ChannelLayout,
@@ -55,7 +55,7 @@ from fabkit.toolpath.process import load_process, machine_process, resolve_chann
 class ToolpathJob:
     """What to make (see ``fabkit toolpath --help``); lengths in mm.
 
-    A design input is cut to its part (:mod:`fabkit.part`): ``outline`` (also a clip of a
+    A design input is cut to its part (:mod:`fabkit.field.part`): ``outline`` (also a clip of a
     director field), ``min_width_mm`` (None: 4 road widths) and ``trim`` (bending lengths
     of a sheet as thick as the layers; 0: none); ``part``: a part made already (``fabkit
     run``) for the one design input.

@@ -1,6 +1,6 @@
 """Print lines that follow the director: stripe lines, clipped, trimmed and extended.
 
-:func:`print_lines` turns a :class:`~fabkit.fields.FlatField` into polylines (mm) that are
+:func:`print_lines` turns a :class:`~fabkit.field.flat.FlatField` into polylines (mm) that are
 evenly spaced (``spacing``, normally the road width w), follow the director, and fill the
 outline:
 
@@ -34,7 +34,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from fabkit.fields import FlatField
+from fabkit.field.flat import FlatField
 from fabkit.toolpath.stripes import (
     Spacing,
     StripePattern,

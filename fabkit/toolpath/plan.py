@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.fields import FlatField
+from fabkit.field.flat import FlatField
 from fabkit.process import Encode, Process, Resolution
 from fabkit.toolpath.lines import LineSettings, print_lines
 from fabkit.toolpath.model import PRINT, TRAVEL, Layer, Move, Toolpath

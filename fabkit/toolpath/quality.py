@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import shapely
 
-from fabkit.fields import FlatField
+from fabkit.field.flat import FlatField
 
 PIXELS_PER_WIDTH = 10
 

@@ -38,7 +38,7 @@ import scipy.sparse as sp
 import shapely
 from scipy.sparse.csgraph import connected_components, depth_first_order
 
-from fabkit.fields import FlatField
+from fabkit.field.flat import FlatField
 
 Spacing = float | Callable[[np.ndarray], np.ndarray]
 """Line spacing in mm: a constant, or a function of (n, 2) points (mm) giving (n,) spacings."""

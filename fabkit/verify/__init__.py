@@ -5,7 +5,7 @@ The readers (:mod:`~fabkit.verify.read_gcode`, :mod:`~fabkit.verify.read_dxf`,
 of the writers and of ``toolpath.npz``, into what it makes on the flat sheet: roads with
 their widths and the process values they were printed with, or exposed pixels with
 their director and doses. :mod:`~fabkit.verify.raster` turns roads into a grid of the
-sheet (coverage, road direction, the values); :mod:`~fabkit.verify.check` inverts every
+sheet (coverage, road direction, the values); :mod:`~fabkit.verify.machine_file` inverts every
 channel's calibration to read the features back, compares director, features and
 coverage with the design, and forward-simulates the sheet as fabricated under every
 stimulus (:mod:`fabkit.mechanics.fabricated`).

@@ -2,7 +2,7 @@
 
 Inputs, recognised by content: a toolpath (``.npz``/``.json`` written by
 :func:`fabkit.toolpath.save_toolpath`), a design (``design.npz`` from ``fabkit solve``) or a
-director file (``.toml``, see :func:`fabkit.fields.load_director_file`).
+director file (``.toml``, see :func:`fabkit.field.flat.load_director_file`).
 
 ======== ============================================ ===================================
 format   from a toolpath                              from a design / director file
@@ -26,11 +26,11 @@ import shapely
 import shapely.geometry
 
 from fabkit.errors import FabkitError
-from fabkit.fields import FlatField, field_from_design, load_director_file
+from fabkit.field.flat import FlatField, field_from_design, load_director_file
+from fabkit.field.outlines import read_outline
+from fabkit.field.part import Part, PartOptions
 from fabkit.machines import load_machine
 from fabkit.npzfile import npz_keys
-from fabkit.outlines import read_outline
-from fabkit.part import Part, PartOptions
 from fabkit.process import Process
 from fabkit.readfile import read_json
 from fabkit.toolpath.model import Toolpath, load_toolpath
@@ -50,7 +50,7 @@ class ExportOptions:
     pixel pitch (default: the profile's ``laser.pixel_pitch_mm``, else its road width);
     ``process`` replaces the profile's process for laser patterns (its dose channels);
     ``ignore_features`` are features left out of the laser patterns on purpose.
-    A design is cut to its part (:mod:`fabkit.part`): ``part`` made already (``fabkit
+    A design is cut to its part (:mod:`fabkit.field.part`): ``part`` made already (``fabkit
     run``), else made by ``outline``, ``min_width_mm`` and ``trim`` for the process's road
     width and layer height; ``outline`` also clips a director file's field.
     """

@@ -2,7 +2,7 @@
 
 The toolpath (sheet frame, mm, mm/s) is placed on the machine (see
 :mod:`fabkit.writers.common`) and turned into one table of rows, built with numpy for
-all moves at once and formatted by :func:`fabkit.writers.lines.render`:
+all moves at once and formatted by :func:`fabkit.writers.line_table.render`:
 
 * travels: retraction (E-axis machines), lift to ``max z + travel_lift_mm``, ``G0`` along
   the travel polyline, lowering, un-retraction. Travels shorter than
@@ -65,7 +65,7 @@ from fabkit.machines import MachineProfile
 from fabkit.toolpath.model import PRINT, Toolpath
 from fabkit.writers.common import placement_offset
 from fabkit.writers.inks import alternate_inks
-from fabkit.writers.lines import Word, render
+from fabkit.writers.line_table import Word, render
 
 E_MODES = ("absolute", "relative")
 E_UNITS = ("filament", "volume", "pulses")

@@ -66,7 +66,7 @@ from fabkit.writers.common import (
     check_inside,
     placement_offset,
 )
-from fabkit.writers.lines import Word, render
+from fabkit.writers.line_table import Word, render
 
 MANIFEST_FORMAT = "fabkit-laser-manifest/2"
 SIDECAR_FORMAT = "fabkit-angle-map/1"
@@ -89,7 +89,7 @@ _SCAN_WORDS = (Word(" X", 4), Word(" Y", 4), Word(" A", 3), Word(" S", 3), Word(
 
 
 class FieldLike(Protocol):
-    """What :func:`sample_field` needs (``fabkit.fields.FlatField`` has it): mm, radians."""
+    """What :func:`sample_field` needs (``fabkit.field.flat.FlatField`` has it): mm, radians."""
 
     outline: shapely.Geometry
     mm_per_unit: float | None

@@ -5,7 +5,7 @@
 the one the file's header names, else the port's default), the pre-flight check, the
 duration estimate, ``--resume-from``, ``--dry-run``, the log file, the progress bar and
 the keys (Ctrl-C stops with the profile's safe-stop snippet and raises
-:class:`~fabkit.link.session.SendInterrupted`; Ctrl-Z pauses and resumes).
+:class:`~fabkit.link.host.session.SendInterrupted`; Ctrl-Z pauses and resumes).
 """
 
 from __future__ import annotations
@@ -22,19 +22,19 @@ from typing import TextIO
 from serial import SerialException
 
 from fabkit.errors import FabkitError
-from fabkit.link.check import JobCheck, check_job
 from fabkit.link.duration import Estimate, estimate
 from fabkit.link.gcode import Command, read_job
-from fabkit.link.grbl import GrblProtocol
-from fabkit.link.marlin import MarlinProtocol
-from fabkit.link.ports import (
+from fabkit.link.host.grbl import GrblProtocol
+from fabkit.link.host.marlin import MarlinProtocol
+from fabkit.link.host.ports import (
     SIM_DEFAULT_MACHINES,
     default_machine,
     open_port,
     sim_personality,
     sim_time_scale,
 )
-from fabkit.link.session import (
+from fabkit.link.host.preflight import JobCheck, check_job
+from fabkit.link.host.session import (
     LinkControl,
     LinkOptions,
     Progress,

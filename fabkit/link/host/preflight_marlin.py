@@ -26,7 +26,7 @@ from dataclasses import replace
 
 from fabkit.link.arcs import centre_arc, radius_arc
 from fabkit.link.gcode import Block, GcodeError, is_extended
-from fabkit.link.tracker import AXES, ArcMove, Span, Speed, Tracker
+from fabkit.link.host.tracker import AXES, ArcMove, Span, Speed, Tracker
 
 _TAKES: dict[str, tuple[str, str]] = {
     "G0": ("XYZEF", ""), "G1": ("XYZEF", ""), "G2": ("XYZEFIJRP", ""),

@@ -1,7 +1,7 @@
 """How each Marlin-protocol firmware words its answers, as the emulator reproduces them.
 
 Every fact below was read in the firmware's own source (the file is named on each
-field); the emulator (:mod:`fabkit.link.sim_marlin`) uses them, the sender has its own
+field); the emulator (:mod:`fabkit.link.emulator.marlin`) uses them, the sender has its own
 reading of the same sources (:mod:`fabkit.link.dialects`). Line numbers and checksums
 are the RepRap scheme everywhere: ``N<n> <command>*<xor of the bytes before *>``.
 

@@ -4,7 +4,7 @@ Positions are machine coordinates (mm), one :class:`Span` per axis X, Y, Z: exac
 an interval where the firmware decides (a G38 probe stops somewhere on its path), or
 ``None`` when unknown (before homing or an absolute move, after motors off, bed
 probing, a quick stop or a profile macro), with the reason kept for the message. The
-firmware dialects (:mod:`fabkit.link.check_grbl`, :mod:`fabkit.link.check_marlin`)
+firmware dialects (:mod:`fabkit.link.host.preflight_grbl`, :mod:`fabkit.link.host.preflight_marlin`)
 turn each command into calls here; every refusal is a one-line
 :class:`~fabkit.link.gcode.GcodeError`.
 """

@@ -5,7 +5,7 @@ has a saw-tooth edge, lone cells and slivers along the initial curves, and arms 
 too narrow for the sheet's thickness to take their shape (``docs/mechanics.md``).
 :func:`make_part` cuts the part out of it once, in design units (the flat sheet r[0]),
 and every later stage takes that :class:`Part`: the toolpath, channels and laser patterns
-(through :func:`fabkit.fields.field_from_design`), the simulations (the mesh's cells whose
+(through :func:`fabkit.field.flat.field_from_design`), the simulations (the mesh's cells whose
 centre lies in the part), ``fabkit verify`` and the pictures. The steps, each recorded
 with the area it removed:
 
@@ -48,7 +48,7 @@ from scipy import ndimage
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.outlines import read_outline
+from fabkit.field.outlines import read_outline
 
 MARGIN_DEPTH = 1.415
 """Depth (grid steps to the nearest node outside the solved cells) of the margin contour:

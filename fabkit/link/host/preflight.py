@@ -3,14 +3,14 @@
 :func:`check_job` reads every command as the machine's firmware will
 (:func:`~fabkit.link.gcode.read_grbl` for GRBL, :func:`~fabkit.link.gcode.read_marlin`
 for Marlin, Klipper, RepRapFirmware and Hyrel), follows the firmware's modal state in
-machine coordinates (:mod:`fabkit.link.check_grbl`, :mod:`fabkit.link.check_marlin`,
-:mod:`fabkit.link.tracker`) and refuses the job at the first problem with one line
-naming the file line: a position outside the envelope (arcs through their extreme
-points, probes, homing's intermediate points), a feed or axis speed above the profile's
-limits (after G93 inverse time and M220/M221 overrides), a temperature above the
-maximum, a line the link cannot send or the firmware reads differently from the check,
-an unknown command, and any command that can move or heat but that the check cannot
-follow (``... cannot be checked: <why>``).
+machine coordinates (:mod:`~fabkit.link.host.preflight_grbl`,
+:mod:`~fabkit.link.host.preflight_marlin`, :mod:`~fabkit.link.host.tracker`) and refuses
+the job at the first problem with one line naming the file line: a position outside the
+envelope (arcs through their extreme points, probes, homing's intermediate points), a
+feed or axis speed above the profile's limits (after G93 inverse time and M220/M221
+overrides), a temperature above the maximum, a line the link cannot send or the firmware
+reads differently from the check, an unknown command, and any command that can move or
+heat but that the check cannot follow (``... cannot be checked: <why>``).
 """
 
 from __future__ import annotations
@@ -20,8 +20,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from fabkit.errors import FabkitError
-from fabkit.link.check_grbl import GrblDialect
-from fabkit.link.check_marlin import MarlinDialect
 from fabkit.link.gcode import (
     Block,
     Command,
@@ -31,7 +29,9 @@ from fabkit.link.gcode import (
     read_grbl,
     read_marlin,
 )
-from fabkit.link.tracker import Tracker
+from fabkit.link.host.preflight_grbl import GrblDialect
+from fabkit.link.host.preflight_marlin import MarlinDialect
+from fabkit.link.host.tracker import Tracker
 from fabkit.machines import GCODE_KEYS, MachineProfile
 
 MAX_MARLIN_CHARS = 80  # Marlin keeps 95 characters, of which "N<n> " and "*<xor>" take some

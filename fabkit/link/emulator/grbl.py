@@ -15,7 +15,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from fabkit.link.sim_machine import (
+from fabkit.link.emulator.firmware import (
     INF,
     Counters,
     EmulatorConfig,

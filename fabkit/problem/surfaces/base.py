@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from fabkit.expr import Expression
+    from fabkit.problem.expr import Expression
 
 Bounds = tuple[tuple[float, float], tuple[float, float]]
 """Chart domain as ((r1_min, r1_max), (r2_min, r2_max)); infinite bounds allowed."""

@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from fabkit.errors import FabkitError
-from fabkit.surfaces.analytic import Graph, Metric, Parametric, Plane, Sphere
-from fabkit.surfaces.base import Surface
+from fabkit.problem.surfaces.analytic import Graph, Metric, Parametric, Plane, Sphere
+from fabkit.problem.surfaces.base import Surface
 
 ANALYTIC = {
     "plane": Plane,
@@ -44,7 +44,7 @@ def build_surface(
         )
     if kind in ANALYTIC:
         return ANALYTIC[kind].from_table(name, geometry, where, base_dir)
-    from fabkit.surfaces.data import HeightMap, MeshSurface
+    from fabkit.problem.surfaces.data import HeightMap, MeshSurface
 
     data = {"heightmap": HeightMap, "mesh": MeshSurface}
     return data[kind].from_table(name, geometry, where, base_dir)

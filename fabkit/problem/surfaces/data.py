@@ -17,7 +17,7 @@ Two geometry kinds, both height fields z = f(x, y) over the data's footprint:
 
 Both take an optional ``smoothing`` (chart units; one length or [along chart axis 1,
 along chart axis 2]); without it the smoothing is chosen from the data's noise
-(see :mod:`fabkit.surfaces.fit`). The chart domain is the footprint: grid cells whose
+(see :mod:`fabkit.problem.surfaces.fit`). The chart domain is the footprint: grid cells whose
 corners are data and more than ``HOLE_MARGIN`` nodes from any hole; leaving it is a
 solver stop (``contains`` is False).
 """
@@ -41,10 +41,10 @@ from scipy import ndimage
 from fabkit.errors import FabkitError
 from fabkit.limits import CSV_BYTES, MAGNITUDE, MESH_BYTES, MESH_FACES, RASTER_HITS
 from fabkit.npzfile import ArrayHeader, Check, check_magnitude, npz_keys, read_npy, read_npz
+from fabkit.problem.surfaces.base import Surface, graph_geometry
+from fabkit.problem.surfaces.fit import SurfaceFit, fit_grid
 from fabkit.readfile import decode_utf8, read_limited
-from fabkit.surfaces.analytic import check_keys, number
-from fabkit.surfaces.base import Surface, graph_geometry
-from fabkit.surfaces.fit import SurfaceFit, fit_grid
+from fabkit.tomlfile import check_keys, number
 
 MIN_SIDE = 8
 """Fewest nodes per side of a height grid."""

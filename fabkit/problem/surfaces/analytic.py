@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.expr import Expression, parse
-from fabkit.surfaces.base import (
+from fabkit.problem.expr import Expression, parse
+from fabkit.problem.surfaces.base import (
     UNBOUNDED,
     Bounds,
     Surface,
@@ -17,25 +17,7 @@ from fabkit.surfaces.base import (
     immersion_geometry,
     metric_geometry,
 )
-
-
-def check_keys(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
-    """Refuse unknown keys with a message naming them and the allowed ones."""
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise FabkitError(
-            f"{where}: unknown key '{unknown[0]}' (allowed: {', '.join(sorted(allowed))})"
-        )
-
-
-def number(value: Any, where: str, positive: bool = False) -> float:
-    """A finite float from a spec value, with a one-line error otherwise."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise FabkitError(f"{where}: expected a number, got {value!r}")
-    value = float(value)
-    if not np.isfinite(value) or (positive and value <= 0):
-        raise FabkitError(f"{where}: expected a {'positive ' if positive else ''}finite number")
-    return value
+from fabkit.tomlfile import check_keys, number
 
 
 def domain_bounds(table: Mapping[str, Any], where: str) -> Bounds:
@@ -236,7 +218,7 @@ class Metric(Surface):
 def _jets(expressions: tuple[Expression, ...]):
     """numpy function r (..., 2) -> values (C, ...), first (C, 2, ...) and second (C, 3, ...)
     derivatives (by aa, ab, bb) of C expressions in the two chart coordinates, by
-    automatic differentiation (fabkit.expr): no symbolic work, cost linear in their size."""
+    automatic differentiation (fabkit.problem.expr): no symbolic work, cost linear in their size."""
 
     def evaluate(r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         r = np.asarray(r, dtype=float)

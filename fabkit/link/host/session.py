@@ -1,7 +1,7 @@
 """What both protocols share: options, user controls, progress, the report, port I/O.
 
-A protocol (:class:`~fabkit.link.marlin.MarlinProtocol`,
-:class:`~fabkit.link.grbl.GrblProtocol`) subclasses :class:`Session` and drives an
+A protocol (:class:`~fabkit.link.host.marlin.MarlinProtocol`,
+:class:`~fabkit.link.host.grbl.GrblProtocol`) subclasses :class:`Session` and drives an
 already-open serial-like port: anything with ``read(n)``, ``write(b)``, ``in_waiting``
 and a ``timeout`` attribute (pyserial ports, the ``sim://`` emulator, test doubles).
 """

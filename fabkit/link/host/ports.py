@@ -1,7 +1,7 @@
 """Opening a port: a device path (``/dev/ttyUSB0``, ``COM3``) or any pyserial URL.
 
 ``sim://marlin`` and ``sim://grbl`` reach the built-in emulator through pyserial's URL
-handler mechanism (:mod:`fabkit.link.protocol_sim`), so emulator and hardware share one
+handler mechanism (:mod:`fabkit.link.emulator.protocol_sim`), so emulator and hardware share one
 code path.
 """
 
@@ -26,7 +26,7 @@ def sim_time_scale(port: str) -> float:
     """The ``time_scale`` of a ``sim://`` URL (1 for anything else, or a bad URL)."""
     if sim_personality(port) is None:
         return 1.0
-    from fabkit.link.emulator import config_from_url
+    from fabkit.link.emulator.port import config_from_url
 
     try:
         return config_from_url(port, 0).time_scale

@@ -17,13 +17,12 @@ import numpy as np
 
 from fabkit.atomic import check_name
 from fabkit.errors import FabkitError
-from fabkit.expr import RESERVED, Expression, parse, shorten
-from fabkit.material import ALONG, Material, check_unstretched
+from fabkit.problem.expr import RESERVED, Expression, parse, shorten
+from fabkit.problem.material import ALONG, Material, check_unstretched
+from fabkit.problem.surfaces import Surface, build_surface
+from fabkit.problem.surfaces.base import UNBOUNDED
 from fabkit.shipped import user_or_example
-from fabkit.surfaces import Surface, build_surface
-from fabkit.surfaces.analytic import check_keys, number
-from fabkit.surfaces.base import UNBOUNDED
-from fabkit.tomlfile import read_toml
+from fabkit.tomlfile import check_keys, number, read_toml
 
 ALL_QUADRANTS = ((1, 1), (-1, 1), (-1, -1), (1, -1))
 PERPENDICULAR_TOLERANCE = 1e-6

@@ -3,7 +3,7 @@
 It follows Marlin's ``GCodeQueue``: lines are read from the receive ring into a command
 queue of ``command_slots`` entries; a line that starts with ``N`` must carry the next
 line number and a correct XOR checksum, else the firmware rejects it in its dialect's
-words (:mod:`fabkit.link.sim_dialects`: Marlin 2.1 answers ``Error:<reason>, Last Line:
+words (:mod:`fabkit.link.emulator.dialects`: Marlin 2.1 answers ``Error:<reason>, Last Line:
 <n>``, empties its receive ring, asks ``Resend: <n+1>`` and sends ``ok``; Repetier,
 Smoothieware, RepRapFirmware and the other Marlin versions differ). A line without
 ``N`` is executed unchecked, as in Marlin. ``ok`` follows each executed command (M105
@@ -20,9 +20,8 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-from fabkit.link.gcode import code_of, marlin_checksum, words
-from fabkit.link.sim_dialects import DIALECTS, Dialect
-from fabkit.link.sim_machine import (
+from fabkit.link.emulator.dialects import DIALECTS, Dialect
+from fabkit.link.emulator.firmware import (
     INF,
     Counters,
     EmulatorConfig,
@@ -31,6 +30,7 @@ from fabkit.link.sim_machine import (
     Output,
     TraceEntry,
 )
+from fabkit.link.gcode import code_of, marlin_checksum, words
 
 MAX_CMD_SIZE = 96
 NOISE_LINES = (

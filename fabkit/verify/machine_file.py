@@ -33,15 +33,15 @@ from scipy import ndimage
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.fields import FlatField, feature_names, field_from_design
+from fabkit.field.flat import FlatField, feature_names, field_from_design
+from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
 from fabkit.machines import MachineProfile, load_machine
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
 from fabkit.mechanics.simulate import Settings
-from fabkit.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
 from fabkit.process import Encode, Process, Resolution
 from fabkit.readfile import read_json
-from fabkit.surfaces.analytic import number
+from fabkit.tomlfile import number
 from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.process import DEFAULT_MACHINE, load_process
 from fabkit.verify.raster import Readback, Roads, rasterise
@@ -66,7 +66,7 @@ class VerifyOptions:
     forward simulations, ``reference`` adds the sheet as designed; ``stride`` coarsens
     the design's grid for them (default: about :data:`TARGET_TRIANGLES` triangles);
     ``baromorph`` the channel settings of a baromorph drawing (its channels are read
-    instead of roads). The design's part (:mod:`fabkit.part`) is ``part`` when made
+    instead of roads). The design's part (:mod:`fabkit.field.part`) is ``part`` when made
     already (``fabkit run``), else made as the file's maker made it: by ``outline``,
     ``min_width_mm`` and ``trim`` for the process's road width and a sheet as thick as
     the layers the file prints (a baromorph drawing: its part thickness). Coverage is

@@ -40,13 +40,12 @@ from scipy.spatial import cKDTree
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.expr import parse, shorten
+from fabkit.field.outlines import parse_shape
+from fabkit.field.part import Part, PartOptions, print_part, scale_for_size, solved_region
 from fabkit.npzfile import ArrayHeader, read_npz
-from fabkit.outlines import parse_shape
-from fabkit.part import Part, PartOptions, print_part, scale_for_size, solved_region
+from fabkit.problem.expr import parse, shorten
 from fabkit.shipped import user_or_example
-from fabkit.surfaces.analytic import check_keys, number
-from fabkit.tomlfile import read_toml
+from fabkit.tomlfile import check_keys, number, read_toml
 
 PlaneFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """A vectorised function of x and y (mm, broadcast arrays) returning an array of their shape."""
@@ -69,7 +68,7 @@ class FlatField:
     ``mm_per_unit``: the scale of a design's field (mm per design unit), None for fields
     given in mm. ``joint_fn`` (optional) gives [theta, *features] at once, cheaper than
     one call each (a design locates each point in its mesh once). ``part``: a design's
-    :class:`~fabkit.part.Part`, whose outline (in mm) is ``outline``.
+    :class:`~fabkit.field.part.Part`, whose outline (in mm) is ``outline``.
     """
 
     outline: shapely.Polygon | shapely.MultiPolygon
@@ -369,7 +368,7 @@ def field_from_design(
 ) -> FlatField:
     """The flat-sheet field of a solved ``design.npz`` on its part, scaled to millimetres.
 
-    ``part``: a :class:`~fabkit.part.Part` made already (its scale is the field's; then give
+    ``part``: a :class:`~fabkit.field.part.Part` made already (its scale is the field's; then give
     neither size nor scale), or the options to make one (default :class:`PartOptions`: the
     smooth margin outline only). Otherwise give exactly one of ``size_mm`` (the longest
     side of the solved region's bounding box, mm) and ``mm_per_unit`` (mm per design unit).

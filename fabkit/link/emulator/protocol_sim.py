@@ -13,13 +13,13 @@ import time
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
-from fabkit.link.emulator import Emulator, config_from_url
+from fabkit.link.emulator.port import Emulator, config_from_url
 
 _NAP_S = 0.05  # longest sleep while nothing is scheduled
 
 
 class Serial(SerialBase):
-    """A serial port whose far end is an :class:`~fabkit.link.emulator.Emulator`."""
+    """A serial port whose far end is an :class:`~fabkit.link.emulator.port.Emulator`."""
 
     emulator: Emulator
 

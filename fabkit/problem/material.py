@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.expr import Expression
+from fabkit.problem.expr import Expression
 
 ALONG = "along"
 ACROSS = "across"

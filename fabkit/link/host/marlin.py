@@ -71,7 +71,7 @@ from fabkit.link import dialects
 from fabkit.link.dialects import Answer, classify
 from fabkit.link.duration import STOPS, estimate
 from fabkit.link.gcode import code_of, frame_marlin
-from fabkit.link.session import SendReport, Session
+from fabkit.link.host.session import SendReport, Session
 
 WAIT_CODES = frozenset(
     {"M109", "M190", "G28", "G29", "G4", "M400", "M0", "M1", "M600", "M226", "M303"}

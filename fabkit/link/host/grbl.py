@@ -35,7 +35,7 @@ import time
 from collections import deque
 
 from fabkit.errors import FabkitError
-from fabkit.link.session import SendReport, Session
+from fabkit.link.host.session import SendReport, Session
 
 HOLD, RESUME, STATUS, RESET = b"!", b"~", b"?", b"\x18"
 STATUS_MIN_S = 0.2  # at most 5 status queries a second while the machine moves

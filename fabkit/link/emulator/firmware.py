@@ -574,7 +574,7 @@ class EmulatorConfig:
 
     ``baud`` sets the byte timing (10 bits per byte; 0 = instantaneous). ``time_scale``
     multiplies move, dwell and heating times (0 = instantaneous). ``dialect`` names the
-    Marlin-protocol firmware (:data:`fabkit.link.sim_dialects.DIALECTS`); ``resend_ok``
+    Marlin-protocol firmware (:data:`fabkit.link.emulator.dialects.DIALECTS`); ``resend_ok``
     and ``drain``, when not None, override whether it sends ``ok`` after a resend
     request and empties its receive buffer on a line error. ``accel_mm_s2`` (X, Y),
     ``z_accel_mm_s2``, ``e_accel_mm_s2`` and ``junction_deviation_mm`` give the planner

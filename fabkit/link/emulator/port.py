@@ -3,7 +3,7 @@
 :class:`Emulator` is a discrete-event model driven by the caller's clock: the host
 writes bytes at time ``now`` (:meth:`Emulator.host_write`) and collects the machine's
 answers with :meth:`Emulator.poll`. The same object backs the ``sim://`` pyserial URL
-(:mod:`fabkit.link.protocol_sim`) and :class:`PtyEmulator`, which serves it on the
+(:mod:`fabkit.link.emulator.protocol_sim`) and :class:`PtyEmulator`, which serves it on the
 master side of a pseudo-terminal so that a sender opens the slave like a real device.
 
 URL: ``sim://marlin`` or ``sim://grbl`` with options ``?key=value&...`` (all optional):
@@ -17,7 +17,7 @@ rx                 receive buffer bytes (default 128; one stays empty: 127 usabl
 planner            planner blocks (default 16); slots: Marlin command queue (4)
 dialect            Marlin-protocol firmware: marlin-2.1 (default), marlin-2.0,
                    marlin-1.1, prusa, repetier, smoothieware, reprapfirmware
-                   (:mod:`fabkit.link.sim_dialects`)
+                   (:mod:`fabkit.link.emulator.dialects`)
 resend_ok, drain   override the dialect: ok after a resend request, drain on error (0/1)
 keepalive_s        Marlin busy: interval (default 2); heat_tau_s heater constant (20)
 corrupt            probability that a host line gets one bit flipped on the way
@@ -48,9 +48,8 @@ import tty
 from dataclasses import replace
 from urllib.parse import parse_qs, urlsplit
 
-from fabkit.link.sim_dialects import DIALECTS
-from fabkit.link.sim_grbl import REALTIME, GrblFirmware
-from fabkit.link.sim_machine import (
+from fabkit.link.emulator.dialects import DIALECTS
+from fabkit.link.emulator.firmware import (
     INF,
     Counters,
     EmulatorConfig,
@@ -60,7 +59,8 @@ from fabkit.link.sim_machine import (
     TraceEntry,
     flip_bit,
 )
-from fabkit.link.sim_marlin import MarlinFirmware
+from fabkit.link.emulator.grbl import REALTIME, GrblFirmware
+from fabkit.link.emulator.marlin import MarlinFirmware
 
 PERSONALITIES = ("marlin", "grbl")
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 from fabkit.link.arcs import Arc, centre_arc, radius_arc
 from fabkit.link.gcode import Block, GcodeError, grbl_reject
-from fabkit.link.tracker import AXES, ArcMove, Span, Speed, Tracker
+from fabkit.link.host.tracker import AXES, ArcMove, Span, Speed, Tracker
 
 _MOTION = ("G0", "G1", "G2", "G3", "G38.2", "G38.3", "G38.4", "G38.5", "G80")
 _NON_MODAL = ("G4", "G10", "G28", "G28.1", "G30", "G30.1", "G53", "G92", "G92.1")

@@ -1,0 +1,3 @@
+"""The host side of the link: the preflight check of a job against the machine profile
+(:mod:`~fabkit.link.host.preflight`), the firmware protocols (Marlin-like, GRBL), the
+sending session and :func:`~fabkit.link.host.send.send_file`."""
