@@ -65,7 +65,7 @@ from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.process import load_process, resolve_channels
 from fabkit.writers.dxf import layout_layers, write_dxf
-from fabkit.writers.export import ExportOptions, describe_dxf, export
+from fabkit.writers.export import ExportOptions, describe_dxf, write_machine_file
 
 if TYPE_CHECKING:
     from fabkit.link.host.session import SendReport
@@ -147,20 +147,21 @@ def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict
     say(f"      {part.summary()}")
 
     say("[2/7] drawing pictures and patch meshes")
-    pictures = render_design(solution.design, out / "pictures", part)
+    design = solution.design
+    pictures = render_design(design, out / "pictures", part, result.maps)
     meshes = [
         str(path)
         for path in write_patch_meshes(solution.design, out / "patches", options.mesh_format)
     ]
 
     if options.baromorph:
-        fabricated = _channels(options, out, part, say)
+        fabricated = _channels(options, out, design, part, say)
     elif load_machine(options.machine).kind == LASER_WRITER:
-        fabricated = _laser_patterns(options, out, part, say)
+        fabricated = _laser_patterns(options, out, design, part, say)
     else:
-        fabricated = _print_lines(options, out, part, say)
+        fabricated = _print_lines(options, out, design, part, say)
 
-    verification = _verify(options, out, part, say)
+    verification = _verify(options, out, design, part, say)
 
     sent = None
     if options.send:
@@ -285,7 +286,7 @@ def _part(options: RunOptions, design: Design) -> Part:
 
 
 def _verify(
-    options: RunOptions, out: Path, part: Part, say: Callable[[str], None]
+    options: RunOptions, out: Path, design: Design, part: Part, say: Callable[[str], None]
 ) -> dict[str, Any] | None:
     """Read the first machine file back and check it (None with --no-verify)."""
     if not options.verify:
@@ -305,6 +306,7 @@ def _verify(
             baromorph=options.baromorph,
             part=part,
         ),
+        design=design,
     )
     for line in result.table().splitlines()[1:-1]:
         say(f"      {line.strip()}")
@@ -350,9 +352,10 @@ class _Fabricated:
 
 
 def _print_lines(
-    options: RunOptions, out: Path, part: Part, say: Callable[[str], None]
+    options: RunOptions, out: Path, design: Design, part: Part, say: Callable[[str], None]
 ) -> _Fabricated:
-    """Print lines along the director, then the machine files."""
+    """Print lines along the director, then the machine files (from the toolpath in
+    memory; toolpath.npz is a side output)."""
     say(f"[3/7] planning print lines for {options.machine} at {options.size_mm:g} mm")
     job = run_job(
         ToolpathJob(
@@ -363,13 +366,13 @@ def _print_lines(
             ignore_features=options.ignore_features,
             out=str(out / "toolpath"),
             part=part,
+            design=design,
         )
     )
+    machine = load_machine(options.machine)
     say(f"[4/7] writing {', '.join(options.formats)}")
     exports = {
-        fmt: export(
-            out / "toolpath" / "toolpath.npz", options.machine, fmt, out / FORMAT_FILES[fmt]
-        )
+        fmt: write_machine_file(job.plan.toolpath, machine, fmt, out / FORMAT_FILES[fmt]).summary
         for fmt in options.formats
     }
     figures = {
@@ -383,30 +386,30 @@ def _print_lines(
 
 
 def _laser_patterns(
-    options: RunOptions, out: Path, part: Part, say: Callable[[str], None]
+    options: RunOptions, out: Path, design: Design, part: Part, say: Callable[[str], None]
 ) -> _Fabricated:
     """Photoalignment patterns straight from the design (no print lines)."""
     say("[3/7] no print lines: a laser writer exposes the director field directly")
     say("[4/7] writing laser/")
     process = load_process(options.process_file) if options.process_file else None
-    summary = export(
-        out / "design.npz",
-        options.machine,
+    summary = write_machine_file(
+        design,
+        load_machine(options.machine),
         "laser",
         out / "laser",
         ExportOptions(process=process, ignore_features=options.ignore_features, part=part),
-    )
+    ).summary
     record(out / "laser")  # the laser writer renames a whole folder into place
     caption = "Photoalignment pattern: binned director angle and the dose of each exposure (mm)"
     return _Fabricated({"exports": {"laser": summary}}, (caption, out / "laser" / "preview.png"))
 
 
 def _channels(
-    options: RunOptions, out: Path, part: Part, say: Callable[[str], None]
+    options: RunOptions, out: Path, design: Design, part: Part, say: Callable[[str], None]
 ) -> _Fabricated:
     """Baromorph channels whose width encodes eps, their mould, and a DXF for a cutter."""
     say(f"[3/7] laying out baromorph channels at {options.size_mm:g} mm")
-    fields = ToolpathJob(inputs=(str(out / "design.npz"),), part=part)
+    fields = ToolpathJob(inputs=(str(out / "design.npz"),), part=part, design=design)
     result = run_channel_job(
         ChannelJob(fields=fields, baromorph=options.baromorph, out=str(out / "channels"))
     )

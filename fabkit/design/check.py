@@ -164,8 +164,16 @@ def check_design(
 ) -> CheckReport:
     """Median and 95th percentile of every residual of every surface of ``design``
     (``spec``: the design's spec when the caller has it, else the design's own)."""
+    return check_maps(residual_maps(design, region, spec), tolerances)
+
+
+def check_maps(
+    maps: tuple[ResidualMaps, ...], tolerances: Tolerances = Tolerances()
+) -> CheckReport:
+    """The check of residual maps computed already (:func:`residual_maps`): their medians
+    and 95th percentiles against ``tolerances``."""
     surfaces = []
-    for surface in residual_maps(design, region, spec):
+    for surface in maps:
         points = int(np.isfinite(surface.maps["length_u"]).sum())
         stats = (_stats(surface.maps[key]) for key in RESIDUALS)
         surfaces.append(SurfaceCheck(surface.name, points, *stats))

@@ -72,6 +72,12 @@ class Design:
         """The spec this design solves, rebuilt once from the embedded JSON ``spec``."""
         return spec_from_json(self.spec)
 
+    def knowing(self, spec: Spec) -> Design:
+        """This design with :attr:`problem` set to ``spec``, the spec it was solved from,
+        so that the embedded JSON is not parsed again; returns the design itself."""
+        self.__dict__["problem"] = spec  # what the cached property would store
+        return self
+
     @property
     def step(self) -> float:
         """Grid step in u and v (design units)."""

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from fabkit.atomic import atomic_path
-from fabkit.design.check import CheckReport, check_design
+from fabkit.design.check import CheckReport, ResidualMaps, check_maps, residual_maps
 from fabkit.design.design import Design
 from fabkit.design.solver import Solution, solve
 from fabkit.errors import FabkitError
@@ -65,11 +65,13 @@ def summary(solution: Solution, check: CheckReport) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class Solved:
-    """A solve written to disk: the solution, its check, and the summary data."""
+    """A solve written to disk: the solution, its check (and the residual maps it was
+    computed from, for the pictures), and the summary data."""
 
     solution: Solution
     check: CheckReport
     summary: dict[str, Any]
+    maps: tuple[ResidualMaps, ...]
 
 
 def check_grid_size(spec: Spec) -> None:
@@ -100,11 +102,13 @@ def solve_to_file(
         solution = solve(spec, progress=bar)
     finally:
         bar.close()
-    check = check_design(solution.design)
+    design = solution.design.knowing(spec)
+    maps = residual_maps(design)
+    check = check_maps(maps)
     data = summary(solution, check)
-    solution.design.save(out)
+    design.save(out)
     write_summary(out.with_suffix(".json"), data)
-    return Solved(solution, check, data)
+    return Solved(solution, check, data, maps)
 
 
 def write_summary(path: str | Path, data: dict[str, Any]) -> None:

@@ -361,12 +361,15 @@ def _mask_outline(values: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> shapely
 
 
 def field_from_design(
-    path: str | Path,
+    source: Design | str | Path,
     size_mm: float | None = None,
     mm_per_unit: float | None = None,
     part: Part | PartOptions | None = None,
+    name: str | None = None,
 ) -> FlatField:
-    """The flat-sheet field of a solved ``design.npz`` on its part, scaled to millimetres.
+    """The flat-sheet field of a solved design (or ``design.npz``) on its part, scaled to
+    millimetres; ``name`` is the field's source in messages (default: the file, or
+    "design" for a value).
 
     ``part``: a :class:`~fabkit.field.part.Part` made already (its scale is the field's; then give
     neither size nor scale), or the options to make one (default :class:`PartOptions`: the
@@ -374,7 +377,7 @@ def field_from_design(
     side of the solved region's bounding box, mm) and ``mm_per_unit`` (mm per design unit).
     Every feature of the design is carried, named as in its spec.
     """
-    design = Design.load(path)
+    design, path = _design_and_name(source, name)
     if isinstance(part, Part):
         if part.mm_per_unit is None:
             raise FabkitError(f"{path}: the part has no scale in mm")
@@ -399,6 +402,13 @@ def field_from_design(
     return FlatField(
         part.outline_mm(), mesh.theta, features, f"{path}", keys, scale, mesh.everything, part
     )
+
+
+def _design_and_name(source: Design | str | Path, name: str | None) -> tuple[Design, str]:
+    """The design, and the name its messages give (``name``, else the file, or "design")."""
+    if isinstance(source, Design):
+        return source, name or "design"
+    return Design.load(source), name or str(source)
 
 
 def feature_names(design: Design, where: str = "design") -> tuple[str, ...]:

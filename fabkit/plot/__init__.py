@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fabkit.design.check import residual_maps
+from fabkit.design.check import ResidualMaps, residual_maps
 from fabkit.design.design import Design
 from fabkit.field.part import Part
 from fabkit.plot import design as pictures
@@ -30,14 +30,19 @@ DESIGN_PICTURES = (
 
 
 def render_design(
-    design: Design, folder: str | Path, part: Part | None = None
+    design: Design,
+    folder: str | Path,
+    part: Part | None = None,
+    maps: tuple[ResidualMaps, ...] | None = None,
 ) -> list[tuple[str, Path]]:
     """Draw the design pictures into ``folder`` (the flat sheet with its ``part``, default:
-    the part of :class:`fabkit.field.part.PartRules`' defaults); returns (caption, path) pairs."""
+    the part of :class:`fabkit.field.part.PartRules`' defaults; ``maps``: the check's
+    residual maps, computed here if not given); returns (caption, path) pairs."""
     folder = Path(folder)
     paths = {name: folder / name for name, _ in DESIGN_PICTURES}
     pictures.flat_sheet(design, paths["flat_sheet.png"], part)
     pictures.eps_maps(design, paths["eps.png"])
     pictures.actuated_surfaces(design, paths["surfaces.png"])
-    pictures.residual_maps(design, residual_maps(design), paths["residuals.png"])
+    maps = residual_maps(design) if maps is None else maps
+    pictures.residual_maps(design, maps, paths["residuals.png"])
     return [(caption, paths[name]) for name, caption in DESIGN_PICTURES]

@@ -82,7 +82,7 @@ def fabricate(spec: SwimmerSpec, out: Path) -> Made:
     gcode_file = out / "swimmer.gcode"
     save_toolpath(plan.toolpath, toolpath_file)
     save_preview(plan.toolpath, [f.outline for f in fields], [preview_file])
-    written = export(toolpath_file, settings.machine, "gcode", gcode_file)
+    written = export(toolpath_file, settings.machine, "gcode", gcode_file).summary
     printed = count * per_layer * process.layer_height_mm
     lines = [
         f"toolpath: {count * per_layer} printed layers ({per_layer} per sheet layer, bottom "

@@ -24,6 +24,7 @@ import numpy as np
 import shapely
 
 from fabkit.atomic import atomic_path, check_folder
+from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.flat import (
     FlatField,
@@ -57,8 +58,9 @@ class ToolpathJob:
 
     A design input is cut to its part (:mod:`fabkit.field.part`): ``outline`` (also a clip of a
     director field), ``min_width_mm`` (None: 4 road widths) and ``trim`` (bending lengths
-    of a sheet as thick as the layers; 0: none); ``part``: a part made already (``fabkit
-    run``) for the one design input.
+    of a sheet as thick as the layers; 0: none); ``part`` and ``design``: the part made
+    and the design loaded already (``fabkit run``) for the one design input, which then
+    names them.
     """
 
     inputs: tuple[str, ...] = ()
@@ -71,6 +73,7 @@ class ToolpathJob:
     min_width_mm: float | None = None
     trim: float | None = None
     part: Part | None = None
+    design: Design | None = None
     machine: str | None = None
     process_file: str | None = None
     road_width_mm: float | None = None
@@ -169,8 +172,8 @@ def load_fields(
         thickness_mm=thickness_mm,
         roads=roads,
     )
-    if job.part is not None and len(job.inputs) != 1:
-        raise FabkitError("a part made already goes with one design input")
+    if (job.part is not None or job.design is not None) and len(job.inputs) != 1:
+        raise FabkitError("a part or design made already goes with one design input")
     fields = [_load_input(path, job, job.part or options) for path in job.inputs]
     if job.director is not None:
         if job.shape is None:
@@ -191,9 +194,10 @@ def load_fields(
 def _load_input(path: str, job: ToolpathJob, part: Part | PartOptions) -> FlatField:
     suffix = Path(path).suffix
     if suffix == ".npz":
+        source = job.design or path  # the one design input, loaded already (fabkit run)
         if isinstance(part, Part):
-            return field_from_design(path, part=part)
-        return field_from_design(path, job.size_mm, job.mm_per_unit, part)
+            return field_from_design(source, part=part, name=path)
+        return field_from_design(source, job.size_mm, job.mm_per_unit, part, name=path)
     if suffix == ".toml":
         return load_director_file(path)
     raise FabkitError(f"input '{path}': expected a design .npz or a director .toml file")

@@ -28,6 +28,10 @@ from fabkit.toolpath.model import PRINT, Toolpath
 PANEL_INCHES = 6.0
 ROAD_SCALE = 0.6
 MAX_PANELS = 4
+COLOUR_LEVELS = 64
+"""Colour steps of the roads' channel (more than the eye tells apart on viridis)."""
+WIDTH_STEP = 0.02
+"""Relative width step at which a drawn road run is cut."""
 
 
 def save_preview(
@@ -92,11 +96,12 @@ def _draw_layer(
         ax.add_patch(PathPatch(_polygon_path(polygon), facecolor="0.88", edgecolor="0.5", lw=0.5))
     points_per_mm = PANEL_INCHES * 0.75 * 72 / extent  # axes span about 3/4 of the panel
     prints = [m for m in layer.moves if m.kind == PRINT]
-    segments = np.concatenate([_segments(m.xyz) for m in prints])
-    widths = np.concatenate([m.width[1:] for m in prints]) * points_per_mm * ROAD_SCALE
-    roads = LineCollection(segments, linewidths=widths, capstyle="round", joinstyle="round")
+    lines, widths, values = _road_runs(prints, channel, norm)
+    roads = LineCollection(
+        lines, linewidths=widths * points_per_mm * ROAD_SCALE, capstyle="round", joinstyle="round"
+    )
     if norm is not None:
-        roads.set_array(np.concatenate([m.channels[channel][1:] for m in prints]))
+        roads.set_array(values)
         roads.set_cmap("viridis")
         roads.set_norm(norm)
     else:
@@ -107,8 +112,41 @@ def _draw_layer(
         ax.add_collection(LineCollection(travels, linewidths=0.3, colors="0.15", alpha=0.7))
 
 
-def _segments(xyz: np.ndarray) -> np.ndarray:
-    return np.stack([xyz[:-1, :2], xyz[1:, :2]], axis=1)
+def _road_runs(
+    prints: list, channel: str | None, norm: Normalize | None
+) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """The print moves as polylines of one colour and width each: a move is cut where its
+    segments' value moves to another of COLOUR_LEVELS colour steps or its width by more
+    than WIDTH_STEP (relative). Returns the polylines ((k, 2) mm each), their widths (mm)
+    and values (the channel's, mid-step). Drawn per segment, a sheet is ~20,000 paths;
+    as runs, a few thousand (the SVG's size and drawing time follow)."""
+    width = np.concatenate([m.width[1:] for m in prints])
+    value = (
+        np.concatenate([m.channels[channel][1:] for m in prints])
+        if norm is not None
+        else np.zeros_like(width)
+    )
+    move = np.repeat(np.arange(len(prints)), [len(m.xyz) - 1 for m in prints])
+    colour = np.zeros(len(value), np.int64)
+    if norm is not None:
+        colour = np.floor(np.clip(norm(value), 0, 1) * (COLOUR_LEVELS - 1) + 0.5).astype(np.int64)
+    size = np.round(np.log(np.maximum(width, 1e-9)) / np.log1p(WIDTH_STEP)).astype(np.int64)
+    cut = np.ones(len(move), bool)
+    cut[1:] = (move[1:] != move[:-1]) | (colour[1:] != colour[:-1]) | (size[1:] != size[:-1])
+    starts = np.flatnonzero(cut)
+    ends = np.append(starts[1:], len(move))
+    vertices = [m.xyz[:, :2] for m in prints]
+    first = np.concatenate([[0], np.cumsum([len(m.xyz) - 1 for m in prints])[:-1]])
+    lines = [
+        vertices[move[a]][a - first[move[a]] : b - first[move[a]] + 1]
+        for a, b in zip(starts, ends, strict=True)
+    ]
+    if norm is not None:
+        steps = colour[starts] / (COLOUR_LEVELS - 1)
+        value = norm.inverse(steps) if norm.vmax > norm.vmin else value[starts]
+    else:
+        value = value[starts]
+    return lines, width[starts], np.asarray(value, float)
 
 
 def _width_quads(line: np.ndarray, widths: np.ndarray) -> np.ndarray:

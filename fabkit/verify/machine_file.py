@@ -202,13 +202,15 @@ def verify(
     machine_file: str | Path,
     options: VerifyOptions,
     progress: Callable[[int, int], None] | None = None,
+    design: Design | None = None,
 ) -> Verification:
     """Read ``machine_file`` back and check it against the design (module docstring).
 
-    ``progress(done, total)`` follows the simulations: ramp steps over every target."""
+    ``progress(done, total)`` follows the simulations: ramp steps over every target;
+    ``design``: the design in ``design_path``, loaded already (``fabkit run``)."""
     started = time.perf_counter()
     _check_options(options)
-    design = Design.load(design_path)
+    design = design or Design.load(design_path)
     names = feature_names(design, str(design_path))
     machine_file = Path(machine_file)
     if not machine_file.exists():
@@ -218,7 +220,9 @@ def verify(
     process = _process(options, machine)
     resolution = process.resolve(names, options.ignore_features)
     readback, placement, layers = _read(machine_file, kind, machine, process, resolution, options)
-    flat = _flat_field(design_path, options, placement, _part_options(options, process, layers))
+    flat = _flat_field(
+        design, str(design_path), options, placement, _part_options(options, process, layers)
+    )
     scale = float(flat.mm_per_unit)
     sheet = _Sheet.of(readback, flat)
     features = _features(readback, resolution, sheet, design, names)
@@ -401,22 +405,22 @@ def _placement(options: VerifyOptions, found: Placement) -> Placement:
 
 
 def _flat_field(
-    design_path: str | Path, options: VerifyOptions, placement: Placement, part: PartOptions
+    design: Design, name: str, options: VerifyOptions, placement: Placement, part: PartOptions
 ) -> FlatField:
     """The design's flat sheet in mm on its part: the part made already, else at --scale,
-    at --size, or at the file's scale."""
+    at --size, or at the file's scale (``name``: the design file, in messages)."""
     if options.part is not None:
-        return field_from_design(design_path, part=options.part)
+        return field_from_design(design, part=options.part, name=name)
     if options.mm_per_unit is not None:
-        return field_from_design(design_path, None, options.mm_per_unit, part)
+        return field_from_design(design, None, options.mm_per_unit, part, name=name)
     if options.size_mm is not None:
-        return field_from_design(design_path, options.size_mm, None, part)
+        return field_from_design(design, options.size_mm, None, part, name=name)
     if placement.mm_per_unit is None:
         raise FabkitError(
             f"{placement.source.split(' ')[0]}: the file does not record the sheet's scale; "
             "give --size MM (its longest side, as fabkit run --size) or --scale MM_PER_UNIT"
         )
-    return field_from_design(design_path, None, placement.mm_per_unit, part)
+    return field_from_design(design, None, placement.mm_per_unit, part, name=name)
 
 
 def _gcode_roads(

@@ -1,6 +1,8 @@
 """``fabkit export``: one input file, one machine, one format, one output.
 
-Inputs, recognised by content: a toolpath (``.npz``/``.json`` written by
+:func:`write_machine_file` writes from a value (a toolpath, a design or a director field)
+and returns an :class:`Exported`; :func:`export` reads the input file first. Inputs,
+recognised by content: a toolpath (``.npz``/``.json`` written by
 :func:`fabkit.toolpath.save_toolpath`), a design (``design.npz`` from ``fabkit solve``) or a
 director file (``.toml``, see :func:`fabkit.field.flat.load_director_file`).
 
@@ -25,11 +27,12 @@ from typing import Any
 import shapely
 import shapely.geometry
 
+from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField, field_from_design, load_director_file
 from fabkit.field.outlines import read_outline
 from fabkit.field.part import Part, PartOptions
-from fabkit.machines import load_machine
+from fabkit.machines import MachineProfile, load_machine
 from fabkit.npzfile import npz_keys
 from fabkit.process import Process
 from fabkit.readfile import read_json
@@ -71,52 +74,85 @@ class ExportOptions:
     trim: float | None = None
 
 
+@dataclass(frozen=True)
+class Exported:
+    """What one writer wrote: ``path`` (a file, or the laser writer's folder) in ``format``
+    for ``machine``, and ``summary``, its one-paragraph description (``fabkit export``
+    prints it; ``report.json`` keeps it)."""
+
+    path: Path
+    format: str
+    machine: str
+    summary: str
+
+    def __str__(self) -> str:
+        return self.summary
+
+
+Source = Toolpath | Design | FlatField
+"""What a machine file is written from: a toolpath (G-code, DXF), a solved design or a
+director field (laser patterns, the DXF outline)."""
+
+
 def export(
     source: str | Path,
     machine_name: str,
     fmt: str,
     out: str | Path,
     options: ExportOptions | None = None,
-) -> str:
-    """Write ``out`` in format ``fmt`` for the machine; returns a one-paragraph summary."""
+) -> Exported:
+    """Read the input file ``source`` (see :func:`read_input`) and write ``out`` in format
+    ``fmt`` for the named machine (:func:`write_machine_file`)."""
     options = options or ExportOptions()
     if fmt not in FORMATS:
         raise FabkitError(f"format '{fmt}' is not one of {', '.join(FORMATS)}")
     machine = load_machine(machine_name)
-    kind, loaded = read_input(Path(source))
-    if fmt == "gcode":
-        return _gcode(kind, loaded, machine, Path(out), options)
-    if fmt == "dxf":
-        return _dxf(kind, loaded, machine, Path(out), options)
-    return _laser(kind, loaded, machine, Path(out), options)
+    return write_machine_file(read_input(Path(source), options), machine, fmt, out, options)
 
 
-def read_input(path: Path) -> tuple[str, Any]:
-    """("toolpath", Toolpath), ("design", path) or ("director", path)."""
+def write_machine_file(
+    source: Source,
+    machine: MachineProfile,
+    fmt: str,
+    out: str | Path,
+    options: ExportOptions | None = None,
+) -> Exported:
+    """Write ``out`` in format ``fmt`` (gcode, dxf, laser) for ``machine`` from a value."""
+    options = options or ExportOptions()
+    writers = {"gcode": _gcode, "dxf": _dxf, "laser": _laser}
+    if fmt not in writers:
+        raise FabkitError(f"format '{fmt}' is not one of {', '.join(FORMATS)}")
+    summary = writers[fmt](source, machine, Path(out), options)
+    return Exported(Path(out), fmt, machine.name, summary)
+
+
+def read_input(path: Path, options: ExportOptions | None = None) -> Source:
+    """The toolpath, design or director field (clipped to ``options.outline``) in ``path``."""
     if not path.is_file():
         raise FabkitError(f"input file '{path}' does not exist")
     if path.suffix == ".toml":
-        return "director", path
+        flat = load_director_file(path)
+        outline = options.outline if options else None
+        return flat if outline is None else flat.clipped(read_outline(outline))
     if path.suffix == ".json":
-        return "toolpath", load_toolpath(path)
+        return load_toolpath(path)
     if path.suffix != ".npz":
         raise FabkitError(f"input '{path}': expected a toolpath or design .npz, or a .toml")
     names = npz_keys(path, f"{path}: cannot read")
     if {"valid", "r", "n", "eps"} <= names:
-        return "design", path
+        return Design.load(path)
     if "format" in names:
-        return "toolpath", load_toolpath(path)
+        return load_toolpath(path)
     raise FabkitError(f"{path}: neither a fabkit toolpath nor a design file")
 
 
-def _field(kind: str, path: Path, options: ExportOptions, process: Process) -> FlatField:
-    """The input's field; a design's cut to its part for ``process``'s road width and layer
-    height."""
-    if kind == "director":
-        flat = load_director_file(path)
-        return flat if options.outline is None else flat.clipped(read_outline(options.outline))
+def _field(source: Design | FlatField, options: ExportOptions, process: Process) -> FlatField:
+    """The source's field; a design's cut to its part for ``process``'s road width and
+    layer height."""
+    if isinstance(source, FlatField):
+        return source
     if options.part is not None:
-        return field_from_design(path, part=options.part)
+        return field_from_design(source, part=options.part)
     if options.size_mm is None and options.mm_per_unit is None:
         raise FabkitError(
             "a design is in design units: give its size (--size MM, longest side) "
@@ -129,17 +165,17 @@ def _field(kind: str, path: Path, options: ExportOptions, process: Process) -> F
         road_width_mm=process.road_width_mm,
         thickness_mm=process.layer_height_mm,
     )
-    return field_from_design(path, options.size_mm, options.mm_per_unit, part)
+    return field_from_design(source, options.size_mm, options.mm_per_unit, part)
 
 
-def _gcode(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions) -> str:
-    if kind != "toolpath":
+def _gcode(source: Source, machine: MachineProfile, out: Path, options: ExportOptions) -> str:
+    if not isinstance(source, Toolpath):
         raise FabkitError(
             "G-code is written from a toolpath: make one from the design first "
             "(fabkit toolpath), then export the toolpath"
         )
     gcode = replace(options.gcode, offset_mm=options.offset_mm)
-    return describe_gcode(out, write_gcode(loaded, machine, out, gcode), machine.name)
+    return describe_gcode(out, write_gcode(source, machine, out, gcode), machine.name)
 
 
 def describe_gcode(out: Path, s: GcodeSummary, machine: str) -> str:
@@ -161,14 +197,14 @@ def describe_gcode(out: Path, s: GcodeSummary, machine: str) -> str:
     )
 
 
-def _dxf(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions) -> str:
+def _dxf(source: Source, machine: MachineProfile, out: Path, options: ExportOptions) -> str:
     layers = load_geometry(options.geometry) if options.geometry else {}
     toolpath: Toolpath | None = None
-    if kind == "toolpath":
-        toolpath = loaded
+    if isinstance(source, Toolpath):
+        toolpath = source
     elif "outline" not in layers:
         process = options.process or machine.process
-        layers["outline"] = _field(kind, loaded, options, process).outline
+        layers["outline"] = _field(source, options, process).outline
     s = write_dxf(
         out,
         toolpath,
@@ -186,8 +222,8 @@ def describe_dxf(out: Path, s: DxfSummary, machine: str) -> str:
     return f"wrote {out}: entities per layer {counts}; offset {_xyz(s.offset_mm)} mm on {machine}"
 
 
-def _laser(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptions) -> str:
-    if kind == "toolpath":
+def _laser(source: Source, machine: MachineProfile, out: Path, options: ExportOptions) -> str:
+    if isinstance(source, Toolpath):
         raise FabkitError(
             "laser patterns are written from a director field: export the design.npz "
             "(or a director .toml), not a toolpath"
@@ -202,7 +238,7 @@ def _laser(kind: str, loaded: Any, machine: Any, out: Path, options: ExportOptio
         machine, **options.laser, process=options.process, ignore=options.ignore_features
     )
     # the part of a pattern: the writer's own pixel and film, whatever --process encodes
-    grid = sample_field(_field(kind, loaded, options, machine.process), pixel)
+    grid = sample_field(_field(source, options, machine.process), pixel)
     s = write_laser(grid, out, machine, settings, options.offset_mm)
     scan = f", {s.scan_lines} scan lines" if s.scan_lines else ""
     cures = len(s.manifest["cure_exposures"])

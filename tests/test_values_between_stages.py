@@ -1,0 +1,104 @@
+"""Issue 20: each command parses the spec once and computes the residual maps once; `fabkit
+run` hands the design and the toolpath from stage to stage in memory (the files it writes
+are side outputs, read by no later stage)."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+
+import fabkit.design.check
+import fabkit.design.design
+import fabkit.problem.spec
+import fabkit.toolpath.model
+from fabkit.design.report import solve_to_file
+from fabkit.field.flat import field_from_design
+from fabkit.machines import load_machine
+from fabkit.problem.spec import load_spec
+from fabkit.toolpath.model import load_toolpath
+from fabkit.writers.export import Exported, export, write_machine_file
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+COARSE = ("--step", "0.1", "--diagonals", "30")
+
+
+@pytest.fixture
+def counted(monkeypatch):
+    """Counts of the spec parses, residual-map computations and file reloads."""
+    calls: Counter[str] = Counter()
+
+    def counting(module, name: str, key: str) -> None:
+        real = getattr(module, name)
+
+        def wrapper(*args, **kwargs):
+            calls[key] += 1
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(module, name, wrapper)
+
+    counting(fabkit.problem.spec, "build_spec", "spec parses")
+    counting(fabkit.design.check, "residual_maps", "residual maps")
+    counting(fabkit.design.design.Design, "load", "design loads")
+    counting(fabkit.toolpath.model, "load_toolpath", "toolpath loads")
+    return calls
+
+
+def test_run_parses_once_computes_maps_once_and_reloads_nothing(tmp_path, run_cli, counted):
+    out = tmp_path / "out"
+    code, _, err = run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *COARSE)
+    assert code == 0, err
+    assert counted == {"spec parses": 1, "residual maps": 1}, counted
+    assert (out / "design.npz").is_file() and (out / "sheet.gcode").is_file()
+
+
+def test_verify_and_toolpath_parse_the_embedded_spec_once(tmp_path, run_cli, counted):
+    out = tmp_path / "out"
+    assert run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *COARSE)[0] == 0
+    counted.clear()
+    code, _, err = run_cli(
+        "verify", out / "design.npz", out / "sheet.gcode", "--machine", "marlin_diw_pneumatic"
+    )
+    assert code == 0, err
+    assert counted == {"spec parses": 1, "design loads": 1}, counted
+    counted.clear()
+    toolpath = ("toolpath", out / "design.npz", "--size", "60", "--out", tmp_path / "tp")
+    assert run_cli(*toolpath)[0] == 0
+    assert counted == {"spec parses": 1, "design loads": 1}, counted
+
+
+def test_export_from_a_value_writes_what_export_from_the_file_writes(tmp_path, run_cli):
+    out = tmp_path / "out"
+    assert run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *COARSE)[0] == 0
+    toolpath = load_toolpath(out / "toolpath" / "toolpath.npz")
+    machine = load_machine("marlin_diw_pneumatic")
+    from_value = write_machine_file(toolpath, machine, "gcode", tmp_path / "value.gcode")
+    from_file = export(
+        out / "toolpath" / "toolpath.npz", machine.name, "gcode", tmp_path / "file.gcode"
+    )
+    assert isinstance(from_value, Exported) and from_value.format == "gcode"
+    assert from_value.machine == machine.name == from_file.machine
+    assert (tmp_path / "value.gcode").read_bytes() == (tmp_path / "file.gcode").read_bytes()
+    # the run wrote the same machine file from the toolpath it held in memory
+    assert (out / "sheet.gcode").read_bytes() == (tmp_path / "file.gcode").read_bytes()
+    assert from_value.summary.startswith(f"wrote {tmp_path / 'value.gcode'}: ")
+
+
+def test_the_design_in_memory_gives_the_field_its_file_gives(tmp_path):
+    spec = load_spec(EXAMPLES / "two_shapes.toml").with_solver(step=0.1, diagonals=30)
+    solved = solve_to_file(spec, tmp_path / "design.npz")
+    in_memory = field_from_design(solved.solution.design, size_mm=60.0)
+    from_file = field_from_design(tmp_path / "design.npz", size_mm=60.0)
+    assert in_memory.outline.equals(from_file.outline)
+    x0, y0, x1, y1 = from_file.outline.bounds
+    points = np.stack(np.meshgrid(np.linspace(x0, x1, 40), np.linspace(y0, y1, 40)), -1)
+    points = points.reshape(-1, 2)
+    inside = shapely.contains_xy(from_file.outline, points[:, 0], points[:, 1])
+    assert inside.sum() > 100
+    assert np.array_equal(in_memory.theta(points[inside]), from_file.theta(points[inside]))
+    for name, eps in from_file.features.items():
+        xy = points[inside]
+        assert np.array_equal(in_memory.features[name](xy[:, 0], xy[:, 1]), eps(xy[:, 0], xy[:, 1]))
