@@ -38,6 +38,9 @@ from fabkit.tomlfile import read_toml
 MACHINES_DIR = PROFILES_DIR
 """The shipped profiles (see :mod:`fabkit.shipped`)."""
 
+DEFAULT_MACHINE = "marlin_diw_pneumatic"
+"""The profile used when no machine is given (a pneumatic DIW printer with two inks; see
+``machines/marlin_diw_pneumatic.toml``)."""
 KINDS = ("extrusion_printer", "pneumatic_diw", "laser_writer", "cutter_plotter")
 FLAVOURS = ("marlin", "klipper", "reprap", "grbl", "hyrel", "none")
 PROTOCOLS = ("marlin", "grbl")

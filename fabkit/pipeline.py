@@ -57,7 +57,7 @@ from fabkit.field.part import (
     solved_region,
 )
 from fabkit.figures import AREA_UNIT
-from fabkit.machines import load_machine
+from fabkit.machines import DEFAULT_MACHINE, load_machine
 from fabkit.plot import render_design
 from fabkit.plot.report import html_report
 from fabkit.problem.spec import Spec, load_spec
@@ -71,7 +71,6 @@ if TYPE_CHECKING:
     from fabkit.link.host.session import SendReport
 
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
-DEFAULT_MACHINE = "marlin_diw_pneumatic"
 BAROMORPH_MACHINE = "laser_cutter"
 LASER_WRITER = "laser_writer"
 DEFAULT_SIZE_MM = 60.0

@@ -4,6 +4,8 @@ are side outputs, read by no later stage)."""
 
 from __future__ import annotations
 
+import importlib
+import sys
 from collections import Counter
 from pathlib import Path
 
@@ -12,9 +14,9 @@ import pytest
 import shapely
 
 import fabkit.design.check
-import fabkit.design.design
 import fabkit.problem.spec
 import fabkit.toolpath.model
+from fabkit.design.design import Design
 from fabkit.design.report import solve_to_file
 from fabkit.field.flat import field_from_design
 from fabkit.machines import load_machine
@@ -28,22 +30,33 @@ COARSE = ("--step", "0.1", "--diagonals", "30")
 
 @pytest.fixture
 def counted(monkeypatch):
-    """Counts of the spec parses, residual-map computations and file reloads."""
+    """Counts of the spec parses, residual-map computations and file reloads: every fabkit
+    module that holds the function (imported by name) gets the counting wrapper."""
+    for module in ("fabkit.pipeline", "fabkit.commands.verify", "fabkit.commands.toolpath"):
+        importlib.import_module(module)  # load every stage before wrapping
     calls: Counter[str] = Counter()
 
-    def counting(module, name: str, key: str) -> None:
-        real = getattr(module, name)
-
+    def counting(real, key: str) -> None:
         def wrapper(*args, **kwargs):
             calls[key] += 1
             return real(*args, **kwargs)
 
-        monkeypatch.setattr(module, name, wrapper)
+        for name, module in list(sys.modules.items()):
+            if name.startswith("fabkit"):
+                for attribute, value in list(vars(module).items()):
+                    if value is real:
+                        monkeypatch.setattr(module, attribute, wrapper)
 
-    counting(fabkit.problem.spec, "build_spec", "spec parses")
-    counting(fabkit.design.check, "residual_maps", "residual maps")
-    counting(fabkit.design.design.Design, "load", "design loads")
-    counting(fabkit.toolpath.model, "load_toolpath", "toolpath loads")
+    counting(fabkit.problem.spec.build_spec, "spec parses")
+    counting(fabkit.design.check.residual_maps, "residual maps")
+    counting(fabkit.toolpath.model.load_toolpath, "toolpath loads")
+    real_load = Design.load.__func__
+
+    def load(cls, *args, **kwargs):
+        calls["design loads"] += 1
+        return real_load(cls, *args, **kwargs)
+
+    monkeypatch.setattr(Design, "load", classmethod(load))
     return calls
 
 

@@ -7,9 +7,9 @@ import argparse
 from fabkit.commands import add_overwrite, help_of
 from fabkit.commands.toolpath import part_arguments
 from fabkit.design.patches import MESH_TYPES
+from fabkit.machines import DEFAULT_MACHINE
 from fabkit.pipeline import (
     BAROMORPH_MACHINE,
-    DEFAULT_MACHINE,
     DEFAULT_SIZE_MM,
     FORMAT_FILES,
     RunOptions,

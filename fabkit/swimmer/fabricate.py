@@ -17,6 +17,7 @@ from typing import Any
 
 from fabkit.errors import FabkitError
 from fabkit.field.flat import field_from_expression, parse_shape
+from fabkit.machines import DEFAULT_MACHINE
 from fabkit.swimmer.spec import SwimmerSpec
 from fabkit.tomlfile import check_keys, number
 from fabkit.toolpath.model import save_toolpath
@@ -24,8 +25,6 @@ from fabkit.toolpath.plan import PATTERNS, PlanSettings, plan_toolpath
 from fabkit.toolpath.preview import save_preview
 from fabkit.toolpath.process import machine_process
 from fabkit.writers.export import export
-
-DEFAULT_MACHINE = "marlin_diw_pneumatic"
 
 
 @dataclass(frozen=True)

@@ -28,13 +28,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from fabkit.errors import FabkitError
-from fabkit.machines import list_machines, load_machine, parse_process
+from fabkit.machines import DEFAULT_MACHINE, list_machines, load_machine, parse_process
 from fabkit.process import Process, Resolution
 from fabkit.tomlfile import read_toml
-
-DEFAULT_MACHINE = "marlin_diw_pneumatic"
-"""The profile whose ``[process]`` is used when no machine is given (a pneumatic DIW
-printer with two inks; see ``machines/marlin_diw_pneumatic.toml``)."""
 
 
 def machine_process(name_or_path: str | None) -> Process:

@@ -35,7 +35,7 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField, feature_names, field_from_design
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
-from fabkit.machines import MachineProfile, load_machine
+from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
 from fabkit.mechanics.simulate import Settings
@@ -43,7 +43,7 @@ from fabkit.process import Encode, Process, Resolution
 from fabkit.readfile import read_json
 from fabkit.tomlfile import number
 from fabkit.toolpath.baromorph import load_baromorph
-from fabkit.toolpath.process import DEFAULT_MACHINE, load_process
+from fabkit.toolpath.process import load_process
 from fabkit.verify.raster import Readback, Roads, rasterise
 from fabkit.verify.read_dxf import read_channels, read_dxf
 from fabkit.verify.read_gcode import Placement, Printed, read_gcode
