@@ -50,8 +50,7 @@ from fabkit.field.part import (
     MIN_WIDTH_PITCHES,
     MIN_WIDTH_ROADS,
     Part,
-    PartOptions,
-    check_part_options,
+    PartRequest,
     print_part,
     scale_for_size,
     solved_region,
@@ -87,9 +86,8 @@ class RunOptions:
     G-code. ``machine`` None: laser_cutter for baromorph channels, else a pneumatic DIW.
     ``ignore_features`` are left out of the machine file on purpose; ``verify`` reads the
     machine file back and checks it (:mod:`fabkit.verify`). ``overwrite`` replaces the
-    files an earlier run wrote into ``out`` (else such a folder is refused). ``outline``,
-    ``min_width_mm`` and ``trim`` cut the part (:class:`fabkit.field.part.PartOptions`; None: the
-    defaults).
+    files an earlier run wrote into ``out`` (else such a folder is refused).
+    ``part_request`` cuts the part (:class:`fabkit.field.part.PartRequest`).
     """
 
     spec: str
@@ -106,9 +104,7 @@ class RunOptions:
     ignore_features: tuple[str, ...] = ()
     verify: bool = True
     overwrite: bool = False
-    outline: str | None = None
-    min_width_mm: float | None = None
-    trim: float | None = None
+    part_request: PartRequest = PartRequest()
 
 
 def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dict[str, Any]:
@@ -213,7 +209,7 @@ def _check_inputs(options: RunOptions) -> Spec:
     if not (math.isfinite(options.size_mm) and options.size_mm > 0):
         raise FabkitError(f"--size {options.size_mm:g}: expected a positive finite number")
     check_folder(options.out, f"--out {options.out}")
-    check_part_options(options.min_width_mm, options.trim, options.outline)
+    options.part_request.check()
     spec = load_spec(options.spec)
     patch_paths(spec.targets, Path(options.out) / "patches", options.mesh_format)
     if options.step is not None or options.diagonals is not None:
@@ -272,14 +268,7 @@ def _part(options: RunOptions, design: Design) -> Part:
     return print_part(
         design,
         scale_for_size(solved, options.size_mm),
-        PartOptions(
-            min_width_mm=options.min_width_mm,
-            trim=options.trim,
-            outline=options.outline,
-            road_width_mm=road,
-            thickness_mm=thickness,
-            roads=roads,
-        ),
+        options.part_request.for_process(road, thickness, roads),
         solved,
     )
 

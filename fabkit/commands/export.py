@@ -10,7 +10,7 @@ import argparse
 from pathlib import Path
 
 from fabkit.commands import add_overwrite, help_of
-from fabkit.commands.toolpath import part_arguments
+from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.machines import RELATIONS
 from fabkit.writers.common import FORMATS, IMAGE_FORMATS
 from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
@@ -103,9 +103,7 @@ def run(args: argparse.Namespace) -> int:
         mm_per_unit=args.scale,
         process=load_process(args.process) if args.process else None,
         ignore_features=tuple(args.ignore_feature),
-        outline=args.outline,
-        min_width_mm=args.min_width,
-        trim=args.trim,
+        part_request=part_request(args),
         gcode=GcodeOptions(
             e_mode=args.e_mode,
             e_units=args.e_units,

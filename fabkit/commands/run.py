@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from fabkit.commands import add_overwrite, help_of
-from fabkit.commands.toolpath import part_arguments
+from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.design.patches import MESH_TYPES
 from fabkit.machines import DEFAULT_MACHINE
 from fabkit.pipeline import (
@@ -108,9 +108,7 @@ def run(args: argparse.Namespace) -> int:
         ignore_features=tuple(args.ignore_feature),
         verify=not args.no_verify,
         overwrite=args.overwrite,
-        outline=args.outline,
-        min_width_mm=args.min_width,
-        trim=args.trim,
+        part_request=part_request(args),
     )
     figures = run_pipeline(options)
     print(

@@ -7,6 +7,7 @@ import sys
 
 from fabkit.atomic import output_folder
 from fabkit.commands import add_overwrite, help_of
+from fabkit.field.part import PartRequest
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.plan import PATTERNS
 
@@ -110,6 +111,11 @@ def part_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def part_request(args: argparse.Namespace) -> PartRequest:
+    """The part options of :func:`part_arguments`, as one value."""
+    return PartRequest(outline=args.outline, min_width_mm=args.min_width, trim=args.trim)
+
+
 def _fields(args: argparse.Namespace, **extra) -> ToolpathJob:
     return ToolpathJob(
         inputs=tuple(args.inputs),
@@ -118,9 +124,7 @@ def _fields(args: argparse.Namespace, **extra) -> ToolpathJob:
         eps=args.eps,
         size_mm=args.size,
         mm_per_unit=args.scale,
-        outline=args.outline,
-        min_width_mm=args.min_width,
-        trim=args.trim,
+        part_request=part_request(args),
         **extra,
     )
 

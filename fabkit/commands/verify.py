@@ -10,7 +10,7 @@ import argparse
 import json
 
 from fabkit.commands import help_of
-from fabkit.commands.toolpath import part_arguments
+from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.progress import ProgressBar, add_progress
 
 
@@ -116,9 +116,7 @@ def run(args: argparse.Namespace) -> int:
         stride=args.stride,
         max_iterations=args.max_iterations,
         baromorph=args.baromorph,
-        outline=args.outline,
-        min_width_mm=args.min_width,
-        trim=args.trim,
+        part_request=part_request(args),
     )
     bar = ProgressBar("simulating the sheet as made", force=args.progress)
     try:

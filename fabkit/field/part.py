@@ -93,6 +93,39 @@ class PartRules:
 
 
 @dataclass(frozen=True)
+class PartRequest:
+    """What the user asks of the part: ``outline`` (the ``--outline`` text), ``min_width_mm``
+    (``--min-width``) and ``trim`` in bending lengths (``--trim``); None: the defaults.
+    Every command that cuts a part from a design takes one."""
+
+    outline: str | None = None
+    min_width_mm: float | None = None
+    trim: float | None = None
+
+    def check(self) -> None:
+        """Refuse bad part options before any work: lengths negative or not finite, an
+        outline that cannot be read."""
+        if self.min_width_mm is not None:
+            _check_length(self.min_width_mm, "--min-width")
+        if self.trim is not None:
+            _check_length(self.trim, "--trim")
+        if self.outline is not None:
+            read_outline(self.outline)
+
+    def for_process(
+        self,
+        road_width_mm: float | None,
+        thickness_mm: float | None,
+        roads: float = MIN_WIDTH_ROADS,
+    ) -> PartOptions:
+        """The options for a process of this road width (mm) making a sheet this thick
+        (mm), by default no narrower than ``roads`` road widths."""
+        return PartOptions(
+            self.min_width_mm, self.trim, self.outline, road_width_mm, thickness_mm, roads
+        )
+
+
+@dataclass(frozen=True)
 class PartOptions:
     """What a command is told about the part, in mm (see :func:`print_part`).
 
@@ -413,17 +446,6 @@ def diameter(region: shapely.Geometry) -> float:
     hull = np.asarray(shapely.get_coordinates(region.convex_hull), dtype=float)
     differences = hull[:, None, :] - hull[None, :, :]
     return float(np.sqrt(np.max(np.einsum("ijk,ijk->ij", differences, differences))))
-
-
-def check_part_options(min_width_mm: float | None, trim: float | None, outline: str | None) -> None:
-    """Refuse bad part options before any work: lengths negative or not finite, an outline
-    that cannot be read."""
-    if min_width_mm is not None:
-        _check_length(min_width_mm, "--min-width")
-    if trim is not None:
-        _check_length(trim, "--trim")
-    if outline is not None:
-        read_outline(outline)
 
 
 def _check_length(value: float, name: str, positive: bool = False) -> None:

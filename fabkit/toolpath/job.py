@@ -34,7 +34,7 @@ from fabkit.field.flat import (
     parse_shape,
 )
 from fabkit.field.outlines import read_outline
-from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
+from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
 from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES
 from fabkit.process import Process
 from fabkit.toolpath.baromorph import (
@@ -56,9 +56,9 @@ from fabkit.toolpath.process import load_process, machine_process, resolve_chann
 class ToolpathJob:
     """What to make (see ``fabkit toolpath --help``); lengths in mm.
 
-    A design input is cut to its part (:mod:`fabkit.field.part`): ``outline`` (also a clip of a
-    director field), ``min_width_mm`` (None: 4 road widths) and ``trim`` (bending lengths
-    of a sheet as thick as the layers; 0: none); ``part`` and ``design``: the part made
+    A design input is cut to its part (:mod:`fabkit.field.part`) by ``part_request`` (its
+    outline also clips a director field; its trim is in bending lengths of a sheet as thick
+    as the layers); ``part`` and ``design``: the part made
     and the design loaded already (``fabkit run``) for the one design input, which then
     names them.
     """
@@ -69,9 +69,7 @@ class ToolpathJob:
     eps: str | None = None
     size_mm: float | None = None
     mm_per_unit: float | None = None
-    outline: str | None = None
-    min_width_mm: float | None = None
-    trim: float | None = None
+    part_request: PartRequest = PartRequest()
     part: Part | None = None
     design: Design | None = None
     machine: str | None = None
@@ -164,14 +162,7 @@ def load_fields(
     """The flat-sheet fields of the job's inputs, in order (bottom layer first); a design
     is cut to its part for a process of this road width (mm) making a sheet this thick
     (mm), by default no narrower than ``roads`` road widths."""
-    options = PartOptions(
-        min_width_mm=job.min_width_mm,
-        trim=job.trim,
-        outline=job.outline,
-        road_width_mm=road_width_mm,
-        thickness_mm=thickness_mm,
-        roads=roads,
-    )
+    options = job.part_request.for_process(road_width_mm, thickness_mm, roads)
     if (job.part is not None or job.design is not None) and len(job.inputs) != 1:
         raise FabkitError("a part or design made already goes with one design input")
     fields = [_load_input(path, job, job.part or options) for path in job.inputs]
@@ -185,8 +176,8 @@ def load_fields(
         raise FabkitError("--shape and --eps go with --director")
     if not fields:
         raise FabkitError("give a design.npz or director .toml input, or --director with --shape")
-    if job.outline is not None:
-        clip = read_outline(job.outline)
+    if job.part_request.outline is not None:
+        clip = read_outline(job.part_request.outline)
         fields = [f if f.part is not None else f.clipped(clip) for f in fields]
     return fields
 

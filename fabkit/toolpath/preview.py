@@ -128,8 +128,11 @@ def _road_runs(
     )
     move = np.repeat(np.arange(len(prints)), [len(m.xyz) - 1 for m in prints])
     colour = np.zeros(len(value), np.int64)
-    if norm is not None:
-        colour = np.floor(np.clip(norm(value), 0, 1) * (COLOUR_LEVELS - 1) + 0.5).astype(np.int64)
+    if norm is not None:  # a value that is not finite (a layer not encoded): its own step, -1
+        scaled = np.clip(np.asarray(norm(value), float), 0, 1) * (COLOUR_LEVELS - 1) + 0.5
+        finite = np.isfinite(scaled)
+        colour[finite] = np.floor(scaled[finite]).astype(np.int64)
+        colour[~finite] = -1
     size = np.round(np.log(np.maximum(width, 1e-9)) / np.log1p(WIDTH_STEP)).astype(np.int64)
     cut = np.ones(len(move), bool)
     cut[1:] = (move[1:] != move[:-1]) | (colour[1:] != colour[:-1]) | (size[1:] != size[:-1])
@@ -143,7 +146,7 @@ def _road_runs(
     ]
     if norm is not None:
         steps = colour[starts] / (COLOUR_LEVELS - 1)
-        value = norm.inverse(steps) if norm.vmax > norm.vmin else value[starts]
+        value = np.where(colour[starts] >= 0, norm.inverse(steps), np.nan)
     else:
         value = value[starts]
     return lines, width[starts], np.asarray(value, float)

@@ -34,7 +34,7 @@ from scipy import ndimage
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField, feature_names, field_from_design
-from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions
+from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
@@ -67,8 +67,8 @@ class VerifyOptions:
     the design's grid for them (default: about :data:`TARGET_TRIANGLES` triangles);
     ``baromorph`` the channel settings of a baromorph drawing (its channels are read
     instead of roads). The design's part (:mod:`fabkit.field.part`) is ``part`` when made
-    already (``fabkit run``), else made as the file's maker made it: by ``outline``,
-    ``min_width_mm`` and ``trim`` for the process's road width and a sheet as thick as
+    already (``fabkit run``), else made as the file's maker made it: by ``part_request``
+    for the process's road width and a sheet as thick as
     the layers the file prints (a baromorph drawing: its part thickness). Coverage is
     measured on the part, and the simulations mesh its cells.
     """
@@ -86,9 +86,7 @@ class VerifyOptions:
     max_iterations: int = 100
     baromorph: str | None = None
     part: Part | None = None
-    outline: str | None = None
-    min_width_mm: float | None = None
-    trim: float | None = None
+    part_request: PartRequest = PartRequest()
 
 
 @dataclass(frozen=True)
@@ -271,14 +269,7 @@ def _part_options(options: VerifyOptions, process: Process, layers: int) -> Part
     else:
         road, thickness = process.road_width_mm, layers * process.layer_height_mm
         roads = MIN_WIDTH_ROADS
-    return PartOptions(
-        min_width_mm=options.min_width_mm,
-        trim=options.trim,
-        outline=options.outline,
-        road_width_mm=road,
-        thickness_mm=thickness,
-        roads=roads,
-    )
+    return options.part_request.for_process(road, thickness, roads)
 
 
 def _check_options(options: VerifyOptions) -> None:

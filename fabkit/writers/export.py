@@ -31,7 +31,7 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField, field_from_design, load_director_file
 from fabkit.field.outlines import read_outline
-from fabkit.field.part import Part, PartOptions
+from fabkit.field.part import Part, PartRequest
 from fabkit.machines import MachineProfile, load_machine
 from fabkit.npzfile import npz_keys
 from fabkit.process import Process
@@ -54,8 +54,8 @@ class ExportOptions:
     ``process`` replaces the profile's process for laser patterns (its dose channels);
     ``ignore_features`` are features left out of the laser patterns on purpose.
     A design is cut to its part (:mod:`fabkit.field.part`): ``part`` made already (``fabkit
-    run``), else made by ``outline``, ``min_width_mm`` and ``trim`` for the process's road
-    width and layer height; ``outline`` also clips a director file's field.
+    run``), else made by ``part_request`` for the process's road width and layer height;
+    its ``outline`` also clips a director file's field.
     """
 
     offset_mm: tuple[float, ...] | None = None
@@ -69,9 +69,7 @@ class ExportOptions:
     pixel_mm: float | None = None
     laser: dict[str, Any] = field(default_factory=dict)
     part: Part | None = None
-    outline: str | None = None
-    min_width_mm: float | None = None
-    trim: float | None = None
+    part_request: PartRequest = PartRequest()
 
 
 @dataclass(frozen=True)
@@ -132,7 +130,7 @@ def read_input(path: Path, options: ExportOptions | None = None) -> Source:
         raise FabkitError(f"input file '{path}' does not exist")
     if path.suffix == ".toml":
         flat = load_director_file(path)
-        outline = options.outline if options else None
+        outline = options.part_request.outline if options else None
         return flat if outline is None else flat.clipped(read_outline(outline))
     if path.suffix == ".json":
         return load_toolpath(path)
@@ -158,13 +156,7 @@ def _field(source: Design | FlatField, options: ExportOptions, process: Process)
             "a design is in design units: give its size (--size MM, longest side) "
             "or --scale MM_PER_UNIT"
         )
-    part = PartOptions(
-        min_width_mm=options.min_width_mm,
-        trim=options.trim,
-        outline=options.outline,
-        road_width_mm=process.road_width_mm,
-        thickness_mm=process.layer_height_mm,
-    )
+    part = options.part_request.for_process(process.road_width_mm, process.layer_height_mm)
     return field_from_design(source, options.size_mm, options.mm_per_unit, part)
 
 
