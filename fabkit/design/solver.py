@@ -35,6 +35,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from fabkit.design import kernels
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.expr import Expression
@@ -692,78 +693,47 @@ def _refuse_bad_start(failed: np.ndarray) -> None:
 # --- the propagation equations ------------------------------------------------------------
 
 
-def _rates(problem: _Problem, state: State) -> tuple[tuple[State, State], np.ndarray]:
-    """Derivatives in u and in v of every variable, and a failure code per point.
+def _rates(
+    problem: _Problem, state: State, mask: np.ndarray | None = None
+) -> tuple[tuple[State, State], np.ndarray]:
+    """Derivatives in u and in v of every variable, and a failure code per point, at the
+    points of ``mask`` (Q, L) (default: every point); NaN rates and code 0 elsewhere.
 
     Returns ``((du, dv), failed)`` with ``failed`` (Q, L) int (0 = fine, else an index
     into REASONS) and, as ``du["n_unit"]``, the directors renormalised in their metrics.
+    The material's response and the targets' geometry are evaluated here (numpy, on every
+    point at once); the rest is :func:`fabkit.design.kernels.rates`, point by point.
     """
-    alpha, beta, b, s = state["alpha"], state["beta"], state["b"], state["s"]
-    eps, p, q, r, n = state["eps"], state["p"], state["q"], state["r"], state["n"]
-    response = problem.spec.material.response(np.moveaxis(eps, -1, 0), problem.stimuli)
-    lam1 = np.moveaxis(response.lambda1, 0, -1)  # (Q, L, S)
-    lam2 = np.moveaxis(response.lambda2, 0, -1)
-    l1e = np.moveaxis(response.l1_e, (0, 1), (-2, -1))  # (Q, L, S, N)
-    l2e = np.moveaxis(response.l2_e, (0, 1), (-2, -1))
-    l1ee = np.moveaxis(response.l1_ee, (0, 1, 2), (-3, -2, -1))  # (Q, L, S, N, N)
-    l2ee = np.moveaxis(response.l2_ee, (0, 1, 2), (-3, -2, -1))
-
-    l1q, l2q = _contract(l1e, q), _contract(l2e, q)  # (Q, L, S)
-    l1p, l2p = _contract(l1e, p), _contract(l2e, p)
-    ku = (b[..., None] - l1q) / lam2
-    kv = (s[..., None] + l2p) / lam1
-
-    g, gamma, curvature, inside = _geometry(problem, r)
-    g00, g01, g10, g11 = g[..., 0, 0], g[..., 0, 1], g[..., 1, 0], g[..., 1, 1]
-    n0, n1 = n[..., 0], n[..., 1]
-    gn0, gn1 = g00 * n0 + g01 * n1, g10 * n0 + g11 * n1
-    norm = np.sqrt(n0 * gn0 + n1 * gn1)
-    n0, n1, gn0, gn1 = n0 / norm, n1 / norm, gn0 / norm, gn1 / norm
-    root_det = np.sqrt(g00 * g11 - g01**2)
-    m0, m1 = -gn1 / root_det, gn0 / root_det  # n_perp
-
-    stretch_u = alpha[..., None] * lam1  # (Q, L, S): alpha lambda1
-    stretch_v = beta[..., None] * lam2
-    gamma_nn = _christoffel(gamma, n0, n1, n0, n1)
-    gamma_pn = _christoffel(gamma, m0, m1, n0, n1)
-
-    matrix = _curvature_matrix(problem.along, lam1, lam2, l1e, l2e)
-    k_bar = (
-        -(ku**2)
-        - kv**2
-        - (_quadratic(l1ee, q) + (b[..., None] - l1q) * l2q) / lam2**2
-        - (_quadratic(l2ee, p) - (s[..., None] + l2p) * l1p) / lam1**2
+    shape = state["alpha"].shape
+    flat = {
+        key: np.ascontiguousarray(value).reshape((-1,) + value.shape[2:])
+        for key, value in state.items()
+    }
+    index = np.arange(flat["alpha"].shape[0]) if mask is None else np.flatnonzero(mask)
+    response = problem.spec.material.response(flat["eps"][index].T, problem.stimuli)
+    lam1, lam2 = (np.ascontiguousarray(x.T) for x in (response.lambda1, response.lambda2))
+    l1e, l2e, l1ee, l2ee = (
+        np.ascontiguousarray(np.moveaxis(x, -1, 0))
+        for x in (response.l1_e, response.l2_e, response.l1_ee, response.l2_ee)
     )
-    singular = _singular(matrix)
-    safe = np.where(singular[..., None, None], np.eye(matrix.shape[-1]), matrix)
-    with np.errstate(all="ignore"):
-        w = np.linalg.solve(safe, (curvature - k_bar)[..., None])[..., 0]  # (Q, L, S)
-
-    n_unit = np.stack([n0, n1], -1)
-    n_perp = np.stack([m0, m1], -1)
-    du = {
-        "beta": alpha * beta * s,
-        "s": alpha * w[..., 1],
-        "eps": alpha[..., None] * p,
-        "p": alpha[..., None] * w[..., 2:],
-        "r": stretch_u[..., None] * n_unit,
-        "n": stretch_u[..., None] * (ku[..., None] * n_perp - gamma_nn),
-        "n_unit": n_unit,
-    }
-    dv = {
-        "alpha": -alpha * beta * b,
-        "b": beta * w[..., 0],
-        "eps": beta[..., None] * q,
-        "q": beta[..., None] * w[..., 2:],
-        "r": stretch_v[..., None] * n_perp,
-        "n": stretch_v[..., None] * (kv[..., None] * n_perp - gamma_pn),
-    }
-    failed = _failures(problem, state, lam1, lam2, inside, singular, du, dv)
-    return (du, dv), failed
+    g, gamma, curvature, inside = _geometry(problem, flat["r"][index])
+    du, dv, failed = kernels.rates(
+        index, flat["alpha"], flat["beta"], flat["b"], flat["s"], flat["eps"], flat["p"],
+        flat["q"], flat["r"], flat["n"], lam1, lam2, l1e, l2e, l1ee, l2ee,
+        g, gamma, curvature, inside,
+        problem.along, problem.spec.solver.max_strain, DET_TOLERANCE, ISOTROPIC_TOLERANCE,
+    )  # fmt: skip
+    du_keys = ("beta", "s", "eps", "p", "r", "n", "n_unit")
+    dv_keys = ("alpha", "b", "eps", "q", "r", "n")
+    rates = tuple(
+        {key: value.reshape(shape + value.shape[1:]) for key, value in zip(keys, part, strict=True)}
+        for keys, part in ((du_keys, du), (dv_keys, dv))
+    )
+    return rates, failed.reshape(shape)
 
 
 def _geometry(problem: _Problem, r: np.ndarray):
-    """Metric, Christoffel symbols, K and chart membership of every surface at r (Q, L, S, 2)."""
+    """Metric, Christoffel symbols, K and chart membership of every surface at r (..., S, 2)."""
     parts = [surface.geometry(r[..., j, :]) for j, surface in enumerate(problem.surfaces)]
     inside = np.stack(
         [surface.contains(r[..., j, :]) for j, surface in enumerate(problem.surfaces)], -1
@@ -772,92 +742,6 @@ def _geometry(problem: _Problem, r: np.ndarray):
     gamma = np.stack([part[1] for part in parts], -4)
     curvature = np.stack([part[2] for part in parts], -1)
     return g, gamma, curvature, inside
-
-
-def _contract(derivative: np.ndarray, slope: np.ndarray) -> np.ndarray:
-    """sum_i derivative[..., s, i] slope[..., i]: (..., S, N) and (..., N) -> (..., S)."""
-    total = derivative[..., 0] * slope[..., None, 0]
-    for i in range(1, slope.shape[-1]):
-        total = total + derivative[..., i] * slope[..., None, i]
-    return total
-
-
-def _quadratic(hessian: np.ndarray, slope: np.ndarray) -> np.ndarray:
-    """sum_ij hessian[..., s, i, j] slope[..., i] slope[..., j]: (..., S, N, N) -> (..., S)."""
-    count = slope.shape[-1]
-    total = None
-    for i in range(count):
-        for j in range(count):
-            term = hessian[..., i, j] * (slope[..., None, i] * slope[..., None, j])
-            total = term if total is None else total + term
-    return total
-
-
-def _christoffel(gamma: np.ndarray, a0, a1, b0, b1) -> np.ndarray:
-    """Gamma^i_kl a^k b^l (..., S, 2) from gamma (..., S, 2, 2, 2) and vectors' components."""
-    return np.stack(
-        [
-            gamma[..., i, 0, 0] * a0 * b0
-            + gamma[..., i, 0, 1] * a0 * b1
-            + gamma[..., i, 1, 0] * a1 * b0
-            + gamma[..., i, 1, 1] * a1 * b1
-            for i in (0, 1)
-        ],
-        -1,
-    )
-
-
-def _curvature_matrix(along, lam1, lam2, l1e, l2e) -> np.ndarray:
-    """M (Q, L, S, S): K_j = M_j . w + Kbar_j with w = (d_v b/beta, d_u s/alpha, w_1..w_N)."""
-    columns = [1 / lam2**2, -1 / lam1**2]
-    for i, is_along in enumerate(along):
-        columns.append(-l1e[..., i] / lam2**2 if is_along else -l2e[..., i] / lam1**2)
-    return np.stack(columns, -1)
-
-
-def _singular(matrix: np.ndarray) -> np.ndarray:
-    """True where det M is near zero relative to the product of M's row norms."""
-    with np.errstate(all="ignore"):
-        scale = np.prod(np.linalg.norm(matrix, axis=-1), axis=-1)
-        finite = np.all(np.isfinite(matrix), axis=(-2, -1))
-        det = np.linalg.det(np.where(finite[..., None, None], matrix, 0.0))
-        return ~finite | ~(np.abs(det) > DET_TOLERANCE * scale)
-
-
-def _failures(problem, state, lam1, lam2, inside, singular, du, dv) -> np.ndarray:
-    """First failure reason per point (Q, L); 0 where the point is fine."""
-    values = [state[k] for k in ("alpha", "beta", "b", "s", "eps", "p", "q", "r", "n")]
-    values += [du["n"], dv["n"], du["s"], dv["b"], du["p"], dv["q"]]
-    shape = state["alpha"].shape
-    finite = np.ones(shape, dtype=bool)
-    for x in values:
-        finite &= np.isfinite(x.reshape(*shape, -1)).all(-1)
-    targets = slice(1, None)
-    with np.errstate(invalid="ignore"):
-        checks = [
-            (NON_FINITE, ~finite),
-            (ALPHA, ~(state["alpha"] > 0)),
-            (BETA, ~(state["beta"] > 0)),
-            (LAMBDA, np.any(~(lam1 > 0) | ~(lam2 > 0), axis=-1)),
-            (
-                STRAIN,
-                np.any(
-                    np.maximum(abs(lam1 - 1), abs(lam2 - 1)) > problem.spec.solver.max_strain,
-                    axis=-1,
-                ),
-            ),
-            (
-                ISOTROPIC,
-                np.all(
-                    abs(lam1 - lam2)[..., targets]
-                    <= ISOTROPIC_TOLERANCE * (lam1 + lam2)[..., targets],
-                    axis=-1,
-                ),
-            ),
-            (DET_M, singular),
-            (CHART, np.any(~inside, axis=-1)),
-        ]
-    return np.select([bad for _, bad in checks], [code for code, _ in checks], 0)
 
 
 # --- marching -----------------------------------------------------------------------------
@@ -895,14 +779,14 @@ def _advance(problem, grid, old, rates_old, window: _Window, d, u_data, v_data, 
     )
     predicted = _propagate(problem, old, rates_old, None, d, u_data, v_data)
     fail_predicted = _cross_derive(problem, predicted, ok_new, d, u_data, v_data)
-    rates_predicted, failed = _rates_where(problem, predicted, ok_new & (fail_predicted == 0))
+    rates_predicted, failed = _rates(problem, predicted, ok_new & (fail_predicted == 0))
     failed = np.where(fail_predicted, fail_predicted, failed)
     ok_predicted = ok_new & (failed == 0)
     corrected = _propagate(problem, old, rates_old, rates_predicted, d, u_data, v_data)
     fail_corrected = _cross_derive(problem, corrected, ok_predicted, d, u_data, v_data)
     ok_corrected = ok_predicted & (fail_corrected == 0)
     _share_axes(problem, corrected, ok_corrected)
-    rates_new, failed_new = _rates_where(problem, corrected, ok_corrected)
+    rates_new, failed_new = _rates(problem, corrected, ok_corrected)
     corrected["n"] = rates_new[0]["n_unit"]
     failed = np.where(failed, failed, np.where(fail_corrected, fail_corrected, failed_new))
     failed = np.where(ok_new, failed, 0)
@@ -938,30 +822,6 @@ def _trim(state: State, rates, window: _Window):
     state = {key: cut(value) for key, value in state.items()}
     rates = tuple({key: cut(value) for key, value in part.items()} for part in rates)
     return state, rates, _Window(window.offset + first, cut(valid))
-
-
-def _rates_where(problem: _Problem, state: State, mask: np.ndarray):
-    """:func:`_rates` at the points of ``mask`` (Q, L) only; NaN rates elsewhere."""
-    if mask.all() or not mask.any():
-        return _rates(problem, state)
-    picked = {key: value[mask][None] for key, value in state.items()}
-    rates, failed = _rates(problem, picked)
-    out = np.zeros(mask.shape, dtype=int)
-    out[mask] = failed[0]
-    return _scatter_rates(mask, rates), out
-
-
-def _scatter_rates(mask: np.ndarray, rates):
-    """Rates on the full diagonal (NaN off the mask) from rates at the masked points."""
-    scattered = []
-    for part in rates:
-        full = {}
-        for key, value in part.items():
-            out = np.full(mask.shape + value.shape[2:], np.nan)
-            out[mask] = value[0]
-            full[key] = out
-        scattered.append(full)
-    return tuple(scattered)
 
 
 def _share_axes(problem: _Problem, state: State, ok: np.ndarray) -> None:
