@@ -242,3 +242,108 @@ def _failure(
         if not inside[k, j]:
             return CHART
     return 0
+
+
+WEST, SOUTH, MEAN, MEAN_ENDS = range(4)
+"""How :func:`propagate` gets a component on the next diagonal: from its west source
+(u-propagated; the v-curve's data at the diagonal's start), from its south source
+(v-propagated; the u-curve's data at its end), or the mean of the two (at the ends: the
+one source there, or with MEAN_ENDS the curves' data)."""
+
+
+@numba.njit(cache=True, error_model="numpy")
+def propagate(old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v, u_end, v_end, mode):
+    """One variable on diagonal d+1 (R, L+1, F) from diagonal d (R, L, F): Euler with the
+    rates at d, or with ``heun`` the trapezoidal rule with the rates at d+1 too.
+
+    du_old, dv_old (R, L, F) and du_new, dv_new (R, L+1, F): the variable's rates in u and
+    v (a rate the component's ``mode`` (F,) does not use is never read); step_u, step_v
+    (R,): signed grid steps; u_end, v_end (R, F): the initial curves' data at the ends of
+    diagonal d+1 (the u-curve's at its last point, the v-curve's at its first).
+    """
+    rows, length, size = old.shape
+    new = np.empty((rows, length + 1, size))
+    for row in range(rows):
+        for f in range(size):
+            kind = mode[f]
+            for k in range(length + 1):
+                west, south = np.nan, np.nan
+                if kind != SOUTH and k >= 1:
+                    slope = du_old[row, k - 1, f]
+                    if heun:
+                        slope = 0.5 * (slope + du_new[row, k, f])
+                    west = old[row, k - 1, f] + step_u[row] * slope
+                if kind != WEST and k < length:
+                    slope = dv_old[row, k, f]
+                    if heun:
+                        slope = 0.5 * (slope + dv_new[row, k, f])
+                    south = old[row, k, f] + step_v[row] * slope
+                if kind == WEST:
+                    value = v_end[row, f] if k == 0 else west
+                elif kind == SOUTH:
+                    value = u_end[row, f] if k == length else south
+                elif k == 0:
+                    value = v_end[row, f] if kind == MEAN_ENDS else south
+                elif k == length:
+                    value = u_end[row, f] if kind == MEAN_ENDS else west
+                else:
+                    value = 0.5 * (west + south)
+                new[row, k, f] = value
+    return new
+
+
+@numba.njit(cache=True, error_model="numpy")
+def cross_derive(eps, alpha, beta, p, q, ok, along, step, sign_u, sign_v, p_end, q_end, code):
+    """p of along features and q of across features from eps along the diagonal.
+
+    eps, p, q (R, L, N); alpha, beta, ok (R, L); along (N,); step, sign_u, sign_v (R,);
+    p_end, q_end (R, N): the initial curves' p at the diagonal's last point and q at its
+    first. d eps / (index step) = h (sign_u eps_u - sign_v eps_v), from valid points only
+    (centred where both neighbours are valid, else one-sided with three points, else two);
+    with the characteristic derivative known, the other one follows. Returns the new p, q
+    and ``code`` (R, L) where a valid point has no valid neighbour for the difference
+    and needs one, else 0.
+    """
+    rows, length, features = eps.shape
+    new_p, new_q = p.copy(), q.copy()
+    failed = np.zeros((rows, length), dtype=np.int64)
+    any_along, any_across = False, False
+    for i in range(features):
+        any_along = any_along or along[i]
+        any_across = any_across or not along[i]
+    for row in range(rows):
+        h, su, sv = step[row], sign_u[row], sign_v[row]
+        for k in range(length):
+            om1 = k >= 1 and ok[row, k - 1]
+            om2 = k >= 2 and ok[row, k - 2]
+            op1 = k + 1 < length and ok[row, k + 1]
+            op2 = k + 2 < length and ok[row, k + 2]
+            need = (any_along and k != length - 1) or (any_across and k != 0)
+            if ok[row, k] and not (op1 or om1) and need:
+                failed[row, k] = code
+            for i in range(features):
+                c0 = eps[row, k, i]
+                if om1 and op1:
+                    slope = (eps[row, k + 1, i] - eps[row, k - 1, i]) / 2
+                elif op1 and op2:
+                    slope = (-3 * c0 + 4 * eps[row, k + 1, i] - eps[row, k + 2, i]) / 2
+                elif om1 and om2:
+                    slope = (3 * c0 - 4 * eps[row, k - 1, i] + eps[row, k - 2, i]) / 2
+                elif op1:
+                    slope = eps[row, k + 1, i] - c0
+                elif om1:
+                    slope = c0 - eps[row, k - 1, i]
+                else:
+                    slope = np.nan
+                if along[i]:
+                    if k == length - 1:
+                        new_p[row, k, i] = p_end[row, i]
+                    else:
+                        eps_v = beta[row, k] * q[row, k, i]
+                        new_p[row, k, i] = su * (slope / h + sv * eps_v) / alpha[row, k]
+                elif k == 0:
+                    new_q[row, k, i] = q_end[row, i]
+                else:
+                    eps_u = alpha[row, k] * p[row, k, i]
+                    new_q[row, k, i] = sv * (su * eps_u - slope / h) / beta[row, k]
+    return new_p, new_q, failed

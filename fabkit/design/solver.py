@@ -841,115 +841,76 @@ def _share_axes(problem: _Problem, state: State, ok: np.ndarray) -> None:
 
 
 def _propagate(problem, old, rates_old, rates_new, d, u_data, v_data) -> State:
-    """Values on diagonal d+1 from diagonal d: Euler (rates_new None) or trapezoidal."""
-    along = problem.along
-    step_u, step_v = problem.step * problem.sign_u, problem.step * problem.sign_v
+    """Values on diagonal d+1 from diagonal d: Euler (rates_new None) or trapezoidal.
 
-    def rate(kind: int, key: str) -> np.ndarray:
-        """Effective slope for the step: (Q, d+1, ...) along u (kind 0) or v (kind 1)."""
-        first = rates_old[kind][key]
-        if rates_new is None:
-            return first
-        second = rates_new[kind][key]
-        second = second[:, 1:] if kind == 0 else second[:, :-1]
-        return 0.5 * (first + second)
-
-    def from_west(key: str) -> np.ndarray:
-        slope = rate(0, key)
-        return old[key] + _expand(step_u, slope.ndim) * slope
-
-    def from_south(key: str) -> np.ndarray:
-        slope = rate(1, key)
-        return old[key] + _expand(step_v, slope.ndim) * slope
-
-    v_end = {k: val[:, d + 1 : d + 2] for k, val in v_data.items()}
-    u_end = {k: val[:, d + 1 : d + 2] for k, val in u_data.items()}
+    u-propagated variables (:data:`U_SET`, p) come from their west source, v-propagated
+    ones (:data:`V_SET`, q) from their south source, eps feature by feature as it acts,
+    r and n from both (the mean). p and q are taken as propagated here; their
+    cross-derived components are replaced later (:func:`_cross_derive`).
+    """
+    rows, length = old["alpha"].shape
+    steps = ((problem.step * problem.sign_u)[:, 0], (problem.step * problem.sign_v)[:, 0])
+    heun = rates_new is not None
+    rates = rates_old + (rates_new if heun else rates_old)  # du, dv at d; du, dv at d+1
+    ends = tuple({k: val[:, d + 1] for k, val in data.items()} for data in (u_data, v_data))
     new: State = {}
-    for key in U_SET:
-        new[key] = np.concatenate([v_end[key], from_west(key)], 1)
-    for key in V_SET:
-        new[key] = np.concatenate([from_south(key), u_end[key]], 1)
-    eps_u = np.concatenate([v_end["eps"], from_west("eps")], 1)
-    eps_v = np.concatenate([from_south("eps"), u_end["eps"]], 1)
-    new["eps"] = np.where(along, eps_v, eps_u)
-    p_u = np.concatenate([v_end["p"], from_west("p")], 1)
-    q_v = np.concatenate([from_south("q"), u_end["q"]], 1)
-    new["p"], new["q"] = p_u, q_v  # cross-derived components are replaced later
-    for key in ("r", "n"):
-        west, south = from_west(key), from_south(key)
-        middle = 0.5 * (west[:, :-1] + south[:, 1:])
-        new[key] = np.concatenate([south[:, :1], middle, west[:, -1:]], 1)
-        end = "r0" if key == "r" else "n0"
-        new[key][:, 0, 0] = v_end[end][:, 0]
-        new[key][:, -1, 0] = u_end[end][:, 0]
+    for key, value in old.items():
+        shape = value.shape[2:]
+        if key in U_SET + ("p",):
+            modes, u_end, v_end = np.full(shape, kernels.WEST), ends[1][key], ends[1][key]
+        elif key in V_SET + ("q",):
+            modes, u_end, v_end = np.full(shape, kernels.SOUTH), ends[0][key], ends[0][key]
+        elif key == "eps":
+            modes = np.where(problem.along, kernels.SOUTH, kernels.WEST)
+            u_end, v_end = ends[0][key], ends[1][key]
+        else:  # r, n
+            modes = np.full(shape, kernels.MEAN)
+            modes[0] = kernels.MEAN_ENDS
+            u_end, v_end = _curve_ends(ends[0][key + "0"], ends[1][key + "0"], shape)
+        # a variable without a rate in one direction passes the other (never read)
+        sources = []
+        for du, dv in (rates[:2], rates[2:]):
+            sources += [du.get(key, dv.get(key)), dv.get(key, du.get(key))]
+        flat = [np.ascontiguousarray(x).reshape(x.shape[:2] + (-1,)) for x in [value, *sources]]
+        new[key] = kernels.propagate(
+            *flat,
+            heun,
+            *steps,
+            np.ascontiguousarray(u_end).reshape(rows, -1),
+            np.ascontiguousarray(v_end).reshape(rows, -1),
+            modes.ravel(),
+        ).reshape((rows, length + 1) + shape)
     return new
 
 
-def _expand(sign: np.ndarray, ndim: int) -> np.ndarray:
-    """Per-row values (R, 1) shaped to broadcast against an array of ndim dimensions."""
-    return sign.reshape(sign.shape + (1,) * (ndim - 2))
+def _curve_ends(u_end: np.ndarray, v_end: np.ndarray, shape: tuple[int, ...]):
+    """The curves' chart point or tangent (R, 2) at the ends of a diagonal as the first
+    surface's entries of arrays (R, S, 2) (the flat sheet is the one the curves lie on)."""
+    arrays = []
+    for end in (u_end, v_end):
+        full = np.full((end.shape[0],) + shape, np.nan)
+        full[:, 0] = end
+        arrays.append(full)
+    return arrays
 
 
 def _cross_derive(problem, state, ok, d, u_data, v_data) -> np.ndarray:
-    """Fill p of along features and q of across features from eps along the diagonal.
-
-    d eps / (index step) = h (sign_u eps_u - sign_v eps_v); with the characteristic
-    derivative known, the other one follows. Returns a failure code per point (Q, L)
-    where no valid neighbour exists for the difference.
-    """
-    h, along = problem.step[..., None], problem.along
-    su, sv = problem.sign_u[..., None], problem.sign_v[..., None]
-    slope, has = _diagonal_difference(state["eps"], ok)
-    alpha, beta = state["alpha"][..., None], state["beta"][..., None]
-    eps_v_along = beta * state["q"]
-    eps_u_across = alpha * state["p"]
-    p_along = su * (slope / h + sv * eps_v_along) / alpha
-    q_across = sv * (su * eps_u_across - slope / h) / beta
-    state["p"] = np.where(along, p_along, state["p"])
-    state["q"] = np.where(along, state["q"], q_across)
-    state["p"][:, -1] = np.where(along, u_data["p"][:, d + 1], state["p"][:, -1])
-    state["q"][:, 0] = np.where(along, state["q"][:, 0], v_data["q"][:, d + 1])
-    position = np.arange(ok.shape[1])
-    need = (along.any() & (position != ok.shape[1] - 1)) | ((~along).any() & (position != 0))
-    return np.where(ok & ~has & need, ISOLATED, 0)
-
-
-def _diagonal_difference(values: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """d values / d index along axis 1, second order where possible, over valid points only.
-
-    Centred where both neighbours are valid, else one-sided with three points, else two.
-    Returns (derivative per index step, whether one could be formed).
-    """
-    pad = [(0, 0), (2, 2)] + [(0, 0)] * (values.ndim - 2)
-    v = np.pad(values, pad, constant_values=np.nan)
-    o = np.pad(ok, [(0, 0), (2, 2)], constant_values=False)
-    length = values.shape[1]
-
-    def at(shift: int):
-        return v[:, 2 + shift : 2 + shift + length], o[:, 2 + shift : 2 + shift + length]
-
-    (m2, om2), (m1, om1), (c0, _), (p1, op1), (p2, op2) = (at(k) for k in (-2, -1, 0, 1, 2))
-    extra = (Ellipsis,) + (None,) * (values.ndim - 2)
-    centred = (om1 & op1)[extra]
-    forward3 = (op1 & op2)[extra]
-    backward3 = (om1 & om2)[extra]
-    forward2, backward2 = op1[extra], om1[extra]
-    with np.errstate(invalid="ignore"):
-        derivative = np.where(
-            centred,
-            (p1 - m1) / 2,
-            np.where(
-                forward3,
-                (-3 * c0 + 4 * p1 - p2) / 2,
-                np.where(
-                    backward3,
-                    (3 * c0 - 4 * m1 + m2) / 2,
-                    np.where(forward2, p1 - c0, np.where(backward2, c0 - m1, np.nan)),
-                ),
-            ),
-        )
-    has = op1 | om1
-    return derivative, has
+    """Fill p of along features and q of across features from eps along the diagonal
+    (:func:`fabkit.design.kernels.cross_derive`). Returns a failure code per point (Q, L)
+    where no valid neighbour exists for the difference."""
+    contiguous = {k: np.ascontiguousarray(state[k]) for k in ("eps", "alpha", "beta", "p", "q")}
+    state["p"], state["q"], failed = kernels.cross_derive(
+        *contiguous.values(),
+        np.ascontiguousarray(ok),
+        problem.along,
+        problem.step[:, 0],
+        problem.sign_u[:, 0],
+        problem.sign_v[:, 0],
+        np.ascontiguousarray(u_data["p"][:, d + 1]),
+        np.ascontiguousarray(v_data["q"][:, d + 1]),
+        ISOLATED,
+    )
+    return failed
 
 
 class _Grid:
