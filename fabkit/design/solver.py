@@ -307,20 +307,24 @@ def _error_control(problem: _Problem, index: np.ndarray, error: np.ndarray):
 
     A point over it is dropped with its quarter-plane of influence (every point further
     from both axes in its quadrant: the points it is a source of). Returns the mask and
-    one stop per point over tolerance that no other such point influences.
+    one stop per point over tolerance that no other such point influences. Influence
+    runs away from the axes, so the square around the origin that holds the points is
+    all the grid it needs.
     """
     size = problem.diagonals[COARSE]
-    shape = (2 * size + 1, 2 * size + 1)
+    rows, cols = np.divmod(index, 2 * size + 1)
+    half = int(np.max(np.abs(np.concatenate([rows, cols]) - size), initial=0))
+    box = (rows - size + half) * (2 * half + 1) + (cols - size + half)
     with np.errstate(invalid="ignore"):
-        over = np.zeros(shape, dtype=bool)
-        over.flat[index] = ~(error <= problem.spec.solver.tolerance)
+        over = np.zeros((2 * half + 1, 2 * half + 1), dtype=bool)
+        over.flat[box] = ~(error <= problem.spec.solver.tolerance)
     dropped, inherited = _influence(over)
     step = problem.spec.solver.step
     stops = tuple(
-        Stop(REASONS[ERROR], float((i - size) * step), float((j - size) * step), None)
+        Stop(REASONS[ERROR], float((i - half) * step), float((j - half) * step), None)
         for i, j in zip(*np.nonzero(over & ~inherited), strict=True)
     )
-    return ~dropped.flat[index], stops
+    return ~dropped.flat[box], stops
 
 
 def _influence(sources: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,134 @@
+"""The solver's compiled kernels (fabkit/design/kernels.py) against their definitions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fabkit.design import kernels, solver
+from fabkit.spec import build_spec
+from tests.conftest import EXAMPLES, example_table
+
+
+@pytest.mark.parametrize("size", [2, 3, 4, 5])
+def test_the_lu_solve_agrees_with_lapack(size):
+    rng = np.random.default_rng(size)
+    for _ in range(20):
+        matrix = rng.normal(size=(size, size)) + size * np.eye(size)
+        rhs = rng.normal(size=size)
+        out = np.empty(size)
+        det = kernels._lu_solve(matrix.copy(), rhs.copy(), out)
+        np.testing.assert_allclose(out, np.linalg.solve(matrix, rhs), rtol=1e-12, atol=1e-13)
+        np.testing.assert_allclose(det, np.linalg.det(matrix), rtol=1e-12)
+    # a permutation needs pivoting: a zero on the diagonal
+    matrix = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 2.0], [3.0, 0.0, 0.0]])
+    out = np.empty(3)
+    det = kernels._lu_solve(matrix.copy(), np.array([1.0, 2.0, 3.0]), out)
+    np.testing.assert_allclose(out, [1.0, 1.0, 1.0])
+    assert det == pytest.approx(np.linalg.det(matrix))
+
+
+def diagonal_state():
+    """The problem of Fig. 1 (step 0.1) and a made-up diagonal (R, 6) around its origin."""
+    table = example_table("two_shapes.toml")
+    table["solver"].update(step=0.1, diagonals=4)
+    spec = build_spec(table, EXAMPLES)
+    results = [None]
+    problem, _, _, origin, _, kept = solver._start([spec], results)
+    assert kept == [0]
+    rng = np.random.default_rng(0)
+    state = {}
+    for key, value in origin.items():
+        tiled = np.repeat(value, 6, axis=1)
+        state[key] = tiled * (1 + 0.05 * rng.uniform(-1, 1, tiled.shape))
+    state["alpha"][0, 2] = -1.0  # one point fails (a defect)
+    return problem, state
+
+
+def test_rates_at_the_masked_points_do_not_depend_on_the_others():
+    """A point's rates and failure are its own: computed alone, with others, or for every
+    point, they are the same; off the mask they are NaN and 0."""
+    problem, state = diagonal_state()
+    (du_all, dv_all), failed_all = solver._rates(problem, state)
+    assert failed_all[0, 2] == solver.ALPHA
+    assert (failed_all[:, [0, 1, 3]] == 0).all()
+    mask = np.zeros(failed_all.shape, dtype=bool)
+    mask[0, 2] = mask[1, 1:4] = mask[-1, -1] = True
+    (du, dv), failed = solver._rates(problem, state, mask)
+    assert np.array_equal(failed, np.where(mask, failed_all, 0))
+    for every, some in ((du_all, du), (dv_all, dv)):
+        assert every.keys() == some.keys()
+        for key, value in some.items():
+            expand = mask.reshape(mask.shape + (1,) * (value.ndim - 2))
+            assert np.array_equal(value, np.where(expand, every[key], np.nan), equal_nan=True)
+    (du_none, _), failed_none = solver._rates(problem, state, np.zeros_like(mask))
+    assert not failed_none.any() and np.isnan(du_none["beta"]).all()
+
+
+def numpy_step(old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v):
+    """The west and south estimates of a step (the numpy formulation)."""
+    slope_u, slope_v = du_old, dv_old
+    if heun:
+        slope_u, slope_v = 0.5 * (du_old + du_new[:, 1:]), 0.5 * (dv_old + dv_new[:, :-1])
+    west = old + step_u[:, None, None] * slope_u
+    south = old + step_v[:, None, None] * slope_v
+    return west, south
+
+
+@pytest.mark.parametrize("heun", [False, True])
+def test_propagate_takes_each_component_from_its_sources(heun):
+    rng = np.random.default_rng(1)
+    rows, length = 3, 5
+    modes = np.array([kernels.WEST, kernels.SOUTH, kernels.MEAN, kernels.MEAN_ENDS])
+    size = len(modes)
+    old, du_old, dv_old = (rng.normal(size=(rows, length, size)) for _ in range(3))
+    du_new, dv_new = (rng.normal(size=(rows, length + 1, size)) for _ in range(2))
+    step_u, step_v = rng.normal(size=rows), rng.normal(size=rows)
+    u_end, v_end = rng.normal(size=(rows, size)), rng.normal(size=(rows, size))
+    new = kernels.propagate(
+        old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v, u_end, v_end, modes
+    )
+    west, south = numpy_step(old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v)
+    assert new.shape == (rows, length + 1, size)
+    assert np.array_equal(new[:, 1:, 0], west[..., 0]) and np.array_equal(new[:, 0, 0], v_end[:, 0])
+    assert np.array_equal(new[:, :-1, 1], south[..., 1])
+    assert np.array_equal(new[:, -1, 1], u_end[:, 1])
+    for f in (2, 3):
+        middle = 0.5 * (west[:, :-1, f] + south[:, 1:, f])
+        assert np.array_equal(new[:, 1:-1, f], middle)
+    assert np.array_equal(new[:, 0, 2], south[:, 0, 2])
+    assert np.array_equal(new[:, -1, 2], west[:, -1, 2])
+    assert np.array_equal(new[:, 0, 3], v_end[:, 3])
+    assert np.array_equal(new[:, -1, 3], u_end[:, 3])
+
+
+def test_cross_derivatives_from_eps_along_the_diagonal():
+    """eps quadratic along the diagonal: the centred and the three-point differences are
+    exact, the two-point ones are not; a valid point with no valid neighbour fails; the
+    ends take the curves' data; the characteristic components stay as they are."""
+    rows, length, h = 2, 8, 0.1
+    k = np.arange(length, dtype=float)
+    values = 0.5 + 0.2 * k + 0.01 * k**2
+    eps = np.repeat(np.stack([values, values], -1)[None], rows, axis=0)  # (R, L, 2)
+    ok = np.ones((rows, length), dtype=bool)
+    ok[1] = [True, True, False, True, False, True, True, True]
+    slope = np.repeat((0.2 + 0.02 * k)[None], rows, axis=0)  # d eps / d index, exact
+    slope[1, [0, 1]] = values[1] - values[0]  # two-point differences on row 1
+    slope[1, 3] = np.nan  # no valid neighbour
+    alpha, beta = np.full((rows, length), 2.0), np.full((rows, length), 4.0)
+    p, q = np.full((rows, length, 2), 0.3), np.full((rows, length, 2), -0.1)
+    along = np.array([True, False])
+    sign_u, sign_v = np.array([1.0, -1.0]), np.array([1.0, 1.0])
+    p_end, q_end = np.full((rows, 2), 7.0), np.full((rows, 2), 9.0)
+    new_p, new_q, failed = kernels.cross_derive(
+        eps, alpha, beta, p, q, ok, along, np.full(rows, h), sign_u, sign_v, p_end, q_end, 99
+    )
+    su, sv = sign_u[:, None], sign_v[:, None]
+    p_along = su * (slope / h + sv * beta * q[..., 0]) / alpha
+    q_across = sv * (su * alpha * p[..., 1] - slope / h) / beta
+    p_along[:, -1], q_across[:, 0] = 7.0, 9.0
+    valid = ok & ~np.isnan(slope)
+    np.testing.assert_allclose(new_p[..., 0][valid], p_along[valid], rtol=1e-12)
+    np.testing.assert_allclose(new_q[..., 1][valid], q_across[valid], rtol=1e-12)
+    assert np.array_equal(new_p[..., 1], p[..., 1]) and np.array_equal(new_q[..., 0], q[..., 0])
+    assert failed[1, 3] == 99 and failed.sum() == 99
