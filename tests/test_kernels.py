@@ -47,22 +47,23 @@ def diagonal_state():
 
 def test_rates_at_the_masked_points_do_not_depend_on_the_others():
     """A point's rates and failure are its own: computed alone, with others, or for every
-    point, they are the same; off the mask they are NaN and 0."""
+    point, they are the same; off the mask there are none (index -1, code 0)."""
     problem, state = diagonal_state()
-    (du_all, dv_all), failed_all = solver._rates(problem, state)
+    (du_all, dv_all, at_all), failed_all = solver._rates(problem, state)
+    assert np.array_equal(at_all.ravel(), np.arange(at_all.size))
     assert failed_all[0, 2] == solver.ALPHA
     assert (failed_all[:, [0, 1, 3]] == 0).all()
     mask = np.zeros(failed_all.shape, dtype=bool)
     mask[0, 2] = mask[1, 1:4] = mask[-1, -1] = True
-    (du, dv), failed = solver._rates(problem, state, mask)
+    (du, dv, at), failed = solver._rates(problem, state, mask)
     assert np.array_equal(failed, np.where(mask, failed_all, 0))
+    assert np.array_equal(at[mask], np.arange(mask.sum())) and (at[~mask] == -1).all()
     for every, some in ((du_all, du), (dv_all, dv)):
         assert every.keys() == some.keys()
         for key, value in some.items():
-            expand = mask.reshape(mask.shape + (1,) * (value.ndim - 2))
-            assert np.array_equal(value, np.where(expand, every[key], np.nan), equal_nan=True)
-    (du_none, _), failed_none = solver._rates(problem, state, np.zeros_like(mask))
-    assert not failed_none.any() and np.isnan(du_none["beta"]).all()
+            assert np.array_equal(value, every[key][at_all[mask]]), key
+    (du_none, _, at_none), failed_none = solver._rates(problem, state, np.zeros_like(mask))
+    assert not failed_none.any() and len(du_none["beta"]) == 0 and (at_none == -1).all()
 
 
 def numpy_step(old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v):
@@ -77,29 +78,36 @@ def numpy_step(old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v):
 
 @pytest.mark.parametrize("heun", [False, True])
 def test_propagate_takes_each_component_from_its_sources(heun):
+    """Every mode against the numpy formulation, with the rates given at some points only
+    (compact, by index): a point without a rate gets none (NaN) from it."""
     rng = np.random.default_rng(1)
     rows, length = 3, 5
     modes = np.array([kernels.WEST, kernels.SOUTH, kernels.MEAN, kernels.MEAN_ENDS])
     size = len(modes)
     old, du_old, dv_old = (rng.normal(size=(rows, length, size)) for _ in range(3))
     du_new, dv_new = (rng.normal(size=(rows, length + 1, size)) for _ in range(2))
+    du_old[1, 2] = dv_old[1, 2] = du_new[2, 3] = dv_new[2, 3] = np.nan  # no rate there
     step_u, step_v = rng.normal(size=rows), rng.normal(size=rows)
     u_end, v_end = rng.normal(size=(rows, size)), rng.normal(size=(rows, size))
-    new = kernels.propagate(
-        old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v, u_end, v_end, modes
-    )
+    compact = []
+    for full in ((du_old, dv_old), (du_new, dv_new)):
+        has = ~np.isnan(full[0][..., 0])
+        at = np.where(has, np.cumsum(has).reshape(has.shape) - 1, -1)
+        compact += [full[0][has], full[1][has], at]
+    new = kernels.propagate(old, *compact, heun, step_u, step_v, u_end, v_end, modes)
     west, south = numpy_step(old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v)
     assert new.shape == (rows, length + 1, size)
-    assert np.array_equal(new[:, 1:, 0], west[..., 0]) and np.array_equal(new[:, 0, 0], v_end[:, 0])
-    assert np.array_equal(new[:, :-1, 1], south[..., 1])
-    assert np.array_equal(new[:, -1, 1], u_end[:, 1])
+
+    def same(a, b):
+        return np.array_equal(a, b, equal_nan=True)
+
+    assert same(new[:, 1:, 0], west[..., 0]) and same(new[:, 0, 0], v_end[:, 0])
+    assert same(new[:, :-1, 1], south[..., 1]) and same(new[:, -1, 1], u_end[:, 1])
     for f in (2, 3):
-        middle = 0.5 * (west[:, :-1, f] + south[:, 1:, f])
-        assert np.array_equal(new[:, 1:-1, f], middle)
-    assert np.array_equal(new[:, 0, 2], south[:, 0, 2])
-    assert np.array_equal(new[:, -1, 2], west[:, -1, 2])
-    assert np.array_equal(new[:, 0, 3], v_end[:, 3])
-    assert np.array_equal(new[:, -1, 3], u_end[:, 3])
+        assert same(new[:, 1:-1, f], 0.5 * (west[:, :-1, f] + south[:, 1:, f]))
+    assert same(new[:, 0, 2], south[:, 0, 2]) and same(new[:, -1, 2], west[:, -1, 2])
+    assert same(new[:, 0, 3], v_end[:, 3]) and same(new[:, -1, 3], u_end[:, 3])
+    assert np.isnan(new[1, 3, 0]) and np.isnan(new[1, 2, 1])  # from the point without rates
 
 
 def test_cross_derivatives_from_eps_along_the_diagonal():

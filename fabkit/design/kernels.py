@@ -70,19 +70,19 @@ def rates(
     at the P points: lam1, lam2 (P, S), l1e, l2e (P, S, N) and l1ee, l2ee (P, S, N, N), the
     log-derivatives of the stretches in eps; g (P, S, 2, 2), gamma (P, S, 2, 2, 2),
     curvature (P, S), inside (P, S) bool, the targets' metric, Christoffel symbols, Gaussian
-    curvature and chart membership at r; along (N,) bool. Out, at the M points (NaN and 0
-    off ``index``): du (beta, s, eps, p, r, n), n_unit, dv (alpha, b, eps, q, r, n), failed
-    (M,) int (0 = fine, else the first failing check's code).
+    curvature and chart membership at r; along (N,) bool. Out, at the P points: du (beta, s,
+    eps, p, r, n), n_unit, dv (alpha, b, eps, q, r, n); and failed (M,) int at the M points
+    (0 = fine or not computed, else the first failing check's code).
     """
     count, surfaces = index.shape[0], lam1.shape[1]
     total, features = eps.shape
-    du_beta, du_s = np.full(total, np.nan), np.full(total, np.nan)
-    dv_alpha, dv_b = np.full(total, np.nan), np.full(total, np.nan)
-    du_eps, du_p = np.full((total, features), np.nan), np.full((total, features), np.nan)
-    dv_eps, dv_q = np.full((total, features), np.nan), np.full((total, features), np.nan)
-    du_r, du_n = np.full((total, surfaces, 2), np.nan), np.full((total, surfaces, 2), np.nan)
-    dv_r, dv_n = np.full((total, surfaces, 2), np.nan), np.full((total, surfaces, 2), np.nan)
-    n_unit = np.full((total, surfaces, 2), np.nan)
+    du_beta, du_s = np.empty(count), np.empty(count)
+    dv_alpha, dv_b = np.empty(count), np.empty(count)
+    du_eps, du_p = np.empty((count, features)), np.empty((count, features))
+    dv_eps, dv_q = np.empty((count, features)), np.empty((count, features))
+    du_r, du_n = np.empty((count, surfaces, 2)), np.empty((count, surfaces, 2))
+    dv_r, dv_n = np.empty((count, surfaces, 2)), np.empty((count, surfaces, 2))
+    n_unit = np.empty((count, surfaces, 2))
     failed = np.zeros(total, dtype=np.int64)
     matrix = np.empty((surfaces, surfaces))
     rhs = np.empty(surfaces)
@@ -145,15 +145,15 @@ def rates(
                 for j in range(surfaces):
                     w[j] = rhs[j]
         # rates
-        du_beta[m] = alpha[m] * beta[m] * s[m]
-        du_s[m] = alpha[m] * w[1]
-        dv_alpha[m] = -alpha[m] * beta[m] * b[m]
-        dv_b[m] = beta[m] * w[0]
+        du_beta[k] = alpha[m] * beta[m] * s[m]
+        du_s[k] = alpha[m] * w[1]
+        dv_alpha[k] = -alpha[m] * beta[m] * b[m]
+        dv_b[k] = beta[m] * w[0]
         for i in range(features):
-            du_eps[m, i] = alpha[m] * p[m, i]
-            du_p[m, i] = alpha[m] * w[2 + i]
-            dv_eps[m, i] = beta[m] * q[m, i]
-            dv_q[m, i] = beta[m] * w[2 + i]
+            du_eps[k, i] = alpha[m] * p[m, i]
+            du_p[k, i] = alpha[m] * w[2 + i]
+            dv_eps[k, i] = beta[m] * q[m, i]
+            dv_q[k, i] = beta[m] * w[2 + i]
         for j in range(surfaces):
             g00, g01 = g[k, j, 0, 0], g[k, j, 0, 1]
             g10, g11 = g[k, j, 1, 0], g[k, j, 1, 1]
@@ -165,7 +165,7 @@ def rates(
             m0, m1 = -gn1 / root_det, gn0 / root_det
             stretch_u = alpha[m] * lam1[k, j]
             stretch_v = beta[m] * lam2[k, j]
-            n_unit[m, j, 0], n_unit[m, j, 1] = n0, n1
+            n_unit[k, j, 0], n_unit[k, j, 1] = n0, n1
             for i in range(2):
                 gnn = (
                     gamma[k, j, i, 0, 0] * n0 * n0
@@ -181,10 +181,10 @@ def rates(
                 )
                 unit = n0 if i == 0 else n1
                 perp = m0 if i == 0 else m1
-                du_r[m, j, i] = stretch_u * unit
-                du_n[m, j, i] = stretch_u * (ku[j] * perp - gnn)
-                dv_r[m, j, i] = stretch_v * perp
-                dv_n[m, j, i] = stretch_v * (kv[j] * perp - gpn)
+                du_r[k, j, i] = stretch_u * unit
+                du_n[k, j, i] = stretch_u * (ku[j] * perp - gnn)
+                dv_r[k, j, i] = stretch_v * perp
+                dv_n[k, j, i] = stretch_v * (kv[j] * perp - gpn)
         failed[m] = _failure(
             k, m, alpha, beta, b, s, eps, p, q, r, n, du_n, dv_n, du_s, dv_b, du_p, dv_q,
             lam1, lam2, inside, singular, max_strain, isotropic_tolerance,
@@ -198,24 +198,24 @@ def _failure(
     k, m, alpha, beta, b, s, eps, p, q, r, n, du_n, dv_n, du_s, dv_b, du_p, dv_q,
     lam1, lam2, inside, singular, max_strain, isotropic_tolerance,
 ) -> int:  # fmt: skip
-    """The first failing check of point m (k among the P points), in the solver's order;
-    0 if none fails."""
+    """The first failing check of point m of the state (k of the P points and the rates),
+    in the solver's order; 0 if none fails."""
     finite = (
         np.isfinite(alpha[m])
         and np.isfinite(beta[m])
         and np.isfinite(b[m])
         and np.isfinite(s[m])
-        and np.isfinite(du_s[m])
-        and np.isfinite(dv_b[m])
+        and np.isfinite(du_s[k])
+        and np.isfinite(dv_b[k])
     )
     for i in range(eps.shape[1]):
         finite = finite and np.isfinite(eps[m, i]) and np.isfinite(p[m, i])
-        finite = finite and np.isfinite(q[m, i]) and np.isfinite(du_p[m, i])
-        finite = finite and np.isfinite(dv_q[m, i])
+        finite = finite and np.isfinite(q[m, i]) and np.isfinite(du_p[k, i])
+        finite = finite and np.isfinite(dv_q[k, i])
     for j in range(r.shape[1]):
         for i in range(2):
             finite = finite and np.isfinite(r[m, j, i]) and np.isfinite(n[m, j, i])
-            finite = finite and np.isfinite(du_n[m, j, i]) and np.isfinite(dv_n[m, j, i])
+            finite = finite and np.isfinite(du_n[k, j, i]) and np.isfinite(dv_n[k, j, i])
     if not finite:
         return NON_FINITE
     if not alpha[m] > 0:
@@ -252,14 +252,17 @@ one source there, or with MEAN_ENDS the curves' data)."""
 
 
 @numba.njit(cache=True, error_model="numpy")
-def propagate(old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v, u_end, v_end, mode):
+def propagate(old, du_old, dv_old, at_old, du_new, dv_new, at_new, heun, step_u, step_v, u_end,
+              v_end, mode):  # fmt: skip
     """One variable on diagonal d+1 (R, L+1, F) from diagonal d (R, L, F): Euler with the
     rates at d, or with ``heun`` the trapezoidal rule with the rates at d+1 too.
 
-    du_old, dv_old (R, L, F) and du_new, dv_new (R, L+1, F): the variable's rates in u and
-    v (a rate the component's ``mode`` (F,) does not use is never read); step_u, step_v
-    (R,): signed grid steps; u_end, v_end (R, F): the initial curves' data at the ends of
-    diagonal d+1 (the u-curve's at its last point, the v-curve's at its first).
+    du_old, dv_old (P, F): the variable's rates in u and v at the points of diagonal d that
+    have rates, ``at_old`` (R, L) the index of each point's there (-1: none, a NaN rate);
+    du_new, dv_new and at_new (R, L+1) the same on diagonal d+1 (a rate the component's
+    ``mode`` (F,) does not use is never read); step_u, step_v (R,): signed grid steps;
+    u_end, v_end (R, F): the initial curves' data at the ends of diagonal d+1 (the
+    u-curve's at its last point, the v-curve's at its first).
     """
     rows, length, size = old.shape
     new = np.empty((rows, length + 1, size))
@@ -269,14 +272,14 @@ def propagate(old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v, u_end, 
             for k in range(length + 1):
                 west, south = np.nan, np.nan
                 if kind != SOUTH and k >= 1:
-                    slope = du_old[row, k - 1, f]
+                    slope = _rate(du_old, at_old[row, k - 1], f)
                     if heun:
-                        slope = 0.5 * (slope + du_new[row, k, f])
+                        slope = 0.5 * (slope + _rate(du_new, at_new[row, k], f))
                     west = old[row, k - 1, f] + step_u[row] * slope
                 if kind != WEST and k < length:
-                    slope = dv_old[row, k, f]
+                    slope = _rate(dv_old, at_old[row, k], f)
                     if heun:
-                        slope = 0.5 * (slope + dv_new[row, k, f])
+                        slope = 0.5 * (slope + _rate(dv_new, at_new[row, k], f))
                     south = old[row, k, f] + step_v[row] * slope
                 if kind == WEST:
                     value = v_end[row, f] if k == 0 else west
@@ -290,6 +293,12 @@ def propagate(old, du_old, dv_old, du_new, dv_new, heun, step_u, step_v, u_end, 
                     value = 0.5 * (west + south)
                 new[row, k, f] = value
     return new
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _rate(rates, at, f):
+    """Component f of the rate at compact index ``at`` (-1: none, NaN)."""
+    return rates[at, f] if at >= 0 else np.nan
 
 
 @numba.njit(cache=True, error_model="numpy")

@@ -697,23 +697,26 @@ def _refuse_bad_start(failed: np.ndarray) -> None:
 # --- the propagation equations ------------------------------------------------------------
 
 
-def _rates(
-    problem: _Problem, state: State, mask: np.ndarray | None = None
-) -> tuple[tuple[State, State], np.ndarray]:
+def _rates(problem: _Problem, state: State, mask: np.ndarray | None = None):
     """Derivatives in u and in v of every variable, and a failure code per point, at the
-    points of ``mask`` (Q, L) (default: every point); NaN rates and code 0 elsewhere.
+    points of ``mask`` (Q, L) (default: every point).
 
-    Returns ``((du, dv), failed)`` with ``failed`` (Q, L) int (0 = fine, else an index
-    into REASONS) and, as ``du["n_unit"]``, the directors renormalised in their metrics.
-    The material's response and the targets' geometry are evaluated here (numpy, on every
-    point at once); the rest is :func:`fabkit.design.kernels.rates`, point by point.
+    Returns ``((du, dv, at), failed)``: du and dv by variable at the P points of the mask
+    (P, ...) in row-major order, ``at`` (Q, L) each point's index among them (-1: off the
+    mask), ``failed`` (Q, L) int (0 = fine or off the mask, else an index into REASONS);
+    ``du["n_unit"]`` holds the directors renormalised in their metrics. The material's
+    response and the targets' geometry are evaluated here (numpy, on every point at once);
+    the rest is :func:`fabkit.design.kernels.rates`, point by point.
     """
     shape = state["alpha"].shape
     flat = {
         key: np.ascontiguousarray(value).reshape((-1,) + value.shape[2:])
         for key, value in state.items()
     }
-    index = np.arange(flat["alpha"].shape[0]) if mask is None else np.flatnonzero(mask)
+    size = flat["alpha"].shape[0]
+    index = np.arange(size) if mask is None else np.flatnonzero(mask)
+    at = np.full(size, -1)
+    at[index] = np.arange(len(index))
     response = problem.spec.material.response(flat["eps"][index].T, problem.stimuli)
     lam1, lam2 = (np.ascontiguousarray(x.T) for x in (response.lambda1, response.lambda2))
     l1e, l2e, l1ee, l2ee = (
@@ -727,13 +730,9 @@ def _rates(
         g, gamma, curvature, inside,
         problem.along, problem.spec.solver.max_strain, DET_TOLERANCE, ISOTROPIC_TOLERANCE,
     )  # fmt: skip
-    du_keys = ("beta", "s", "eps", "p", "r", "n", "n_unit")
-    dv_keys = ("alpha", "b", "eps", "q", "r", "n")
-    rates = tuple(
-        {key: value.reshape(shape + value.shape[1:]) for key, value in zip(keys, part, strict=True)}
-        for keys, part in ((du_keys, du), (dv_keys, dv))
-    )
-    return rates, failed.reshape(shape)
+    du = dict(zip(("beta", "s", "eps", "p", "r", "n", "n_unit"), du, strict=True))
+    dv = dict(zip(("alpha", "b", "eps", "q", "r", "n"), dv, strict=True))
+    return (du, dv, at.reshape(shape)), failed.reshape(shape)
 
 
 def _geometry(problem: _Problem, r: np.ndarray):
@@ -791,7 +790,8 @@ def _advance(problem, grid, old, rates_old, window: _Window, d, u_data, v_data, 
     ok_corrected = ok_predicted & (fail_corrected == 0)
     _share_axes(problem, corrected, ok_corrected)
     rates_new, failed_new = _rates(problem, corrected, ok_corrected)
-    corrected["n"] = rates_new[0]["n_unit"]
+    corrected["n"] = np.full_like(corrected["n"], np.nan)
+    corrected["n"][rates_new[2] >= 0] = rates_new[0]["n_unit"]
     failed = np.where(failed, failed, np.where(fail_corrected, fail_corrected, failed_new))
     failed = np.where(ok_new, failed, 0)
     valid = ok_new & (failed == 0)
@@ -824,8 +824,8 @@ def _trim(state: State, rates, window: _Window):
         return value[rows, index]
 
     state = {key: cut(value) for key, value in state.items()}
-    rates = tuple({key: cut(value) for key, value in part.items()} for part in rates)
-    return state, rates, _Window(window.offset + first, cut(valid))
+    du, dv, at = rates
+    return state, (du, dv, cut(at)), _Window(window.offset + first, cut(valid))
 
 
 def _share_axes(problem: _Problem, state: State, ok: np.ndarray) -> None:
@@ -855,7 +855,8 @@ def _propagate(problem, old, rates_old, rates_new, d, u_data, v_data) -> State:
     rows, length = old["alpha"].shape
     steps = ((problem.step * problem.sign_u)[:, 0], (problem.step * problem.sign_v)[:, 0])
     heun = rates_new is not None
-    rates = rates_old + (rates_new if heun else rates_old)  # du, dv at d; du, dv at d+1
+    du_old, dv_old, at_old = rates_old
+    du_new, dv_new, at_new = rates_new if heun else rates_old
     ends = tuple({k: val[:, d + 1] for k, val in data.items()} for data in (u_data, v_data))
     new: State = {}
     for key, value in old.items():
@@ -872,16 +873,21 @@ def _propagate(problem, old, rates_old, rates_new, d, u_data, v_data) -> State:
             modes[0] = kernels.MEAN_ENDS
             u_end, v_end = _curve_ends(ends[0][key + "0"], ends[1][key + "0"], shape)
         # a variable without a rate in one direction passes the other (never read)
+        size = int(np.prod(shape, dtype=int))
         sources = []
-        for du, dv in (rates[:2], rates[2:]):
-            sources += [du.get(key, dv.get(key)), dv.get(key, du.get(key))]
-        flat = [np.ascontiguousarray(x).reshape(x.shape[:2] + (-1,)) for x in [value, *sources]]
+        for du, dv in ((du_old, dv_old), (du_new, dv_new)):
+            for x in (du.get(key, dv.get(key)), dv.get(key, du.get(key))):
+                sources.append(x.reshape(len(x), size))
         new[key] = kernels.propagate(
-            *flat,
+            np.ascontiguousarray(value).reshape(rows, length, size),
+            *sources[:2],
+            at_old,
+            *sources[2:],
+            at_new,
             heun,
             *steps,
-            np.ascontiguousarray(u_end).reshape(rows, -1),
-            np.ascontiguousarray(v_end).reshape(rows, -1),
+            np.ascontiguousarray(u_end).reshape(rows, size),
+            np.ascontiguousarray(v_end).reshape(rows, size),
             modes.ravel(),
         ).reshape((rows, length + 1) + shape)
     return new
