@@ -140,3 +140,8 @@ def test_cross_derivatives_from_eps_along_the_diagonal():
     np.testing.assert_allclose(new_q[..., 1][valid], q_across[valid], rtol=1e-12)
     assert np.array_equal(new_p[..., 1], p[..., 1]) and np.array_equal(new_q[..., 0], q[..., 0])
     assert failed[1, 3] == 99 and failed.sum() == 99
+
+
+def test_the_kernels_failure_codes_are_the_solvers():
+    for name in ("NON_FINITE", "ALPHA", "BETA", "LAMBDA", "STRAIN", "ISOTROPIC", "DET_M", "CHART"):
+        assert getattr(kernels, name) == getattr(solver, name), name
