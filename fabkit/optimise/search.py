@@ -165,7 +165,8 @@ class Checkpoint:
 
 def fingerprint(spec_json: str, space: Space, objective: Objective) -> str:
     """What makes evaluations of two searches the same: the spec, the varied names and
-    their bounds, and the objective with its limits."""
+    their bounds, and the objective with its limits and its check tolerances (written
+    only when they are not the check's defaults)."""
     limits = objective.limits
     search = {
         "spec": json.loads(spec_json),
