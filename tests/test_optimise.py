@@ -11,12 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fabkit.design.check import check_design
+from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
 from fabkit.design.report import realised_areas
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.optimise.objective import (
+    ACCEPTANCE,
     Evaluation,
     Limits,
     Objective,
@@ -27,7 +28,7 @@ from fabkit.optimise.objective import (
 )
 from fabkit.optimise.pictures import search_picture, sheets_picture
 from fabkit.optimise.run import Job, optimise, outputs
-from fabkit.optimise.search import CHECKPOINT_FORMAT, Budget, Checkpoint, Result
+from fabkit.optimise.search import CHECKPOINT_FORMAT, Budget, Checkpoint, Result, fingerprint
 from fabkit.optimise.space import search_space
 from fabkit.optimise.tomlout import dumps
 from fabkit.problem.spec import build_spec
@@ -125,6 +126,32 @@ def test_a_design_failing_the_check_scores_zero():
     assert not check_design(bad).passed
     evaluation = score(bad, spec, Objective("flat"))
     assert evaluation.value == 0 and not evaluation.passed and "check failed" in evaluation.note
+
+
+def test_the_objective_counts_a_design_only_if_it_passes_the_objectives_tolerances():
+    """A search can ask the acceptance's curvature median (ACCEPTANCE: 1e-3, the check's
+    default 1e-2): a design just over it scores 0, just under it scores its area; the
+    tolerances are part of the search's fingerprint (a default search keeps its own)."""
+    spec = build_spec(coarse_fig1(), EXAMPLES)
+    design = solve(spec).design
+    worst = max(s.curvature.median for s in check_design(design).surfaces)
+    assert 0 < worst < Tolerances().curvature_median
+    default = score(design, spec, Objective("flat"))
+    over = score(
+        design, spec, Objective("flat", tolerances=Tolerances(curvature_median=0.99 * worst))
+    )
+    under = score(
+        design, spec, Objective("flat", tolerances=Tolerances(curvature_median=1.01 * worst))
+    )
+    assert default.value > 0 and under.value == default.value
+    assert over.value == 0 and not over.passed and "check failed" in over.note
+    assert ACCEPTANCE.curvature_median == ACCEPTANCE.isometry_median == 1e-3
+    space = search_space(coarse_fig1(), EXAMPLES, VARY)
+    prints = {
+        fingerprint(space.spec().to_json(), space, Objective("flat", tolerances=t))
+        for t in (Tolerances(), ACCEPTANCE, Tolerances(curvature_median=0.01))
+    }
+    assert len(prints) == 2  # the default, written out, is the default
 
 
 def test_process_limits_count_only_the_points_inside_the_calibrated_range():

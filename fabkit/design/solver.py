@@ -35,6 +35,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from fabkit.design import kernels
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.problem.expr import Expression
@@ -306,20 +307,24 @@ def _error_control(problem: _Problem, index: np.ndarray, error: np.ndarray):
 
     A point over it is dropped with its quarter-plane of influence (every point further
     from both axes in its quadrant: the points it is a source of). Returns the mask and
-    one stop per point over tolerance that no other such point influences.
+    one stop per point over tolerance that no other such point influences. Influence
+    runs away from the axes, so the square around the origin that holds the points is
+    all the grid it needs.
     """
     size = problem.diagonals[COARSE]
-    shape = (2 * size + 1, 2 * size + 1)
+    rows, cols = np.divmod(index, 2 * size + 1)
+    half = int(np.max(np.abs(np.concatenate([rows, cols]) - size), initial=0))
+    box = (rows - size + half) * (2 * half + 1) + (cols - size + half)
     with np.errstate(invalid="ignore"):
-        over = np.zeros(shape, dtype=bool)
-        over.flat[index] = ~(error <= problem.spec.solver.tolerance)
+        over = np.zeros((2 * half + 1, 2 * half + 1), dtype=bool)
+        over.flat[box] = ~(error <= problem.spec.solver.tolerance)
     dropped, inherited = _influence(over)
     step = problem.spec.solver.step
     stops = tuple(
-        Stop(REASONS[ERROR], float((i - size) * step), float((j - size) * step), None)
+        Stop(REASONS[ERROR], float((i - half) * step), float((j - half) * step), None)
         for i, j in zip(*np.nonzero(over & ~inherited), strict=True)
     )
-    return ~dropped.flat[index], stops
+    return ~dropped.flat[box], stops
 
 
 def _influence(sources: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -692,78 +697,46 @@ def _refuse_bad_start(failed: np.ndarray) -> None:
 # --- the propagation equations ------------------------------------------------------------
 
 
-def _rates(problem: _Problem, state: State) -> tuple[tuple[State, State], np.ndarray]:
-    """Derivatives in u and in v of every variable, and a failure code per point.
+def _rates(problem: _Problem, state: State, mask: np.ndarray | None = None):
+    """Derivatives in u and in v of every variable, and a failure code per point, at the
+    points of ``mask`` (Q, L) (default: every point).
 
-    Returns ``((du, dv), failed)`` with ``failed`` (Q, L) int (0 = fine, else an index
-    into REASONS) and, as ``du["n_unit"]``, the directors renormalised in their metrics.
+    Returns ``((du, dv, at), failed)``: du and dv by variable at the P points of the mask
+    (P, ...) in row-major order, ``at`` (Q, L) each point's index among them (-1: off the
+    mask), ``failed`` (Q, L) int (0 = fine or off the mask, else an index into REASONS);
+    ``du["n_unit"]`` holds the directors renormalised in their metrics. The material's
+    response and the targets' geometry are evaluated here (numpy, on every point at once);
+    the rest is :func:`fabkit.design.kernels.rates`, point by point.
     """
-    alpha, beta, b, s = state["alpha"], state["beta"], state["b"], state["s"]
-    eps, p, q, r, n = state["eps"], state["p"], state["q"], state["r"], state["n"]
-    response = problem.spec.material.response(np.moveaxis(eps, -1, 0), problem.stimuli)
-    lam1 = np.moveaxis(response.lambda1, 0, -1)  # (Q, L, S)
-    lam2 = np.moveaxis(response.lambda2, 0, -1)
-    l1e = np.moveaxis(response.l1_e, (0, 1), (-2, -1))  # (Q, L, S, N)
-    l2e = np.moveaxis(response.l2_e, (0, 1), (-2, -1))
-    l1ee = np.moveaxis(response.l1_ee, (0, 1, 2), (-3, -2, -1))  # (Q, L, S, N, N)
-    l2ee = np.moveaxis(response.l2_ee, (0, 1, 2), (-3, -2, -1))
-
-    l1q, l2q = _contract(l1e, q), _contract(l2e, q)  # (Q, L, S)
-    l1p, l2p = _contract(l1e, p), _contract(l2e, p)
-    ku = (b[..., None] - l1q) / lam2
-    kv = (s[..., None] + l2p) / lam1
-
-    g, gamma, curvature, inside = _geometry(problem, r)
-    g00, g01, g10, g11 = g[..., 0, 0], g[..., 0, 1], g[..., 1, 0], g[..., 1, 1]
-    n0, n1 = n[..., 0], n[..., 1]
-    gn0, gn1 = g00 * n0 + g01 * n1, g10 * n0 + g11 * n1
-    norm = np.sqrt(n0 * gn0 + n1 * gn1)
-    n0, n1, gn0, gn1 = n0 / norm, n1 / norm, gn0 / norm, gn1 / norm
-    root_det = np.sqrt(g00 * g11 - g01**2)
-    m0, m1 = -gn1 / root_det, gn0 / root_det  # n_perp
-
-    stretch_u = alpha[..., None] * lam1  # (Q, L, S): alpha lambda1
-    stretch_v = beta[..., None] * lam2
-    gamma_nn = _christoffel(gamma, n0, n1, n0, n1)
-    gamma_pn = _christoffel(gamma, m0, m1, n0, n1)
-
-    matrix = _curvature_matrix(problem.along, lam1, lam2, l1e, l2e)
-    k_bar = (
-        -(ku**2)
-        - kv**2
-        - (_quadratic(l1ee, q) + (b[..., None] - l1q) * l2q) / lam2**2
-        - (_quadratic(l2ee, p) - (s[..., None] + l2p) * l1p) / lam1**2
+    shape = state["alpha"].shape
+    flat = {
+        key: np.ascontiguousarray(value).reshape((-1,) + value.shape[2:])
+        for key, value in state.items()
+    }
+    size = flat["alpha"].shape[0]
+    index = np.arange(size) if mask is None else np.flatnonzero(mask)
+    at = np.full(size, -1)
+    at[index] = np.arange(len(index))
+    response = problem.spec.material.response(flat["eps"][index].T, problem.stimuli)
+    lam1, lam2 = (np.ascontiguousarray(x.T) for x in (response.lambda1, response.lambda2))
+    l1e, l2e, l1ee, l2ee = (
+        np.ascontiguousarray(np.moveaxis(x, -1, 0))
+        for x in (response.l1_e, response.l2_e, response.l1_ee, response.l2_ee)
     )
-    singular = _singular(matrix)
-    safe = np.where(singular[..., None, None], np.eye(matrix.shape[-1]), matrix)
-    with np.errstate(all="ignore"):
-        w = np.linalg.solve(safe, (curvature - k_bar)[..., None])[..., 0]  # (Q, L, S)
-
-    n_unit = np.stack([n0, n1], -1)
-    n_perp = np.stack([m0, m1], -1)
-    du = {
-        "beta": alpha * beta * s,
-        "s": alpha * w[..., 1],
-        "eps": alpha[..., None] * p,
-        "p": alpha[..., None] * w[..., 2:],
-        "r": stretch_u[..., None] * n_unit,
-        "n": stretch_u[..., None] * (ku[..., None] * n_perp - gamma_nn),
-        "n_unit": n_unit,
-    }
-    dv = {
-        "alpha": -alpha * beta * b,
-        "b": beta * w[..., 0],
-        "eps": beta[..., None] * q,
-        "q": beta[..., None] * w[..., 2:],
-        "r": stretch_v[..., None] * n_perp,
-        "n": stretch_v[..., None] * (kv[..., None] * n_perp - gamma_pn),
-    }
-    failed = _failures(problem, state, lam1, lam2, inside, singular, du, dv)
-    return (du, dv), failed
+    g, gamma, curvature, inside = _geometry(problem, flat["r"][index])
+    du, dv, failed = kernels.rates(
+        index, flat["alpha"], flat["beta"], flat["b"], flat["s"], flat["eps"], flat["p"],
+        flat["q"], flat["r"], flat["n"], lam1, lam2, l1e, l2e, l1ee, l2ee,
+        g, gamma, curvature, inside,
+        problem.along, problem.spec.solver.max_strain, DET_TOLERANCE, ISOTROPIC_TOLERANCE,
+    )  # fmt: skip
+    du = dict(zip(("beta", "s", "eps", "p", "r", "n", "n_unit"), du, strict=True))
+    dv = dict(zip(("alpha", "b", "eps", "q", "r", "n"), dv, strict=True))
+    return (du, dv, at.reshape(shape)), failed.reshape(shape)
 
 
 def _geometry(problem: _Problem, r: np.ndarray):
-    """Metric, Christoffel symbols, K and chart membership of every surface at r (Q, L, S, 2)."""
+    """Metric, Christoffel symbols, K and chart membership of every surface at r (..., S, 2)."""
     parts = [surface.geometry(r[..., j, :]) for j, surface in enumerate(problem.surfaces)]
     inside = np.stack(
         [surface.contains(r[..., j, :]) for j, surface in enumerate(problem.surfaces)], -1
@@ -772,92 +745,6 @@ def _geometry(problem: _Problem, r: np.ndarray):
     gamma = np.stack([part[1] for part in parts], -4)
     curvature = np.stack([part[2] for part in parts], -1)
     return g, gamma, curvature, inside
-
-
-def _contract(derivative: np.ndarray, slope: np.ndarray) -> np.ndarray:
-    """sum_i derivative[..., s, i] slope[..., i]: (..., S, N) and (..., N) -> (..., S)."""
-    total = derivative[..., 0] * slope[..., None, 0]
-    for i in range(1, slope.shape[-1]):
-        total = total + derivative[..., i] * slope[..., None, i]
-    return total
-
-
-def _quadratic(hessian: np.ndarray, slope: np.ndarray) -> np.ndarray:
-    """sum_ij hessian[..., s, i, j] slope[..., i] slope[..., j]: (..., S, N, N) -> (..., S)."""
-    count = slope.shape[-1]
-    total = None
-    for i in range(count):
-        for j in range(count):
-            term = hessian[..., i, j] * (slope[..., None, i] * slope[..., None, j])
-            total = term if total is None else total + term
-    return total
-
-
-def _christoffel(gamma: np.ndarray, a0, a1, b0, b1) -> np.ndarray:
-    """Gamma^i_kl a^k b^l (..., S, 2) from gamma (..., S, 2, 2, 2) and vectors' components."""
-    return np.stack(
-        [
-            gamma[..., i, 0, 0] * a0 * b0
-            + gamma[..., i, 0, 1] * a0 * b1
-            + gamma[..., i, 1, 0] * a1 * b0
-            + gamma[..., i, 1, 1] * a1 * b1
-            for i in (0, 1)
-        ],
-        -1,
-    )
-
-
-def _curvature_matrix(along, lam1, lam2, l1e, l2e) -> np.ndarray:
-    """M (Q, L, S, S): K_j = M_j . w + Kbar_j with w = (d_v b/beta, d_u s/alpha, w_1..w_N)."""
-    columns = [1 / lam2**2, -1 / lam1**2]
-    for i, is_along in enumerate(along):
-        columns.append(-l1e[..., i] / lam2**2 if is_along else -l2e[..., i] / lam1**2)
-    return np.stack(columns, -1)
-
-
-def _singular(matrix: np.ndarray) -> np.ndarray:
-    """True where det M is near zero relative to the product of M's row norms."""
-    with np.errstate(all="ignore"):
-        scale = np.prod(np.linalg.norm(matrix, axis=-1), axis=-1)
-        finite = np.all(np.isfinite(matrix), axis=(-2, -1))
-        det = np.linalg.det(np.where(finite[..., None, None], matrix, 0.0))
-        return ~finite | ~(np.abs(det) > DET_TOLERANCE * scale)
-
-
-def _failures(problem, state, lam1, lam2, inside, singular, du, dv) -> np.ndarray:
-    """First failure reason per point (Q, L); 0 where the point is fine."""
-    values = [state[k] for k in ("alpha", "beta", "b", "s", "eps", "p", "q", "r", "n")]
-    values += [du["n"], dv["n"], du["s"], dv["b"], du["p"], dv["q"]]
-    shape = state["alpha"].shape
-    finite = np.ones(shape, dtype=bool)
-    for x in values:
-        finite &= np.isfinite(x.reshape(*shape, -1)).all(-1)
-    targets = slice(1, None)
-    with np.errstate(invalid="ignore"):
-        checks = [
-            (NON_FINITE, ~finite),
-            (ALPHA, ~(state["alpha"] > 0)),
-            (BETA, ~(state["beta"] > 0)),
-            (LAMBDA, np.any(~(lam1 > 0) | ~(lam2 > 0), axis=-1)),
-            (
-                STRAIN,
-                np.any(
-                    np.maximum(abs(lam1 - 1), abs(lam2 - 1)) > problem.spec.solver.max_strain,
-                    axis=-1,
-                ),
-            ),
-            (
-                ISOTROPIC,
-                np.all(
-                    abs(lam1 - lam2)[..., targets]
-                    <= ISOTROPIC_TOLERANCE * (lam1 + lam2)[..., targets],
-                    axis=-1,
-                ),
-            ),
-            (DET_M, singular),
-            (CHART, np.any(~inside, axis=-1)),
-        ]
-    return np.select([bad for _, bad in checks], [code for code, _ in checks], 0)
 
 
 # --- marching -----------------------------------------------------------------------------
@@ -895,15 +782,16 @@ def _advance(problem, grid, old, rates_old, window: _Window, d, u_data, v_data, 
     )
     predicted = _propagate(problem, old, rates_old, None, d, u_data, v_data)
     fail_predicted = _cross_derive(problem, predicted, ok_new, d, u_data, v_data)
-    rates_predicted, failed = _rates_where(problem, predicted, ok_new & (fail_predicted == 0))
+    rates_predicted, failed = _rates(problem, predicted, ok_new & (fail_predicted == 0))
     failed = np.where(fail_predicted, fail_predicted, failed)
     ok_predicted = ok_new & (failed == 0)
     corrected = _propagate(problem, old, rates_old, rates_predicted, d, u_data, v_data)
     fail_corrected = _cross_derive(problem, corrected, ok_predicted, d, u_data, v_data)
     ok_corrected = ok_predicted & (fail_corrected == 0)
     _share_axes(problem, corrected, ok_corrected)
-    rates_new, failed_new = _rates_where(problem, corrected, ok_corrected)
-    corrected["n"] = rates_new[0]["n_unit"]
+    rates_new, failed_new = _rates(problem, corrected, ok_corrected)
+    corrected["n"] = np.full_like(corrected["n"], np.nan)
+    corrected["n"][rates_new[2] >= 0] = rates_new[0]["n_unit"]
     failed = np.where(failed, failed, np.where(fail_corrected, fail_corrected, failed_new))
     failed = np.where(ok_new, failed, 0)
     valid = ok_new & (failed == 0)
@@ -936,32 +824,8 @@ def _trim(state: State, rates, window: _Window):
         return value[rows, index]
 
     state = {key: cut(value) for key, value in state.items()}
-    rates = tuple({key: cut(value) for key, value in part.items()} for part in rates)
-    return state, rates, _Window(window.offset + first, cut(valid))
-
-
-def _rates_where(problem: _Problem, state: State, mask: np.ndarray):
-    """:func:`_rates` at the points of ``mask`` (Q, L) only; NaN rates elsewhere."""
-    if mask.all() or not mask.any():
-        return _rates(problem, state)
-    picked = {key: value[mask][None] for key, value in state.items()}
-    rates, failed = _rates(problem, picked)
-    out = np.zeros(mask.shape, dtype=int)
-    out[mask] = failed[0]
-    return _scatter_rates(mask, rates), out
-
-
-def _scatter_rates(mask: np.ndarray, rates):
-    """Rates on the full diagonal (NaN off the mask) from rates at the masked points."""
-    scattered = []
-    for part in rates:
-        full = {}
-        for key, value in part.items():
-            out = np.full(mask.shape + value.shape[2:], np.nan)
-            out[mask] = value[0]
-            full[key] = out
-        scattered.append(full)
-    return tuple(scattered)
+    du, dv, at = rates
+    return state, (du, dv, cut(at)), _Window(window.offset + first, cut(valid))
 
 
 def _share_axes(problem: _Problem, state: State, ok: np.ndarray) -> None:
@@ -981,115 +845,82 @@ def _share_axes(problem: _Problem, state: State, ok: np.ndarray) -> None:
 
 
 def _propagate(problem, old, rates_old, rates_new, d, u_data, v_data) -> State:
-    """Values on diagonal d+1 from diagonal d: Euler (rates_new None) or trapezoidal."""
-    along = problem.along
-    step_u, step_v = problem.step * problem.sign_u, problem.step * problem.sign_v
+    """Values on diagonal d+1 from diagonal d: Euler (rates_new None) or trapezoidal.
 
-    def rate(kind: int, key: str) -> np.ndarray:
-        """Effective slope for the step: (Q, d+1, ...) along u (kind 0) or v (kind 1)."""
-        first = rates_old[kind][key]
-        if rates_new is None:
-            return first
-        second = rates_new[kind][key]
-        second = second[:, 1:] if kind == 0 else second[:, :-1]
-        return 0.5 * (first + second)
-
-    def from_west(key: str) -> np.ndarray:
-        slope = rate(0, key)
-        return old[key] + _expand(step_u, slope.ndim) * slope
-
-    def from_south(key: str) -> np.ndarray:
-        slope = rate(1, key)
-        return old[key] + _expand(step_v, slope.ndim) * slope
-
-    v_end = {k: val[:, d + 1 : d + 2] for k, val in v_data.items()}
-    u_end = {k: val[:, d + 1 : d + 2] for k, val in u_data.items()}
+    u-propagated variables (:data:`U_SET`, p) come from their west source, v-propagated
+    ones (:data:`V_SET`, q) from their south source, eps feature by feature as it acts,
+    r and n from both (the mean). p and q are taken as propagated here; their
+    cross-derived components are replaced later (:func:`_cross_derive`).
+    """
+    rows, length = old["alpha"].shape
+    steps = ((problem.step * problem.sign_u)[:, 0], (problem.step * problem.sign_v)[:, 0])
+    heun = rates_new is not None
+    du_old, dv_old, at_old = rates_old
+    du_new, dv_new, at_new = rates_new if heun else rates_old
+    ends = tuple({k: val[:, d + 1] for k, val in data.items()} for data in (u_data, v_data))
     new: State = {}
-    for key in U_SET:
-        new[key] = np.concatenate([v_end[key], from_west(key)], 1)
-    for key in V_SET:
-        new[key] = np.concatenate([from_south(key), u_end[key]], 1)
-    eps_u = np.concatenate([v_end["eps"], from_west("eps")], 1)
-    eps_v = np.concatenate([from_south("eps"), u_end["eps"]], 1)
-    new["eps"] = np.where(along, eps_v, eps_u)
-    p_u = np.concatenate([v_end["p"], from_west("p")], 1)
-    q_v = np.concatenate([from_south("q"), u_end["q"]], 1)
-    new["p"], new["q"] = p_u, q_v  # cross-derived components are replaced later
-    for key in ("r", "n"):
-        west, south = from_west(key), from_south(key)
-        middle = 0.5 * (west[:, :-1] + south[:, 1:])
-        new[key] = np.concatenate([south[:, :1], middle, west[:, -1:]], 1)
-        end = "r0" if key == "r" else "n0"
-        new[key][:, 0, 0] = v_end[end][:, 0]
-        new[key][:, -1, 0] = u_end[end][:, 0]
+    for key, value in old.items():
+        shape = value.shape[2:]
+        if key in U_SET + ("p",):
+            modes, u_end, v_end = np.full(shape, kernels.WEST), ends[1][key], ends[1][key]
+        elif key in V_SET + ("q",):
+            modes, u_end, v_end = np.full(shape, kernels.SOUTH), ends[0][key], ends[0][key]
+        elif key == "eps":
+            modes = np.where(problem.along, kernels.SOUTH, kernels.WEST)
+            u_end, v_end = ends[0][key], ends[1][key]
+        else:  # r, n
+            modes = np.full(shape, kernels.MEAN)
+            modes[0] = kernels.MEAN_ENDS
+            u_end, v_end = _curve_ends(ends[0][key + "0"], ends[1][key + "0"], shape)
+        # a variable without a rate in one direction passes the other (never read)
+        size = int(np.prod(shape, dtype=int))
+        sources = []
+        for du, dv in ((du_old, dv_old), (du_new, dv_new)):
+            for x in (du.get(key, dv.get(key)), dv.get(key, du.get(key))):
+                sources.append(x.reshape(len(x), size))
+        new[key] = kernels.propagate(
+            np.ascontiguousarray(value).reshape(rows, length, size),
+            *sources[:2],
+            at_old,
+            *sources[2:],
+            at_new,
+            heun,
+            *steps,
+            np.ascontiguousarray(u_end).reshape(rows, size),
+            np.ascontiguousarray(v_end).reshape(rows, size),
+            modes.ravel(),
+        ).reshape((rows, length + 1) + shape)
     return new
 
 
-def _expand(sign: np.ndarray, ndim: int) -> np.ndarray:
-    """Per-row values (R, 1) shaped to broadcast against an array of ndim dimensions."""
-    return sign.reshape(sign.shape + (1,) * (ndim - 2))
+def _curve_ends(u_end: np.ndarray, v_end: np.ndarray, shape: tuple[int, ...]):
+    """The curves' chart point or tangent (R, 2) at the ends of a diagonal as the first
+    surface's entries of arrays (R, S, 2) (the flat sheet is the one the curves lie on)."""
+    arrays = []
+    for end in (u_end, v_end):
+        full = np.full((end.shape[0],) + shape, np.nan)
+        full[:, 0] = end
+        arrays.append(full)
+    return arrays
 
 
 def _cross_derive(problem, state, ok, d, u_data, v_data) -> np.ndarray:
-    """Fill p of along features and q of across features from eps along the diagonal.
-
-    d eps / (index step) = h (sign_u eps_u - sign_v eps_v); with the characteristic
-    derivative known, the other one follows. Returns a failure code per point (Q, L)
-    where no valid neighbour exists for the difference.
-    """
-    h, along = problem.step[..., None], problem.along
-    su, sv = problem.sign_u[..., None], problem.sign_v[..., None]
-    slope, has = _diagonal_difference(state["eps"], ok)
-    alpha, beta = state["alpha"][..., None], state["beta"][..., None]
-    eps_v_along = beta * state["q"]
-    eps_u_across = alpha * state["p"]
-    p_along = su * (slope / h + sv * eps_v_along) / alpha
-    q_across = sv * (su * eps_u_across - slope / h) / beta
-    state["p"] = np.where(along, p_along, state["p"])
-    state["q"] = np.where(along, state["q"], q_across)
-    state["p"][:, -1] = np.where(along, u_data["p"][:, d + 1], state["p"][:, -1])
-    state["q"][:, 0] = np.where(along, state["q"][:, 0], v_data["q"][:, d + 1])
-    position = np.arange(ok.shape[1])
-    need = (along.any() & (position != ok.shape[1] - 1)) | ((~along).any() & (position != 0))
-    return np.where(ok & ~has & need, ISOLATED, 0)
-
-
-def _diagonal_difference(values: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """d values / d index along axis 1, second order where possible, over valid points only.
-
-    Centred where both neighbours are valid, else one-sided with three points, else two.
-    Returns (derivative per index step, whether one could be formed).
-    """
-    pad = [(0, 0), (2, 2)] + [(0, 0)] * (values.ndim - 2)
-    v = np.pad(values, pad, constant_values=np.nan)
-    o = np.pad(ok, [(0, 0), (2, 2)], constant_values=False)
-    length = values.shape[1]
-
-    def at(shift: int):
-        return v[:, 2 + shift : 2 + shift + length], o[:, 2 + shift : 2 + shift + length]
-
-    (m2, om2), (m1, om1), (c0, _), (p1, op1), (p2, op2) = (at(k) for k in (-2, -1, 0, 1, 2))
-    extra = (Ellipsis,) + (None,) * (values.ndim - 2)
-    centred = (om1 & op1)[extra]
-    forward3 = (op1 & op2)[extra]
-    backward3 = (om1 & om2)[extra]
-    forward2, backward2 = op1[extra], om1[extra]
-    with np.errstate(invalid="ignore"):
-        derivative = np.where(
-            centred,
-            (p1 - m1) / 2,
-            np.where(
-                forward3,
-                (-3 * c0 + 4 * p1 - p2) / 2,
-                np.where(
-                    backward3,
-                    (3 * c0 - 4 * m1 + m2) / 2,
-                    np.where(forward2, p1 - c0, np.where(backward2, c0 - m1, np.nan)),
-                ),
-            ),
-        )
-    has = op1 | om1
-    return derivative, has
+    """Fill p of along features and q of across features from eps along the diagonal
+    (:func:`fabkit.design.kernels.cross_derive`). Returns a failure code per point (Q, L)
+    where no valid neighbour exists for the difference."""
+    contiguous = {k: np.ascontiguousarray(state[k]) for k in ("eps", "alpha", "beta", "p", "q")}
+    state["p"], state["q"], failed = kernels.cross_derive(
+        *contiguous.values(),
+        np.ascontiguousarray(ok),
+        problem.along,
+        problem.step[:, 0],
+        problem.sign_u[:, 0],
+        problem.sign_v[:, 0],
+        np.ascontiguousarray(u_data["p"][:, d + 1]),
+        np.ascontiguousarray(v_data["q"][:, d + 1]),
+        ISOLATED,
+    )
+    return failed
 
 
 class _Grid:

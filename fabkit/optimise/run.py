@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from fabkit.atomic import atomic_path
-from fabkit.design.check import check_design
+from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
 from fabkit.design.report import realised_areas
 from fabkit.design.solver import solve
@@ -51,14 +51,16 @@ from fabkit.tomlfile import read_toml
 @dataclass(frozen=True)
 class Job:
     """One search: the spec file, the ``--vary`` keys, the objective (None: the spec's),
-    the process's limits (None: none), the budget, the pool (``dask``: a scheduler address
-    or ``local``, None for a local process pool of ``workers``) and the files."""
+    the process's limits (None: none), the check's tolerances a candidate must pass, the
+    budget, the pool (``dask``: a scheduler address or ``local``, None for a local process
+    pool of ``workers``) and the files."""
 
     spec: str
     out: str
     varies: tuple[str, ...] = ()
     objective: str | None = None
     limits: Limits | None = None
+    tolerances: Tolerances = Tolerances()
     budget: Budget = Budget()
     workers: int = 0
     dask: str | None = None
@@ -98,7 +100,7 @@ def optimise(job: Job, report: Callable[[str], None] = lambda line: None) -> Out
     space = search_space(table, base_dir, job.varies)
     spec = space.spec()
     kind = job.objective or spec.optimise.objective
-    objective = Objective(kind, job.limits)
+    objective = Objective(kind, job.limits, job.tolerances)
     spec_json = spec.to_json()
     checkpoint = Checkpoint(
         Path(job.checkpoint) if job.checkpoint else files["checkpoint"],
@@ -170,13 +172,14 @@ def _summary(
 ) -> dict[str, Any]:
     """The figures of a search (``best.search.json``); ``solved``: the best spec's design
     on its own full grid (the ordinary solve)."""
-    check = check_design(solved, spec=best)
+    check = check_design(solved, objective.tolerances, spec=best)
     final = score(solved, best, objective)
     ratio = result.evaluation.value / start.value if start.value > 0 else None
     return {
         "spec": str(job.spec),
         "objective": objective.kind,
         "process_limits": None if objective.limits is None else _limits(objective.limits),
+        "check_tolerances": asdict(objective.tolerances),
         "start": {"value": start.value, "areas": start.areas, "points": start.points},
         "best": {
             "value": result.evaluation.value,

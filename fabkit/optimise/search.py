@@ -29,6 +29,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from fabkit.atomic import atomic_path
+from fabkit.design.check import Tolerances
 from fabkit.errors import FabkitError
 from fabkit.optimise.objective import Evaluation, Objective, evaluate_batch
 from fabkit.optimise.space import Space
@@ -164,24 +165,25 @@ class Checkpoint:
 
 def fingerprint(spec_json: str, space: Space, objective: Objective) -> str:
     """What makes evaluations of two searches the same: the spec, the varied names and
-    their bounds, and the objective with its limits."""
+    their bounds, and the objective with its limits and its check tolerances (written
+    only when they are not the check's defaults)."""
     limits = objective.limits
-    text = json.dumps(
-        {
-            "spec": json.loads(spec_json),
-            "names": space.names,
-            "bounds": space.bounds,
-            "objective": objective.kind,
-            "limits": None
-            if limits is None
-            else [
-                limits.ranges,
-                [(i, j, ring.tolist()) for i, j, ring in limits.regions],
-                limits.min_width,
-            ],
-        },
-        sort_keys=True,
-    )
+    search = {
+        "spec": json.loads(spec_json),
+        "names": space.names,
+        "bounds": space.bounds,
+        "objective": objective.kind,
+        "limits": None
+        if limits is None
+        else [
+            limits.ranges,
+            [(i, j, ring.tolist()) for i, j, ring in limits.regions],
+            limits.min_width,
+        ],
+    }
+    if objective.tolerances != Tolerances():  # a default search keeps the print it had
+        search["tolerances"] = asdict(objective.tolerances)
+    text = json.dumps(search, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
