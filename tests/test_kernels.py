@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fabkit.design import kernels, solver
-from fabkit.spec import build_spec
+from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES, example_table
 
 
