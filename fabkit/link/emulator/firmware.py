@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import random
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 INF = math.inf
@@ -616,3 +617,30 @@ class EmulatorConfig:
             accel,
             self.junction_deviation_mm,
         )
+
+
+class Firmware:
+    """What every emulated firmware holds: its config, the wires in and out, the trace and
+    counters it keeps, the random source of its faults, and the hook it calls when the
+    line drops. A firmware (:mod:`~fabkit.link.emulator.marlin`,
+    :mod:`~fabkit.link.emulator.grbl`) adds its protocol loop and interpreter, and
+    ``_reset_state`` (its state after a reset)."""
+
+    def __init__(
+        self,
+        config: EmulatorConfig,
+        inp: Input,
+        out: Output,
+        trace: list[TraceEntry],
+        counters: Counters,
+        rng: random.Random,
+        on_disconnect: Callable[[float], None],
+    ) -> None:
+        self.config = config
+        self.inp = inp
+        self.out = out
+        self.trace = trace
+        self.counters = counters
+        self.rng = rng
+        self.on_disconnect = on_disconnect
+        self.halted = False

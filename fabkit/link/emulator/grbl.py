@@ -19,6 +19,7 @@ from fabkit.link.emulator.firmware import (
     INF,
     Counters,
     EmulatorConfig,
+    Firmware,
     Input,
     Output,
     TraceEntry,
@@ -69,7 +70,7 @@ class _Parsed:
     dwell_s: float
 
 
-class GrblFirmware:
+class GrblFirmware(Firmware):
     """GRBL's protocol loop and a subset of its G-code interpreter on a :class:`Motion`."""
 
     eol = b"\r\n"
@@ -85,14 +86,7 @@ class GrblFirmware:
         rng: random.Random,
         on_disconnect: Callable[[float], None],
     ) -> None:
-        self.config = config
-        self.inp = inp
-        self.out = out
-        self.trace = trace
-        self.counters = counters
-        self.rng = rng
-        self.on_disconnect = on_disconnect
-        self.halted = False
+        super().__init__(config, inp, out, trace, counters, rng, on_disconnect)
         self.alarm = False
         self._reset_state()
 

@@ -25,6 +25,7 @@ from fabkit.link.emulator.firmware import (
     INF,
     Counters,
     EmulatorConfig,
+    Firmware,
     Heater,
     Input,
     Output,
@@ -108,7 +109,7 @@ class _Block:
     temperature: bool
 
 
-class MarlinFirmware:
+class MarlinFirmware(Firmware):
     """A Marlin-protocol firmware (:class:`Dialect`) on top of a :class:`Motion`."""
 
     noise_lines = NOISE_LINES
@@ -138,15 +139,8 @@ class MarlinFirmware:
         rng: random.Random,
         on_disconnect: Callable[[float], None],
     ) -> None:
-        self.config = config
+        super().__init__(config, inp, out, trace, counters, rng, on_disconnect)
         self.dialect = self.dialect_of(config)
-        self.inp = inp
-        self.out = out
-        self.trace = trace
-        self.counters = counters
-        self.rng = rng
-        self.on_disconnect = on_disconnect
-        self.halted = False
         self._reset_state()
 
     def _reset_state(self) -> None:
