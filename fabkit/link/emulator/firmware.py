@@ -623,8 +623,9 @@ class Firmware:
     """What every emulated firmware holds: its config, the wires in and out, the trace and
     counters it keeps, the random source of its faults, and the hook it calls when the
     line drops. A firmware (:mod:`~fabkit.link.emulator.marlin`,
-    :mod:`~fabkit.link.emulator.grbl`) adds its protocol loop and interpreter, and
-    ``_reset_state`` (its state after a reset)."""
+    :mod:`~fabkit.link.emulator.grbl`) adds its protocol loop and interpreter, ``_start``
+    (what it sets up once, called last here) and ``_reset_state`` (its state after a
+    reset)."""
 
     def __init__(
         self,
@@ -644,3 +645,7 @@ class Firmware:
         self.rng = rng
         self.on_disconnect = on_disconnect
         self.halted = False
+        self._start()
+
+    def _start(self) -> None:
+        raise NotImplementedError

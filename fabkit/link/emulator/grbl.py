@@ -9,19 +9,13 @@ are picked off the wire on arrival: status report, feed hold, resume, soft reset
 
 from __future__ import annotations
 
-import random
 import re
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass
 
 from fabkit.link.emulator.firmware import (
     INF,
-    Counters,
-    EmulatorConfig,
     Firmware,
-    Input,
-    Output,
     TraceEntry,
 )
 
@@ -76,17 +70,7 @@ class GrblFirmware(Firmware):
     eol = b"\r\n"
     noise_lines = NOISE_LINES
 
-    def __init__(
-        self,
-        config: EmulatorConfig,
-        inp: Input,
-        out: Output,
-        trace: list[TraceEntry],
-        counters: Counters,
-        rng: random.Random,
-        on_disconnect: Callable[[float], None],
-    ) -> None:
-        super().__init__(config, inp, out, trace, counters, rng, on_disconnect)
+    def _start(self) -> None:
         self.alarm = False
         self._reset_state()
 

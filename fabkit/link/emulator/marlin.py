@@ -14,21 +14,16 @@ printing the dialect's busy line or temperature reports meanwhile.
 
 from __future__ import annotations
 
-import random
 import re
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from fabkit.link.emulator.dialects import DIALECTS, Dialect
 from fabkit.link.emulator.firmware import (
     INF,
-    Counters,
     EmulatorConfig,
     Firmware,
     Heater,
-    Input,
-    Output,
     TraceEntry,
 )
 from fabkit.link.gcode import code_of, marlin_checksum, words
@@ -129,18 +124,8 @@ class MarlinFirmware(Firmware):
     def eol_for(config: EmulatorConfig) -> bytes:
         return MarlinFirmware.dialect_of(config).eol
 
-    def __init__(
-        self,
-        config: EmulatorConfig,
-        inp: Input,
-        out: Output,
-        trace: list[TraceEntry],
-        counters: Counters,
-        rng: random.Random,
-        on_disconnect: Callable[[float], None],
-    ) -> None:
-        super().__init__(config, inp, out, trace, counters, rng, on_disconnect)
-        self.dialect = self.dialect_of(config)
+    def _start(self) -> None:
+        self.dialect = self.dialect_of(self.config)
         self._reset_state()
 
     def _reset_state(self) -> None:
