@@ -11,8 +11,10 @@ lines, one per tenth of the job (no carriage returns in a log).
 
 from __future__ import annotations
 
+import math
 import sys
 import time
+from collections.abc import Callable
 from typing import TextIO
 
 STEPS = 10
@@ -25,7 +27,9 @@ class ProgressBar:
     Shown when ``stream`` (default stderr) is a terminal, or when ``force`` is true (the
     ``--progress`` option), as plain lines then if it is not a terminal. The clock (elapsed
     time, ETA) starts when the bar is made, or when the bar ``after`` (the stage before,
-    made at the same time) finished.
+    made at the same time) finished. ``eta_s(done, elapsed_s)`` gives the seconds left
+    (default: the rate so far); on a terminal the bar is redrawn at most every
+    ``interval_s``. A call may add a ``detail`` (where the job is, what it waits for).
     """
 
     def __init__(
@@ -35,6 +39,8 @@ class ProgressBar:
         width: int = 30,
         force: bool = False,
         after: ProgressBar | None = None,
+        eta_s: Callable[[int, float], float] | None = None,
+        interval_s: float = 0.0,
     ):
         self.label, self.width = label, width
         self.stream = stream if stream is not None else sys.stderr
@@ -42,9 +48,12 @@ class ProgressBar:
         self.enabled = self.terminal or force
         self.made = time.perf_counter()
         self.after = after
+        self.eta_s = eta_s
+        self.interval_s = interval_s
         self.finished: float | None = None
         self.drawn = False
         self.last_step = -1
+        self.last_draw = -math.inf
 
     @property
     def started(self) -> float:
@@ -52,7 +61,8 @@ class ProgressBar:
         before = self.after.finished if self.after is not None else None
         return max(self.made, before) if before is not None else self.made
 
-    def __call__(self, done: int, total: int) -> None:
+    def __call__(self, done: int, total: int, detail: str = "", force: bool = False) -> None:
+        """Show ``done`` of ``total`` (``force``: now, whatever the interval or step)."""
         if not self.enabled or total <= 0:
             return
         fraction = min(done / total, 1.0)
@@ -60,30 +70,51 @@ class ProgressBar:
         if fraction >= 1 and self.finished is None:
             self.finished = now
         elapsed = now - self.started
-        eta = elapsed * (1 - fraction) / fraction if fraction > 0 else float("nan")
+        eta = self._eta(done, fraction, elapsed)
+        tail = f"  {detail}" if detail else ""
         if self.terminal:
+            if now - self.last_draw < self.interval_s and fraction < 1 and not force:
+                return
+            self.last_draw = now
             filled = int(round(self.width * fraction))
             bar = "#" * filled + "." * (self.width - filled)
-            self.stream.write(f"\r{self.label} [{bar}] {100 * fraction:3.0f}% ETA {eta:4.0f} s")
+            self.stream.write(
+                f"\r{self.label} [{bar}] {100 * fraction:3.0f}% ETA {seconds(eta)}{tail}\x1b[K"
+            )
             self.drawn = fraction < 1
             if not self.drawn:  # done: the next bar starts on a line of its own
                 self.stream.write("\n")
         else:
             step = int(fraction * STEPS)
-            if step == self.last_step:
+            if step == self.last_step and not force:
                 return
             self.last_step = step
             self.stream.write(
                 f"{self.label}: {done}/{total} ({100 * fraction:.0f}%), "
-                f"{elapsed:.0f} s, ETA {eta:.0f} s\n"
+                f"{elapsed:.0f} s, ETA {seconds(eta)}{tail}\n"
             )
         self.stream.flush()
+
+    def _eta(self, done: int, fraction: float, elapsed: float) -> float:
+        if self.eta_s is not None:
+            return self.eta_s(done, elapsed)
+        return elapsed * (1 - fraction) / fraction if fraction > 0 else math.nan
 
     def close(self) -> None:
         if self.drawn:
             self.stream.write("\n")
             self.stream.flush()
             self.drawn = False
+
+
+def seconds(value: float) -> str:
+    """A time left: ``42 s`` under two minutes, else ``h:mm:ss`` (``? s`` unknown)."""
+    if not math.isfinite(value):
+        return "? s"
+    if value < 120:
+        return f"{value:.0f} s"
+    whole = int(round(value))
+    return f"{whole // 3600}:{whole // 60 % 60:02d}:{whole % 60:02d}"
 
 
 def add_progress(parser) -> None:

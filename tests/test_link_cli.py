@@ -42,7 +42,7 @@ def test_send_streams_and_reports(tmp_path, capsys):
     assert lines[0].startswith("machine marlin_generic (the default:")
     assert lines[1].startswith("estimated duration: ")
     assert re.match(r"sent 305 lines \(file lines 2-306\) to sim://marlin", lines[2])
-    assert "100.0%  305/305 lines" in captured.err  # the progress bar is on stderr
+    assert "sending: 305/305 (100%)" in captured.err  # the progress bar is on stderr
 
 
 def test_dry_run_checks_and_sends_nothing(tmp_path, capsys):

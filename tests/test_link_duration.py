@@ -10,7 +10,7 @@ import pytest
 from fabkit.link.duration import Kinematics, estimate, trapezoid_time
 from fabkit.link.emulator.port import Emulator, config_from_url
 from fabkit.link.gcode import Command, commands_from_lines
-from fabkit.link.host.session import Progress
+from fabkit.link.host.session import send_eta
 from fabkit.machines import load_machine
 
 DIW = load_machine("marlin_diw_pneumatic")  # 500 mm/s^2 in X/Y, 100 in Z, 0.013 mm
@@ -78,11 +78,11 @@ def test_where_the_machine_stopped_places_it_in_the_file():
 
 def test_the_eta_is_the_slower_of_the_machine_and_the_host():
     plan = estimate(diw_job(200), DIW)
-    progress = Progress(None, 206, estimate=plan)
-    assert progress.eta_s(0, 0.0) == pytest.approx(plan.total_s)
-    assert progress.eta_s(103, 1.0) == pytest.approx(plan.remaining_s(103))
-    quick = Progress(None, 206, estimate=plan, time_scale=0.0)  # sim://...?time_scale=0
-    assert quick.eta_s(0, 0.0) == 0.0 and quick.eta_s(103, 1.0) == pytest.approx(1.0)
+    eta_s = send_eta(plan, 206)
+    assert eta_s(0, 0.0) == pytest.approx(plan.total_s)
+    assert eta_s(103, 1.0) == pytest.approx(plan.remaining_s(103))
+    quick = send_eta(plan, 206, time_scale=0.0)  # sim://...?time_scale=0
+    assert quick(0, 0.0) == 0.0 and quick(103, 1.0) == pytest.approx(1.0)
 
 
 def lines(texts: list[str]) -> list[Command]:

@@ -14,8 +14,9 @@ from fabkit.errors import FabkitError
 from fabkit.link.gcode import Command, commands_from_lines
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
-from fabkit.link.host.session import LinkControl, Progress
+from fabkit.link.host.session import LinkControl
 from fabkit.machines import load_machine
+from fabkit.progress import ProgressBar
 from tests.test_link_support import (
     executed,
     marlin_job,
@@ -128,7 +129,12 @@ def test_heating_waits_report_temperatures_and_busy_lines_keep_the_link_alive():
     url = "sim://marlin?time_scale=1&baud=0&heat_tau_s=0.15&keepalive_s=0.1"
     progress, log = io.StringIO(), io.StringIO()
     report, emulator = run_sim(
-        url, job, "marlin_generic", progress=Progress(progress, len(job)), log=log, options=quick()
+        url,
+        job,
+        "marlin_generic",
+        progress=ProgressBar("sending", progress, force=True),
+        log=log,
+        options=quick(),
     )
     assert executed(emulator) == [c.text for c in job]
     assert "heating T:" in progress.getvalue() and "<< echo:busy: processing" in log.getvalue()

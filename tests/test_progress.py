@@ -47,7 +47,7 @@ def test_on_a_terminal_one_bar_is_redrawn_and_ends_its_line():
     _walk(second)
     text = stream.getvalue()
     assert text.count("\r") == 2 * 37 and text.count("\n") == 2
-    assert text.split("\n")[0].endswith("100% ETA    0 s")
+    assert text.split("\n")[0].endswith("100% ETA 0 s\x1b[K")  # erased to the line end
 
 
 @pytest.fixture(scope="module")

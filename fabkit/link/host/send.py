@@ -37,12 +37,13 @@ from fabkit.link.host.preflight import JobCheck, check_job
 from fabkit.link.host.session import (
     LinkControl,
     LinkOptions,
-    Progress,
     SendInterrupted,
     SendReport,
     SerialLike,
+    send_eta,
 )
 from fabkit.machines import MachineProfile, load_machine
+from fabkit.progress import ProgressBar
 
 PROTOCOLS = {"marlin": MarlinProtocol, "grbl": GrblProtocol}
 _HEADER = re.compile(r";\s*Generated with fabkit \S+ for machine (\S+)")
@@ -57,7 +58,7 @@ def stream_job(
     port_name: str = "port",
     options: LinkOptions | None = None,
     control: LinkControl | None = None,
-    progress: Progress | None = None,
+    progress: ProgressBar | None = None,
     log: TextIO | None = None,
 ) -> SendReport:
     """Stream ``job`` over the open ``port`` with the machine's protocol; FabkitError if the
@@ -80,7 +81,7 @@ def stream_job(
         raise protocol.lost(protocol_done(protocol), str(exc).splitlines()[0]) from None
     finally:
         if progress is not None:
-            progress.finish()
+            progress.close()
 
 
 def protocol_done(protocol: MarlinProtocol | GrblProtocol) -> int:
@@ -188,9 +189,8 @@ def send_file(
     control = LinkControl()
     progress = None
     if show_progress:
-        progress = Progress(
-            sys.stderr, len(job), estimate=planned, offset=first, time_scale=sim_time_scale(port)
-        )
+        eta_s = send_eta(planned, len(job), first, sim_time_scale(port))
+        progress = ProgressBar("sending", sys.stderr, force=True, eta_s=eta_s, interval_s=0.2)
     try:
         with _log_file(log_path) as log, _keys(control):
             return stream_job(

@@ -10,14 +10,15 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Protocol, TextIO
 
 from fabkit.errors import FabkitError
-from fabkit.link.duration import Estimate, clock, estimate
+from fabkit.link.duration import Estimate, estimate
 from fabkit.link.gcode import Command
 from fabkit.machines import MachineProfile
+from fabkit.progress import ProgressBar
 
 
 class SerialLike(Protocol):
@@ -102,74 +103,23 @@ class LinkControl:
         return self._aborted.is_set()
 
 
-class Progress:
-    """A progress bar (lines, %, ETA) redrawn at most every ``interval_s`` on ``stream``.
+def send_eta(
+    plan: Estimate | None, total: int, offset: int = 0, time_scale: float = 1.0
+) -> Callable[[int, float], float]:
+    """Seconds left after ``done`` of ``total`` job lines, ``elapsed_s`` into the send: the
+    longer of the machine's time (``plan``, the planned duration of the moves left
+    after the first ``offset + done`` commands of the file, times ``time_scale``) and the
+    host's (the lines left at the line rate so far). For :class:`~fabkit.progress.ProgressBar`."""
 
-    On a terminal it redraws one line; otherwise it prints a line every 10 %. The ETA
-    is the longer of the machine's time (``estimate``, the planned duration of the
-    moves left after the first ``offset + done`` commands of the file, times
-    ``time_scale``) and the host's (the lines left at the line rate so far).
-    """
-
-    def __init__(
-        self,
-        stream: TextIO | None,
-        total: int,
-        interval_s: float = 0.2,
-        *,
-        estimate: Estimate | None = None,
-        offset: int = 0,
-        time_scale: float = 1.0,
-    ) -> None:
-        self.stream = stream
-        self.total = total
-        self.interval_s = interval_s
-        self.estimate = estimate
-        self.offset = offset
-        self.time_scale = time_scale
-        self.tty = bool(stream) and stream.isatty()
-        self.t0 = time.monotonic()
-        self.last_draw = -1.0
-        self.last_decile = -1
-        self.last_done = -1
-
-    def update(self, done: int, file_line: int, note: str = "", *, force: bool = False) -> None:
-        """``done`` of ``total`` lines acknowledged, the last one at ``file_line``."""
-        if self.stream is None:
-            return
-        now = time.monotonic()
-        fraction = done / self.total if self.total else 1.0
-        decile = int(10 * fraction)
-        due = now - self.last_draw >= self.interval_s if self.tty else decile > self.last_decile
-        if not (due or force) or (force and not self.tty and done == self.last_done):
-            return
-        self.last_draw = now
-        self.last_decile = decile
-        self.last_done = done
-        eta = self.eta_s(done, now - self.t0)
-        bar = "#" * int(20 * fraction)
-        text = (
-            f"[{bar:<20}] {100 * fraction:5.1f}%  {done}/{self.total} lines  "
-            f"file line {file_line}  ETA {clock(eta)}"
-        )
-        if note:
-            text += f"  {note}"
-        self.stream.write("\r" + text.ljust(100)[:120] if self.tty else text + "\n")
-        self.stream.flush()
-
-    def eta_s(self, done: int, elapsed_s: float) -> float:
-        """Seconds left after ``done`` of ``total`` lines, ``elapsed_s`` into the send."""
+    def eta_s(done: int, elapsed_s: float) -> float:
         left = [0.0]
-        if self.estimate is not None:
-            left.append(self.estimate.remaining_s(self.offset + done) * self.time_scale)
+        if plan is not None:
+            left.append(plan.remaining_s(offset + done) * time_scale)
         if done > 0 and elapsed_s > 0:
-            left.append((self.total - done) * elapsed_s / done)
+            left.append((total - done) * elapsed_s / done)
         return max(left)
 
-    def finish(self) -> None:
-        if self.stream is not None and self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
+    return eta_s
 
 
 def _visible(line: str) -> str:
@@ -221,7 +171,7 @@ class Session:
         machine: MachineProfile,
         options: LinkOptions,
         control: LinkControl,
-        progress: Progress | None,
+        progress: ProgressBar | None,
         log: TextIO | None,
     ) -> None:
         if machine.serial is None:
@@ -346,4 +296,5 @@ class Session:
 
     def show(self, done: int, note: str = "", *, force: bool = False) -> None:
         if self.progress is not None:
-            self.progress.update(done, self.file_line_after(done), note, force=force)
+            where = f"file line {self.file_line_after(done)}" + (f"  {note}" if note else "")
+            self.progress(done, len(self.job), where, force=force)
