@@ -52,7 +52,7 @@ class ProgressBar:
         self.interval_s = interval_s
         self.finished: float | None = None
         self.drawn = False
-        self.last_step = -1
+        self.last_step = self.last_done = -1
         self.last_draw = -math.inf
 
     @property
@@ -86,9 +86,9 @@ class ProgressBar:
                 self.stream.write("\n")
         else:
             step = int(fraction * STEPS)
-            if step == self.last_step and not force:
+            if (step == self.last_step and not force) or (force and done == self.last_done):
                 return
-            self.last_step = step
+            self.last_step, self.last_done = step, done
             self.stream.write(
                 f"{self.label}: {done}/{total} ({100 * fraction:.0f}%), "
                 f"{elapsed:.0f} s, ETA {seconds(eta)}{tail}\n"
