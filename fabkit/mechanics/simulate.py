@@ -341,7 +341,14 @@ def surface_index(design: Design, stimulus: str) -> int:
 
 
 def design_metrics(design: Design, mesh: DesignMesh, surface: int) -> np.ndarray:
-    """Per-face reference metric (F, 2, 2) at surface ``surface``'s stimulus.
+    """Per-face reference metric (F, 2, 2) at surface ``surface``'s stimulus
+    (:func:`stimulus_metrics`)."""
+    return stimulus_metrics(design, mesh, design.stimuli[surface])
+
+
+def stimulus_metrics(design: Design, mesh: DesignMesh, stimulus: np.ndarray) -> np.ndarray:
+    """Per-face reference metric (F, 2, 2) of the design's sheet at ``stimulus`` (one value
+    per stimulus of the spec; any, not only a target's).
 
     The designed metric is (alpha lambda1)^2 du^2 + (beta lambda2)^2 dv^2, lambda1 along
     the flat-sheet director (the u-curves) and lambda2 across it, from the material at
@@ -350,7 +357,8 @@ def design_metrics(design: Design, mesh: DesignMesh, surface: int) -> np.ndarray
     """
     spec = design.problem
     eps = np.moveaxis(mesh.sample(np.moveaxis(design.eps, 0, -1)), -1, 0)
-    response = spec.material.response(eps, design.stimuli[surface : surface + 1])
+    stimuli = np.asarray(stimulus, dtype=float).reshape(1, -1)
+    response = spec.material.response(eps, stimuli)
     stretch_u = mesh.sample(design.alpha) * response.lambda1[0]
     stretch_v = mesh.sample(design.beta) * response.lambda2[0]
     step = design.step / mesh.refine
