@@ -3,24 +3,27 @@
 :func:`simulate` takes a flat mesh and per-face reference metrics (one or more layers),
 ramps the metrics linearly from the flat sheet's (identity) to the target in a few
 steps, and at every step minimises the :class:`~fabkit.mechanics.shell.Shell` energy by
+Newton's method in two regimes. Projected Newton (the positive semi-definite Hessian
+model, its factorisation reused as a CG preconditioner, Armijo backtracking) while it
+converges fast; once it creeps (a full step more than half the full step before it),
 damped Newton on the exact Hessian (Levenberg-Marquardt: H + mu I, mu adapted to how
-well the quadratic model predicted the last step), with a projected Newton step (the
-positive semi-definite Hessian model, Armijo backtracking) wherever the damped step is
-no descent or predicts badly. The exact Hessian is what makes it converge: near an
-equilibrium the soft modes of a sheet (near-isometric bending) have curvatures set by
-the fold-angle and compressive-stress terms that the projected model leaves out, so
-projected Newton alone only creeps along them (linearly, at 0.99 per iteration on the
-Fig. 1 bump as fabricated). Every factorisation is a sparse LU (SuperLU, minimum-degree
-ordering) with the rigid motions projected out; an exact step costs about three times a
-projected one (whose factorisation is reused as a preconditioner). The flat state is a
-symmetric stationary point, so the start is seeded with a small dome (or saddle) out of
-plane.
+well the quadratic model predicted the last step), with a projected step wherever a
+damped step is no descent or predicts badly. The exact Hessian is what makes it
+converge: near an equilibrium the soft modes of a sheet (near-isometric bending) have
+curvatures set by the fold-angle and compressive-stress terms that the projected model
+leaves out, so projected Newton alone only creeps along them (linearly, at 0.99 per
+iteration on the Fig. 1 bump as fabricated). An exact step costs about three times a
+projected one (an exact Hessian and a fresh sparse LU, SuperLU with minimum-degree
+ordering), hence projected Newton first. The rigid motions are projected out of every
+system. The flat state is a symmetric stationary point, so the start is seeded with a
+small dome (or saddle) out of plane.
 
 :func:`simulate_design` builds all of that from a design file at one of its stimuli.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -49,6 +52,9 @@ softest bending modes' curvature (1e-6 of the mean diagonal on Fig. 1 at h = 1 %
 ROUND_OFF = 1e-14
 """A predicted energy fall below this share of the energy is round-off: the sheet is at
 equilibrium to machine precision."""
+CREEP = 0.5
+"""Projected Newton creeps (converges linearly along soft modes) when a full step is more
+than this share of the full step before it: the damped exact Newton takes over."""
 TRUST = 0.25
 """A damped step is taken when the energy falls by at least this share of the fall the
 quadratic model predicted."""
@@ -151,29 +157,31 @@ def seeded(points: np.ndarray, settings: Settings) -> np.ndarray:
 def minimise(
     shell: Shell, x: np.ndarray, step_tolerance: float, max_iterations: int
 ) -> tuple[np.ndarray, int, bool]:
-    """Damped exact Newton from x (V, 3), with a projected Newton step wherever a damped
-    step fails (module docstring).
+    """Projected Newton from x (V, 3) while it converges fast; damped exact Newton once it
+    creeps (full steps shrinking by less than :data:`CREEP` per iteration), with a
+    projected Newton step wherever a damped step fails (module docstring).
 
     Stops when a full (undamped) Newton step moves no vertex more than ``step_tolerance``
     (design units); returns the positions, the iterations used and whether that happened.
     """
-    energy, damping = shell.energy(x), Damping()
+    energy, damping, exact, previous = shell.energy(x), Damping(), False, math.inf
     projected = NewtonSystem()
     for iteration in range(1, max_iterations + 1):
         gradient = shell.gradient(x).ravel()
-        move, fall = damped_step(shell, x, gradient, damping.mu)
-        if move is not None and -fall <= ROUND_OFF * abs(energy):  # equilibrium
-            return x, iteration, bool(_largest(move) <= step_tolerance)
-        if move is not None:
-            trial = shell.energy(x + move)
-            if trial - energy <= TRUST * fall:
-                full = damping.mu <= DAMPING_CONVERGED
-                damping.success((trial - energy) / fall)
-                x, energy = x + move, trial
-                if full and _largest(move) <= step_tolerance:
-                    return x, iteration, True
-                continue
-        damping.failure()
+        if exact:
+            move, fall = damped_step(shell, x, gradient, damping.mu)
+            if move is not None and -fall <= ROUND_OFF * abs(energy):  # equilibrium
+                return x, iteration, bool(_largest(move) <= step_tolerance)
+            if move is not None:
+                trial = shell.energy(x + move)
+                if trial - energy <= TRUST * fall:
+                    full = damping.mu <= DAMPING_CONVERGED
+                    damping.success((trial - energy) / fall)
+                    x, energy = x + move, trial
+                    if full and _largest(move) <= step_tolerance:
+                        return x, iteration, True
+                    continue
+            damping.failure()
         direction = projected.direction(shell.hessian(x, projected=True), gradient, x)
         slope = float(gradient @ direction)
         if slope >= 0:  # no descent left at round-off level
@@ -186,8 +194,11 @@ def minimise(
         if trial > energy:
             return x, iteration, bool(_largest(move) <= step_tolerance)
         x, energy = x + length * move, trial
-        if length == 1.0 and _largest(move) <= step_tolerance:
+        size = _largest(move)
+        if length == 1.0 and size <= step_tolerance:
             return x, iteration, True
+        exact = exact or (length == 1.0 and size > CREEP * previous)
+        previous = size if length == 1.0 else math.inf
     return x, max_iterations, False
 
 
