@@ -49,8 +49,9 @@ DAMPING = (1e-12, 1e-4, 1.0)
 DAMPING_CONVERGED = 1e-8
 """A step counts as a full Newton step when mu is at most this (relative): below the
 softest bending modes' curvature (1e-6 of the mean diagonal on Fig. 1 at h = 1 %)."""
-ROUND_OFF = 1e-14
-"""A predicted energy fall below this share of the energy is round-off: the sheet is at
+ROUND_OFF = 1e-16
+"""A damped step refused although it predicted a fall below this share of the energy
+per face (the energy is a sum over the faces) was refused by round-off: the sheet is at
 equilibrium to machine precision."""
 CREEP = 0.5
 """Projected Newton creeps (converges linearly along soft modes) when a full step is more
@@ -170,8 +171,6 @@ def minimise(
         gradient = shell.gradient(x).ravel()
         if exact:
             move, fall = damped_step(shell, x, gradient, damping.mu)
-            if move is not None and -fall <= ROUND_OFF * abs(energy):  # equilibrium
-                return x, iteration, bool(_largest(move) <= step_tolerance)
             if move is not None:
                 trial = shell.energy(x + move)
                 if trial - energy <= TRUST * fall:
@@ -181,6 +180,8 @@ def minimise(
                     if full and _largest(move) <= step_tolerance:
                         return x, iteration, True
                     continue
+                if -fall <= ROUND_OFF * len(shell.rest) * abs(energy):  # a sum over faces
+                    return x, iteration, bool(_largest(move) <= step_tolerance)
             damping.failure()
         direction = projected.direction(shell.hessian(x, projected=True), gradient, x)
         slope = float(gradient @ direction)
