@@ -85,11 +85,17 @@ def run(args: argparse.Namespace) -> int:
     report = compare(design, simulation)
     if args.out is not None:
         save_mesh(args.out, simulation.result.positions, simulation.mesh.triangles)
+    used = {
+        "seed": settings.seed,
+        "path": f"flat sheet as made -> the stimulus, {settings.steps} ramp steps",
+        "solver": "damped Newton (exact Hessian, Levenberg-Marquardt)",
+    }
     if args.json:
-        print(json.dumps({**report.to_dict(), "part": part.to_dict()}, indent=2))
+        print(json.dumps({**report.to_dict(), "part": part.to_dict(), **used}, indent=2))
     else:
         print(part.summary())
         print(report.table())
+        print(f"  started flat with a {used['seed']} seed; path {used['path']}")
         if not simulation.result.converged:
             print(
                 f"  not converged: Newton stopped at {settings.max_iterations} iterations per "

@@ -84,6 +84,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=100,
         help="Newton iterations per ramp step (default %(default)s)",
     )
+    simulation.add_argument(
+        "--smoothing",
+        type=float,
+        metavar="MM",
+        help="average the read-back fields over a Gaussian of MM before simulating "
+        "(default: the larger of the road width and the sheet's thickness; 0: raw)",
+    )
     part_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     add_progress(parser)
@@ -115,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
         reference=args.reference,
         stride=args.stride,
         max_iterations=args.max_iterations,
+        smoothing_mm=args.smoothing,
         baromorph=args.baromorph,
         part_request=part_request(args),
     )

@@ -189,6 +189,12 @@ def _v_side(design: Design) -> float:
     return 1.0 if np.median(cross) >= 0 else -1.0
 
 
+def default_thickness(design: Design) -> float:
+    """The simulated sheet's thickness (design units): :data:`~fabkit.part.SIMULATE_THICKNESS`
+    of the diameter of the design's whole solved flat domain (as ``fabkit simulate``)."""
+    return SIMULATE_THICKNESS * diameter(design_mesh(design).points)
+
+
 def simulate_sheet(
     design: Design,
     fields: SheetFields,
@@ -211,7 +217,7 @@ def simulate_sheet(
     coarse = coarsened(design, stride)
     mesh = made_mesh(coarse, fields.made, part)
     if thickness is None:
-        thickness = SIMULATE_THICKNESS * diameter(design_mesh(design).points)
+        thickness = default_thickness(design)
 
     def sample(mesh: DesignMesh) -> tuple[np.ndarray, np.ndarray]:
         theta = np.asarray(fields.theta(mesh.points), dtype=float)
