@@ -16,6 +16,7 @@ from fabkit.errors import FabkitError
 from fabkit.field.flat import field_from_expression, parse_shape
 from fabkit.machines import load_machine
 from fabkit.process import Calibration, Encode, JointCalibration, Process
+from fabkit.toolpath.exposure import LaserSettings, sample_field
 from fabkit.toolpath.model import PRINT, Toolpath
 from fabkit.toolpath.plan import PlanSettings, plan_toolpath
 from fabkit.verify.raster import Roads, rasterise
@@ -24,7 +25,7 @@ from fabkit.verify.read_gcode import read_gcode
 from fabkit.verify.read_laser import read_laser
 from fabkit.writers.dxf import write_dxf
 from fabkit.writers.gcode import write_gcode
-from fabkit.writers.laser import LaserSettings, sample_field, write_laser
+from fabkit.writers.laser import write_laser
 from tests.conftest import ROOT
 
 FEATURES = {"eps1": "0.3 + 0.02*x", "eps2": "0.05*y"}

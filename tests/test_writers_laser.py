@@ -19,13 +19,8 @@ from fabkit.link.gcode import read_job
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from fabkit.process import Calibration, Encode, Process
-from fabkit.writers.laser import (
-    DirectorGrid,
-    LaserSettings,
-    bin_angles,
-    sample_field,
-    write_laser,
-)
+from fabkit.toolpath.exposure import DirectorGrid, LaserSettings, bin_angles, sample_field
+from fabkit.writers.laser import write_laser
 from tests.test_writers_common import ROOT, baromorph, fig1_design_path, replay
 
 SCHEMA = json.loads((ROOT / "docs" / "laser-manifest.schema.json").read_text())
@@ -172,9 +167,8 @@ def test_baromorph_scan_lines_cover_every_pixel_once(tmp_path):
         dose_levels=4,
         scan_speed_mm_s=5.0,
         max_power_mw=50.0,
-        image_format="tiff",
     )
-    summary = write_laser(grid, tmp_path / "baro", machine, settings)
+    summary = write_laser(grid, tmp_path / "baro", machine, settings, image_format="tiff")
     folder = tmp_path / "baro"
     manifest = json.loads((folder / "manifest.json").read_text())
     jsonschema.validate(manifest, SCHEMA)

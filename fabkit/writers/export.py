@@ -36,11 +36,12 @@ from fabkit.machines import MachineProfile, load_machine
 from fabkit.npzfile import npz_keys
 from fabkit.process import Process
 from fabkit.readfile import read_json
+from fabkit.toolpath.exposure import LaserSettings, sample_field
 from fabkit.toolpath.model import Toolpath, load_toolpath
 from fabkit.writers.common import FORMATS
 from fabkit.writers.dxf import DEFAULT_INLET_RADIUS_MM, DxfSummary, write_dxf
 from fabkit.writers.gcode import GcodeOptions, GcodeSummary, write_gcode
-from fabkit.writers.laser import LaserSettings, sample_field, write_laser
+from fabkit.writers.laser import write_laser
 
 GEOMETRY_LAYERS = ("outline", "channels", "inlet")
 
@@ -226,12 +227,14 @@ def _laser(source: Source, machine: MachineProfile, out: Path, options: ExportOp
         or (optics.pixel_pitch_mm if optics is not None else None)
         or machine.process.road_width_mm
     )
+    laser = dict(options.laser)
+    image_format = laser.pop("image_format", None) or "png"
     settings = LaserSettings.for_machine(
-        machine, **options.laser, process=options.process, ignore=options.ignore_features
+        machine, **laser, process=options.process, ignore=options.ignore_features
     )
     # the part of a pattern: the writer's own pixel and film, whatever --process encodes
     grid = sample_field(_field(source, options, machine.process), pixel)
-    s = write_laser(grid, out, machine, settings, options.offset_mm)
+    s = write_laser(grid, out, machine, settings, options.offset_mm, image_format)
     scan = f", {s.scan_lines} scan lines" if s.scan_lines else ""
     cures = len(s.manifest["cure_exposures"])
     cure = f" and {cures} cure masks" if cures else ""
