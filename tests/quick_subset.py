@@ -98,11 +98,19 @@ def closure(path: Path) -> set[str]:
 
 
 class Plugin:
-    """Collects the fabkit modules each selected test imports, and the selected files."""
+    """Collects the fabkit modules each selected test imports, and the selected files.
 
-    def __init__(self) -> None:
+    Under pytest-xdist each worker collects its own and hands them to the controller
+    (``workeroutput``), which reports for them all."""
+
+    def __init__(self, config) -> None:
+        self.config = config
         self.files: set[Path] = set()
         self.imported: set[str] = set()
+
+    @property
+    def worker(self) -> bool:
+        return hasattr(self.config, "workerinput")
 
     def pytest_collection_modifyitems(self, items) -> None:  # after -m deselected
         self.files = {Path(str(item.fspath)) for item in items}
@@ -115,7 +123,17 @@ class Plugin:
         finally:
             self.imported |= {name for name in sys.modules if name.startswith("fabkit")} - before
 
+    @pytest.hookimpl(optionalhook=True)
+    def pytest_testnodedown(self, node, error) -> None:  # the controller, a worker's data
+        output = getattr(node, "workeroutput", {})
+        self.files |= {Path(name) for name in output.get("fabkit_files", ())}
+        self.imported |= set(output.get("fabkit_imported", ()))
+
     def pytest_sessionfinish(self, session) -> None:
+        if self.worker:
+            self.config.workeroutput["fabkit_files"] = sorted(map(str, self.files))
+            self.config.workeroutput["fabkit_imported"] = sorted(self.imported)
+            return
         covered = set(self.imported)
         for path in self.files:
             covered |= closure(path)
@@ -127,14 +145,13 @@ class Plugin:
 
 
 def pytest_configure(config) -> None:
-    config.pluginmanager.register(Plugin(), "fabkit-quick-subset")
+    config.pluginmanager.register(Plugin(config), "fabkit-quick-subset")
 
 
 def main() -> int:
     """Run the quick subset with the plugin; print its time; exit as it did."""
     started = time.perf_counter()
     command = [sys.executable, "-m", "pytest", "-m", "not slow", "-q", "-p", "no:cacheprovider"]
-    command += ["-n", "0"]  # in this process: the plugin sees every test's imports
     code = subprocess.call([*command, "-p", "tests.quick_subset"], cwd=ROOT)
     seconds = time.perf_counter() - started
     print(f"{REPORT}{seconds:.1f} s wall (budget {BUDGET_S:g} s)")

@@ -4,7 +4,9 @@ are side outputs, read by no later stage)."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import io
 import sys
 from collections import Counter
 from pathlib import Path
@@ -16,6 +18,7 @@ import shapely
 import fabkit.design.check
 import fabkit.problem.spec
 import fabkit.toolpath.model
+from fabkit.cli import main
 from fabkit.design.design import Design
 from fabkit.design.report import solve_to_file
 from fabkit.field.flat import field_from_design
@@ -28,64 +31,71 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 COARSE = ("--step", "0.1", "--diagonals", "30")
 
 
-@pytest.fixture
-def counted(monkeypatch):
-    """Counts of the spec parses, residual-map computations and file reloads: every fabkit
-    module that holds the function (imported by name) gets the counting wrapper."""
+@contextlib.contextmanager
+def counting():
+    """Counts of the spec parses, residual-map computations and file reloads while the
+    block runs: every fabkit module that holds the function (imported by name) gets the
+    counting wrapper."""
     for module in ("fabkit.pipeline", "fabkit.commands.verify", "fabkit.commands.toolpath"):
         importlib.import_module(module)  # load every stage before wrapping
     calls: Counter[str] = Counter()
+    with pytest.MonkeyPatch.context() as patch:
 
-    def counting(real, key: str) -> None:
-        def wrapper(*args, **kwargs):
-            calls[key] += 1
-            return real(*args, **kwargs)
+        def count(real, key: str) -> None:
+            def wrapper(*args, **kwargs):
+                calls[key] += 1
+                return real(*args, **kwargs)
 
-        for name, module in list(sys.modules.items()):
-            if name.startswith("fabkit"):
-                for attribute, value in list(vars(module).items()):
-                    if value is real:
-                        monkeypatch.setattr(module, attribute, wrapper)
+            for name, module in list(sys.modules.items()):
+                if name.startswith("fabkit"):
+                    for attribute, value in list(vars(module).items()):
+                        if value is real:
+                            patch.setattr(module, attribute, wrapper)
 
-    counting(fabkit.problem.spec.build_spec, "spec parses")
-    counting(fabkit.design.check.residual_maps, "residual maps")
-    counting(fabkit.toolpath.model.load_toolpath, "toolpath loads")
-    real_load = Design.load.__func__
+        count(fabkit.problem.spec.build_spec, "spec parses")
+        count(fabkit.design.check.residual_maps, "residual maps")
+        count(fabkit.toolpath.model.load_toolpath, "toolpath loads")
+        real_load = Design.load.__func__
 
-    def load(cls, *args, **kwargs):
-        calls["design loads"] += 1
-        return real_load(cls, *args, **kwargs)
+        def load(cls, *args, **kwargs):
+            calls["design loads"] += 1
+            return real_load(cls, *args, **kwargs)
 
-    monkeypatch.setattr(Design, "load", classmethod(load))
-    return calls
+        patch.setattr(Design, "load", classmethod(load))
+        yield calls
 
 
-def test_run_parses_once_computes_maps_once_and_reloads_nothing(tmp_path, run_cli, counted):
-    out = tmp_path / "out"
-    code, _, err = run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *COARSE)
-    assert code == 0, err
-    assert counted == {"spec parses": 1, "residual maps": 1}, counted
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """One coarse `fabkit run` of Fig. 1, counted: its output folder and the counts."""
+    out = tmp_path_factory.mktemp("values") / "out"
+    with counting() as calls, contextlib.redirect_stdout(io.StringIO()):
+        code = main(["run", str(EXAMPLES / "two_shapes.toml"), "--out", str(out), *COARSE])
+    assert code == 0
+    return out, Counter(calls)
+
+
+def test_run_parses_once_computes_maps_once_and_reloads_nothing(run):
+    out, calls = run
+    assert calls == {"spec parses": 1, "residual maps": 1}, calls
     assert (out / "design.npz").is_file() and (out / "sheet.gcode").is_file()
 
 
-def test_verify_and_toolpath_parse_the_embedded_spec_once(tmp_path, run_cli, counted):
-    out = tmp_path / "out"
-    assert run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *COARSE)[0] == 0
-    counted.clear()
-    code, _, err = run_cli(
-        "verify", out / "design.npz", out / "sheet.gcode", "--machine", "marlin_diw_pneumatic"
-    )
+def test_verify_and_toolpath_parse_the_embedded_spec_once(run, tmp_path, run_cli):
+    out, _ = run
+    verify = ("verify", out / "design.npz", out / "sheet.gcode", "--no-simulate")
+    with counting() as calls:
+        code, _, err = run_cli(*verify, "--machine", "marlin_diw_pneumatic")
     assert code == 0, err
-    assert counted == {"spec parses": 1, "design loads": 1}, counted
-    counted.clear()
+    assert calls == {"spec parses": 1, "design loads": 1}, calls
     toolpath = ("toolpath", out / "design.npz", "--size", "60", "--out", tmp_path / "tp")
-    assert run_cli(*toolpath)[0] == 0
-    assert counted == {"spec parses": 1, "design loads": 1}, counted
+    with counting() as calls:
+        assert run_cli(*toolpath)[0] == 0
+    assert calls == {"spec parses": 1, "design loads": 1}, calls
 
 
-def test_export_from_a_value_writes_what_export_from_the_file_writes(tmp_path, run_cli):
-    out = tmp_path / "out"
-    assert run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *COARSE)[0] == 0
+def test_export_from_a_value_writes_what_export_from_the_file_writes(run, tmp_path):
+    out, _ = run
     toolpath = load_toolpath(out / "toolpath" / "toolpath.npz")
     machine = load_machine("marlin_diw_pneumatic")
     from_value = write_machine_file(toolpath, machine, "gcode", tmp_path / "value.gcode")
