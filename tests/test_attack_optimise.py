@@ -18,6 +18,12 @@ VARY = "--vary initial.eps[0]=0.2:0.7"
 
 CASES = [
     case(
+        f"{OPT} --curvature-median 0",
+        "expected a positive finite number",
+        "--curvature-median 0",
+        id="optimise_tolerance_zero",
+    ),
+    case(
         f"{OPT} --vary initial.colour[0]=0:1",
         "not a key the search can vary",
         "initial.colour[0]",

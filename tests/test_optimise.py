@@ -317,3 +317,17 @@ def test_the_search_pictures_are_drawn(tmp_path):
     )
     for name in ("search.png", "s.png"):
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_check_tolerances_of_the_command_line_reach_the_search(monkeypatch, run_cli):
+    asked = []
+
+    def optimise(job, report):
+        asked.append(job)
+        raise FabkitError("stopped here")
+
+    monkeypatch.setattr("fabkit.optimise.run.optimise", optimise)
+    spec = EXAMPLES / "two_shapes.toml"
+    code, _, err = run_cli("optimise", spec, "--curvature-median", "1e-3", "--out", "x.toml")
+    assert code == 2 and "stopped here" in err
+    assert asked[0].tolerances == ACCEPTANCE  # issue 21's: residual medians <= 1e-3

@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from fabkit.commands import help_of
+from fabkit.commands.check import tolerance_arguments, tolerances
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -69,6 +70,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="NAME",
         help="a feature the process need not encode (repeatable)",
     )
+    tolerance_arguments(parser)  # a candidate counts only when its design passes them
     parser.set_defaults(func=run)
 
 
@@ -90,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers or 0,
         dask=args.dask,
         checkpoint=args.checkpoint,
+        tolerances=tolerances(args),
     )
     outcome = optimise(job, report=lambda line: print(line, file=sys.stderr, flush=True))
     summary = outcome.summary
