@@ -331,3 +331,24 @@ def test_the_check_tolerances_of_the_command_line_reach_the_search(monkeypatch, 
     code, _, err = run_cli("optimise", spec, "--curvature-median", "1e-3", "--out", "x.toml")
     assert code == 2 and "stopped here" in err
     assert asked[0].tolerances == ACCEPTANCE  # issue 21's: residual medians <= 1e-3
+
+
+@pytest.mark.slow
+def test_a_search_in_which_nothing_counts_says_so_and_writes_no_best(tmp_path, run_cli):
+    table = example_table("two_shapes.toml")
+    table["solver"] = {"step": 0.1, "diagonals": 10, "quadrants": "all"}
+    spec = tmp_path / "spec.toml"
+    spec.write_text(dumps(table))
+    out = tmp_path / "best.toml"
+    code, _, err = run_cli(
+        "optimise", spec, "--out", out, "--vary", "initial.eps[0]=0.4:0.6",
+        "--generations", "1", "--popsize", "1", "--workers", "1",
+        "--isometry-median", "1e-12",  # no design passes a check this strict
+    )  # fmt: skip
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert lines[-1].startswith("fabkit: error: no candidate counted: none of the ")
+    assert "isometry median 1e-12" in lines[-1] and "Traceback" not in err
+    assert "(the start counts 0)" in err  # the progress line, not "infx the start"
+    assert not out.exists() and not (tmp_path / "best.search.json").exists()
+    assert (tmp_path / "best.checkpoint.json").exists()  # a larger budget resumes it

@@ -57,7 +57,7 @@ def sheets_picture(given: Design, best: Design, summary: dict[str, Any], path: s
     values = (summary["start"]["value"], summary["best_solved_again"]["value"])
     mappable = None
     for ax, design, name, value in zip(axes, (given, best), names, values, strict=True):
-        mappable = _flat_sheet(ax, design, limits)
+        mappable = _flat_sheet(ax, design, limits) or mappable
         ax.set_title(f"{name}: {design.valid.sum()} points, objective {value:.3g}")
     extent = np.concatenate([d.r[0][d.valid] for d in (given, best)])
     low, high = extent.min(0), extent.max(0)
@@ -69,13 +69,17 @@ def sheets_picture(given: Design, best: Design, summary: dict[str, Any], path: s
         ax.set_xlabel("x (design units)")
         ax.set_ylabel("y (design units)")
     feature = best.problem.material.features[0]
-    figure.colorbar(mappable, ax=list(axes), label=feature, shrink=0.85)
+    if mappable is not None:
+        figure.colorbar(mappable, ax=list(axes), label=feature, shrink=0.85)
     _save(figure, path)
 
 
 def _flat_sheet(axes, design: Design, limits: tuple[float, float]):
-    """Draw one flat sheet; returns the colour mapping of its eps."""
+    """Draw one flat sheet; returns the colour mapping of its eps (None: no cell)."""
     points, triangles = grid_triangles(design.valid)
+    if not len(triangles):  # no solved cell: nothing to draw but the note
+        axes.text(0.5, 0.5, "no solved cell", transform=axes.transAxes, ha="center")
+        return None
     xy = design.r[0][points[:, 0], points[:, 1]]
     colour = design.eps[0][points[:, 0], points[:, 1]]
     mesh = Triangulation(xy[:, 0], xy[:, 1], triangles)

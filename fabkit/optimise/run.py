@@ -117,6 +117,7 @@ def optimise(job: Job, report: Callable[[str], None] = lambda line: None) -> Out
         workers = pool.workers
     finally:
         pool.close()
+    _refuse_nothing_counted(result, objective, checkpoint.path)
     best_table = _with_absolute_files(space.table_at(result.best), base_dir)
     best = build_spec(best_table, base_dir)
     solved = solve(best).design
@@ -138,15 +139,34 @@ def _pool(job: Job) -> LocalPool | DaskPool:
     return LocalPool(workers)
 
 
+def _refuse_nothing_counted(result: Result, objective: Objective, checkpoint: Path) -> None:
+    """A search in which no candidate (the spec as given included) counted anything has no
+    best to write: one line saying why, and how to go on (the checkpoint resumes it)."""
+    if result.evaluation.value > 0:
+        return
+    t = objective.tolerances
+    limits = " and the process's limits" if objective.limits is not None else ""
+    raise FabkitError(
+        f"no candidate counted: none of the {len(result.history)} designs passed the check "
+        f"(isometry median {t.isometry_median:g}, p95 {t.isometry_p95:g}, curvature median "
+        f"{t.curvature_median:g}){limits}; nothing written but the checkpoint {checkpoint}: "
+        "widen the --vary bounds, raise the budget or loosen the tolerances"
+    )
+
+
 def progress_line(progress: Progress) -> str:
     """One line after a generation."""
-    ratio = progress.best / progress.start if progress.start > 0 else float("inf")
     computed = progress.evaluations - progress.replayed
     rate = computed / progress.seconds if progress.seconds > 0 else 0.0
+    against = (
+        f"{progress.best / progress.start:.2f}x the start"
+        if progress.start > 0
+        else "the start counts 0"
+    )
     return (
         f"generation {progress.generation}/{progress.generations}: {progress.evaluations} "
         f"evaluations ({progress.replayed} from the checkpoint), best {progress.best:.4g} "
-        f"({ratio:.2f}x the start), {rate:.1f} evaluations/s"
+        f"({against}), {rate:.1f} evaluations/s"
     )
 
 
