@@ -141,7 +141,8 @@ def _pool(job: Job) -> LocalPool | DaskPool:
 
 def _refuse_nothing_counted(result: Result, objective: Objective, checkpoint: Path) -> None:
     """A search in which no candidate (the spec as given included) counted anything has no
-    best to write: one line saying why, and how to go on (the checkpoint resumes it)."""
+    best to write (differential evolution stops on a population that scores 0 throughout):
+    one line saying why, and how to go on."""
     if result.evaluation.value > 0:
         return
     t = objective.tolerances
@@ -149,8 +150,9 @@ def _refuse_nothing_counted(result: Result, objective: Objective, checkpoint: Pa
     raise FabkitError(
         f"no candidate counted: none of the {len(result.history)} designs passed the check "
         f"(isometry median {t.isometry_median:g}, p95 {t.isometry_p95:g}, curvature median "
-        f"{t.curvature_median:g}){limits}; nothing written but the checkpoint {checkpoint}: "
-        "widen the --vary bounds, raise the budget or loosen the tolerances"
+        f"{t.curvature_median:g}){limits}, so the search had nothing to follow; nothing "
+        f"written but the checkpoint {checkpoint}: widen the --vary bounds, draw more first "
+        "candidates (--popsize) or loosen the tolerances"
     )
 
 
