@@ -56,10 +56,11 @@ from fabkit.field.part import (
     solved_region,
 )
 from fabkit.figures import AREA_UNIT
-from fabkit.machines import DEFAULT_MACHINE, load_machine
+from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
 from fabkit.plot import render_design
 from fabkit.plot.report import html_report
 from fabkit.problem.spec import Spec, load_spec
+from fabkit.process import Process
 from fabkit.toolpath.baromorph import load_baromorph
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.process import load_process, resolve_channels
@@ -114,12 +115,22 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     checked before any work, so bad input is refused without writing anything.
     """
     options = _with_defaults(options)
-    spec = _check_inputs(options)
+    inputs = _check_inputs(options)
     with output_folder(options.out, f"--out {options.out}", options.overwrite):
-        return _stages(options, spec, say)
+        return _stages(options, inputs, say)
 
 
-def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict[str, Any]:
+@dataclass(frozen=True)
+class _Inputs:
+    """What the checks read once and every stage takes: the spec (the solver options
+    applied), the machine profile and the process (None on a baromorph run)."""
+
+    spec: Spec
+    machine: MachineProfile
+    process: Process | None
+
+
+def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> dict[str, Any]:
     """Every stage in turn, into the claimed output folder; returns the key figures."""
     out = Path(options.out)
     notice = _notice(options)
@@ -127,7 +138,7 @@ def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict
         say(f"      {notice}")
 
     say(f"[1/7] solving {options.spec}")
-    result = solve_to_file(spec, out / "design.npz", "      solving")
+    result = solve_to_file(inputs.spec, out / "design.npz", "      solving")
     solution, check, solved = result.solution, result.check, result.summary
     say(
         f"      {solved['valid_points']} valid points in {solved['solve_seconds']:.2f} s; "
@@ -138,7 +149,7 @@ def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict
         f"      area over the solved cells ({AREA_UNIT}): "
         + ", ".join(f"{k} {v:.4g}" for k, v in solved["area_design_units2"].items())
     )
-    part = _part(options, solution.design)
+    part = _part(options, inputs, solution.design)
     say(f"      {part.summary()}")
 
     say("[2/7] drawing pictures and patch meshes")
@@ -150,11 +161,11 @@ def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict
     ]
 
     if options.baromorph:
-        fabricated = _channels(options, out, design, part, say)
-    elif load_machine(options.machine).kind == LASER_WRITER:
-        fabricated = _laser_patterns(options, out, design, part, say)
+        fabricated = _channels(options, inputs, out, design, part, say)
+    elif inputs.machine.kind == LASER_WRITER:
+        fabricated = _laser_patterns(options, inputs, out, design, part, say)
     else:
-        fabricated = _print_lines(options, out, design, part, say)
+        fabricated = _print_lines(options, inputs, out, design, part, say)
 
     verification = _verify(options, out, design, part, say)
 
@@ -195,8 +206,9 @@ def _stages(options: RunOptions, spec: Spec, say: Callable[[str], None]) -> dict
     return figures
 
 
-def _check_inputs(options: RunOptions) -> Spec:
-    """Refuse bad input before any work; returns the spec with the solver options applied."""
+def _check_inputs(options: RunOptions) -> _Inputs:
+    """Refuse bad input before any work; returns the spec (the solver options applied),
+    the machine profile and the process."""
     for fmt in options.formats:
         if fmt not in FORMAT_FILES:
             raise FabkitError(f"--format {fmt}: expected one of {', '.join(FORMAT_FILES)}")
@@ -223,6 +235,7 @@ def _check_inputs(options: RunOptions) -> Spec:
         raise FabkitError(
             f"{options.machine} is a laser writer: use --format laser (or no --format)"
         )
+    process = None
     if not options.baromorph:
         process = load_process(options.process_file) if options.process_file else machine.process
         resolve_channels(process, spec.material.features, options.ignore_features)
@@ -234,7 +247,7 @@ def _check_inputs(options: RunOptions) -> Spec:
             f"--size {options.size_mm:g}: the sheet does not fit the envelope of "
             f"{options.machine} ({spans[0]:g} x {spans[1]:g} mm); give a smaller --size"
         )
-    return spec
+    return _Inputs(spec, machine, process)
 
 
 def _notice(options: RunOptions) -> str:
@@ -251,7 +264,7 @@ def _notice(options: RunOptions) -> str:
     )
 
 
-def _part(options: RunOptions, design: Design) -> Part:
+def _part(options: RunOptions, inputs: _Inputs, design: Design) -> Part:
     """The part of the flat sheet that is made, at the run's size, for its process: the
     road width (a baromorph's: two channel pitches) and one layer's height (a baromorph's
     part thickness) set the default minimum width and the trim."""
@@ -260,9 +273,7 @@ def _part(options: RunOptions, design: Design) -> Part:
         road, thickness = settings.pitch_mm, settings.part_thickness_mm
         roads = MIN_WIDTH_PITCHES
     else:
-        machine = load_machine(options.machine)
-        process = load_process(options.process_file) if options.process_file else machine.process
-        road, thickness = process.road_width_mm, process.layer_height_mm
+        road, thickness = inputs.process.road_width_mm, inputs.process.layer_height_mm
         roads = MIN_WIDTH_ROADS
     solved = solved_region(design)
     return print_part(
@@ -340,7 +351,12 @@ class _Fabricated:
 
 
 def _print_lines(
-    options: RunOptions, out: Path, design: Design, part: Part, say: Callable[[str], None]
+    options: RunOptions,
+    inputs: _Inputs,
+    out: Path,
+    design: Design,
+    part: Part,
+    say: Callable[[str], None],
 ) -> _Fabricated:
     """Print lines along the director, then the machine files (from the toolpath in
     memory; toolpath.npz is a side output)."""
@@ -357,8 +373,8 @@ def _print_lines(
             design=design,
         )
     )
-    machine = load_machine(options.machine)
     say(f"[4/7] writing {', '.join(options.formats)}")
+    machine = inputs.machine
     exports = {
         fmt: write_machine_file(job.plan.toolpath, machine, fmt, out / FORMAT_FILES[fmt]).summary
         for fmt in options.formats
@@ -374,18 +390,22 @@ def _print_lines(
 
 
 def _laser_patterns(
-    options: RunOptions, out: Path, design: Design, part: Part, say: Callable[[str], None]
+    options: RunOptions,
+    inputs: _Inputs,
+    out: Path,
+    design: Design,
+    part: Part,
+    say: Callable[[str], None],
 ) -> _Fabricated:
     """Photoalignment patterns straight from the design (no print lines)."""
     say("[3/7] no print lines: a laser writer exposes the director field directly")
     say("[4/7] writing laser/")
-    process = load_process(options.process_file) if options.process_file else None
     summary = write_machine_file(
         design,
-        load_machine(options.machine),
+        inputs.machine,
         "laser",
         out / "laser",
-        ExportOptions(process=process, ignore_features=options.ignore_features, part=part),
+        ExportOptions(process=inputs.process, ignore_features=options.ignore_features, part=part),
     ).summary
     record(out / "laser")  # the laser writer renames a whole folder into place
     caption = "Photoalignment pattern: binned director angle and the dose of each exposure (mm)"
@@ -393,7 +413,12 @@ def _laser_patterns(
 
 
 def _channels(
-    options: RunOptions, out: Path, design: Design, part: Part, say: Callable[[str], None]
+    options: RunOptions,
+    inputs: _Inputs,
+    out: Path,
+    design: Design,
+    part: Part,
+    say: Callable[[str], None],
 ) -> _Fabricated:
     """Baromorph channels whose width encodes eps, their mould, and a DXF for a cutter."""
     say(f"[3/7] laying out baromorph channels at {options.size_mm:g} mm")
@@ -404,7 +429,7 @@ def _channels(
     say("[4/7] writing channels.dxf")
     drawing = write_dxf(
         out / "channels.dxf",
-        machine=load_machine(options.machine),
+        machine=inputs.machine,
         mm_per_unit=result.mm_per_unit,
         **layout_layers(result.layout),
     )

@@ -217,7 +217,7 @@ def verify(
     ``design``: the design in ``design_path``, loaded already (``fabkit run``)."""
     started = time.perf_counter()
     _check_options(options)
-    design = design or Design.load(design_path)
+    design = Design.load(design_path) if design is None else design
     names = feature_names(design, str(design_path))
     machine_file = Path(machine_file)
     if not machine_file.exists():
