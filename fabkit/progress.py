@@ -111,9 +111,12 @@ def seconds(value: float) -> str:
     """A time left: ``42 s`` under two minutes, else ``h:mm:ss`` (``? s`` unknown)."""
     if not math.isfinite(value):
         return "? s"
-    if value < 120:
-        return f"{value:.0f} s"
-    whole = int(round(value))
+    return f"{value:.0f} s" if value < 120 else clock(value)
+
+
+def clock(seconds: float) -> str:
+    """``h:mm:ss``."""
+    whole = int(round(seconds))
     return f"{whole // 3600}:{whole // 60 % 60:02d}:{whole % 60:02d}"
 
 

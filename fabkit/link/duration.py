@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 from fabkit.link.gcode import Command, code_of, words
 from fabkit.machines import MachineProfile
+from fabkit.progress import clock
 
 STOPS = frozenset({"G4", "M400", "G28", "G29", "M109", "M190", "M0", "M1", "M600", "M226"})
 """Commands that wait until every planned move has ended (the planner empties)."""
@@ -127,12 +128,6 @@ def _off_segment(point: Sequence[float], start: Sequence[float], end: Sequence[f
     along = sum((p - a) * c for p, a, c in zip(point, start, d, strict=True)) / length2
     along = min(1.0, max(0.0, along))
     return math.dist(point, [a + along * c for a, c in zip(start, d, strict=True)])
-
-
-def clock(seconds: float) -> str:
-    """``h:mm:ss``."""
-    seconds = int(round(seconds))
-    return f"{seconds // 3600}:{seconds // 60 % 60:02d}:{seconds % 60:02d}"
 
 
 @dataclass
