@@ -138,12 +138,8 @@ def _road_runs(
     cut[1:] = (move[1:] != move[:-1]) | (colour[1:] != colour[:-1]) | (size[1:] != size[:-1])
     starts = np.flatnonzero(cut)
     ends = np.append(starts[1:], len(move))
-    vertices = [m.xyz[:, :2] for m in prints]
-    first = np.concatenate([[0], np.cumsum([len(m.xyz) - 1 for m in prints])[:-1]])
-    lines = [
-        vertices[move[a]][a - first[move[a]] : b - first[move[a]] + 1]
-        for a, b in zip(starts, ends, strict=True)
-    ]
+    xy = np.concatenate([m.xyz[:, :2] for m in prints])  # segment k starts at k + move[k]
+    lines = [xy[a + move[a] : b + move[a] + 1] for a, b in zip(starts, ends, strict=True)]
     if norm is not None:
         steps = colour[starts] / (COLOUR_LEVELS - 1)
         value = np.where(colour[starts] >= 0, norm.inverse(steps), np.nan)
