@@ -37,11 +37,14 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
+from contextlib import suppress
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from fabkit.atomic import atomic_path, check_folder, output_folder, record
+from fabkit.background import worker
+from fabkit.design.check import CheckReport, ResidualMaps
 from fabkit.design.design import Design
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
 from fabkit.design.report import checked_points, solve_to_file
@@ -57,7 +60,7 @@ from fabkit.field.part import (
 )
 from fabkit.figures import AREA_UNIT
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
-from fabkit.plot import render_design
+from fabkit.plot import design_scene, draw_design, write_pictures
 from fabkit.plot.report import html_report
 from fabkit.problem.spec import Spec, load_spec
 from fabkit.process import Process
@@ -131,15 +134,78 @@ class _Inputs:
 
 
 def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> dict[str, Any]:
-    """Every stage in turn, into the claimed output folder; returns the key figures."""
+    """Every stage in turn, into the claimed output folder; returns the key figures.
+
+    The design pictures are drawn in a second process (:mod:`fabkit.background`) while
+    the later stages run, and written when they are done (also when a later stage fails).
+    """
     out = Path(options.out)
     notice = _notice(options)
     if notice:
         say(f"      {notice}")
+    with worker(warm=("fabkit.plot",)) as background:
+        solved = _solve(options, inputs, say)
+        say("[2/7] drawing pictures and patch meshes")
+        design = solved.design
+        drawing = background.apply_async(
+            draw_design, (design_scene(design, solved.part, solved.maps),)
+        )
+        meshes = [
+            str(path) for path in write_patch_meshes(design, out / "patches", options.mesh_format)
+        ]
+        try:
+            fabricated, verification, sent = _fabricate(options, inputs, out, solved, say)
+        except FabkitError:
+            with suppress(Exception):  # the run fails with its own error; keep what it drew
+                write_pictures(drawing.get(), out / "pictures")
+            raise
+        pictures = write_pictures(drawing.get(), out / "pictures")
 
+    say("[7/7] writing report.html and report.json")
+    figures = {
+        **({"notice": notice} if notice else {}),
+        "spec": str(options.spec),
+        "machine": options.machine,
+        "solve": {
+            k: solved.summary[k]
+            for k in ("solve_seconds", "valid_points", "area_design_units2", "stop_counts")
+        },
+        "check": solved.check.to_dict(),
+        "part": solved.part.to_dict(),
+        **fabricated.figures,
+        "verify": verification,
+        "sent": sent,
+        "meshes": meshes,
+    }
+    html_report(
+        f"fabkit run {Path(options.spec).name}",
+        figures,
+        pictures + [fabricated.picture],
+        out / "report.html",
+        notice=notice,
+    )
+    with atomic_path(out / "report.json") as tmp:
+        tmp.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
+    return figures
+
+
+@dataclass(frozen=True)
+class _Solved:
+    """The solve stage's results: the ``design``, its check (``check``, the residual
+    ``maps``), the solver's ``summary`` and the ``part`` that is made."""
+
+    design: Design
+    check: CheckReport
+    maps: tuple[ResidualMaps, ...]
+    summary: dict[str, Any]
+    part: Part
+
+
+def _solve(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> _Solved:
+    """Solve and check the spec into design.npz; cut the part that is made."""
     say(f"[1/7] solving {options.spec}")
-    result = solve_to_file(inputs.spec, out / "design.npz", "      solving")
-    solution, check, solved = result.solution, result.check, result.summary
+    result = solve_to_file(inputs.spec, Path(options.out) / "design.npz", "      solving")
+    check, solved = result.check, result.summary
     say(
         f"      {solved['valid_points']} valid points in {solved['solve_seconds']:.2f} s; "
         f"check {'passed' if check.passed else 'FAILED'}"
@@ -149,17 +215,17 @@ def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) ->
         f"      area over the solved cells ({AREA_UNIT}): "
         + ", ".join(f"{k} {v:.4g}" for k, v in solved["area_design_units2"].items())
     )
-    part = _part(options, inputs, solution.design)
+    design = result.solution.design
+    part = _part(options, inputs, design)
     say(f"      {part.summary()}")
+    return _Solved(design, check, result.maps, solved, part)
 
-    say("[2/7] drawing pictures and patch meshes")
-    design = solution.design
-    pictures = render_design(design, out / "pictures", part, result.maps)
-    meshes = [
-        str(path)
-        for path in write_patch_meshes(solution.design, out / "patches", options.mesh_format)
-    ]
 
+def _fabricate(
+    options: RunOptions, inputs: _Inputs, out: Path, solved: _Solved, say: Callable[[str], None]
+) -> tuple[_Fabricated, dict[str, Any] | None, dict[str, Any] | None]:
+    """The machine files, their verification and the send: (fabricated, verify, sent)."""
+    design, part = solved.design, solved.part
     if options.baromorph:
         fabricated = _channels(options, inputs, out, design, part, say)
     elif inputs.machine.kind == LASER_WRITER:
@@ -177,33 +243,7 @@ def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) ->
         sent = _sent(send_file(out / "sheet.gcode", options.send, machine=options.machine))
     else:
         say("[6/7] not sending (no --send)")
-
-    say("[7/7] writing report.html and report.json")
-    figures = {
-        **({"notice": notice} if notice else {}),
-        "spec": str(options.spec),
-        "machine": options.machine,
-        "solve": {
-            k: solved[k]
-            for k in ("solve_seconds", "valid_points", "area_design_units2", "stop_counts")
-        },
-        "check": check.to_dict(),
-        "part": part.to_dict(),
-        **fabricated.figures,
-        "verify": verification,
-        "sent": sent,
-        "meshes": meshes,
-    }
-    html_report(
-        f"fabkit run {Path(options.spec).name}",
-        figures,
-        pictures + [fabricated.picture],
-        out / "report.html",
-        notice=notice,
-    )
-    with atomic_path(out / "report.json") as tmp:
-        tmp.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
-    return figures
+    return fabricated, verification, sent
 
 
 def _check_inputs(options: RunOptions) -> _Inputs:

@@ -1,7 +1,8 @@
 """Ctrl-C in the middle of ``fabkit run`` leaves no half-written file under a final name.
 
 The interrupt is simulated where it hurts most: while a file is half-written in its
-temporary place (the G-code, a picture, a laser pattern folder). Afterwards every file
+temporary place (the G-code, a laser pattern folder), or sent for real while the
+second process draws the pictures. Afterwards every file
 under a final name must be complete, nothing ``*.part`` may remain, and the command
 prints one line and exits with 130.
 """
@@ -10,12 +11,13 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
+import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
-import matplotlib.figure
 import numpy as np
 import pytest
 import trimesh
@@ -86,25 +88,39 @@ def test_ctrl_c_while_writing_gcode(run_cli, tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
-def test_ctrl_c_while_drawing_pictures(run_cli, tmp_path, monkeypatch):
-    real_savefig = matplotlib.figure.Figure.savefig
-    saved = []
-
-    def interrupted(figure, target, *args, **kwargs):
-        if len(saved) == 2:  # two pictures are done, the third is half-written
-            Path(target).write_bytes(b"\x89PNG\r\n\x1a\n half a picture")
-            raise KeyboardInterrupt
-        saved.append(target)
-        return real_savefig(figure, target, *args, **kwargs)
-
-    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", interrupted)
+def test_ctrl_c_while_the_worker_draws_the_pictures(tmp_path):
+    """A real Ctrl-C, sent to the whole process group as a terminal does, while the
+    picture worker draws (:mod:`fabkit.background`): the run answers with one line and
+    130, no picture is half-written or written at all, and no process of the run is left.
+    """
     out = tmp_path / "out"
-    code, _, err = run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *COARSE)
-    assert code == 130
+    command = [sys.executable, "-m", "fabkit", "run", str(EXAMPLES / "two_shapes.toml")]
+    process = subprocess.Popen(
+        [*command, "--out", str(out), *COARSE],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=tmp_path,
+        start_new_session=True,  # its own process group: the run and its worker
+    )
+    for line in process.stdout:
+        if line.startswith("[3/7]"):  # the pictures were handed to the worker just now
+            os.killpg(process.pid, signal.SIGINT)
+            break
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
     assert err == "fabkit: interrupted\n"
     names = assert_complete(out)
-    assert len([n for n in names if n.startswith("pictures/")]) == 2
-    assert not (out / "toolpath").exists() and not (out / "sheet.gcode").exists()
+    assert not [n for n in names if n.startswith("pictures/")] and "report.json" not in names
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(process.pid, 0)  # any process of the group still there?
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        pytest.fail("the picture worker outlived the interrupted run")
 
 
 @pytest.mark.slow

@@ -61,6 +61,28 @@ def test_run_writes_every_file(run_cli, tmp_path):
     assert page.count("data:image/png;base64,") == 5
 
 
+@pytest.mark.slow
+def test_a_stage_that_fails_after_the_pictures_were_handed_on_still_writes_them(
+    run_cli, tmp_path, monkeypatch
+):
+    """The pictures are drawn in a second process while the later stages run; when one of
+    those fails, the run still writes the pictures it drew (as it writes every file of the
+    stages before the failure), and no report."""
+    from fabkit.errors import FabkitError
+
+    def failing(*_args, **_kwargs):
+        raise FabkitError("verify: made to fail by this test")
+
+    monkeypatch.setattr("fabkit.pipeline._verify", failing)
+    out = tmp_path / "out"
+    args = ("--step", "0.1", "--diagonals", "30", "--size", "20")
+    code, _, err = run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *args)
+    assert code == 2 and err == "fabkit: error: verify: made to fail by this test\n"
+    pictures = sorted(p.name for p in (out / "pictures").iterdir())
+    assert pictures == ["eps.png", "flat_sheet.png", "residuals.png", "surfaces.png"]
+    assert (out / "sheet.gcode").is_file() and not (out / "report.json").exists()
+
+
 def test_run_bad_inputs_are_one_line(run_cli, tmp_path):
     code, _, err = run_cli("run", tmp_path / "missing.toml", "--out", tmp_path / "o")
     assert code == 2 and err.count("\n") == 1 and "does not exist" in err

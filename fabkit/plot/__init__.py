@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
+from fabkit.atomic import atomic_path
 from fabkit.design.check import ResidualMaps, residual_maps
 from fabkit.design.design import Design
 from fabkit.field.part import Part
 from fabkit.plot import design as pictures
+from fabkit.plot.design import Scene
 
 DESIGN_PICTURES = (
     (
@@ -29,20 +32,56 @@ DESIGN_PICTURES = (
 )
 
 
+DRAWINGS = {
+    "flat_sheet.png": pictures.flat_sheet,
+    "eps.png": pictures.eps_maps,
+    "surfaces.png": pictures.actuated_surfaces,
+    "residuals.png": pictures.residual_maps,
+}
+
+
+@dataclass(frozen=True)
+class Picture:
+    """A drawn picture: its file ``name``, its ``caption`` and its ``png`` bytes."""
+
+    name: str
+    caption: str
+    png: bytes
+
+
+def design_scene(
+    design: Design, part: Part | None = None, maps: tuple[ResidualMaps, ...] | None = None
+) -> Scene:
+    """What the design pictures show, as plain data (:class:`~fabkit.plot.design.Scene`):
+    the flat sheet with its ``part`` (default: the part of
+    :class:`fabkit.field.part.PartRules`' defaults) and the check's residual ``maps``
+    (computed here if not given)."""
+    return pictures.scene(design, part, residual_maps(design) if maps is None else maps)
+
+
+def draw_design(scene: Scene) -> tuple[Picture, ...]:
+    """Every design picture of ``scene`` (:data:`DESIGN_PICTURES`), drawn in memory."""
+    return tuple(Picture(name, caption, DRAWINGS[name](scene)) for name, caption in DESIGN_PICTURES)
+
+
+def write_pictures(drawn: tuple[Picture, ...], folder: str | Path) -> list[tuple[str, Path]]:
+    """Write ``drawn`` into ``folder`` (each file atomically); returns (caption, path)
+    pairs."""
+    written = []
+    for picture in drawn:
+        path = Path(folder) / picture.name
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(picture.png)
+        written.append((picture.caption, path))
+    return written
+
+
 def render_design(
     design: Design,
     folder: str | Path,
     part: Part | None = None,
     maps: tuple[ResidualMaps, ...] | None = None,
 ) -> list[tuple[str, Path]]:
-    """Draw the design pictures into ``folder`` (the flat sheet with its ``part``, default:
-    the part of :class:`fabkit.field.part.PartRules`' defaults; ``maps``: the check's
-    residual maps, computed here if not given); returns (caption, path) pairs."""
-    folder = Path(folder)
-    paths = {name: folder / name for name, _ in DESIGN_PICTURES}
-    pictures.flat_sheet(design, paths["flat_sheet.png"], part)
-    pictures.eps_maps(design, paths["eps.png"])
-    pictures.actuated_surfaces(design, paths["surfaces.png"])
-    maps = residual_maps(design) if maps is None else maps
-    pictures.residual_maps(design, maps, paths["residuals.png"])
-    return [(caption, paths[name]) for name, caption in DESIGN_PICTURES]
+    """Draw the design pictures into ``folder`` (``part`` and ``maps`` as in
+    :func:`design_scene`); returns (caption, path) pairs."""
+    return write_pictures(draw_design(design_scene(design, part, maps)), folder)

@@ -1,8 +1,15 @@
-"""Pictures of a design: the flat sheet, eps, every actuated surface, the residuals (PNG)."""
+"""Pictures of a design: the flat sheet, eps, every actuated surface, the residuals (PNG).
+
+:func:`scene` gathers what they show as plain data (it is the only step that needs the
+parsed spec: the 3D curves on every target); the drawing functions take that and return
+PNG bytes, so they can run in another process (``fabkit run`` draws beside its later
+stages, :mod:`fabkit.background`) and the caller writes the files.
+"""
 
 from __future__ import annotations
 
-from pathlib import Path
+import io
+from dataclasses import dataclass, replace
 
 import matplotlib
 
@@ -15,7 +22,6 @@ from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
 from matplotlib.tri import Triangulation  # noqa: E402
 
-from fabkit.atomic import atomic_path  # noqa: E402
 from fabkit.design.check import RESIDUALS, ResidualMaps, Tolerances  # noqa: E402
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.patches import grid_triangles  # noqa: E402
@@ -25,11 +31,51 @@ CURVES = 24
 """About this many u-curves and v-curves are drawn on each picture."""
 
 
-def save(figure: plt.Figure, path: str | Path) -> None:
-    """Write a figure as PNG atomically and close it."""
-    with atomic_path(path) as tmp:
-        figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+@dataclass(frozen=True)
+class SurfaceView:
+    """One target as its 3D panel shows it, in design units: ``title``; the patch's
+    ``u_curves`` and ``v_curves`` on the target (polylines (n, 3)); ``backdrop`` the target
+    surface near the patch ((40, 40, 3), NaN where cut away; None without one); ``box`` the
+    cube the panel shows ((3,) centre, half side; None for an empty patch)."""
+
+    title: str
+    u_curves: tuple[np.ndarray, ...]
+    v_curves: tuple[np.ndarray, ...]
+    backdrop: np.ndarray | None
+    box: tuple[np.ndarray, float] | None
+
+
+@dataclass(frozen=True)
+class Scene:
+    """What the design pictures show: the ``design``'s arrays (its spec is not parsed
+    again), the names of its ``features``, the ``part`` that is made, the check's residual
+    ``maps`` and a :class:`SurfaceView` of every target with an embedding."""
+
+    design: Design
+    features: tuple[str, ...]
+    part: Part
+    maps: tuple[ResidualMaps, ...]
+    surfaces: tuple[SurfaceView, ...]
+
+
+def scene(design: Design, part: Part | None, maps: tuple[ResidualMaps, ...]) -> Scene:
+    """The :class:`Scene` of ``design`` (``part`` default: the margin outline of
+    :func:`fabkit.field.part.make_part` without a trim or minimum width)."""
+    return Scene(
+        design=replace(design),  # the arrays and the JSON: a copy without the parsed spec
+        features=tuple(design.problem.material.features),
+        part=part or make_part(design, PartRules()),
+        maps=maps,
+        surfaces=surface_views(design),
+    )
+
+
+def png(figure: plt.Figure, tight: bool = True) -> bytes:
+    """The figure as PNG bytes (110 dpi; ``tight``: cropped to what is drawn); closes it."""
+    buffer = io.BytesIO()
+    figure.savefig(buffer, dpi=110, bbox_inches="tight" if tight else None, format="png")
     plt.close(figure)
+    return buffer.getvalue()
 
 
 def _stride(design: Design, axis: int) -> int:
@@ -59,11 +105,10 @@ def _runs(mask: np.ndarray) -> list[np.ndarray]:
     return [np.arange(a, b) for a, b in zip(starts, stops, strict=True)]
 
 
-def flat_sheet(design: Design, path: str | Path, part: Part | None = None) -> None:
+def flat_sheet(scene: Scene) -> bytes:
     """The flat sheet: director lines (u-curves) coloured by the first feature, v-curves
-    grey, the solved region's border grey and the part's outline black (``part``, default:
-    the margin outline of :func:`fabkit.field.part.make_part` without a trim or minimum width)."""
-    spec = design.problem
+    grey, the solved region's border grey and the part's outline black."""
+    design = scene.design
     flat = design.r[0]
     figure, axes = plt.subplots(figsize=(6.5, 6))
     for line in _lines(flat, design.valid, 1, _stride(design, 1)):
@@ -78,17 +123,17 @@ def flat_sheet(design: Design, path: str | Path, part: Part | None = None) -> No
                 colours.extend(0.5 * (eps[run[:-1], k] + eps[run[1:], k]))
     collection = LineCollection(segments, array=np.array(colours), cmap="viridis", lw=1.4)
     axes.add_collection(collection)
-    figure.colorbar(collection, ax=axes, label=f"{spec.material.features[0]}")
-    _outline(axes, design, part or make_part(design, PartRules()))
+    figure.colorbar(collection, ax=axes, label=scene.features[0])
+    _outline(axes, scene.part)
     axes.set_aspect("equal")
     axes.autoscale()
     axes.set_xlabel("x (design units)")
     axes.set_ylabel("y (design units)")
     axes.set_title("flat sheet: director lines (coloured) and v-curves (grey)")
-    save(figure, path)
+    return png(figure)
 
 
-def _outline(axes, design: Design, part: Part) -> None:
+def _outline(axes, part: Part) -> None:
     """Draw the border of the solved region (grey) and the part's outline (black)."""
     for geometry, colour, width in ((part.solved, "0.55", 0.8), (part.outline, "black", 1.4)):
         for polygon in shapely.get_parts(geometry):
@@ -97,11 +142,10 @@ def _outline(axes, design: Design, part: Part) -> None:
                 axes.plot(xy[:, 0], xy[:, 1], color=colour, lw=width, zorder=3)
 
 
-def eps_maps(design: Design, path: str | Path) -> None:
+def eps_maps(scene: Scene) -> bytes:
     """Every feature on the flat sheet (left column) and on the (u, v) grid (right column)."""
-    spec = design.problem
+    design, features = scene.design, scene.features
     points, triangles = grid_triangles(design.valid)
-    features = spec.material.features
     figure, axes = plt.subplots(
         len(features), 2, figsize=(11, 4.6 * len(features)), squeeze=False, layout="constrained"
     )
@@ -128,7 +172,7 @@ def eps_maps(design: Design, path: str | Path) -> None:
         axes[row, 1].set_ylabel("v")
         axes[row, 1].set_title(f"{name} on the material grid")
         _zoom(axes[row, 1], design)
-    save(figure, path)
+    return png(figure)
 
 
 def _zoom(axes, design: Design, shown: np.ndarray | None = None) -> None:
@@ -141,32 +185,49 @@ def _zoom(axes, design: Design, shown: np.ndarray | None = None) -> None:
         axes.set_ylim(design.v[cols[0]], design.v[cols[-1]])
 
 
-def actuated_surfaces(design: Design, path: str | Path) -> None:
+def surface_views(design: Design) -> tuple[SurfaceView, ...]:
+    """A :class:`SurfaceView` of every target of ``design`` with an embedding in 3D."""
+    views = []
+    for j, target in enumerate(design.problem.targets):
+        if j == 0 or target.surface.embed(target.start[None]) is None:
+            continue
+        chart = design.r[j]
+        box = _cube(target.surface.embed(chart[design.valid]))
+        u_curves, v_curves = (
+            tuple(
+                target.surface.embed(line)
+                for line in _lines(chart, design.valid, axis, _stride(design, axis))
+            )
+            for axis in (0, 1)
+        )
+        stimulus = ", ".join(f"{s:g}" for s in target.stimulus)
+        title = f"{target.name} (stimulus {stimulus})\nu-curves red, v-curves blue"
+        backdrop = _surface_backdrop(target.surface, chart[design.valid], box)
+        views.append(SurfaceView(title, u_curves, v_curves, backdrop, box))
+    return tuple(views)
+
+
+def actuated_surfaces(scene: Scene) -> bytes:
     """Every target in 3D: the surface near the patch, with the patch's u- and v-curves.
 
     Equal scales on x, y and z (a cube around the patch; the target surface is cut to it),
     labelled axes in design units, a few ticks each.
     """
-    spec = design.problem
-    targets = [
-        (j, t)
-        for j, t in enumerate(spec.targets)
-        if j > 0 and t.surface.embed(t.start[None]) is not None
-    ]
-    figure = plt.figure(figsize=(5.5 * max(len(targets), 1), 5.8))
-    for column, (j, target) in enumerate(targets):
-        axes = figure.add_subplot(1, len(targets), column + 1, projection="3d")
-        chart = design.r[j]
-        box = _cube(target.surface.embed(chart[design.valid]))
-        _surface_backdrop(axes, target.surface, chart[design.valid], box)
-        for axis, colour in ((0, "tab:red"), (1, "tab:blue")):
-            for line in _lines(chart, design.valid, axis, _stride(design, axis)):
-                xyz = target.surface.embed(line)
+    views = scene.surfaces
+    figure = plt.figure(figsize=(5.5 * max(len(views), 1), 5.8))
+    for column, view in enumerate(views):
+        axes = figure.add_subplot(1, len(views), column + 1, projection="3d")
+        if view.backdrop is not None:
+            xyz = view.backdrop
+            axes.plot_surface(
+                xyz[..., 0], xyz[..., 1], xyz[..., 2], color="0.85", alpha=0.35, linewidth=0
+            )
+        for curves, colour in ((view.u_curves, "tab:red"), (view.v_curves, "tab:blue")):
+            for xyz in curves:
                 axes.plot(xyz[:, 0], xyz[:, 1], xyz[:, 2], color=colour, lw=0.8)
-        _equal_3d(axes, box)
-        stimulus = ", ".join(f"{s:g}" for s in target.stimulus)
-        axes.set_title(f"{target.name} (stimulus {stimulus})\nu-curves red, v-curves blue")
-    save(figure, path)
+        _equal_3d(axes, view.box)
+        axes.set_title(view.title)
+    return png(figure)
 
 
 def _cube(points: np.ndarray) -> tuple[np.ndarray, float] | None:
@@ -177,11 +238,11 @@ def _cube(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     return (low + high) / 2, float((high - low).max() / 2 * 1.05 + 1e-9)
 
 
-def _surface_backdrop(axes, surface, chart_points: np.ndarray, box) -> None:
-    """The target surface over the patch's chart bounding box, lightly shaded, cut to
-    ``box`` (matplotlib does not clip 3D surfaces to the axes)."""
+def _surface_backdrop(surface, chart_points: np.ndarray, box) -> np.ndarray | None:
+    """The target surface over the patch's chart bounding box (40, 40, 3), NaN outside the
+    surface and outside ``box`` (matplotlib does not clip 3D surfaces to the axes)."""
     if len(chart_points) == 0 or box is None:
-        return
+        return None
     low, high = chart_points.min(axis=0), chart_points.max(axis=0)
     margin = 0.08 * (high - low + 1e-9)
     a, b = np.meshgrid(
@@ -195,8 +256,7 @@ def _surface_backdrop(axes, surface, chart_points: np.ndarray, box) -> None:
     centre, half = box
     with np.errstate(invalid="ignore"):
         outside = (np.abs(xyz - centre) > half).any(axis=-1)
-    xyz = np.where(outside[..., None], np.nan, xyz)
-    axes.plot_surface(xyz[..., 0], xyz[..., 1], xyz[..., 2], color="0.85", alpha=0.35, linewidth=0)
+    return np.where(outside[..., None], np.nan, xyz)
 
 
 def _equal_3d(axes, box) -> None:
@@ -224,14 +284,14 @@ FLOOR = 1e-7
 """Residuals below this are drawn at it (the colour bar's bottom)."""
 
 
-def residual_maps(design: Design, maps: tuple[ResidualMaps, ...], path: str | Path) -> None:
+def residual_maps(scene: Scene) -> bytes:
     """Residual maps on the (u, v) grid: one row per surface, one column per residual.
 
     One log colour scale for every panel; its colour bar marks the check's tolerances
     (:class:`~fabkit.design.check.Tolerances`), and every panel's title gives its median
     and 95th percentile against the limits that apply to it.
     """
-    tolerances = Tolerances()
+    design, maps, tolerances = scene.design, scene.maps, Tolerances()
     # a fixed grid (panels of one size, the colour bar beside them): constrained layout
     # took most of this picture's 2-4 s measuring every tick label
     height = 3.4 * len(maps)
@@ -280,4 +340,4 @@ def residual_maps(design: Design, maps: tuple[ResidualMaps, ...], path: str | Pa
     )
     for value in {tolerances.isometry_median, tolerances.isometry_p95, tolerances.curvature_median}:
         bar.ax.axhline(value, color="cyan", lw=2.5)
-    save(figure, path)
+    return png(figure, tight=False)
