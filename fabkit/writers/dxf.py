@@ -36,19 +36,19 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import ezdxf
 import numpy as np
 import shapely
-from ezdxf import units
-from ezdxf.document import Drawing
 
 from fabkit.atomic import atomic_path
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile
 from fabkit.toolpath.model import PRINT, Toolpath
 from fabkit.writers.common import check_inside, placement_offset
+
+if TYPE_CHECKING:
+    from ezdxf.document import Drawing
 
 LAYERS = {
     "PATHS": (7, "CONTINUOUS"),
@@ -146,6 +146,9 @@ def dxf_document(
                 "it draws roads; a dose is exposed by the laser writer (--format laser)"
             )
     shift = _offset(moves, shapes, machine, offset_mm, inlet_radius_mm)
+    import ezdxf  # here, not at the top: a run that writes no DXF does not load it (0.2 s)
+    from ezdxf import units
+
     doc = ezdxf.new("R2010", setup=True)
     doc.units = units.MM
     doc.header["$MEASUREMENT"] = 1
