@@ -5,8 +5,9 @@ imports only argparse-level things at its top (and the constants its options lis
 stage a handler runs is imported inside the handler, so that ``fabkit --help`` and the
 quick commands start in a fraction of a second.
 
-:data:`COMMANDS` is the one list of sub-commands: the CLI shows it in ``fabkit --help``
-without importing any of the modules, and imports only the module of the command it runs.
+:data:`COMMANDS` is the one list of sub-commands, with their help and description: the
+CLI shows it in ``fabkit --help`` without importing any of the modules, and imports only
+the module of the command it runs.
 """
 
 from __future__ import annotations
@@ -16,10 +17,12 @@ from typing import NamedTuple
 
 
 class Command(NamedTuple):
-    """A sub-command: the module (in this package) that registers it, its one-line help."""
+    """A sub-command: the module (in this package) that registers it, its one-line help
+    (``fabkit --help``) and the paragraph that opens its own ``--help`` (None: none)."""
 
     module: str
     help: str
+    description: str | None = None
 
 
 COMMANDS: dict[str, Command] = {
@@ -27,43 +30,82 @@ COMMANDS: dict[str, Command] = {
         "check", "measure how well a design realises each target (exit 1 if over tolerance)"
     ),
     "energy": Command("energy", "work bounds: frustrated stretching energy of a design held flat"),
-    "export": Command("export", "write G-code, DXF or laser-writer patterns for a machine"),
-    "machines": Command("machines", "list the machine profiles"),
+    "export": Command(
+        "export",
+        "write G-code, DXF or laser-writer patterns for a machine",
+        "Write a toolpath or design as a machine file; everything is checked against the "
+        "machine profile before anything is written (see docs/export.md).",
+    ),
+    "machines": Command(
+        "machines",
+        "list the machine profiles",
+        "List the machine profiles in machines/ (see docs/machines.md).",
+    ),
     "optimise": Command(
-        "optimise", "vary a spec's initial data to cover the most area (docs/optimise.md)"
+        "optimise",
+        "vary a spec's initial data to cover the most area (docs/optimise.md)",
+        "Differential evolution over the initial data (curve parameters, eps and slopes on "
+        "the curves, the targets' start points and directors) maximising the area covered "
+        "by the cells of a design that passes the check; writes the best spec, its figures "
+        "and pictures beside --out, and a checkpoint a stopped search resumes from.",
     ),
     "plot": Command("plot", "draw a design: pictures, actuated patches as meshes, HTML report"),
     "run": Command(
         "run", "spec to machine files in one go: solve, check, pictures, toolpath, export, send"
     ),
-    "send": Command("send", "check a G-code file and stream it to a machine"),
+    "send": Command(
+        "send",
+        "check a G-code file and stream it to a machine",
+        "Check FILE against the machine profile (envelope, speeds, temperatures, commands), "
+        "estimate its duration, then stream it to PORT with the machine's protocol. The "
+        "machine is --machine, else the one the file's header names (fabkit writes it), "
+        "else the port's default; each send says which. PORT is a device (/dev/ttyUSB0, "
+        "COM3) or a pyserial URL; sim://marlin and sim://grbl are built-in emulators "
+        "(docs/link.md). Ctrl-C stops with the profile's safe-stop snippet, prints the "
+        "--resume-from line and exits with 130; Ctrl-Z pauses and resumes.",
+    ),
     "simulate": Command(
         "simulate", "simulate the designed sheet at a stimulus and compare with its target"
     ),
     "solve": Command("solve", "solve a design spec into design.npz"),
     "spec": Command("spec", "validate a design spec and print a summary"),
     "swimmer": Command(
-        "swimmer", "simulate the bilayer swimmer's cycle, its motion per cycle, and make it"
+        "swimmer",
+        "simulate the bilayer swimmer's cycle, its motion per cycle, and make it",
+        "Equilibrium shapes along the stimulus path, the force- and torque-free motion in "
+        "Stokes flow (regularised Stokeslets), plots, the work bound per stage, and both "
+        "layers' toolpath and G-code (docs/swimmer.md).",
     ),
     "toolpath": Command(
         "toolpath",
         "print lines along the director of a design or director field (docs/toolpath.md)",
+        "Evenly spaced print lines along the director, ordered, layered and encoded; "
+        "writes toolpath.npz, quality.json and preview.png/svg into --out.",
     ),
     "channels": Command(
-        "toolpath", "baromorph channels along the director, and their casting mould (STL)"
+        "toolpath",
+        "baromorph channels along the director, and their casting mould (STL)",
+        "Channels along the director with widths from eps, a manifold to one inlet, walls "
+        "of at least min_wall_mm; writes channels.json, mould.stl and channels.png/svg "
+        "into --out.",
     ),
     "verify": Command(
         "verify",
         "read a machine file back (G-code, DXF, laser pattern) and check it against its "
         "design, then simulate the sheet as fabricated",
+        "Read the machine file as the machine would, independent of toolpath.npz: "
+        "director, every feature (its calibration inverted) and coverage on the flat "
+        "sheet, compared with the design; then the sheet as fabricated under every "
+        "stimulus against each target (docs/verify.md).",
     ),
 }
 """Every sub-command by name, in the order ``fabkit --help`` lists them."""
 
 
-def help_of(name: str) -> str:
-    """The one-line help of sub-command ``name`` (for its module's ``add_parser``)."""
-    return COMMANDS[name].help
+def add_command(subparsers: argparse._SubParsersAction, name: str) -> argparse.ArgumentParser:
+    """Sub-command ``name``'s parser, with its help and description from :data:`COMMANDS`."""
+    command = COMMANDS[name]
+    return subparsers.add_parser(name, help=command.help, description=command.description)
 
 
 def add_overwrite(parser: argparse.ArgumentParser, option: str = "--out") -> None:

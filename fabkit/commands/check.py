@@ -6,14 +6,14 @@ import argparse
 import json
 import math
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command
 from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("check", help=help_of("check"))
+    parser = add_command(subparsers, "check")
     parser.add_argument("design", help="design file (.npz) written by fabkit solve")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     tolerance_arguments(parser)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fabkit.commands import add_overwrite, help_of
+from fabkit.commands import add_command, add_overwrite
 from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.machines import RELATIONS
 from fabkit.writers.common import FORMATS, IMAGE_FORMATS
@@ -17,12 +17,7 @@ from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "export",
-        help=help_of("export"),
-        description="Write a toolpath or design as a machine file; everything is checked "
-        "against the machine profile before anything is written (see docs/export.md).",
-    )
+    parser = add_command(subparsers, "export")
     parser.add_argument("input", help="toolpath (.npz/.json), design.npz or director .toml")
     parser.add_argument("--machine", required=True, help="profile name or .toml path")
     parser.add_argument("--format", required=True, choices=FORMATS)

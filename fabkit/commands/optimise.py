@@ -5,20 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command
 from fabkit.commands.check import tolerance_arguments, tolerances
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "optimise",
-        help=help_of("optimise"),
-        description="Differential evolution over the initial data (curve parameters, eps and "
-        "slopes on the curves, the targets' start points and directors) maximising the "
-        "area covered by the cells of a design that passes the check; writes the best "
-        "spec, its figures and pictures beside --out, and a checkpoint a stopped search "
-        "resumes from.",
-    )
+    parser = add_command(subparsers, "optimise")
     parser.add_argument("spec", help="spec file (TOML); [optimise.parameters] declares parameters")
     parser.add_argument("--out", default="best.toml", help="best spec to write (.toml)")
     parser.add_argument(

@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fabkit.commands import add_overwrite, help_of
+from fabkit.commands import add_command, add_overwrite
 from fabkit.design.patches import MESH_TYPES
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("plot", help=help_of("plot"))
+    parser = add_command(subparsers, "plot")
     parser.add_argument("design", help="design file (.npz) written by fabkit solve")
     parser.add_argument("--out", default="plots", help="output folder (default %(default)s)")
     parser.add_argument(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.commands import add_overwrite, help_of
+from fabkit.commands import add_command, add_overwrite
 from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.design.patches import MESH_TYPES
 from fabkit.machines import DEFAULT_MACHINE
@@ -18,10 +18,7 @@ from fabkit.pipeline import (
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "run",
-        help=help_of("run"),
-    )
+    parser = add_command(subparsers, "run")
     parser.add_argument("spec", help="spec file (TOML), e.g. examples/two_shapes.toml")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument(

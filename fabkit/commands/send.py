@@ -4,24 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "send",
-        help=help_of("send"),
-        description=(
-            "Check FILE against the machine profile (envelope, speeds, temperatures, "
-            "commands), estimate its duration, then stream it to PORT with the machine's "
-            "protocol. The machine is --machine, else the one the file's header names "
-            "(fabkit writes it), else the port's default; each send says which. PORT is "
-            "a device (/dev/ttyUSB0, COM3) or a pyserial URL; sim://marlin and sim://grbl "
-            "are built-in emulators (docs/link.md). Ctrl-C stops with the profile's "
-            "safe-stop snippet, prints the --resume-from line and exits with 130; Ctrl-Z "
-            "pauses and resumes."
-        ),
-    )
+    parser = add_command(subparsers, "send")
     parser.add_argument("file", metavar="FILE", help="G-code file")
     parser.add_argument("--port", help="device or pyserial URL (not needed with --dry-run)")
     parser.add_argument("--baud", type=int, help="baud rate (default: the profile's)")

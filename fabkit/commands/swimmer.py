@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from fabkit.atomic import atomic_path, output_folder
-from fabkit.commands import add_overwrite, help_of
+from fabkit.commands import add_command, add_overwrite
 from fabkit.progress import ProgressBar, add_progress
 from fabkit.swimmer.cycle import convergence, run_stroke
 from fabkit.swimmer.fabricate import fabricate
@@ -23,13 +23,7 @@ from fabkit.swimmer.spec import load_swimmer
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "swimmer",
-        help=help_of("swimmer"),
-        description="Equilibrium shapes along the stimulus path, the force- and torque-free "
-        "motion in Stokes flow (regularised Stokeslets), plots, the work bound per stage, "
-        "and both layers' toolpath and G-code (docs/swimmer.md).",
-    )
+    parser = add_command(subparsers, "swimmer")
     parser.add_argument("spec", help="swimmer spec (TOML), e.g. examples/swimmer.toml")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--stations", type=int, help="shapes per leg (overrides the spec)")

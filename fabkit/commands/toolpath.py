@@ -6,19 +6,14 @@ import argparse
 import sys
 
 from fabkit.atomic import output_folder
-from fabkit.commands import add_overwrite, help_of
+from fabkit.commands import add_command, add_overwrite
 from fabkit.field.part import PartRequest
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.plan import PATTERNS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "toolpath",
-        help=help_of("toolpath"),
-        description="Evenly spaced print lines along the director, ordered, layered and "
-        "encoded; writes toolpath.npz, quality.json and preview.png/svg into --out.",
-    )
+    parser = add_command(subparsers, "toolpath")
     _field_arguments(parser, "design.npz or director .toml; several stack (bottom layer first)")
     process = parser.add_argument_group("process")
     process.add_argument(
@@ -54,13 +49,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_overwrite(parser)
     parser.set_defaults(func=run)
 
-    channels = subparsers.add_parser(
-        "channels",
-        help=help_of("channels"),
-        description="Channels along the director with widths from eps, a manifold to one "
-        "inlet, walls of at least min_wall_mm; writes channels.json, mould.stl and "
-        "channels.png/svg into --out.",
-    )
+    channels = add_command(subparsers, "channels")
     _field_arguments(channels, "design.npz or director .toml (one)")
     channels.add_argument(
         "--baromorph", required=True, metavar="FILE", help="TOML with a [baromorph] table"

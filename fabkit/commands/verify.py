@@ -9,20 +9,13 @@ from __future__ import annotations
 import argparse
 import json
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command
 from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.progress import ProgressBar, add_progress
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "verify",
-        help=help_of("verify"),
-        description="Read the machine file as the machine would, independent of "
-        "toolpath.npz: director, every feature (its calibration inverted) and coverage "
-        "on the flat sheet, compared with the design; then the sheet as fabricated under "
-        "every stimulus against each target (docs/verify.md).",
-    )
+    parser = add_command(subparsers, "verify")
     parser.add_argument("design", help="design file (.npz) written by fabkit solve")
     parser.add_argument(
         "machine_file", help="sheet.gcode, sheet.dxf, or a laser pattern folder (laser/)"
