@@ -8,12 +8,20 @@ quick commands start in a fraction of a second.
 :data:`COMMANDS` is the one list of sub-commands, with their help and description: the
 CLI shows it in ``fabkit --help`` without importing any of the modules, and imports only
 the module of the command it runs.
+
+The options several commands take are added by the ``add_*`` functions here, with the
+destination the stages' options name them by (``--process``: ``process_file``, a length
+``--road-width``: ``road_width_mm``), so that a handler passes them on with
+:func:`call_with` and says only what it makes from them.
 """
 
 from __future__ import annotations
 
 import argparse
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple, TypeVar
+
+T = TypeVar("T")
 
 
 class Command(NamedTuple):
@@ -116,3 +124,77 @@ def add_overwrite(parser: argparse.ArgumentParser, option: str = "--out") -> Non
         help=f"replace the files an earlier fabkit run wrote into {option} (without it such "
         "a folder is refused; files fabkit did not write are never touched)",
     )
+
+
+def add_machine(parser: argparse._ActionsContainer, help: str) -> None:
+    """``--machine NAME|FILE``: a shipped profile's name or a profile's .toml path."""
+    parser.add_argument("--machine", metavar="NAME|FILE", help=help)
+
+
+def add_process(parser: argparse._ActionsContainer, help: str) -> None:
+    """``--process FILE``: a TOML whose [process] table stands for the machine's; its path is
+    ``args.process_file``, as the options of every stage name it."""
+    parser.add_argument("--process", metavar="FILE", dest="process_file", help=help)
+
+
+def add_ignore_feature(parser: argparse._ActionsContainer, help: str) -> None:
+    """``--ignore-feature NAME`` (repeatable): features left out on purpose, in
+    ``args.ignore_features``, as the options of every stage name them."""
+    parser.add_argument(
+        "--ignore-feature",
+        action="append",
+        default=[],
+        metavar="NAME",
+        dest="ignore_features",
+        help=help,
+    )
+
+
+def add_length(parser: argparse._ActionsContainer, flag: str, help: str, **kwargs: Any) -> None:
+    """A length option ``flag MM``, in ``args.<name>_mm`` (``--road-width``:
+    ``road_width_mm``), the name the stages' options give it; ``kwargs`` as argparse's."""
+    dest = flag.removeprefix("--").replace("-", "_") + "_mm"
+    parser.add_argument(flag, type=float, metavar="MM", dest=dest, help=help, **kwargs)
+
+
+def add_scale(parser: argparse._ActionsContainer, size_help: str, scale_help: str) -> None:
+    """The design's scale, one of ``--size MM`` (the sheet's longest side) and ``--scale
+    MM_PER_UNIT``, in ``args.size_mm`` and ``args.mm_per_unit``."""
+    scale = parser.add_mutually_exclusive_group()
+    add_length(scale, "--size", size_help)
+    scale.add_argument(
+        "--scale", type=float, metavar="MM_PER_UNIT", dest="mm_per_unit", help=scale_help
+    )
+
+
+def point_mm(*counts: int) -> Callable[[str], tuple[float, ...]]:
+    """An argparse type: a point in mm written X,Y (count 2) or X,Y,Z (count 3), with as
+    many coordinates as one of ``counts``."""
+    forms = " or ".join(",".join("XYZ"[:count]) for count in counts)
+
+    def point(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            values = ()
+        if len(values) not in counts:
+            raise argparse.ArgumentTypeError(f"expected {forms} in mm, got {text!r}")
+        return values
+
+    return point
+
+
+def call_with(target: Callable[..., T], args: argparse.Namespace, **given: Any) -> T:
+    """Call a stage's function or options dataclass ``target`` with the parsed command line:
+    each parameter named like an option's destination gets the option's value (a repeatable
+    option's list as a tuple), ``given`` the values made from the options; the other
+    parameters keep their defaults."""
+    import inspect  # here: fabkit --help need not load it
+
+    values = {
+        name: getattr(args, name)
+        for name in inspect.signature(target).parameters
+        if hasattr(args, name)
+    }
+    values = {name: tuple(v) if isinstance(v, list) else v for name, v in values.items()}
+    return target(**(values | given))
