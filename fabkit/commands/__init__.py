@@ -18,6 +18,7 @@ destination the stages' options name them by (``--process``: ``process_file``, a
 from __future__ import annotations
 
 import argparse
+import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple, TypeVar
 
@@ -124,6 +125,24 @@ def add_overwrite(parser: argparse.ArgumentParser, option: str = "--out") -> Non
         help=f"replace the files an earlier fabkit run wrote into {option} (without it such "
         "a folder is refused; files fabkit did not write are never touched)",
     )
+
+
+Handler = Callable[[argparse.Namespace], int]
+"""A sub-command's handler: the parsed command line in, the exit code out."""
+
+
+def in_out_folder(handler: Handler) -> Handler:
+    """``handler``, writing into the ``--out`` folder of a command with :func:`add_overwrite`:
+    the folder is claimed while it runs (:func:`fabkit.atomic.output_folder`)."""
+
+    @functools.wraps(handler)
+    def run(args: argparse.Namespace) -> int:
+        from fabkit.atomic import output_folder
+
+        with output_folder(args.out, f"--out {args.out}", args.overwrite):
+            return handler(args)
+
+    return run
 
 
 def add_machine(parser: argparse._ActionsContainer, help: str) -> None:

@@ -6,7 +6,6 @@ import argparse
 import sys
 
 from fabkit import commands
-from fabkit.atomic import output_folder
 from fabkit.field.part import PartRequest
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.plan import PATTERNS
@@ -108,9 +107,9 @@ def _job(args: argparse.Namespace) -> ToolpathJob:
     return commands.call_with(ToolpathJob, args, part_request=part_request(args))
 
 
+@commands.in_out_folder
 def run_channels(args: argparse.Namespace) -> int:
-    with output_folder(args.out, f"--out {args.out}", args.overwrite):
-        result = run_channel_job(ChannelJob(_job(args), args.baromorph, args.out))
+    result = run_channel_job(ChannelJob(_job(args), args.baromorph, args.out))
     if result.part is not None:
         print(result.part.summary())
     print(result.report.summary())
@@ -119,10 +118,9 @@ def run_channels(args: argparse.Namespace) -> int:
     return 0
 
 
+@commands.in_out_folder
 def run(args: argparse.Namespace) -> int:
-    job = _job(args)
-    with output_folder(args.out, f"--out {args.out}", args.overwrite):
-        result = run_job(job)
+    result = run_job(_job(args))
     for warning in result.plan.warnings:
         print(f"fabkit: warning: {warning}", file=sys.stderr)
     for part in result.parts:
