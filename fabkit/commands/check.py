@@ -6,14 +6,14 @@ import argparse
 import json
 import math
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command, call_with
 from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("check", help=help_of("check"))
+    parser = add_command(subparsers, "check")
     parser.add_argument("design", help="design file (.npz) written by fabkit solve")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     tolerance_arguments(parser)
@@ -23,40 +23,36 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+TOLERANCE_HELP = {
+    "isometry_median": "tolerance on the median isometry residual",
+    "isometry_p95": "tolerance on the 95th percentile",
+    "curvature_median": "tolerance on the median curvature residual",
+}
+"""The help of each field of :class:`Tolerances`, an option ``--isometry-median`` etc."""
+
+
+def _option(field: str) -> str:
+    return "--" + field.replace("_", "-")
+
+
 def tolerance_arguments(parser: argparse.ArgumentParser) -> None:
     """The check's tolerances as options (``fabkit check``, ``fabkit optimise``)."""
     defaults = Tolerances()
     group = parser.add_argument_group("the check's tolerances")
-    group.add_argument(
-        "--isometry-median",
-        type=float,
-        default=defaults.isometry_median,
-        help="tolerance on the median isometry residual (default %(default)g)",
-    )
-    group.add_argument(
-        "--isometry-p95",
-        type=float,
-        default=defaults.isometry_p95,
-        help="tolerance on the 95th percentile (default %(default)g)",
-    )
-    group.add_argument(
-        "--curvature-median",
-        type=float,
-        default=defaults.curvature_median,
-        help="tolerance on the median curvature residual (default %(default)g)",
-    )
+    for field, text in TOLERANCE_HELP.items():
+        group.add_argument(
+            _option(field),
+            type=float,
+            default=getattr(defaults, field),
+            help=f"{text} (default %(default)g)",
+        )
 
 
 def tolerances(args: argparse.Namespace) -> Tolerances:
     """The tolerances of :func:`tolerance_arguments`, each a positive finite number."""
-    options = {
-        "--isometry-median": args.isometry_median,
-        "--isometry-p95": args.isometry_p95,
-        "--curvature-median": args.curvature_median,
-    }
-    for option, value in options.items():
-        _positive(option, value)
-    return Tolerances(args.isometry_median, args.isometry_p95, args.curvature_median)
+    for field in TOLERANCE_HELP:
+        _positive(_option(field), getattr(args, field))
+    return call_with(Tolerances, args)
 
 
 def _positive(option: str, value: float | None) -> None:

@@ -8,12 +8,12 @@ import math
 from dataclasses import asdict
 from pathlib import Path
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command
 from fabkit.errors import FabkitError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("energy", help=help_of("energy"))
+    parser = add_command(subparsers, "energy")
     parser.add_argument("design", nargs="?", help="design file (.npz) written by fabkit solve")
     parser.add_argument("--youngs", type=float, default=1.0, help="Young's modulus (default 1)")
     parser.add_argument("--poisson", type=float, default=0.5, help="Poisson ratio (default 0.5)")

@@ -4,16 +4,12 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command
 from fabkit.machines import list_machines, machine_table
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "machines",
-        help=help_of("machines"),
-        description="List the machine profiles in machines/ (see docs/machines.md).",
-    )
+    parser = add_command(subparsers, "machines")
     parser.set_defaults(func=run)
 
 

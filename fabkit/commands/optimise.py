@@ -5,20 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from fabkit.commands import help_of
+from fabkit import commands
 from fabkit.commands.check import tolerance_arguments, tolerances
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "optimise",
-        help=help_of("optimise"),
-        description="Differential evolution over the initial data (curve parameters, eps and "
-        "slopes on the curves, the targets' start points and directors) maximising the "
-        "area covered by the cells of a design that passes the check; writes the best "
-        "spec, its figures and pictures beside --out, and a checkpoint a stopped search "
-        "resumes from.",
-    )
+    parser = commands.add_command(subparsers, "optimise")
     parser.add_argument("spec", help="spec file (TOML); [optimise.parameters] declares parameters")
     parser.add_argument("--out", default="best.toml", help="best spec to write (.toml)")
     parser.add_argument(
@@ -55,21 +47,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--checkpoint", metavar="FILE", help="checkpoint (default: OUT's stem + .checkpoint.json)"
     )
     process = parser.add_argument_group("count only what a process can make")
-    process.add_argument("--machine", metavar="NAME|FILE", help="machine profile whose process")
-    process.add_argument("--process", metavar="FILE", help="TOML with a [process] table")
+    commands.add_machine(process, "machine profile whose process")
+    commands.add_process(process, "TOML with a [process] table")
     process.add_argument(
         "--scale", type=float, metavar="MM_PER_UNIT", help="mm per design unit (with a process)"
     )
     process.add_argument(
         "--min-width", type=float, metavar="MM", help="narrowest part (default: the road width)"
     )
-    process.add_argument(
-        "--ignore-feature",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="a feature the process need not encode (repeatable)",
-    )
+    commands.add_ignore_feature(process, "a feature the process need not encode (repeatable)")
     tolerance_arguments(parser)  # a candidate counts only when its design passes them
     parser.set_defaults(func=run)
 
@@ -117,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _limits(args: argparse.Namespace):
     """The process's limits, or None without --machine / --process."""
-    if not (args.machine or args.process):
+    if not (args.machine or args.process_file):
         for option in ("scale", "min_width"):
             if getattr(args, option) is not None:
                 name = option.replace("_", "-")
@@ -132,9 +118,11 @@ def _limits(args: argparse.Namespace):
         raise _error("--machine/--process: give --scale MM_PER_UNIT (> 0) to compare widths")
     if args.min_width is not None and not 0 <= args.min_width < float("inf"):
         raise _error(f"--min-width {args.min_width}: expected a width >= 0 (mm)")
-    process = load_process(args.process) if args.process else load_machine(args.machine).process
+    process = (
+        load_process(args.process_file) if args.process_file else load_machine(args.machine).process
+    )
     features = load_spec(args.spec).material.features
-    return process_limits(process, features, args.scale, args.min_width, args.ignore_feature)
+    return process_limits(process, features, args.scale, args.min_width, args.ignore_features)
 
 
 def _error(message: str):

@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fabkit.commands import add_overwrite, help_of
+from fabkit.commands import add_command, add_overwrite, in_out_folder
 from fabkit.design.patches import MESH_TYPES
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("plot", help=help_of("plot"))
+    parser = add_command(subparsers, "plot")
     parser.add_argument("design", help="design file (.npz) written by fabkit solve")
     parser.add_argument("--out", default="plots", help="output folder (default %(default)s)")
     parser.add_argument(
@@ -23,14 +23,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+@in_out_folder
 def run(args: argparse.Namespace) -> int:
-    from fabkit.atomic import output_folder
-
-    with output_folder(args.out, f"--out {args.out}", args.overwrite):
-        return _plot(args)
-
-
-def _plot(args: argparse.Namespace) -> int:
     from fabkit.design.check import check_design
     from fabkit.design.design import Design
     from fabkit.design.patches import write_patch_meshes

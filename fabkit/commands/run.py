@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.commands import add_overwrite, help_of
+from fabkit import commands
 from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.design.patches import MESH_TYPES
 from fabkit.machines import DEFAULT_MACHINE
@@ -18,17 +18,12 @@ from fabkit.pipeline import (
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "run",
-        help=help_of("run"),
-    )
+    parser = commands.add_command(subparsers, "run")
     parser.add_argument("spec", help="spec file (TOML), e.g. examples/two_shapes.toml")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    parser.add_argument(
-        "--machine",
-        default=None,
-        metavar="NAME|FILE",
-        help=f"machine profile (default {DEFAULT_MACHINE}, or {BAROMORPH_MACHINE} with "
+    commands.add_machine(
+        parser,
+        f"machine profile (default {DEFAULT_MACHINE}, or {BAROMORPH_MACHINE} with "
         "--baromorph; see fabkit machines)",
     )
     parser.add_argument(
@@ -39,17 +34,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="machine file format, repeatable (default: dxf with --baromorph, laser on a "
         "laser writer, else gcode)",
     )
-    parser.add_argument(
+    commands.add_length(
+        parser,
         "--size",
-        type=float,
+        "longest side of the flat sheet in mm (default %(default)g)",
         default=DEFAULT_SIZE_MM,
-        metavar="MM",
-        help="longest side of the flat sheet in mm (default %(default)g)",
     )
-    parser.add_argument(
-        "--process",
-        metavar="FILE",
-        help="TOML whose [process] table replaces the machine's (eps calibration)",
+    commands.add_process(
+        parser, "TOML whose [process] table replaces the machine's (eps calibration)"
     )
     parser.add_argument(
         "--baromorph",
@@ -69,17 +61,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=list(MESH_TYPES),
         help="format of the patch meshes in patches/ (default %(default)s)",
     )
-    parser.add_argument(
-        "--ignore-feature",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="leave feature NAME out of the machine file on purpose (repeatable); without "
+    commands.add_ignore_feature(
+        parser,
+        "leave feature NAME out of the machine file on purpose (repeatable); without "
         "it a feature the process does not encode is an error",
     )
     parser.add_argument(
         "--no-verify",
-        action="store_true",
+        action="store_false",
+        dest="verify",
         help="do not read the machine file back and check it (fabkit verify)",
     )
     parser.add_argument(
@@ -87,29 +77,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PORT",
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
     )
-    add_overwrite(parser)
+    commands.add_overwrite(parser)
     part_arguments(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    options = RunOptions(
-        spec=args.spec,
-        out=args.out,
-        machine=args.machine,
-        formats=tuple(args.formats) if args.formats else None,
-        size_mm=args.size,
-        send=args.send,
-        process_file=args.process,
-        baromorph=args.baromorph,
-        step=args.step,
-        diagonals=args.diagonals,
-        mesh_format=args.mesh_format,
-        ignore_features=tuple(args.ignore_feature),
-        verify=not args.no_verify,
-        overwrite=args.overwrite,
-        part_request=part_request(args),
-    )
+    options = commands.call_with(RunOptions, args, part_request=part_request(args))
     figures = run_pipeline(options)
     print(
         f"done: see {args.out}/report.html (check "

@@ -4,25 +4,12 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command, call_with
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "send",
-        help=help_of("send"),
-        description=(
-            "Check FILE against the machine profile (envelope, speeds, temperatures, "
-            "commands), estimate its duration, then stream it to PORT with the machine's "
-            "protocol. The machine is --machine, else the one the file's header names "
-            "(fabkit writes it), else the port's default; each send says which. PORT is "
-            "a device (/dev/ttyUSB0, COM3) or a pyserial URL; sim://marlin and sim://grbl "
-            "are built-in emulators (docs/link.md). Ctrl-C stops with the profile's "
-            "safe-stop snippet, prints the --resume-from line and exits with 130; Ctrl-Z "
-            "pauses and resumes."
-        ),
-    )
-    parser.add_argument("file", metavar="FILE", help="G-code file")
+    parser = add_command(subparsers, "send")
+    parser.add_argument("path", metavar="FILE", help="G-code file")
     parser.add_argument("--port", help="device or pyserial URL (not needed with --dry-run)")
     parser.add_argument("--baud", type=int, help="baud rate (default: the profile's)")
     parser.add_argument(
@@ -35,7 +22,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="send with --machine even if FILE's header names another machine",
     )
-    parser.add_argument("--log", metavar="LOGFILE", help="write all traffic to LOGFILE")
+    parser.add_argument(
+        "--log", metavar="LOGFILE", dest="log_path", help="write all traffic to LOGFILE"
+    )
     parser.add_argument(
         "--resume-from", type=int, metavar="LINE", help="start at file line LINE (1-based)"
     )
@@ -53,16 +42,7 @@ def run(args: argparse.Namespace) -> int:
     def say(text: str) -> None:
         print(text, flush=True)
 
-    result = send_file(
-        args.file,
-        args.port,
-        baud=args.baud,
-        machine=args.machine,
-        force=args.force,
-        log_path=args.log,
-        resume_from=args.resume_from,
-        dry_run=args.dry_run,
-        say=say,
-    )  # Ctrl-C: a SendInterrupted, which fabkit.cli prints with its resume line (exit 130)
+    # Ctrl-C: a SendInterrupted, which fabkit.cli prints with its resume line (exit 130)
+    result = call_with(send_file, args, say=say)
     print(result.summary())
     return 0

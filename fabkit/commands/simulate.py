@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command
 from fabkit.design.design import Design
 from fabkit.design.patches import MESH_FORMATS
 from fabkit.errors import FabkitError
@@ -18,7 +18,7 @@ from fabkit.progress import ProgressBar, add_progress
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("simulate", help=help_of("simulate"))
+    parser = add_command(subparsers, "simulate")
     parser.add_argument("design", help="design file (.npz) written by fabkit solve")
     parser.add_argument(
         "--stimulus", required=True, help="surface name or index whose stimulus to apply"

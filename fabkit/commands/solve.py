@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command
 from fabkit.errors import FabkitError
 from fabkit.progress import add_progress
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("solve", help=help_of("solve"))
+    parser = add_command(subparsers, "solve")
     parser.add_argument("spec", help="spec file (TOML)")
     parser.add_argument("--out", default="design.npz", help="design file to write (.npz)")
     parser.add_argument("--step", type=float, help="grid step in u and v (design units)")

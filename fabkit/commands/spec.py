@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.commands import help_of
+from fabkit.commands import add_command
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser("spec", help=help_of("spec"))
+    parser = add_command(subparsers, "spec")
     parser.add_argument("file", help="spec file (TOML), e.g. examples/two_shapes.toml")
     parser.set_defaults(func=run)
 

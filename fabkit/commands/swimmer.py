@@ -6,8 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
-from fabkit.atomic import atomic_path, output_folder
-from fabkit.commands import add_overwrite, help_of
+from fabkit.atomic import atomic_path
+from fabkit.commands import add_command, add_overwrite, in_out_folder
 from fabkit.progress import ProgressBar, add_progress
 from fabkit.swimmer.cycle import convergence, run_stroke
 from fabkit.swimmer.fabricate import fabricate
@@ -23,13 +23,7 @@ from fabkit.swimmer.spec import load_swimmer
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "swimmer",
-        help=help_of("swimmer"),
-        description="Equilibrium shapes along the stimulus path, the force- and torque-free "
-        "motion in Stokes flow (regularised Stokeslets), plots, the work bound per stage, "
-        "and both layers' toolpath and G-code (docs/swimmer.md).",
-    )
+    parser = add_command(subparsers, "swimmer")
     parser.add_argument("spec", help="swimmer spec (TOML), e.g. examples/swimmer.toml")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--stations", type=int, help="shapes per leg (overrides the spec)")
@@ -44,12 +38,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
+@in_out_folder
 def run(args: argparse.Namespace) -> int:
-    with output_folder(args.out, f"--out {args.out}", args.overwrite):
-        return _swimmer(args)
-
-
-def _swimmer(args: argparse.Namespace) -> int:
     spec = load_swimmer(args.spec)
     if args.stations is not None:
         spec = spec.with_path(spec.path, args.stations)

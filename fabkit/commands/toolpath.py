@@ -5,37 +5,29 @@ from __future__ import annotations
 import argparse
 import sys
 
-from fabkit.atomic import output_folder
-from fabkit.commands import add_overwrite, help_of
+from fabkit import commands
 from fabkit.field.part import PartRequest
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.plan import PATTERNS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    parser = subparsers.add_parser(
-        "toolpath",
-        help=help_of("toolpath"),
-        description="Evenly spaced print lines along the director, ordered, layered and "
-        "encoded; writes toolpath.npz, quality.json and preview.png/svg into --out.",
-    )
+    parser = commands.add_command(subparsers, "toolpath")
     _field_arguments(parser, "design.npz or director .toml; several stack (bottom layer first)")
     process = parser.add_argument_group("process")
+    commands.add_machine(process, "machine profile (default: marlin_diw_pneumatic)")
+    commands.add_process(process, "TOML whose [process] replaces it")
+    commands.add_length(process, "--road-width", "override road width w")
+    commands.add_length(process, "--layer-height", "override layer height")
     process.add_argument(
-        "--machine", metavar="NAME|FILE", help="machine profile (default: marlin_diw_pneumatic)"
+        "--no-encode",
+        action="store_false",
+        dest="encode",
+        help="encode no feature (each one left out)",
     )
-    process.add_argument("--process", metavar="FILE", help="TOML whose [process] replaces it")
-    process.add_argument("--road-width", type=float, metavar="MM", help="override road width w")
-    process.add_argument("--layer-height", type=float, metavar="MM", help="override layer height")
-    process.add_argument(
-        "--no-encode", action="store_true", help="encode no feature (each one left out)"
-    )
-    process.add_argument(
-        "--ignore-feature",
-        action="append",
-        default=[],
-        metavar="NAME",
-        help="leave feature NAME out of the encoding on purpose (repeatable); without it a "
+    commands.add_ignore_feature(
+        process,
+        "leave feature NAME out of the encoding on purpose (repeatable); without it a "
         "feature the process does not encode is an error",
     )
     process.add_argument("--clip-eps", action="store_true", help="clip eps to the calibration")
@@ -51,22 +43,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--pattern", choices=PATTERNS, default="same", help="layer pattern")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--json", action="store_true", help="also write toolpath.json")
-    add_overwrite(parser)
+    commands.add_overwrite(parser)
     parser.set_defaults(func=run)
 
-    channels = subparsers.add_parser(
-        "channels",
-        help=help_of("channels"),
-        description="Channels along the director with widths from eps, a manifold to one "
-        "inlet, walls of at least min_wall_mm; writes channels.json, mould.stl and "
-        "channels.png/svg into --out.",
-    )
+    channels = commands.add_command(subparsers, "channels")
     _field_arguments(channels, "design.npz or director .toml (one)")
     channels.add_argument(
         "--baromorph", required=True, metavar="FILE", help="TOML with a [baromorph] table"
     )
     channels.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    add_overwrite(channels)
+    commands.add_overwrite(channels)
     channels.set_defaults(func=run_channels)
 
 
@@ -78,9 +64,11 @@ def _field_arguments(parser: argparse.ArgumentParser, inputs_help: str) -> None:
         "--shape", metavar="SHAPE", help="disc:R, square:S, rect:W,H, annulus:R1,R2, ellipse:A,B"
     )
     source.add_argument("--eps", metavar="EXPR", help='eps(x, y), e.g. "0.2 + 0.01*r"')
-    scale = parser.add_argument_group("design scale").add_mutually_exclusive_group()
-    scale.add_argument("--size", type=float, metavar="MM", help="longest side of the sheet, mm")
-    scale.add_argument("--scale", type=float, metavar="MM_PER_UNIT", help="mm per design unit")
+    commands.add_scale(
+        parser.add_argument_group("design scale"),
+        "longest side of the sheet, mm",
+        "mm per design unit",
+    )
     part_arguments(parser)
 
 
@@ -95,12 +83,10 @@ def part_arguments(parser: argparse.ArgumentParser) -> None:
         help="intersect the part with a shape (disc:R, ...) or the closed paths of a "
         ".dxf, .svg, .geojson or .csv file (mm, sheet frame); clips a director field too",
     )
-    part.add_argument(
+    commands.add_length(
+        part,
         "--min-width",
-        type=float,
-        metavar="MM",
-        help="remove parts narrower than this (default 4 road widths, channels 2 pitches; "
-        "0: keep them)",
+        "remove parts narrower than this (default 4 road widths, channels 2 pitches; 0: keep them)",
     )
     part.add_argument(
         "--trim",
@@ -113,25 +99,17 @@ def part_arguments(parser: argparse.ArgumentParser) -> None:
 
 def part_request(args: argparse.Namespace) -> PartRequest:
     """The part options of :func:`part_arguments`, as one value."""
-    return PartRequest(outline=args.outline, min_width_mm=args.min_width, trim=args.trim)
+    return commands.call_with(PartRequest, args)
 
 
-def _fields(args: argparse.Namespace, **extra) -> ToolpathJob:
-    return ToolpathJob(
-        inputs=tuple(args.inputs),
-        director=args.director,
-        shape=args.shape,
-        eps=args.eps,
-        size_mm=args.size,
-        mm_per_unit=args.scale,
-        part_request=part_request(args),
-        **extra,
-    )
+def _job(args: argparse.Namespace) -> ToolpathJob:
+    """The job the options ask for (``channels``: its field options alone)."""
+    return commands.call_with(ToolpathJob, args, part_request=part_request(args))
 
 
+@commands.in_out_folder
 def run_channels(args: argparse.Namespace) -> int:
-    with output_folder(args.out, f"--out {args.out}", args.overwrite):
-        result = run_channel_job(ChannelJob(_fields(args), args.baromorph, args.out))
+    result = run_channel_job(ChannelJob(_job(args), args.baromorph, args.out))
     if result.part is not None:
         print(result.part.summary())
     print(result.report.summary())
@@ -140,24 +118,9 @@ def run_channels(args: argparse.Namespace) -> int:
     return 0
 
 
+@commands.in_out_folder
 def run(args: argparse.Namespace) -> int:
-    job = _fields(
-        args,
-        machine=args.machine,
-        process_file=args.process,
-        road_width_mm=args.road_width,
-        layer_height_mm=args.layer_height,
-        layers=args.layers,
-        pattern=args.pattern,
-        encode=not args.no_encode,
-        ignore_features=tuple(args.ignore_feature),
-        clip_eps=args.clip_eps,
-        end_inset=args.end_inset,
-        out=args.out,
-        json=args.json,
-    )
-    with output_folder(args.out, f"--out {args.out}", args.overwrite):
-        result = run_job(job)
+    result = run_job(_job(args))
     for warning in result.plan.warnings:
         print(f"fabkit: warning: {warning}", file=sys.stderr)
     for part in result.parts:
