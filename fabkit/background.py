@@ -1,8 +1,10 @@
 """One worker process beside a command, for work on plain data that returns plain data.
 
-``fabkit run`` draws its design pictures there (:func:`fabkit.plot.draw_design`, about
-2 s) while it plans, writes, verifies and sends; drawing is Python-bound, so a thread
-would wait for the interpreter lock instead. The worker is
+``fabkit run`` draws its pictures there (the design's and the toolpath preview, about
+2.5 s) while it plans, writes, verifies and sends; drawing is Python-bound, so a thread
+would wait for the interpreter lock instead. The work is named by ``"module:function"``:
+the worker imports that module, the caller never does (the caller need not load
+matplotlib at all). The worker is
 
 - spawned, not forked: a forked copy of a process whose BLAS has started threads can
   hang;
@@ -25,18 +27,32 @@ import signal
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
-from multiprocessing.pool import Pool
+from multiprocessing.pool import AsyncResult, Pool
+from typing import Any
+
+
+class Worker:
+    """The worker process of :func:`worker`."""
+
+    def __init__(self, pool: Pool) -> None:
+        self._pool = pool
+
+    def start(self, function: str, *args: Any) -> AsyncResult:
+        """Start ``function`` (``"module:name"``) on ``args`` in the worker, after the work
+        started before it; ``.get()`` on the result waits for its value (or raises its
+        exception)."""
+        return self._pool.apply_async(_call, (function, args))
 
 
 @contextmanager
-def worker(warm: tuple[str, ...] = ()) -> Iterator[Pool]:
-    """A pool of one spawned worker that has imported ``warm`` (module names); give it
-    work with ``apply_async``. It is terminated when the block ends."""
+def worker(warm: tuple[str, ...] = ()) -> Iterator[Worker]:
+    """A spawned worker process that imports ``warm`` (module names) first. It is
+    terminated when the block ends."""
     context = multiprocessing.get_context("spawn")
     with _sigint_ignored():
         pool = context.Pool(1, initializer=_start, initargs=(warm,))
     with pool:
-        yield pool
+        yield Worker(pool)
 
 
 @contextmanager
@@ -51,6 +67,12 @@ def _sigint_ignored() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def _call(function: str, args: tuple[Any, ...]) -> Any:
+    """``function`` (``"module:name"``) called on ``args``, in the worker."""
+    module, name = function.split(":")
+    return getattr(importlib.import_module(module), name)(*args)
 
 
 def _start(warm: tuple[str, ...]) -> None:

@@ -39,11 +39,13 @@ import math
 from collections.abc import Callable
 from contextlib import suppress
 from dataclasses import asdict, dataclass, replace
+from functools import partial
+from multiprocessing.pool import AsyncResult
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from fabkit.atomic import atomic_path, check_folder, output_folder, record
-from fabkit.background import worker
+from fabkit.background import Worker, worker
 from fabkit.design.check import CheckReport, ResidualMaps
 from fabkit.design.design import Design
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
@@ -60,7 +62,7 @@ from fabkit.field.part import (
 )
 from fabkit.figures import AREA_UNIT
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
-from fabkit.plot import design_scene, draw_design, write_pictures
+from fabkit.plot import DESIGN_PICTURES, design_scene, write_pictures
 from fabkit.plot.report import html_report
 from fabkit.problem.spec import Spec, load_spec
 from fabkit.process import Process
@@ -136,30 +138,35 @@ class _Inputs:
 def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> dict[str, Any]:
     """Every stage in turn, into the claimed output folder; returns the key figures.
 
-    The design pictures are drawn in a second process (:mod:`fabkit.background`) while
-    the later stages run, and written when they are done (also when a later stage fails).
+    The design pictures and the toolpath preview are drawn in a second process
+    (:mod:`fabkit.background`) while the later stages run, and written at the report
+    (also when a later stage fails).
     """
     out = Path(options.out)
     notice = _notice(options)
     if notice:
         say(f"      {notice}")
-    with worker(warm=("fabkit.plot",)) as background:
+    with worker(warm=WORKER_MODULES) as background:
+        drawings = _Drawings(background)
         solved = _solve(options, inputs, say)
         say("[2/7] drawing pictures and patch meshes")
         design = solved.design
-        drawing = background.apply_async(
-            draw_design, (design_scene(design, solved.part, solved.maps),)
+        drawings.draw(
+            "fabkit.plot:draw_design",
+            (design_scene(design, solved.part, solved.maps),),
+            partial(write_pictures, folder=out / "pictures"),
         )
         meshes = [
             str(path) for path in write_patch_meshes(design, out / "patches", options.mesh_format)
         ]
         try:
-            fabricated, verification, sent = _fabricate(options, inputs, out, solved, say)
+            fabricated, verification, sent = _fabricate(options, inputs, solved, drawings, say)
         except FabkitError:
             with suppress(Exception):  # the run fails with its own error; keep what it drew
-                write_pictures(drawing.get(), out / "pictures")
+                drawings.write()
             raise
-        pictures = write_pictures(drawing.get(), out / "pictures")
+        drawings.write()
+    pictures = [(caption, out / "pictures" / name) for name, caption in DESIGN_PICTURES]
 
     say("[7/7] writing report.html and report.json")
     figures = {
@@ -221,17 +228,51 @@ def _solve(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> 
     return _Solved(design, check, result.maps, solved, part)
 
 
+WORKER_MODULES = ("fabkit.plot", "fabkit.plot.design", "fabkit.toolpath.preview")
+"""What the worker imports while the run solves: the drawings it will be given."""
+
+
+class _Drawings:
+    """Pictures the worker draws while the run goes on, and how each is written: all are
+    written together, when the run reaches its report or when a later stage fails."""
+
+    def __init__(self, background: Worker) -> None:
+        self._background = background
+        self._pending: list[tuple[AsyncResult, Callable[[Any], Any]]] = []
+
+    def draw(self, function: str, args: tuple[Any, ...], write: Callable[[Any], Any]) -> None:
+        """Have ``function`` (``"module:name"``) draw from ``args``; ``write`` its result."""
+        self._pending.append((self._background.start(function, *args), write))
+
+    def write(self) -> None:
+        """Wait for every drawing and write it."""
+        while self._pending:
+            result, write = self._pending.pop(0)
+            write(result.get())
+
+
+def _write_images(stem: Path, images: dict[str, bytes]) -> None:
+    """Write each image (format -> bytes) as ``stem`` with the format's suffix."""
+    for fmt, data in images.items():
+        with atomic_path(stem.with_suffix(f".{fmt}")) as tmp:
+            tmp.write_bytes(data)
+
+
 def _fabricate(
-    options: RunOptions, inputs: _Inputs, out: Path, solved: _Solved, say: Callable[[str], None]
+    options: RunOptions,
+    inputs: _Inputs,
+    solved: _Solved,
+    drawings: _Drawings,
+    say: Callable[[str], None],
 ) -> tuple[_Fabricated, dict[str, Any] | None, dict[str, Any] | None]:
     """The machine files, their verification and the send: (fabricated, verify, sent)."""
-    design, part = solved.design, solved.part
+    out, design, part = Path(options.out), solved.design, solved.part
     if options.baromorph:
         fabricated = _channels(options, inputs, out, design, part, say)
     elif inputs.machine.kind == LASER_WRITER:
         fabricated = _laser_patterns(options, inputs, out, design, part, say)
     else:
-        fabricated = _print_lines(options, inputs, out, design, part, say)
+        fabricated = _print_lines(options, inputs, out, solved, drawings, say)
 
     verification = _verify(options, out, design, part, say)
 
@@ -394,12 +435,12 @@ def _print_lines(
     options: RunOptions,
     inputs: _Inputs,
     out: Path,
-    design: Design,
-    part: Part,
+    solved: _Solved,
+    drawings: _Drawings,
     say: Callable[[str], None],
 ) -> _Fabricated:
     """Print lines along the director, then the machine files (from the toolpath in
-    memory; toolpath.npz is a side output)."""
+    memory; toolpath.npz is a side output, its preview drawn by the worker)."""
     say(f"[3/7] planning print lines for {options.machine} at {options.size_mm:g} mm")
     job = run_job(
         ToolpathJob(
@@ -409,9 +450,15 @@ def _print_lines(
             size_mm=options.size_mm,
             ignore_features=options.ignore_features,
             out=str(out / "toolpath"),
-            part=part,
-            design=design,
+            part=solved.part,
+            design=solved.design,
+            preview=False,
         )
+    )
+    drawings.draw(
+        "fabkit.toolpath.preview:preview_images",
+        (job.plan.toolpath, list(job.outlines)),
+        partial(_write_images, out / "toolpath" / "preview"),
     )
     say(f"[4/7] writing {', '.join(options.formats)}")
     machine = inputs.machine

@@ -159,7 +159,7 @@ run()
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("module", ["fabkit.cli", "fabkit.pipeline", "matplotlib", "scipy"])
+@pytest.mark.parametrize("module", ["fabkit.cli", "fabkit.pipeline", "numba", "scipy"])
 def test_ctrl_c_while_the_command_starts_is_one_line(tmp_path, module):
     """Ctrl-C while the CLI and its stages are imported: exit 130, one line, no traceback.
 

@@ -1,4 +1,9 @@
-"""Pictures and the HTML report. ``render_design`` draws everything a design has."""
+"""Pictures and the HTML report. ``render_design`` draws everything a design has.
+
+Importing this package does not load matplotlib: :func:`draw_design` imports the
+drawings (:mod:`fabkit.plot.design`) when it runs, so ``fabkit run``, which has them drawn
+in its worker process, never loads them itself.
+"""
 
 from __future__ import annotations
 
@@ -9,8 +14,7 @@ from fabkit.atomic import atomic_path
 from fabkit.design.check import ResidualMaps, residual_maps
 from fabkit.design.design import Design
 from fabkit.field.part import Part
-from fabkit.plot import design as pictures
-from fabkit.plot.design import Scene
+from fabkit.plot.scene import Scene, scene
 
 DESIGN_PICTURES = (
     (
@@ -32,14 +36,6 @@ DESIGN_PICTURES = (
 )
 
 
-DRAWINGS = {
-    "flat_sheet.png": pictures.flat_sheet,
-    "eps.png": pictures.eps_maps,
-    "surfaces.png": pictures.actuated_surfaces,
-    "residuals.png": pictures.residual_maps,
-}
-
-
 @dataclass(frozen=True)
 class Picture:
     """A drawn picture: its file ``name``, its ``caption`` and its ``png`` bytes."""
@@ -52,16 +48,24 @@ class Picture:
 def design_scene(
     design: Design, part: Part | None = None, maps: tuple[ResidualMaps, ...] | None = None
 ) -> Scene:
-    """What the design pictures show, as plain data (:class:`~fabkit.plot.design.Scene`):
+    """What the design pictures show, as plain data (:class:`~fabkit.plot.scene.Scene`):
     the flat sheet with its ``part`` (default: the part of
     :class:`fabkit.field.part.PartRules`' defaults) and the check's residual ``maps``
     (computed here if not given)."""
-    return pictures.scene(design, part, residual_maps(design) if maps is None else maps)
+    return scene(design, part, residual_maps(design) if maps is None else maps)
 
 
-def draw_design(scene: Scene) -> tuple[Picture, ...]:
-    """Every design picture of ``scene`` (:data:`DESIGN_PICTURES`), drawn in memory."""
-    return tuple(Picture(name, caption, DRAWINGS[name](scene)) for name, caption in DESIGN_PICTURES)
+def draw_design(shown: Scene) -> tuple[Picture, ...]:
+    """Every design picture of ``shown`` (:data:`DESIGN_PICTURES`), drawn in memory."""
+    from fabkit.plot import design as drawings  # matplotlib: only where pictures are drawn
+
+    drawing = {
+        "flat_sheet.png": drawings.flat_sheet,
+        "eps.png": drawings.eps_maps,
+        "surfaces.png": drawings.actuated_surfaces,
+        "residuals.png": drawings.residual_maps,
+    }
+    return tuple(Picture(name, caption, drawing[name](shown)) for name, caption in DESIGN_PICTURES)
 
 
 def write_pictures(drawn: tuple[Picture, ...], folder: str | Path) -> list[tuple[str, Path]]:

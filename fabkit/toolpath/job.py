@@ -6,7 +6,8 @@ file, overrides), plans the toolpath, and writes into the output folder:
 
 * ``toolpath.npz`` (and ``toolpath.json`` on request): the :class:`Toolpath`;
 * ``quality.json``: the quality of every layer, the settings and any warnings;
-* ``preview.png`` and ``preview.svg``.
+* ``preview.png`` and ``preview.svg`` (unless ``preview`` is off: ``fabkit run`` has
+  them drawn in its worker process, :func:`fabkit.toolpath.preview.preview_images`).
 
 :func:`run_channel_job` does the same for baromorph channels: ``channels.json`` (closed
 polygons, widths, eps, the checks), ``mould.stl`` and ``channels.png``/``channels.svg``.
@@ -48,7 +49,6 @@ from fabkit.toolpath.lines import LineSettings
 from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.mould import POLARITY, mould_mesh, save_mould
 from fabkit.toolpath.plan import Plan, PlanSettings, plan_toolpath
-from fabkit.toolpath.preview import save_channel_preview, save_preview
 from fabkit.toolpath.process import load_process, machine_process, resolve_channels
 
 
@@ -84,15 +84,18 @@ class ToolpathJob:
     end_inset: float = LineSettings().end_inset
     out: str = "toolpath"
     json: bool = False
+    preview: bool = True
 
 
 @dataclass(frozen=True)
 class JobResult:
-    """The plan, the files written, and the part of every design input."""
+    """The plan, the files written, the part of every design input and the outline of
+    every layer's field (mm)."""
 
     plan: Plan
     files: tuple[Path, ...]
     parts: tuple[Part, ...] = ()
+    outlines: tuple[shapely.Geometry, ...] = ()
 
 
 def run_job(job: ToolpathJob) -> JobResult:
@@ -116,15 +119,20 @@ def run_job(job: ToolpathJob) -> JobResult:
     )
     plan = plan_toolpath(fields, process, settings)
     out = Path(job.out)
-    files = [out / "toolpath.npz", out / "quality.json", out / "preview.png", out / "preview.svg"]
+    files = [out / "toolpath.npz", out / "quality.json"]
     save_toolpath(plan.toolpath, files[0])
     _save_quality(plan, process, files[1], fields)
-    save_preview(plan.toolpath, [f.outline for f in fields], files[2:4])
+    outlines = tuple(f.outline for f in fields)
+    if job.preview:
+        from fabkit.toolpath.preview import save_preview  # matplotlib: only when drawing
+
+        files += [out / "preview.png", out / "preview.svg"]
+        save_preview(plan.toolpath, list(outlines), files[2:4])
     if job.json:
         files.append(out / "toolpath.json")
         save_toolpath(plan.toolpath, files[-1])
     parts = tuple(f.part for f in fields if f.part is not None)
-    return JobResult(plan, tuple(files), parts)
+    return JobResult(plan, tuple(files), parts, outlines)
 
 
 MAX_ROADS_ACROSS = 5000
@@ -258,6 +266,8 @@ def run_channel_job(job: ChannelJob) -> ChannelResult:
     with atomic_path(files[0]) as tmp:
         tmp.write_text(json.dumps(_channels_json(layout, report)), encoding="utf-8")
     save_mould(mould_mesh(layout, settings), files[1])
+    from fabkit.toolpath.preview import save_channel_preview  # matplotlib: only when drawing
+
     save_channel_preview(layout, list(files[2:]))
     return ChannelResult(layout, report, files, fields[0].mm_per_unit, fields[0].part)
 

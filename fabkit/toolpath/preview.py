@@ -8,6 +8,7 @@ encoded); the colour bar names it and the feature it encodes.
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import matplotlib
@@ -34,14 +35,14 @@ WIDTH_STEP = 0.02
 """Relative width step at which a drawn road run is cut."""
 
 
-def save_preview(
+def preview_images(
     toolpath: Toolpath,
     outlines: list[shapely.Geometry],
-    paths: list[str | Path],
+    formats: tuple[str, ...] = ("png", "svg"),
     dpi: int = 200,
-) -> None:
-    """Draw ``toolpath`` over the per-layer ``outlines`` (mm) and save to each of ``paths``
-    (the suffix picks the format: .png, .svg, .pdf)."""
+) -> dict[str, bytes]:
+    """``toolpath`` drawn over the per-layer ``outlines`` (mm), as the bytes of each image
+    format (``"png"``, ``"svg"``, ``"pdf"``)."""
     shown = _shown_layers(len(toolpath.layers))
     channel = next(iter(toolpath.channels), None)
     figure = Figure(figsize=(PANEL_INCHES * len(shown), PANEL_INCHES))
@@ -58,9 +59,27 @@ def save_preview(
         label = f"{LABELS.get(channel, channel)}: {toolpath.channels[channel] or 'eps'}"
         mappable = ScalarMappable(norm=norm, cmap="viridis")
         figure.colorbar(mappable, ax=axes.tolist(), shrink=0.8, label=label)
-    for path in paths:
+    images = {}
+    for fmt in formats:
+        buffer = io.BytesIO()
+        figure.savefig(buffer, dpi=dpi, format=fmt)
+        images[fmt] = buffer.getvalue()
+    return images
+
+
+def save_preview(
+    toolpath: Toolpath,
+    outlines: list[shapely.Geometry],
+    paths: list[str | Path],
+    dpi: int = 200,
+) -> None:
+    """Draw ``toolpath`` over the per-layer ``outlines`` (mm) and save to each of ``paths``
+    (the suffix picks the format: .png, .svg, .pdf)."""
+    formats = tuple(Path(path).suffix.lstrip(".") for path in paths)
+    images = preview_images(toolpath, outlines, formats, dpi)
+    for path, fmt in zip(paths, formats, strict=True):
         with atomic_path(path) as tmp:
-            figure.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip("."))
+            tmp.write_bytes(images[fmt])
 
 
 def _norm(toolpath: Toolpath, channel: str | None) -> Normalize | None:
