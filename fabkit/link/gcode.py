@@ -316,6 +316,10 @@ _MARLIN_COMMAND = re.compile(r"([GMTgmt])(\d+)(\.\d*)?")
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")
 STRING_COMMANDS = frozenset({"M117", "M118", "M0", "M1"})
 """Marlin commands whose text after the code is a message, not parameters."""
+_PLAIN_MARLIN = re.compile(r"([GM](?:0|[1-9]\d*))((?: [A-Z][-+]?(?:\d+\.?\d*|\.\d+))*)")
+"""The lines fabkit writes, read at once: an upper-case G or M code without a leading
+zero or fraction, then parameters each after one blank, a letter and a number."""
+_PLAIN_WORD = re.compile(r" ([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
 
 
 def read_marlin(text: str, *, upper: bool) -> Block:
@@ -329,6 +333,12 @@ def read_marlin(text: str, *, upper: bool) -> Block:
     GRBL X400), a repeated letter, a malformed number, any other character, and lower
     case unless ``upper`` (Klipper upper-cases every line; Marlin needs a build option).
     """
+    plain = _PLAIN_MARLIN.fullmatch(text)
+    if plain is not None and plain.group(1) not in STRING_COMMANDS:
+        given = _PLAIN_WORD.findall(plain.group(2))
+        values = {letter: float(number) for letter, number in given}
+        if len(values) == len(given):  # else a letter given twice: refused below
+            return Block((plain.group(1),), values)
     match = _MARLIN_COMMAND.match(text)
     if match is None:
         return Block((text.split()[0].upper(),))
