@@ -32,10 +32,15 @@ import numpy as np
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.field.part import SIMULATE_THICKNESS, Part
+from fabkit.field.part import Part
 from fabkit.mechanics.mesh import DesignMesh, counter_clockwise, design_mesh
 from fabkit.mechanics.metric import metric_from_director, metric_from_lengths
-from fabkit.mechanics.simulate import DesignSimulation, Settings, diameter, simulate
+from fabkit.mechanics.simulate import (
+    DesignSimulation,
+    Settings,
+    default_thickness,
+    simulate_from_made,
+)
 
 PointFunction = Callable[[np.ndarray], np.ndarray]
 """A function of (n, 2) flat-sheet points (design units)."""
@@ -189,12 +194,6 @@ def _v_side(design: Design) -> float:
     return 1.0 if np.median(cross) >= 0 else -1.0
 
 
-def default_thickness(design: Design) -> float:
-    """The simulated sheet's thickness (design units): :data:`~fabkit.part.SIMULATE_THICKNESS`
-    of the diameter of the design's whole solved flat domain (as ``fabkit simulate``)."""
-    return SIMULATE_THICKNESS * diameter(design_mesh(design).points)
-
-
 def simulate_sheet(
     design: Design,
     fields: SheetFields,
@@ -229,17 +228,14 @@ def simulate_sheet(
     if not ok.all():
         mesh = _faces(mesh, ok)
         theta, eps = sample(mesh)
-    metrics = sheet_metrics(coarse, mesh, surface, theta, eps)
-    made = sheet_metrics(coarse, mesh, 0, theta, eps)
-    result = simulate(
-        mesh.points,
-        mesh.triangles,
-        metrics,
+    metrics, result = simulate_from_made(
+        mesh,
+        lambda s: sheet_metrics(coarse, mesh, s, theta, eps),
+        surface,
         thickness,
         poisson,
         settings or Settings(),
-        start_metrics=made,
-        progress=progress,
+        progress,
     )
     name = design.problem.targets[surface].name
     return coarse, DesignSimulation(surface, name, mesh, metrics, thickness, result)

@@ -404,12 +404,35 @@ def simulate_design(
     domain (design units; the part does not change it); ``part`` and ``refine`` as in
     :func:`~fabkit.mechanics.mesh.design_mesh`.
     """
-    spec = design.problem
     mesh = design_mesh(design, part, refine)
     if thickness is None:
-        thickness = SIMULATE_THICKNESS * diameter(design_mesh(design).points)
-    metrics = design_metrics(design, mesh, surface)
-    made = design_metrics(design, mesh, 0)
+        thickness = default_thickness(design)
+    metrics, result = simulate_from_made(
+        mesh,
+        lambda s: design_metrics(design, mesh, s),
+        surface,
+        thickness,
+        poisson,
+        settings,
+        progress,
+    )
+    name = design.problem.targets[surface].name
+    return DesignSimulation(surface, name, mesh, metrics, thickness, result)
+
+
+def simulate_from_made(
+    mesh: DesignMesh,
+    metrics_at: Callable[[int], np.ndarray],
+    surface: int,
+    thickness: float,
+    poisson: float,
+    settings: Settings,
+    progress: Callable[[int, int], None] | None,
+) -> tuple[np.ndarray, Simulation]:
+    """The sheet on ``mesh`` ramped from its metrics as made (``metrics_at(0)``, the flat
+    sheet's stimulus) to those under surface ``surface``'s stimulus (``metrics_at(surface)``,
+    (F, 2, 2) or (L, F, 2, 2)); returns those metrics and the simulation."""
+    metrics = metrics_at(surface)
     result = simulate(
         mesh.points,
         mesh.triangles,
@@ -417,11 +440,16 @@ def simulate_design(
         thickness,
         poisson,
         settings,
-        start_metrics=made,
+        start_metrics=metrics_at(0),
         progress=progress,
     )
-    name = spec.targets[surface].name
-    return DesignSimulation(surface, name, mesh, metrics, thickness, result)
+    return metrics, result
+
+
+def default_thickness(design: Design) -> float:
+    """The simulated sheet's thickness (design units): :data:`~fabkit.part.SIMULATE_THICKNESS`
+    of the diameter of the design's whole solved flat domain (as ``fabkit simulate``)."""
+    return SIMULATE_THICKNESS * diameter(design_mesh(design).points)
 
 
 def diameter(points: np.ndarray) -> float:
