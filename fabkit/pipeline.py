@@ -160,7 +160,9 @@ def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) ->
             str(path) for path in write_patch_meshes(design, out / "patches", options.mesh_format)
         ]
         try:
-            fabricated, verification, sent = _fabricate(options, inputs, solved, drawings, say)
+            fabricated, verification, sent = _fabricate(
+                _Run(options, inputs, solved, drawings, say)
+            )
         except FabkitError:
             with suppress(Exception):  # the run fails with its own error; keep what it drew
                 drawings.write()
@@ -258,32 +260,43 @@ def _write_images(stem: Path, images: dict[str, bytes]) -> None:
             tmp.write_bytes(data)
 
 
-def _fabricate(
-    options: RunOptions,
-    inputs: _Inputs,
-    solved: _Solved,
-    drawings: _Drawings,
-    say: Callable[[str], None],
-) -> tuple[_Fabricated, dict[str, Any] | None, dict[str, Any] | None]:
-    """The machine files, their verification and the send: (fabricated, verify, sent)."""
-    out, design, part = Path(options.out), solved.design, solved.part
-    if options.baromorph:
-        fabricated = _channels(options, inputs, out, design, part, say)
-    elif inputs.machine.kind == LASER_WRITER:
-        fabricated = _laser_patterns(options, inputs, out, design, part, say)
-    else:
-        fabricated = _print_lines(options, inputs, out, solved, drawings, say)
+@dataclass(frozen=True)
+class _Run:
+    """What every stage after the solve takes: the run's ``options``, the ``inputs`` read
+    once, the ``solved`` design, the worker's ``drawings`` and ``say`` for its lines."""
 
-    verification = _verify(options, out, design, part, say)
+    options: RunOptions
+    inputs: _Inputs
+    solved: _Solved
+    drawings: _Drawings
+    say: Callable[[str], None]
+
+    @property
+    def out(self) -> Path:
+        """The output folder."""
+        return Path(self.options.out)
+
+
+def _fabricate(run: _Run) -> tuple[_Fabricated, dict[str, Any] | None, dict[str, Any] | None]:
+    """The machine files, their verification and the send: (fabricated, verify, sent)."""
+    options = run.options
+    if options.baromorph:
+        fabricated = _channels(run)
+    elif run.inputs.machine.kind == LASER_WRITER:
+        fabricated = _laser_patterns(run)
+    else:
+        fabricated = _print_lines(run)
+
+    verification = _verify(run)
 
     sent = None
     if options.send:
-        say(f"[6/7] sending sheet.gcode to {options.send}")
+        run.say(f"[6/7] sending sheet.gcode to {options.send}")
         from fabkit.link.host.send import send_file
 
-        sent = _sent(send_file(out / "sheet.gcode", options.send, machine=options.machine))
+        sent = _sent(send_file(run.out / "sheet.gcode", options.send, machine=options.machine))
     else:
-        say("[6/7] not sending (no --send)")
+        run.say("[6/7] not sending (no --send)")
     return fabricated, verification, sent
 
 
@@ -365,10 +378,9 @@ def _part(options: RunOptions, inputs: _Inputs, design: Design) -> Part:
     )
 
 
-def _verify(
-    options: RunOptions, out: Path, design: Design, part: Part, say: Callable[[str], None]
-) -> dict[str, Any] | None:
+def _verify(run: _Run) -> dict[str, Any] | None:
     """Read the first machine file back and check it (None with --no-verify)."""
+    options, out, say = run.options, run.out, run.say
     if not options.verify:
         say("[5/7] not verifying (--no-verify)")
         return None
@@ -384,9 +396,9 @@ def _verify(
             process_file=options.process_file,
             ignore_features=options.ignore_features,
             baromorph=options.baromorph,
-            part=part,
+            part=run.solved.part,
         ),
-        design=design,
+        design=run.solved.design,
     )
     for line in result.table().splitlines()[1:-1]:
         say(f"      {line.strip()}")
@@ -431,16 +443,10 @@ class _Fabricated:
     picture: tuple[str, Path]
 
 
-def _print_lines(
-    options: RunOptions,
-    inputs: _Inputs,
-    out: Path,
-    solved: _Solved,
-    drawings: _Drawings,
-    say: Callable[[str], None],
-) -> _Fabricated:
+def _print_lines(run: _Run) -> _Fabricated:
     """Print lines along the director, then the machine files (from the toolpath in
     memory; toolpath.npz is a side output, its preview drawn by the worker)."""
+    options, out, say, solved = run.options, run.out, run.say, run.solved
     say(f"[3/7] planning print lines for {options.machine} at {options.size_mm:g} mm")
     job = run_job(
         ToolpathJob(
@@ -455,13 +461,13 @@ def _print_lines(
             preview=False,
         )
     )
-    drawings.draw(
+    run.drawings.draw(
         "fabkit.toolpath.preview:preview_images",
         (job.plan.toolpath, list(job.outlines)),
         partial(_write_images, out / "toolpath" / "preview"),
     )
     say(f"[4/7] writing {', '.join(options.formats)}")
-    machine = inputs.machine
+    machine = run.inputs.machine
     exports = {
         fmt: write_machine_file(job.plan.toolpath, machine, fmt, out / FORMAT_FILES[fmt]).summary
         for fmt in options.formats
@@ -476,47 +482,39 @@ def _print_lines(
     return _Fabricated(figures, (caption, out / "toolpath" / "preview.png"))
 
 
-def _laser_patterns(
-    options: RunOptions,
-    inputs: _Inputs,
-    out: Path,
-    design: Design,
-    part: Part,
-    say: Callable[[str], None],
-) -> _Fabricated:
+def _laser_patterns(run: _Run) -> _Fabricated:
     """Photoalignment patterns straight from the design (no print lines)."""
+    options, inputs, out, say = run.options, run.inputs, run.out, run.say
     say("[3/7] no print lines: a laser writer exposes the director field directly")
     say("[4/7] writing laser/")
     summary = write_machine_file(
-        design,
+        run.solved.design,
         inputs.machine,
         "laser",
         out / "laser",
-        ExportOptions(process=inputs.process, ignore_features=options.ignore_features, part=part),
+        ExportOptions(
+            process=inputs.process, ignore_features=options.ignore_features, part=run.solved.part
+        ),
     ).summary
     record(out / "laser")  # the laser writer renames a whole folder into place
     caption = "Photoalignment pattern: binned director angle and the dose of each exposure (mm)"
     return _Fabricated({"exports": {"laser": summary}}, (caption, out / "laser" / "preview.png"))
 
 
-def _channels(
-    options: RunOptions,
-    inputs: _Inputs,
-    out: Path,
-    design: Design,
-    part: Part,
-    say: Callable[[str], None],
-) -> _Fabricated:
+def _channels(run: _Run) -> _Fabricated:
     """Baromorph channels whose width encodes eps, their mould, and a DXF for a cutter."""
+    options, out, say = run.options, run.out, run.say
     say(f"[3/7] laying out baromorph channels at {options.size_mm:g} mm")
-    fields = ToolpathJob(inputs=(str(out / "design.npz"),), part=part, design=design)
+    fields = ToolpathJob(
+        inputs=(str(out / "design.npz"),), part=run.solved.part, design=run.solved.design
+    )
     result = run_channel_job(
         ChannelJob(fields=fields, baromorph=options.baromorph, out=str(out / "channels"))
     )
     say("[4/7] writing channels.dxf")
     drawing = write_dxf(
         out / "channels.dxf",
-        machine=inputs.machine,
+        machine=run.inputs.machine,
         mm_per_unit=result.mm_per_unit,
         **layout_layers(result.layout),
     )
