@@ -37,6 +37,7 @@ from fabkit.design.solver import solve
 from fabkit.field.part import simulation_part
 from fabkit.mechanics.compare import align, compare, integrated_curvature, target_points
 from fabkit.mechanics.energy import (
+    HomogeneousSheet,
     baromorph_energy,
     cycle_closed_form,
     cycle_energy,
@@ -291,22 +292,23 @@ def energy() -> None:
     count = round(2 * np.pi / step)
     uu, vv = np.meshgrid(step * np.arange(count + 1), step * np.arange(cells + 1), indexing="ij")
     alpha, valid, area = vv * 2 * np.pi / (count * step), np.ones_like(uu, bool), np.pi * radius**2
+    sheet = HomogeneousSheet(area, youngs, poisson, thickness)
 
     def direct(l1, l2):
         return work_bound(alpha, np.ones_like(vv), l1, l2, valid, step, youngs, poisson, thickness)
 
     worst = 0.0
     for pressure in np.linspace(0.1, 2, 8):
-        closed = baromorph_energy(eps, pressure, area, youngs, poisson, thickness)
+        closed = baromorph_energy(eps, pressure, sheet)
         worst = max(worst, abs(direct(1.0, 1 + pressure * eps) / closed - 1))
     print(f"energy: baromorph closed form vs direct integration, worst relative {worst:.1e}")
     for stage in (1, 2, 3):
         worst = 0.0
         for t in np.linspace(0.05, 0.95, 10):  # stage 3 ends at zero energy
             l1, l2 = cycle_stretches(stage, t, eps)
-            formula = cycle_energy(stage, t, eps, area, youngs, poisson, thickness)
+            formula = cycle_energy(stage, t, eps, sheet)
             if stage != 2:
-                formula = cycle_closed_form(stage, t, eps, area, youngs, poisson, thickness)
+                formula = cycle_closed_form(stage, t, eps, sheet)
             worst = max(worst, abs(direct(float(l1), float(l2)) / float(formula) - 1))
         source = "closed form" if stage != 2 else "homogeneous formula"
         print(f"  cycle stage {stage}: {source} vs direct integration, worst relative {worst:.1e}")

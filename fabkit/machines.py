@@ -439,16 +439,7 @@ class _Table:
         value = self._raw(key)
         if not isinstance(value, list):
             self.fail(f"{self._name(key)} must be an array of numbers, got {_type(value)}")
-        out = []
-        for item in value:
-            if isinstance(item, bool) or not isinstance(item, int | float):
-                self.fail(f"{self._name(key)} must hold numbers only, got {_type(item)}")
-            if not math.isfinite(item):
-                self.fail(f"{self._name(key)} must hold finite numbers, got {item}")
-            if abs(item) > MAGNITUDE:
-                self.fail(f"{self._name(key)} holds {item:g}, beyond the plausible +-{MAGNITUDE:g}")
-            out.append(float(item))
-        return tuple(out)
+        return tuple(self._number_item(key, item) for item in value)
 
     def span(self, key: str) -> tuple[float, float]:
         value = self.numbers(key)
@@ -501,19 +492,17 @@ class _Table:
         value = self._raw(key)
         if not isinstance(value, list) or not all(isinstance(row, list) for row in value):
             self.fail(f"{self._name(key)} must be an array of arrays of numbers")
-        rows = []
-        for row in value:
-            for item in row:
-                if isinstance(item, bool) or not isinstance(item, int | float):
-                    self.fail(f"{self._name(key)} must hold numbers only, got {_type(item)}")
-                if not math.isfinite(item):
-                    self.fail(f"{self._name(key)} must hold finite numbers, got {item}")
-                if abs(item) > MAGNITUDE:
-                    self.fail(
-                        f"{self._name(key)} holds {item:g}, beyond the plausible +-{MAGNITUDE:g}"
-                    )
-            rows.append(tuple(float(item) for item in row))
-        return tuple(rows)
+        return tuple(tuple(self._number_item(key, item) for item in row) for row in value)
+
+    def _number_item(self, key: str, item: Any) -> float:
+        """One item of the array ``key``: a finite number within +-MAGNITUDE."""
+        if isinstance(item, bool) or not isinstance(item, int | float):
+            self.fail(f"{self._name(key)} must hold numbers only, got {_type(item)}")
+        if not math.isfinite(item):
+            self.fail(f"{self._name(key)} must hold finite numbers, got {item}")
+        if abs(item) > MAGNITUDE:
+            self.fail(f"{self._name(key)} holds {item:g}, beyond the plausible +-{MAGNITUDE:g}")
+        return float(item)
 
     def _qualified(self, key: str) -> str:
         return f"{self.where.strip('[]')}.{key}" if self.where else key

@@ -553,20 +553,18 @@ def missing_message(process: Process, missing: Sequence[str], channels: Sequence
 
 
 def _refuse_twice(channels: Sequence[Encode], source: str) -> None:
-    seen_features: dict[str, str] = {}
-    seen_parameters: dict[str, str] = {}
+    """Refuse a feature that two channels encode, or a parameter that two channels set
+    (the message names both channels), in the order the channels come."""
+    features: dict[str, str] = {}  # name -> label of the channel that has it
+    parameters: dict[str, str] = {}
     for channel in channels:
-        for name in channel.features:
-            if name in seen_features:
-                raise FabkitError(
-                    f"{source}: feature {name} is encoded twice ({seen_features[name]}; "
-                    f"{channel.label})"
-                )
-            seen_features[name] = channel.label
-        for parameter in channel.parameters:
-            if parameter in seen_parameters:
-                raise FabkitError(
-                    f"{source}: parameter {parameter} encodes two channels "
-                    f"({seen_parameters[parameter]}; {channel.label})"
-                )
-            seen_parameters[parameter] = channel.label
+        for names, seen, twice in (
+            (channel.features, features, "feature {} is encoded twice"),
+            (channel.parameters, parameters, "parameter {} encodes two channels"),
+        ):
+            for name in names:
+                if name in seen:
+                    raise FabkitError(
+                        f"{source}: {twice.format(name)} ({seen[name]}; {channel.label})"
+                    )
+                seen[name] = channel.label

@@ -10,6 +10,7 @@ import pytest
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.mechanics.energy import (
+    HomogeneousSheet,
     baromorph_energy,
     cycle_closed_form,
     cycle_energy,
@@ -50,14 +51,15 @@ def integrate_polar(lambda1, lambda2, density=small_strain_density, radius=1.5, 
     )
 
 
-def area() -> float:
-    return np.pi * 1.5**2
+def sheet() -> HomogeneousSheet:
+    """The disc of radius 1.5 that integrate_polar integrates over."""
+    return HomogeneousSheet(np.pi * 1.5**2, YOUNGS, POISSON, THICKNESS)
 
 
 def test_baromorph_closed_form_matches_direct_integration():
     for pressure in (0.3, 1.0, 2.5):
         direct = integrate_polar(1.0, 1.0 + pressure * EPS)
-        closed = baromorph_energy(EPS, pressure, area(), YOUNGS, POISSON, THICKNESS)
+        closed = baromorph_energy(EPS, pressure, sheet())
         assert direct == pytest.approx(closed, rel=1e-6)
 
 
@@ -67,18 +69,18 @@ def test_cycle_stages_match_direct_integration(stage, density):
     for t in (0.25, 0.5, 1.0):
         lambda1, lambda2 = cycle_stretches(stage, t, EPS)
         direct = integrate_polar(float(lambda1), float(lambda2), density)
-        formula = cycle_energy(stage, t, EPS, area(), YOUNGS, POISSON, THICKNESS, density)
+        formula = cycle_energy(stage, t, EPS, sheet(), density)
         assert direct == pytest.approx(float(formula), rel=1e-6)
 
 
 @pytest.mark.parametrize("stage", [1, 3])
 def test_supplement_closed_forms_of_stages_one_and_three(stage):
     t = np.linspace(0, 1, 11)
-    closed = cycle_closed_form(stage, t, EPS, area(), YOUNGS, POISSON, THICKNESS)
-    density = cycle_energy(stage, t, EPS, area(), YOUNGS, POISSON, THICKNESS)
+    closed = cycle_closed_form(stage, t, EPS, sheet())
+    density = cycle_energy(stage, t, EPS, sheet())
     assert np.allclose(closed, density, rtol=1e-12, atol=0)
     with pytest.raises(FabkitError):
-        cycle_closed_form(2, t, EPS, area(), YOUNGS, POISSON, THICKNESS)
+        cycle_closed_form(2, t, EPS, sheet())
 
 
 def test_cycle_is_closed_and_continuous():

@@ -47,6 +47,14 @@ class Residual:
     median: float
     p95: float
 
+    @classmethod
+    def of(cls, values: np.ndarray) -> Residual:
+        """The statistics of the finite ``values`` (any shape); NaN if there are none."""
+        values = values[np.isfinite(values)]
+        if values.size == 0:
+            return cls(float("nan"), float("nan"))
+        return cls(float(np.median(values)), float(np.percentile(values, 95)))
+
 
 @dataclass(frozen=True)
 class SurfaceCheck:
@@ -175,7 +183,7 @@ def check_maps(
     surfaces = []
     for surface in maps:
         points = int(np.isfinite(surface.maps["length_u"]).sum())
-        stats = (_stats(surface.maps[key]) for key in RESIDUALS)
+        stats = (Residual.of(surface.maps[key]) for key in RESIDUALS)
         surfaces.append(SurfaceCheck(surface.name, points, *stats))
     return CheckReport(tuple(surfaces), tolerances)
 
@@ -279,10 +287,3 @@ def _surface_residuals(surface, r, stretch_u, stretch_v, step, interior, scale):
             np.abs(cross) / (length_u * length_v),
             np.abs(k_designed - k_target) / scale,
         )
-
-
-def _stats(values: np.ndarray) -> Residual:
-    values = values[np.isfinite(values)]
-    if values.size == 0:
-        return Residual(float("nan"), float("nan"))
-    return Residual(float(np.median(values)), float(np.percentile(values, 95)))

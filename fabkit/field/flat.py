@@ -40,7 +40,7 @@ from scipy.spatial import cKDTree
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.field.outlines import parse_shape
+from fabkit.field.outlines import parse_shape, polygonal
 from fabkit.field.part import Part, PartOptions, print_part, scale_for_size, solved_region
 from fabkit.npzfile import ArrayHeader, read_npz
 from fabkit.problem.expr import parse, shorten
@@ -137,7 +137,7 @@ class FlatField:
 
     def clipped(self, clip: shapely.Geometry) -> FlatField:
         """The same field on the outline intersected with ``clip`` (mm)."""
-        outline = _polygonal(shapely.intersection(self.outline, clip))
+        outline = polygonal(shapely.intersection(self.outline, clip))
         if outline.is_empty:
             raise FabkitError(f"{self.source}: the clip outline does not overlap the domain")
         return replace(self, outline=outline)
@@ -250,7 +250,7 @@ def field_from_expression(
     elif eps is not None:
         texts["eps"], keys["eps"] = eps, eps_key
     features = {name: planar_expression(text, keys[name]) for name, text in texts.items()}
-    outline = _polygonal(outline)
+    outline = polygonal(outline)
     if outline.is_empty or outline.area <= 0:
         raise FabkitError(f"{where or '--shape'}: the outline is empty")
     check_finite_on_sheet(theta_fn, outline, theta_key, str(theta))
@@ -354,7 +354,7 @@ def _mask_outline(values: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> shapely
     for points, offset in zip(polygons, offsets, strict=True):
         rings = [points[a:b] for a, b in zip(offset[:-1], offset[1:], strict=True)]
         shells.append(shapely.Polygon(rings[0], rings[1:]))
-    return _polygonal(shapely.union_all(shells))
+    return polygonal(shapely.union_all(shells))
 
 
 # --------------------------------------------------------------------------- designs
@@ -619,7 +619,7 @@ def _outline_points(value: Any, where: str) -> shapely.Polygon:
         raise FabkitError(f"{where}: expected a list of at least 3 [x, y] points (mm)")
     polygon = shapely.Polygon(points)
     if not polygon.is_valid:
-        polygon = _polygonal(shapely.make_valid(polygon))
+        polygon = polygonal(shapely.make_valid(polygon))
     return polygon
 
 
@@ -670,12 +670,3 @@ def _check_grid_headers(headers: Mapping[str, ArrayHeader], where: str) -> None:
         nodes = int(np.prod(header.shape))
         if nodes > MAX_GRID_NODES:
             raise FabkitError(f"{where}: '{key}' has {nodes} nodes, more than {MAX_GRID_NODES}")
-
-
-def _polygonal(geometry: shapely.Geometry) -> shapely.Polygon | shapely.MultiPolygon:
-    """The polygonal part of a geometry (drops points and lines from intersections)."""
-    parts = [g for g in shapely.get_parts(geometry) if isinstance(g, shapely.Polygon)]
-    parts = [p for p in parts if p.area > 0]
-    if not parts:
-        return shapely.Polygon()
-    return parts[0] if len(parts) == 1 else shapely.MultiPolygon(parts)

@@ -126,14 +126,15 @@ def _even_odd(rings: list[np.ndarray], label: str) -> shapely.Polygon | shapely.
         if not np.isfinite(ring).all() or np.abs(ring).max() > MAGNITUDE:
             raise FabkitError(f"{label}: a coordinate is not finite or beyond +-{MAGNITUDE:g} mm")
         polygon = shapely.make_valid(shapely.Polygon(ring))
-        region = shapely.symmetric_difference(region, _polygonal(polygon))
-    region = _polygonal(region)
+        region = shapely.symmetric_difference(region, polygonal(polygon))
+    region = polygonal(region)
     if region.is_empty or region.area <= 0:
         raise FabkitError(f"{label}: no closed path with an area (an outline must be closed)")
     return region
 
 
-def _polygonal(geometry: shapely.Geometry) -> shapely.Polygon | shapely.MultiPolygon:
+def polygonal(geometry: shapely.Geometry) -> shapely.Polygon | shapely.MultiPolygon:
+    """The polygonal part of a geometry (drops points and lines from intersections)."""
     parts = [g for g in shapely.get_parts(geometry) if isinstance(g, shapely.Polygon)]
     parts = [p for p in parts if p.area > 0]
     if not parts:

@@ -48,7 +48,7 @@ from scipy import ndimage
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.field.outlines import read_outline
+from fabkit.field.outlines import polygonal, read_outline
 
 MARGIN_DEPTH = 1.415
 """Depth (grid steps to the nearest node outside the solved cells) of the margin contour:
@@ -380,15 +380,6 @@ def _closing(region: shapely.Geometry, radius: float) -> shapely.Geometry:
     if radius <= 0 or region.is_empty:
         return region
     return region.buffer(radius, quad_segs=QUAD_SEGS).buffer(-radius, quad_segs=QUAD_SEGS)
-
-
-def polygonal(geometry: shapely.Geometry) -> shapely.Polygon | shapely.MultiPolygon:
-    """The polygonal part of a geometry (drops points and lines from intersections)."""
-    parts = [g for g in shapely.get_parts(geometry) if isinstance(g, shapely.Polygon)]
-    parts = [p for p in parts if p.area > 0]
-    if not parts:
-        return shapely.Polygon()
-    return parts[0] if len(parts) == 1 else shapely.MultiPolygon(parts)
 
 
 def print_part(

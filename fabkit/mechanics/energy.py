@@ -155,16 +155,26 @@ def describe_work(results: tuple[SurfaceWork, ...]) -> str:
     return "\n".join(lines)
 
 
-def baromorph_energy(
-    eps: float, pressure: np.ndarray, area: float, youngs: float, poisson: float, thickness: float
-) -> np.ndarray:
+@dataclass(frozen=True)
+class HomogeneousSheet:
+    """The sheet of the supplement's closed forms and of the Fig. 4d cycle: flat area A0
+    (length^2), Young's modulus Y, Poisson ratio nu and thickness h (length)."""
+
+    area: float
+    youngs: float
+    poisson: float
+    thickness: float
+
+
+def baromorph_energy(eps: float, pressure: np.ndarray, sheet: HomogeneousSheet) -> np.ndarray:
     """Closed form for a homogeneous baromorph, lambda1 = 1, lambda2 = 1 + Lambda eps:
 
     E = h A0 Y / (8 (1 - nu^2)) eps^2 Lambda^2 (2 + Lambda eps)^2 / (1 + Lambda eps)^3,
     with A0 the flat sheet's area (small-strain density).
     """
     x = np.asarray(pressure, dtype=float) * eps
-    return thickness * area * youngs / (8 * (1 - poisson**2)) * x**2 * (2 + x) ** 2 / (1 + x) ** 3
+    h, area, youngs, poisson = sheet.thickness, sheet.area, sheet.youngs, sheet.poisson
+    return h * area * youngs / (8 * (1 - poisson**2)) * x**2 * (2 + x) ** 2 / (1 + x) ** 3
 
 
 CYCLE = ((0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 0.0))
@@ -190,37 +200,27 @@ def cycle_energy(
     stage: int,
     t: np.ndarray,
     eps: float,
-    area: float,
-    youngs: float,
-    poisson: float,
-    thickness: float,
+    sheet: HomogeneousSheet,
     density: Density = small_strain_density,
 ) -> np.ndarray:
     """Energy bound at fraction t of a cycle stage for a homogeneous sheet of flat area A0:
     h A0 W(lambda1, lambda2) lambda1 lambda2 (the stretches are uniform)."""
     l1, l2 = cycle_stretches(stage, t, eps)
-    return thickness * area * density(l1, l2, youngs, poisson) * l1 * l2
+    return sheet.thickness * sheet.area * density(l1, l2, sheet.youngs, sheet.poisson) * l1 * l2
 
 
-def cycle_closed_form(
-    stage: int,
-    t: np.ndarray,
-    eps: float,
-    area: float,
-    youngs: float,
-    poisson: float,
-    thickness: float,
-) -> np.ndarray:
+def cycle_closed_form(stage: int, t: np.ndarray, eps: float, sheet: HomogeneousSheet) -> np.ndarray:
     """The supplement's small-strain closed forms: stage 1 is the baromorph with
     Lambda = Lambda1; stage 3 (lambda1 = lambda2 = 1 + Lambda eps) is
     h A0 Y eps^2 Lambda^2 (2 + Lambda eps)^2 / (4 (1 - nu) (1 + Lambda eps)^2).
     The supplement gives none for stage 2."""
     l1, l2 = cycle_stretches(stage, t, eps)
     if stage == 1:
-        return baromorph_energy(eps, (l2 - 1) / eps, area, youngs, poisson, thickness)
+        return baromorph_energy(eps, (l2 - 1) / eps, sheet)
     if stage == 3:
         x = l1 - 1
-        return thickness * area * youngs * x**2 * (2 + x) ** 2 / (4 * (1 - poisson) * (1 + x) ** 2)
+        h, area, youngs, poisson = sheet.thickness, sheet.area, sheet.youngs, sheet.poisson
+        return h * area * youngs * x**2 * (2 + x) ** 2 / (4 * (1 - poisson) * (1 + x) ** 2)
     raise FabkitError("the supplement gives closed forms for cycle stages 1 and 3 only")
 
 
@@ -243,10 +243,11 @@ def cycle_table(
 ) -> tuple[CycleStage, ...]:
     """The numbers behind Fig. 4d: energy bounds at both ends of each stage."""
     _check(youngs, poisson, thickness)
+    sheet = HomogeneousSheet(area, youngs, poisson, thickness)
     rows = []
     for stage in (1, 2, 3):
         values = [
-            float(cycle_energy(stage, t, eps, area, youngs, poisson, thickness, density))
+            float(cycle_energy(stage, t, eps, sheet, density))
             for density in DENSITIES.values()
             for t in (0.0, 1.0)
         ]
@@ -285,11 +286,12 @@ def plot_cycle(
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise FabkitError(f"{path}: the cycle plot is written as .png")
+    sheet = HomogeneousSheet(area, youngs, poisson, thickness)
     t = np.linspace(0.0, 1.0, samples)
     figure, axes = plt.subplots(figsize=(6, 3.6), layout="constrained")
     for (label, density), style in zip(DENSITIES.items(), ("-", "--"), strict=True):
         for stage in (1, 2, 3):
-            energy = cycle_energy(stage, t, eps, area, youngs, poisson, thickness, density)
+            energy = cycle_energy(stage, t, eps, sheet, density)
             axes.plot(
                 stage - 1 + t,
                 energy,

@@ -44,6 +44,7 @@ import shapely
 from fabkit.atomic import atomic_path
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile
+from fabkit.process import PRINT_PARAMETERS
 from fabkit.toolpath.model import PRINT, Toolpath
 from fabkit.writers.common import check_inside, placement_offset
 
@@ -63,15 +64,9 @@ APP_ID = "FABKIT"
 """The registered application of the channels' extended data."""
 XDATA_VERTICES = 400
 """Vertices per polyline at most when channels ride along (16 kB of extended data)."""
-DRAWN_CHANNELS = (
-    "print_speed_mm_s",
-    "extrusion_multiplier",
-    "pressure_kpa",
-    "line_spacing_mm",
-    "temperature_c",
-    "ink_fraction",
-)
-"""Channels a DXF carries (extended data, or the road positions for the line spacing)."""
+DRAWN_CHANNELS = PRINT_PARAMETERS
+"""Channels a DXF carries: every print-road parameter (extended data, or the road positions
+for the line spacing)."""
 
 Geometry = shapely.Geometry | Iterable[shapely.Geometry] | None
 """Shapely geometry, a list of geometries, or nothing."""
@@ -85,29 +80,10 @@ class DxfSummary:
     offset_mm: tuple[float, float, float]
 
 
-def write_dxf(
-    path: str | Path,
-    toolpath: Toolpath | None = None,
-    *,
-    outline: Geometry = None,
-    channels: Geometry = None,
-    inlet: Geometry = None,
-    machine: MachineProfile | None = None,
-    offset_mm: tuple[float, ...] | None = None,
-    inlet_radius_mm: float = DEFAULT_INLET_RADIUS_MM,
-    mm_per_unit: float | None = None,
-) -> DxfSummary:
-    """Write the drawing at ``path`` atomically (see the module docstring)."""
-    doc, summary = dxf_document(
-        toolpath,
-        outline=outline,
-        channels=channels,
-        inlet=inlet,
-        machine=machine,
-        offset_mm=offset_mm,
-        inlet_radius_mm=inlet_radius_mm,
-        mm_per_unit=mm_per_unit,
-    )
+def write_dxf(path: str | Path, toolpath: Toolpath | None = None, **options: Any) -> DxfSummary:
+    """Write the drawing of :func:`dxf_document` (``toolpath`` and its keyword ``options``:
+    outline, channels, inlet, machine, ...) at ``path`` atomically (see the module docstring)."""
+    doc, summary = dxf_document(toolpath, **options)
     with atomic_path(path) as tmp:
         doc.saveas(tmp)
     return summary

@@ -11,7 +11,7 @@ import math
 import random
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 INF = math.inf
 _EPS = 1e-6  # of a byte time: keeps float arrival times from missing a byte
@@ -69,6 +69,7 @@ class Faults:
     disconnect_after: int | None = None
 
 
+@dataclass(eq=False)
 class Input:
     """Host-to-machine bytes: the wire (with timing) and the firmware's receive ring.
 
@@ -78,23 +79,16 @@ class Input:
     never enter the ring: they become events at their arrival time.
     """
 
-    def __init__(
-        self,
-        byte_s: float,
-        latency_s: float,
-        capacity: int,
-        counters: Counters,
-        realtime: bytes = b"",
-    ) -> None:
-        self.byte_s = byte_s
-        self.latency_s = latency_s
-        self.capacity = capacity
-        self.counters = counters
-        self.realtime = realtime
-        self.chunks: deque[list] = deque()  # [t of byte 0, data, consumed offset]
-        self.free_at = -INF
-        self.pending = bytearray()
-        self.rt_events: deque[tuple[float, int]] = deque()
+    byte_s: float
+    latency_s: float
+    capacity: int
+    counters: Counters
+    realtime: bytes = b""
+    chunks: deque[list] = field(default_factory=deque, init=False)
+    """Bytes on the wire: [t of byte 0, data, consumed offset] per write."""
+    free_at: float = field(default=-INF, init=False)
+    pending: bytearray = field(default_factory=bytearray, init=False)
+    rt_events: deque[tuple[float, int]] = field(default_factory=deque, init=False)
 
     def push(self, data: bytes, now: float) -> None:
         """The host writes ``data`` at ``now``; it reaches the machine byte by byte."""
@@ -184,28 +178,19 @@ class Input:
         self.pending.clear()
 
 
+@dataclass(eq=False)
 class Output:
     """Machine-to-host lines, with byte timing and the faults that hit them."""
 
-    def __init__(
-        self,
-        byte_s: float,
-        latency_s: float,
-        eol: bytes,
-        faults: Faults,
-        rng: random.Random,
-        counters: Counters,
-        noise_lines: tuple[str, ...],
-    ) -> None:
-        self.byte_s = byte_s
-        self.latency_s = latency_s
-        self.eol = eol
-        self.faults = faults
-        self.rng = rng
-        self.counters = counters
-        self.noise_lines = noise_lines
-        self.items: deque[tuple[float, bytes]] = deque()
-        self.free_at = -INF
+    byte_s: float
+    latency_s: float
+    eol: bytes
+    faults: Faults
+    rng: random.Random
+    counters: Counters
+    noise_lines: tuple[str, ...]
+    items: deque[tuple[float, bytes]] = field(default_factory=deque, init=False)
+    free_at: float = field(default=-INF, init=False)
 
     def line(self, text: str, t: float) -> None:
         """Send one line at ``t``, subject to the injected faults."""
@@ -619,32 +604,25 @@ class EmulatorConfig:
         )
 
 
+@dataclass(eq=False)
 class Firmware:
     """What every emulated firmware holds: its config, the wires in and out, the trace and
     counters it keeps, the random source of its faults, and the hook it calls when the
     line drops. A firmware (:mod:`~fabkit.link.emulator.marlin`,
     :mod:`~fabkit.link.emulator.grbl`) adds its protocol loop and interpreter, ``_start``
-    (what it sets up once, called last here) and ``_reset_state`` (its state after a
-    reset)."""
+    (what it sets up once, called last on construction) and ``_reset_state`` (its state
+    after a reset)."""
 
-    def __init__(
-        self,
-        config: EmulatorConfig,
-        inp: Input,
-        out: Output,
-        trace: list[TraceEntry],
-        counters: Counters,
-        rng: random.Random,
-        on_disconnect: Callable[[float], None],
-    ) -> None:
-        self.config = config
-        self.inp = inp
-        self.out = out
-        self.trace = trace
-        self.counters = counters
-        self.rng = rng
-        self.on_disconnect = on_disconnect
-        self.halted = False
+    config: EmulatorConfig
+    inp: Input
+    out: Output
+    trace: list[TraceEntry]
+    counters: Counters
+    rng: random.Random
+    on_disconnect: Callable[[float], None]
+    halted: bool = field(default=False, init=False)
+
+    def __post_init__(self) -> None:
         self._start()
 
     def _start(self) -> None:

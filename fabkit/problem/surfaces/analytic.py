@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 
@@ -136,29 +136,41 @@ class Graph(Surface):
         return f"graph z = {self.height.text} (chart x, y)"
 
 
-class Parametric(Surface):
-    """Surface X(a, b) = (x, y, z) in 3D, chart (a, b); g = J^T J, K by Brioschi's formula."""
+class _Formulas(Surface):
+    """A surface given by three expressions in the chart (a, b), under the spec keys
+    ``keys`` (in that order): those in ``required`` must be given, an absent other is 0."""
 
-    kind = "parametric"
     chart = ("a", "b")
+    keys: tuple[str, str, str]
+    required: tuple[str, ...]
 
     def __init__(
         self,
         name: str,
-        coordinates: tuple[Expression, Expression, Expression],
+        formulas: tuple[Expression, Expression, Expression],
         bounds: Bounds = UNBOUNDED,
     ):
-        self.name, self.coordinates, self.bounds = name, coordinates, bounds
-        self._derivatives = _jets(coordinates)
+        self.name, self.formulas, self.bounds = name, formulas, bounds
+        self._derivatives = _jets(formulas)
 
     @classmethod
-    def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir) -> Parametric:
-        check_keys(table, {"kind", "x", "y", "z", "domain"}, where)
-        missing = [k for k in ("x", "y", "z") if k not in table]
+    def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir) -> Self:
+        check_keys(table, {"kind", *cls.keys, "domain"}, where)
+        missing = [k for k in cls.required if k not in table]
         if missing:
-            raise FabkitError(f'{where}: a parametric surface needs {missing[0]} = "...(a, b)"')
-        coordinates = tuple(parse(table[k], ("a", "b"), f"{where}.{k}") for k in ("x", "y", "z"))
-        return cls(name, coordinates, domain_bounds(table, where))
+            raise FabkitError(f'{where}: a {cls.kind} surface needs {missing[0]} = "...(a, b)"')
+        formulas = tuple(parse(table.get(k, "0"), cls.chart, f"{where}.{k}") for k in cls.keys)
+        return cls(name, formulas, domain_bounds(table, where))
+
+    def expressions(self) -> dict[str, Expression]:
+        return dict(zip(self.keys, self.formulas, strict=True))
+
+
+class Parametric(_Formulas):
+    """Surface X(a, b) = (x, y, z) in 3D, chart (a, b); g = J^T J, K by Brioschi's formula."""
+
+    kind = "parametric"
+    keys = required = ("x", "y", "z")
 
     def geometry(self, r):
         """g = J^T J and K from X's first and second derivatives; NaN where X is not finite."""
@@ -166,42 +178,17 @@ class Parametric(Surface):
         g, gamma, curvature = immersion_geometry(np.swapaxes(first, 0, 1), second.swapaxes(0, 1))
         return _where_finite(np.sum(position, axis=0), g, gamma, curvature)
 
-    def expressions(self) -> dict[str, Expression]:
-        return dict(zip("xyz", self.coordinates, strict=True))
-
     def embed(self, r):
         r = np.asarray(r, dtype=float)
-        return np.stack([c(r[..., 0], r[..., 1]) for c in self.coordinates], axis=-1)
+        return np.stack([c(r[..., 0], r[..., 1]) for c in self.formulas], axis=-1)
 
 
-class Metric(Surface):
+class Metric(_Formulas):
     """An intrinsic surface given only by its metric g11, g12, g22 in (a, b); no embedding."""
 
     kind = "metric"
-    chart = ("a", "b")
-
-    def __init__(
-        self,
-        name: str,
-        components: tuple[Expression, Expression, Expression],
-        bounds: Bounds = UNBOUNDED,
-    ):
-        self.name, self.components, self.bounds = name, components, bounds
-        self._derivatives = _jets(components)
-
-    @classmethod
-    def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir) -> Metric:
-        check_keys(table, {"kind", "g11", "g12", "g22", "domain"}, where)
-        missing = [k for k in ("g11", "g22") if k not in table]
-        if missing:
-            raise FabkitError(f'{where}: a metric surface needs {missing[0]} = "...(a, b)"')
-        components = tuple(
-            parse(table.get(k, "0"), ("a", "b"), f"{where}.{k}") for k in ("g11", "g12", "g22")
-        )
-        return cls(name, components, domain_bounds(table, where))
-
-    def expressions(self) -> dict[str, Expression]:
-        return dict(zip(("g11", "g12", "g22"), self.components, strict=True))
+    keys = ("g11", "g12", "g22")
+    required = ("g11", "g22")
 
     def geometry(self, r):
         """Christoffel symbols and K (Brioschi) from the components' derivatives."""

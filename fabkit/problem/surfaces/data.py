@@ -29,11 +29,12 @@ import io
 import logging
 import re
 import warnings
+from abc import abstractmethod
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 from scipy import ndimage
@@ -78,12 +79,32 @@ class HeightGrid:
     spacing: tuple[float, float]
 
 
+@dataclass(frozen=True)
+class _Nodes:
+    """The nodes of a resampling grid: (ny, nx) = ``shape``, node (i, j) at
+    origin + (i, j) * spacing (chart units)."""
+
+    origin: tuple[float, float]
+    spacing: tuple[float, float]
+    shape: tuple[int, int]
+
+    def points(self, columns: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Chart points (..., 2) of the nodes in ``columns`` i and ``rows`` j (...)."""
+        (x0, y0), (hx, hy) = self.origin, self.spacing
+        return np.stack([x0 + columns * hx, y0 + rows * hy], -1)
+
+
 class DataSurface(Surface):
     """A height field fitted to data; chart = the two coordinates across ``axis``.
 
     g = I + grad f grad f^T, Gamma^i_jk = f_i f_jk / (1 + |grad f|^2) and
     K = (f_xx f_yy - f_xy^2) / (1 + |grad f|^2)^2, from the fit's closed-form derivatives.
     """
+
+    options: tuple[str, ...]
+    """The kind's own keys in its geometry table, besides kind, file and smoothing."""
+    formats: tuple[str, ...]
+    """The file name endings the kind reads."""
 
     def __init__(self, name: str, source: str, grid: HeightGrid, fit: SurfaceFit, axis: str = "z"):
         self.name, self.source, self.fit, self.axis = name, source, fit, axis
@@ -93,6 +114,18 @@ class DataSurface(Surface):
         self.bounds = ((x0, x0 + (nx - 1) * hx), (y0, y0 + (ny - 1) * hy))
         self.footprint = footprint_cells(np.isfinite(grid.z))
         self.curvature_range = self._curvature_range()
+
+    @classmethod
+    def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir: Path) -> Self:
+        """The surface of a spec's geometry table: its ``file`` (relative to ``base_dir``,
+        one of ``formats``), the kind's ``options`` and ``smoothing``, read and fitted."""
+        check_keys(table, {"kind", "file", *cls.options, "smoothing"}, where)
+        return cls._load(name, data_file(table, where, base_dir, cls.formats), table, where)
+
+    @classmethod
+    @abstractmethod
+    def _load(cls, name: str, path: Path, table: Mapping[str, Any], where: str) -> Self:
+        """The surface of the existing data file ``path``, with the rest of ``table``."""
 
     def geometry(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return graph_geometry(self.fit.derivatives(r)[1:])
@@ -147,13 +180,11 @@ class HeightMap(DataSurface):
     """``kind = "heightmap"``: a height grid from a file."""
 
     kind = "heightmap"
+    options = ("extent", "z_scale", "nodata")
+    formats = GRID_FORMATS
 
     @classmethod
-    def from_table(
-        cls, name: str, table: Mapping[str, Any], where: str, base_dir: Path
-    ) -> HeightMap:
-        check_keys(table, {"kind", "file", "extent", "z_scale", "nodata", "smoothing"}, where)
-        path = data_file(table, where, base_dir, GRID_FORMATS)
+    def _load(cls, name: str, path: Path, table: Mapping[str, Any], where: str) -> HeightMap:
         extent = _extent(table["extent"], f"{where}.extent") if "extent" in table else None
         z_scale = number(table.get("z_scale", 1.0), f"{where}.z_scale")
         if z_scale == 0:
@@ -170,13 +201,11 @@ class MeshSurface(DataSurface):
     """``kind = "mesh"``: a triangle mesh that is a height field over the plane normal to axis."""
 
     kind = "mesh"
+    options = ("axis",)
+    formats = MESH_FORMATS
 
     @classmethod
-    def from_table(
-        cls, name: str, table: Mapping[str, Any], where: str, base_dir: Path
-    ) -> MeshSurface:
-        check_keys(table, {"kind", "file", "axis", "smoothing"}, where)
-        path = data_file(table, where, base_dir, MESH_FORMATS)
+    def _load(cls, name: str, path: Path, table: Mapping[str, Any], where: str) -> MeshSurface:
         axis = table.get("axis", "z")
         if axis not in CHARTS:
             raise FabkitError(f'{where}.axis: expected "x", "y" or "z", got {axis!r}')
@@ -581,38 +610,31 @@ def mesh_grid(vertices: np.ndarray, faces: np.ndarray, axis: str, where: str) ->
         )
     upright = np.abs(doubled_area) > 1e-12 * np.abs(doubled_area).max()
     area = np.abs(doubled_area).sum() / 2
-    origin, spacing, shape, on_lattice = _mesh_nodes(vertices[:, :2], area)
-    z = _rasterise(triangles[upright], origin, spacing, shape, axis, where)
+    nodes, on_lattice = _mesh_nodes(vertices[:, :2], area)
+    z = _rasterise(triangles[upright], nodes, axis, where)
     if not np.isfinite(z).any():
         raise FabkitError(f"{where}.file: the mesh covers no grid node")
     if not on_lattice:
-        z = _local_quadratics(vertices, z, origin, spacing)
-    return HeightGrid(z, origin, spacing)
+        z = _local_quadratics(vertices, z, nodes)
+    return HeightGrid(z, nodes.origin, nodes.spacing)
 
 
-def _mesh_nodes(
-    points: np.ndarray, area: float
-) -> tuple[tuple[float, float], tuple[float, float], tuple[int, int], bool]:
-    """Grid (origin, spacing, (ny, nx), on the vertices' lattice) for a mesh's chart points
-    (V, 2) covering chart area ``area``: the vertices' own lattice if they form one, else
-    the mean vertex spacing over their bounds (at most MESH_MAX_SIDE nodes a side)."""
+def _mesh_nodes(points: np.ndarray, area: float) -> tuple[_Nodes, bool]:
+    """The grid for a mesh's chart points (V, 2) covering chart area ``area``, and whether
+    it is the vertices' own lattice: that if they form one, else the mean vertex spacing
+    over their bounds (at most MESH_MAX_SIDE nodes a side)."""
     lattice = [_lattice(points[:, k]) for k in (0, 1)]
     if all(item is not None for item in lattice):
         (x0, hx, nx), (y0, hy, ny) = lattice
-        return (x0, y0), (hx, hy), (ny, nx), True
+        return _Nodes((x0, y0), (hx, hy), (ny, nx)), True
     low, high = points.min(0), points.max(0)
     step = max(np.sqrt(area / len(points)), np.max(high - low) / (MESH_MAX_SIDE - 1))
     counts = np.maximum(np.floor((high - low) / step).astype(int) + 1, MIN_SIDE)
     spacing = (high - low) / (counts - 1)
-    return (low[0], low[1]), (spacing[0], spacing[1]), (counts[1], counts[0]), False
+    return _Nodes((low[0], low[1]), (spacing[0], spacing[1]), (counts[1], counts[0])), False
 
 
-def _local_quadratics(
-    vertices: np.ndarray,
-    z: np.ndarray,
-    origin: tuple[float, float],
-    spacing: tuple[float, float],
-) -> np.ndarray:
+def _local_quadratics(vertices: np.ndarray, z: np.ndarray, nodes: _Nodes) -> np.ndarray:
     """z (ny, nx) with every finite node replaced by the value at the node of the weighted
     least-squares quadratic through its nearest vertices (V, 3).
 
@@ -622,11 +644,11 @@ def _local_quadratics(
     from scipy.spatial import cKDTree
 
     rows, columns = np.nonzero(np.isfinite(z))
-    nodes = np.stack([origin[0] + columns * spacing[0], origin[1] + rows * spacing[1]], -1)
+    points = nodes.points(columns, rows)
     count = min(QUADRATIC_NEIGHBOURS + 1, len(vertices))
-    distance, nearest = cKDTree(vertices[:, :2]).query(nodes, k=count)
+    distance, nearest = cKDTree(vertices[:, :2]).query(points, k=count)
     weight = np.clip(1 - (distance / distance[:, -1:]) ** 2, 0, None) ** 2
-    offsets = (vertices[nearest, :2] - nodes[:, None, :]) / np.asarray(spacing)
+    offsets = (vertices[nearest, :2] - points[:, None, :]) / np.asarray(nodes.spacing)
     dx, dy = offsets[..., 0], offsets[..., 1]
     design = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], axis=-1)
     normal = np.einsum("mk,mka,mkb->mab", weight, design, design)
@@ -653,27 +675,20 @@ def _lattice(values: np.ndarray) -> tuple[float, float, int] | None:
     return float(centres[0]), float(steps.mean()), len(centres)
 
 
-def _rasterise(
-    triangles: np.ndarray,
-    origin: tuple[float, float],
-    spacing: tuple[float, float],
-    shape: tuple[int, int],
-    axis: str,
-    where: str,
-) -> np.ndarray:
+def _rasterise(triangles: np.ndarray, nodes: _Nodes, axis: str, where: str) -> np.ndarray:
     """Heights (ny, nx) of triangles (T, 3, 3) at grid nodes by linear interpolation in each
     triangle; NaN where no triangle covers a node. Refuses nodes covered at two heights."""
-    node, height = _node_hits(triangles, origin, spacing, shape, where)
-    size = shape[0] * shape[1]
+    node, height = _node_hits(triangles, nodes, where)
+    size = nodes.shape[0] * nodes.shape[1]
     low, high = np.full(size, np.inf), np.full(size, -np.inf)
     np.minimum.at(low, node, height)
     np.maximum.at(high, node, height)
     heights = triangles[..., 2]
-    tolerance = 1e-5 * max(float(np.ptp(heights)), max(spacing))
+    tolerance = 1e-5 * max(float(np.ptp(heights)), max(nodes.spacing))
     twice = np.flatnonzero(high - low > tolerance)
     if twice.size:
-        j, i = np.unravel_index(twice[0], shape)
-        a, b = origin[0] + i * spacing[0], origin[1] + j * spacing[1]
+        j, i = np.unravel_index(twice[0], nodes.shape)
+        a, b = nodes.points(i, j)
         raise FabkitError(
             f"{where}.file: the mesh is not a height field over {axis}: it covers the point "
             f"({a:.4g}, {b:.4g}) twice, at heights {low[twice[0]]:.4g} and "
@@ -682,22 +697,15 @@ def _rasterise(
     counts = np.bincount(node, minlength=size)
     with np.errstate(invalid="ignore", divide="ignore"):
         z = np.bincount(node, weights=height, minlength=size) / counts
-    return z.reshape(shape)
+    return z.reshape(nodes.shape)
 
 
-def _node_hits(
-    triangles: np.ndarray,
-    origin: tuple[float, float],
-    spacing: tuple[float, float],
-    shape: tuple[int, int],
-    where: str,
-) -> tuple[np.ndarray, np.ndarray]:
+def _node_hits(triangles: np.ndarray, nodes: _Nodes, where: str) -> tuple[np.ndarray, np.ndarray]:
     """Every (flat node index, interpolated height) pair with the node inside a
     triangle (within rounding), vectorised over the nodes of each triangle's bounding box
     (at most RASTER_HITS of them, counted before the work arrays are made)."""
-    ny, nx = shape
-    scale = np.asarray(spacing)
-    local = (triangles[..., :2] - np.asarray(origin)) / scale
+    ny, nx = nodes.shape
+    local = (triangles[..., :2] - np.asarray(nodes.origin)) / np.asarray(nodes.spacing)
     first = np.clip(np.ceil(local.min(1) - 1e-6), 0, [nx - 1, ny - 1]).astype(np.intp)
     last = np.clip(np.floor(local.max(1) + 1e-6), -1, [nx - 1, ny - 1]).astype(np.intp)
     width = np.maximum(last - first + 1, 0)
