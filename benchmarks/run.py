@@ -4,10 +4,12 @@
 runs as ``python -m fabkit`` in a fresh process (interpreter start included), from a
 folder outside the repository, alternately with this checkout's code and with the code
 of ``--base`` (checked out into a temporary git worktree and put first on PYTHONPATH),
-``-n`` times each. Alternating spreads any change of the machine's load over both. It
-prints each run's wall time, the medians, and their ratio (issue 20 asks for <= 60 %).
+``-n`` times each, after one untimed run of each (it fills the caches both would have on
+a second run: compiled solver kernels, the operating system's file cache). Alternating
+spreads any change of the machine's load over both. It prints each run's wall time, the
+medians, and their ratio (issue 20 asks for <= 60 %).
 
-    python benchmarks/run.py [--base 16092b9] [-n 3]
+    python benchmarks/run.py [--base 16092b9] [-n 5]
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ def timed_run(code: Path, out: Path) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--base", default=BASE, help="the earlier revision (git)")
-    parser.add_argument("-n", type=int, default=3, help="runs of each")
+    parser.add_argument("-n", type=int, default=5, help="runs of each")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="fabkit-bench-run-") as folder:
         base = Path(folder) / "base"
@@ -50,6 +52,8 @@ def main() -> None:
             check=True,
         )
         try:
+            for name, code in (("base", base), ("today", ROOT)):
+                timed_run(code, Path(folder) / f"out-{name}-warm")
             times: dict[str, list[float]] = {"base": [], "today": []}
             for k in range(args.n):
                 for name, code in (("base", base), ("today", ROOT)):
