@@ -60,6 +60,23 @@ def case(
     return pytest.param(Case(args, says, outputs, seconds, code), id=id, marks=marks)
 
 
+def edited(text: str, old: str, new: str) -> str:
+    """``text`` with its first ``old`` replaced by ``new`` (``old`` must be there)."""
+    assert old in text, old
+    return text.replace(old, new, 1)
+
+
+def write_texts(folder: Path, texts: dict[str, str], suffix: str) -> dict[str, str]:
+    """Write every text of ``texts`` (name -> text) to ``folder/<name><suffix>``; returns
+    the paths by name, to merge into a test's ``places``."""
+    paths = {}
+    for name, text in texts.items():
+        path = folder / f"{name}{suffix}"
+        path.write_text(text)
+        paths[name] = str(path)
+    return paths
+
+
 class TookTooLong(Exception):
     """Raised by SIGALRM inside a command that outlived its row's time bound."""
 
