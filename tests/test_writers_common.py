@@ -133,6 +133,24 @@ def baromorph_toolpath(machine: MachineProfile, layers: int = 2) -> Toolpath:
     return Toolpath(tuple(result), "", {"source": "baromorph test"})
 
 
+def reprap_machine(folder: Path, filament_diameter_mm: float) -> MachineProfile:
+    """marlin_generic as the RepRap-flavoured profile reprap_test (relative E in the
+    profile, ``filament_diameter_mm`` filament), written into ``folder``."""
+    text = (
+        Path(load_machine("marlin_generic").path)
+        .read_text()
+        .replace('flavour = "marlin"', 'flavour = "reprap"')
+        .replace('name = "marlin_generic"', 'name = "reprap_test"')
+        .replace(
+            "filament_diameter_mm = 1.75",
+            f'filament_diameter_mm = {filament_diameter_mm}\ne_mode = "relative"',
+        )
+    )
+    path = folder / "reprap_test.toml"
+    path.write_text(text)
+    return load_machine(path)
+
+
 def model_volume(toolpath: Toolpath) -> float:
     """Sum of length x width x layer height x flow over print segments, mm^3."""
     total = 0.0
