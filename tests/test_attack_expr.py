@@ -109,7 +109,7 @@ def places(folder) -> dict[str, str]:
     np.savez(folder / "pixel.npz", theta=theta, mask=mask, pixel_mm=np.ones(3))
     np.savez(folder / "complex.npz", theta=theta + 1j, mask=mask, pixel_mm=1.0)
     np.save(folder / "plain.npy", theta)
-    return {**paths, "spec": str(TWO), "baromorph": str(EXAMPLES / "directors" / "baromorph.toml")}
+    return {**paths, "baromorph": str(EXAMPLES / "directors" / "baromorph.toml")}
 
 
 COARSE = "--step 0.1 --diagonals 30"

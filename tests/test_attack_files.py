@@ -559,8 +559,6 @@ def build(folder) -> dict[str, str]:
     places = {
         "design": design,
         "toolpath": toolpath,
-        "spec": TWO,
-        "channels": EXAMPLES / "baromorph_channels.toml",
         **_design_files(folder, design),
         **_toolpath_files(folder, toolpath),
         **_data_files(folder),

@@ -14,9 +14,8 @@ import ezdxf
 import pytest
 
 from tests.attack import assert_refused, case
-from tests.conftest import EXAMPLES, coarse_design
+from tests.conftest import coarse_design
 
-TWO = EXAMPLES / "two_shapes.toml"
 TOOLPATH = "toolpath {design} --size 20 --machine marlin_diw_pneumatic --out {out}"
 
 CASES = [
@@ -143,8 +142,6 @@ def places(folder) -> dict[str, str]:
     drawing.saveas(folder / "line.dxf")
     return {
         "design": str(design),
-        "spec": str(TWO),
-        "channels": str(EXAMPLES / "baromorph_channels.toml"),
         **{name.replace(".", "_"): str(folder / name) for name in (*files, "line.dxf")},
         "far": str(folder / "far.csv"),
     }

@@ -25,7 +25,6 @@ from tests.conftest import EXAMPLES, coarse_design
 
 TWO = EXAMPLES / "two_shapes.toml"
 SWIMMER = EXAMPLES / "swimmer.toml"
-CHANNELS = EXAMPLES / "baromorph_channels.toml"
 SIM = "sim://marlin?baud=0&time_scale=0"
 DIW = "marlin_diw_pneumatic"
 
@@ -773,9 +772,6 @@ def files(folder) -> dict[str, str]:
     }
     return {
         **write_texts(folder, specs, ".toml"),
-        "spec": str(TWO),
-        "swimmer": str(SWIMMER),
-        "channels": str(CHANNELS),
         "design": str(folder / "design.npz"),
         "nan_design": str(folder / "nan_design.npz"),
         "npy": str(folder / "heights.npy"),
