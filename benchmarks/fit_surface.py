@@ -16,14 +16,12 @@ Prints
 
 from __future__ import annotations
 
-import argparse
-import statistics
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 import trimesh
+from common import repeat_runs, timing_arguments
 
 from fabkit.problem.surfaces import build_surface
 from fabkit.problem.surfaces.fit import fit_grid
@@ -45,15 +43,6 @@ def sample(expression: str, extent: tuple[float, ...], n: int):
     return xx, yy, analytic(expression).embed(np.stack([xx, yy], -1))[..., 2]
 
 
-def timed(function, repeat: int) -> list[float]:
-    times = []
-    for _ in range(repeat):
-        started = time.perf_counter()
-        function()
-        times.append(time.perf_counter() - started)
-    return times
-
-
 def fit_times(repeat: int) -> None:
     expression, extent = CASES["bump"]
     z = sample(expression, extent, 1000)[2]
@@ -63,7 +52,7 @@ def fit_times(repeat: int) -> None:
     spacing = ((extent[1] - extent[0]) / 999, (extent[3] - extent[2]) / 999)
     print("fit of a 1000 x 1000 height map (bump):")
     for label, heights in (("clean", z), ("1 % noise", noisy), ("with a hole", holed)):
-        times = timed(lambda h=heights: fit_grid(h, extent[::2], spacing), repeat)
+        times = repeat_runs(lambda h=heights: fit_grid(h, extent[::2], spacing), repeat).wall
         print(f"  {label:<12} first {times[0]:.2f} s, then best {min(times[1:] or times):.2f} s")
 
 
@@ -74,10 +63,9 @@ def evaluation_times(repeat: int) -> None:
         table = {"kind": "heightmap", "file": "bump.npy", "extent": list(extent)}
         surface = build_surface("bump", table, "benchmark", Path(folder))
     points = np.random.default_rng(1).uniform((-3.5, -5.5), (3.5, 5.5), (100_000, 2))
-    times = timed(lambda: surface.geometry(points), repeat)
+    runs = repeat_runs(lambda: surface.geometry(points), repeat)
     print(
-        f"geometry (g, Gamma, K) at 100k points: best {min(times):.3f} s, "
-        f"median {statistics.median(times):.3f} s"
+        f"geometry (g, Gamma, K) at 100k points: best {runs.best:.3f} s, median {runs.median:.3f} s"
     )
 
 
@@ -130,8 +118,7 @@ def interior_points(extent: tuple[float, ...], n: int, rng) -> np.ndarray:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=5)
+    parser = timing_arguments(__doc__, repeat=5)
     args = parser.parse_args()
     fit_times(args.repeat)
     evaluation_times(args.repeat)

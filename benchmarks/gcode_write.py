@@ -14,12 +14,12 @@ to it, so it does only the formatting and writing. Prints wall and CPU time (bes
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from common import repeat_runs, timing_arguments
 
 from fabkit.machines import load_machine
 from fabkit.toolpath import PRINT, TRAVEL, Layer, Move, Toolpath
@@ -28,6 +28,8 @@ from fabkit.writers.gcode import GcodeOptions, write_gcode
 TARGET_SECONDS = 3.0
 TARGET_RATIO = 10.0
 SEGMENTS_PER_ROAD = 1000
+SPEED = "print_speed_mm_s"
+"""The channel the raster's varying speeds are encoded in."""
 
 
 def raster(moves: int) -> Toolpath:
@@ -41,21 +43,11 @@ def raster(moves: int) -> Toolpath:
         xy = np.column_stack([xs, y])
         speed = 20.0 + 5.0 * np.cos(xs / 7.0 + k)
         if last is not None:
-            result.append(Move.make(TRAVEL, [last, xy[0]], 0.2, 0.0, 120.0, 0.0))
-        result.append(Move.make(PRINT, xy, 0.2, 0.45, speed, 1.0, speed))
+            hop = [last, xy[0]]
+            result.append(Move.make(TRAVEL, hop, 0.2, 0.0, 120.0, 0.0, {SPEED: np.nan}))
+        result.append(Move.make(PRINT, xy, 0.2, 0.45, speed, 1.0, {SPEED: speed}))
         last = xy[-1]
-    return Toolpath((Layer(0.2, 0.2, tuple(result)),), "print_speed_mm_s")
-
-
-def timed(function, repeat: int) -> tuple[float, float]:
-    """Best wall and best CPU time of ``repeat`` calls, s."""
-    walls, cpus = [], []
-    for _ in range(repeat):
-        wall, cpu = time.perf_counter(), time.process_time()
-        function()
-        walls.append(time.perf_counter() - wall)
-        cpus.append(time.process_time() - cpu)
-    return min(walls), min(cpus)
+    return Toolpath((Layer(0.2, 0.2, tuple(result)),), {SPEED: "eps"})
 
 
 def mecode_writer(toolpath: Toolpath, reference: Path, out: Path):
@@ -85,9 +77,8 @@ def mecode_writer(toolpath: Toolpath, reference: Path, out: Path):
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = timing_arguments(__doc__, repeat=3)
     parser.add_argument("--moves", type=int, default=1_000_000)
-    parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--no-mecode", action="store_true")
     args = parser.parse_args()
 
@@ -99,7 +90,8 @@ def main() -> None:
     out = folder / "fabkit.gcode"
     options = GcodeOptions(e_mode="relative")
     summary = write_gcode(toolpath, machine, out, options)
-    wall, cpu = timed(lambda: write_gcode(toolpath, machine, out, options), args.repeat)
+    fabkit = repeat_runs(lambda: write_gcode(toolpath, machine, out, options), args.repeat)
+    wall, cpu = fabkit.best, fabkit.best_cpu
     lines, size = summary.motion_lines, out.stat().st_size
     print(
         f"toolpath: {args.moves:,} print segments in {toolpath.print_length_mm:,.0f} mm "
@@ -115,7 +107,8 @@ def main() -> None:
     run = mecode_writer(toolpath, out, folder / "mecode.gcode")
     if run is None:
         return
-    m_wall, m_cpu = timed(run, 1)
+    mecode = repeat_runs(run)
+    m_wall, m_cpu = mecode.best, mecode.best_cpu
     m_size = (folder / "mecode.gcode").stat().st_size
     ratio = m_wall / wall
     print(

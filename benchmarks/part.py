@@ -15,12 +15,15 @@ whole sheet and a close-up of an edge, and a part cut to a user outline.
 from __future__ import annotations
 
 import argparse
+import sys
 import textwrap
 import time
 from pathlib import Path
 
 import matplotlib
 
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
@@ -39,35 +42,13 @@ from fabkit.field.part import (  # noqa: E402
 )
 from fabkit.machines import load_machine  # noqa: E402
 from fabkit.problem.spec import load_spec  # noqa: E402
+from tests.test_part import opened_share, turn_over  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
 SIZE_MM = 60.0
 FIGURES = {"Fig. 1": "two_shapes.toml", "Fig. 3": "three_shapes.toml"}
 CLOSE_UPS = {"Fig. 1": (-14.0, 6.0, 5.0), "Fig. 3": (44.0, 16.0, 6.0)}
 """Centre x, y and half-width (mm) of each close-up."""
 USER_OUTLINE = "ellipse:22,11"
-
-
-def turn_over(geometry: shapely.Geometry, length: float) -> float:
-    """The largest angle (degrees) between the outline's directions a ``length`` apart
-    (each the direction of the chord over length / 2 centred there; as tests/test_part.py)."""
-    worst = 0.0
-    for polygon in shapely.get_parts(geometry):
-        for ring in (polygon.exterior, *polygon.interiors):
-            total = ring.length
-            s = np.arange(0.0, total, length / 8)
-
-            def direction(at: np.ndarray, ring=ring, total=total) -> np.ndarray:
-                ends = [
-                    shapely.get_coordinates(shapely.line_interpolate_point(ring, (at + h) % total))
-                    for h in (-length / 4, length / 4)
-                ]
-                chord = ends[1] - ends[0]
-                return chord / np.linalg.norm(chord, axis=1)[:, None]
-
-            cosine = np.clip(np.sum(direction(s) * direction(s + length), axis=1), -1, 1)
-            worst = max(worst, float(np.degrees(np.arccos(cosine)).max()))
-    return worst
 
 
 def cut(design: Design, outline: str | None = None) -> tuple[Part, float]:
@@ -85,13 +66,12 @@ def cut(design: Design, outline: str | None = None) -> tuple[Part, float]:
 def figures(name: str, part: Part, seconds: float) -> None:
     road = load_machine("marlin_diw_pneumatic").process.road_width_mm
     outline = part.outline_mm()
-    opened = outline.buffer(-2 * road, quad_segs=16).buffer(2 * road, quad_segs=16)
     outside = part.outline.difference(part.solved).area / part.solved.area
     print(f"{name}: {part.summary()}")
     print(
         f"  opening (disc of radius 2 road widths) removes "
-        f"{100 * (outline.area - opened.area) / outline.area:.4f} %; largest turn over a road "
-        f"width {turn_over(outline, road):.1f} deg; outside the solved cells "
+        f"{100 * opened_share(outline, 2 * road):.4f} %; largest turn over a road "
+        f"width {turn_over(outline, road, road / 8).max():.1f} deg; outside the solved cells "
         f"{100 * outside:.1e} %; cut in {seconds:.2f} s"
     )
 

@@ -24,13 +24,11 @@ cache, before the first timed run; the seconds that takes are printed first.
 
 from __future__ import annotations
 
-import argparse
 import json
-import statistics
-import time
 from pathlib import Path
 
 import numpy as np
+from common import repeat_runs, timing_arguments
 
 from fabkit.design.check import check_design
 from fabkit.design.solver import solve, solve_batch
@@ -42,22 +40,10 @@ NO_CONTROL = 1e9
 """A tolerance no error estimate reaches: every solved point is kept."""
 
 
-def timed(run):
-    """(result, wall seconds, CPU seconds) of ``run()``."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    result = run()
-    return result, time.perf_counter() - wall, time.process_time() - cpu
-
-
 def measure(name: str, repeat: int) -> None:
     spec = load_spec(EXAMPLES / name)
-    times, cpu_times, solution = [], [], None
-    for _ in range(repeat):
-        solution, wall, cpu = timed(lambda: solve(spec))
-        times.append(wall)
-        cpu_times.append(cpu)
-    design = solution.design
-    best, median = min(times), statistics.median(times)
+    runs = repeat_runs(lambda: solve(spec), repeat)
+    design, best = runs.result.design, runs.best
     points = int(design.valid.sum())
     solved = int(solve(spec.with_solver(tolerance=NO_CONTROL)).design.valid.sum())
     report = check_design(design)
@@ -70,10 +56,10 @@ def measure(name: str, repeat: int) -> None:
         f"{len(settings.quadrants)} quadrants, Richardson {settings.extrapolate}, "
         f"tolerance {settings.tolerance:g}"
     )
-    print(f"  wall time  best {best:.3f} s, median {median:.3f} s over {repeat} runs")
+    print(f"  wall time  best {best:.3f} s, median {runs.median:.3f} s over {repeat} runs")
     print(
         f"  valid points {points}, {points / best:,.0f} points/s wall, "
-        f"{points / min(cpu_times):,.0f} points/CPU-s"
+        f"{points / runs.best_cpu:,.0f} points/CPU-s"
     )
     print(f"  kept {points} of {solved} solved points ({points / solved:.0%})")
     print(
@@ -97,13 +83,9 @@ def with_eps(spec: Spec, eps: float) -> Spec:
 def measure_batch(name: str, batch: int, repeat: int) -> None:
     spec = load_spec(EXAMPLES / name)
     specs = [with_eps(spec, e) for e in np.linspace(0.45, 0.55, batch)]
-    times, cpu_times, designs = [], [], []
-    for _ in range(repeat):
-        solutions, wall, cpu = timed(lambda: solve_batch(specs, crop=True))
-        designs = [s.design for s in solutions]
-        times.append(wall)
-        cpu_times.append(cpu)
-    best = min(times)
+    runs = repeat_runs(lambda: solve_batch(specs, crop=True), repeat)
+    designs = [s.design for s in runs.result]
+    best = runs.best
     points = sum(int(d.valid.sum()) for d in designs)
     alone = [solve(s).design for s in (specs[0], specs[-1])]
     same = all(
@@ -114,21 +96,23 @@ def measure_batch(name: str, batch: int, repeat: int) -> None:
     print(
         f"  batch of {batch} (eps 0.45-0.55): best {best:.3f} s, {1000 * best / batch:.1f} ms "
         f"per candidate, {points} valid points, {points / best:,.0f} points/s wall, "
-        f"{points / min(cpu_times):,.0f} points/CPU-s; designs equal to single solves: {same}"
+        f"{points / runs.best_cpu:,.0f} points/CPU-s; designs equal to single solves: {same}"
     )
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=5)
+    parser = timing_arguments(__doc__, repeat=5)
     parser.add_argument(
         "--batch", type=int, nargs="+", default=[8, 64], help="candidates per batch"
     )
     args = parser.parse_args()
-    _, wall, cpu = timed(
+    first = repeat_runs(
         lambda: solve(load_spec(EXAMPLES / "two_shapes.toml").with_solver(diagonals=4))
     )
-    print(f"kernels compiled or loaded, first small solve: {wall:.2f} s wall, {cpu:.2f} CPU-s")
+    print(
+        f"kernels compiled or loaded, first small solve: {first.best:.2f} s wall, "
+        f"{first.best_cpu:.2f} CPU-s"
+    )
     for name in ("two_shapes.toml", "three_shapes.toml"):
         measure(name, args.repeat)
         for batch in args.batch:

@@ -1,10 +1,10 @@
 """Toolpath speed and fill quality figures.
 
-    python benchmarks/toolpath.py [--repeats 3] [--design design.npz]
+    python benchmarks/toolpath.py [--repeat 3] [--design design.npz]
 
 1. Speed: a 100 x 100 mm sheet at w = 0.4 mm (about 25 m of path) for three director
    fields: stripe solve, line extraction/trimming/extension/gap filling, ordering, and
-   their total (best of ``--repeats`` runs; the bound is 5 s).
+   their total (best of ``--repeat`` runs; the bound is 5 s).
 2. Quality (Vector Slicer's definitions, raster w/10): radial and azimuthal 20 mm discs and
    a +1/2 defect in a 20 mm square at w = 0.2 mm; with ``--design``, that design scaled to
    60 mm at w = 0.4 mm (the Fig. 1 acceptance case: ``fabkit solve
@@ -13,8 +13,9 @@
 
 from __future__ import annotations
 
-import argparse
 import time
+
+from common import timing_arguments
 
 from fabkit.field.flat import field_from_design, field_from_expression, parse_shape
 from fabkit.toolpath.lines import (
@@ -73,13 +74,12 @@ def quality_row(name: str, field, w: float) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeats", type=int, default=3)
+    parser = timing_arguments(__doc__, repeat=3)
     parser.add_argument("--design", help="a design.npz to scale to 60 mm (Fig. 1)")
     args = parser.parse_args()
-    print(f"100 x 100 mm sheet, w = 0.4 mm (best of {args.repeats}):")
+    print(f"100 x 100 mm sheet, w = 0.4 mm (best of {args.repeat}):")
     for name, theta in SHEET_FIELDS.items():
-        (solve, lines, order, total), metres = time_sheet(theta, 0.4, args.repeats)
+        (solve, lines, order, total), metres = time_sheet(theta, 0.4, args.repeat)
         print(
             f"  {name:20s} solve {solve:.2f} s  lines {lines:.2f} s  order {order:.2f} s  "
             f"total {total:.2f} s  ({metres:.1f} m of path)"

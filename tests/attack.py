@@ -32,6 +32,15 @@ import pytest
 SECONDS = 10.0
 """Default time bound of one row, in seconds."""
 BLOCKER_TEXT = "a file in the way of an output folder\n"
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+SHIPPED = {
+    "spec": str(EXAMPLES / "two_shapes.toml"),
+    "three": str(EXAMPLES / "three_shapes.toml"),
+    "swimmer": str(EXAMPLES / "swimmer.toml"),
+    "channels": str(EXAMPLES / "baromorph_channels.toml"),
+}
+"""Placeholders every row may use: the shipped Fig. 1 and Fig. 3 specs, the swimmer and
+the baromorph channel settings (a test's own ``places`` of the same name win)."""
 
 
 @dataclass(frozen=True)
@@ -60,6 +69,23 @@ def case(
     return pytest.param(Case(args, says, outputs, seconds, code), id=id, marks=marks)
 
 
+def edited(text: str, old: str, new: str) -> str:
+    """``text`` with its first ``old`` replaced by ``new`` (``old`` must be there)."""
+    assert old in text, old
+    return text.replace(old, new, 1)
+
+
+def write_texts(folder: Path, texts: dict[str, str], suffix: str) -> dict[str, str]:
+    """Write every text of ``texts`` (name -> text) to ``folder/<name><suffix>``; returns
+    the paths by name, to merge into a test's ``places``."""
+    paths = {}
+    for name, text in texts.items():
+        path = folder / f"{name}{suffix}"
+        path.write_text(text)
+        paths[name] = str(path)
+    return paths
+
+
 class TookTooLong(Exception):
     """Raised by SIGALRM inside a command that outlived its row's time bound."""
 
@@ -86,11 +112,13 @@ def run_bounded(run: Callable[[], tuple[int, str, str]], seconds: float):
 def assert_refused(bad: Case, places: dict[str, str], tmp_path: Path, run_cli) -> str:
     """Run ``bad`` with ``{name}`` placeholders from ``places``; assert the promise; return err.
 
-    ``{out}``, ``{missing}`` and ``{blocker}`` are added here, inside ``tmp_path``.
+    ``{out}``, ``{missing}`` and ``{blocker}`` are added here, inside ``tmp_path``, and
+    the examples of :data:`SHIPPED` where ``places`` has no such name.
     """
     blocker = tmp_path / "blocker"
     blocker.write_text(BLOCKER_TEXT)
-    places = {**places, "out": str(tmp_path / "out"), "missing": str(tmp_path / "missing")}
+    out, missing = str(tmp_path / "out"), str(tmp_path / "missing")
+    places = {**SHIPPED, **places, "out": out, "missing": missing}
     places["blocker"] = str(blocker)
     before = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
     args = [arg.format(**places) for arg in bad.args.split()]

@@ -1,4 +1,4 @@
-"""Shared helpers: the example specs as editable tables, and a CLI runner."""
+"""Shared helpers: the example specs as editable tables, coarse designs, and a CLI runner."""
 
 from __future__ import annotations
 
@@ -11,6 +11,9 @@ import pytest
 from hypothesis import settings
 
 from fabkit.cli import main
+from fabkit.design.design import Design
+from fabkit.design.solver import solve
+from fabkit.problem.spec import build_spec
 
 # CI explores the same property-test examples on every run (a fixed seed per test), so that
 # a red CI means a change broke something; runs elsewhere explore new examples each time.
@@ -26,6 +29,22 @@ def example_table(name: str) -> dict:
     """An example spec as nested dicts, to edit in a test and pass to build_spec."""
     with open(EXAMPLES / name, "rb") as handle:
         return copy.deepcopy(tomllib.load(handle))
+
+
+def coarse_design(
+    example: str = "two_shapes.toml", *, step: float = 0.1, diagonals: int = 30
+) -> Design:
+    """An example spec's design solved on a coarse grid (``step``, ``diagonals``): quick,
+    for tests that need a design rather than its accuracy."""
+    table = example_table(example)
+    table["solver"].update(step=step, diagonals=diagonals)
+    return solve(build_spec(table, EXAMPLES)).design
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory, request) -> Path:
+    """A folder of one test module's own, for the inputs its module fixtures make once."""
+    return tmp_path_factory.mktemp(request.module.__name__.rsplit(".", 1)[-1])
 
 
 @pytest.fixture

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.attack import assert_refused, case
+from tests.attack import assert_refused, case, edited, write_texts
 from tests.conftest import EXAMPLES
 
 TWO = EXAMPLES / "two_shapes.toml"
@@ -74,43 +74,32 @@ SPECS = {
 }
 
 
-def edited(text: str, old: str, new: str) -> str:
-    assert old in text, old
-    return text.replace(old, new, 1)
+SWIMMER_SPECS = {
+    "swim_director": ('director = "phi"', 'director = "sqrt(x - 100)"'),
+    "swim_law": ('lambda1 = "1 - 0.2*L2"', 'lambda1 = "1 - 0.2*L2 + 0.1*log(1 - L2)"'),
+    "swim_nested": ('director = "phi"', f'director = "{NESTED}"'),
+}
+DIRECTOR_FILES = {
+    "dir_log": '[director]\ntheta = "log(r)"\nshape = "disc:10"\n',
+    "dir_eps": '[director]\ntheta = "phi"\nshape = "disc:10"\neps = "1/(x - 1)"\n',
+    "dir_grid_nan": '[director]\ngrid = "nan.npz"\n',
+    "dir_grid_3d": '[director]\ngrid = "cube.npz"\n',
+    "dir_grid_pixel": '[director]\ngrid = "pixel.npz"\n',
+    "dir_grid_complex": '[director]\ngrid = "complex.npz"\n',
+    "dir_grid_npy": '[director]\ngrid = "plain.npy"\n',
+}
 
 
 @pytest.fixture(scope="module")
-def places(tmp_path_factory) -> dict[str, str]:
+def places(folder) -> dict[str, str]:
     """Hostile inputs, made once: spec and swimmer variants, director files and grids."""
-    folder = tmp_path_factory.mktemp("expr_inputs")
-    two = TWO.read_text()
-    paths = {}
-    for name, (old, new) in SPECS.items():
-        text = edited(two, old, new)
-        if name.startswith("height_") and "geometry" not in old:
-            text = text  # the bump's height replaced in place
-        (folder / f"{name}.toml").write_text(text)
-        paths[name] = str(folder / f"{name}.toml")
-    swimmer = SWIMMER.read_text()
-    for name, old, new in (
-        ("swim_director", 'director = "phi"', 'director = "sqrt(x - 100)"'),
-        ("swim_law", 'lambda1 = "1 - 0.2*L2"', 'lambda1 = "1 - 0.2*L2 + 0.1*log(1 - L2)"'),
-        ("swim_nested", 'director = "phi"', f'director = "{NESTED}"'),
-    ):
-        (folder / f"{name}.toml").write_text(edited(swimmer, old, new))
-        paths[name] = str(folder / f"{name}.toml")
-    files = {
-        "dir_log": '[director]\ntheta = "log(r)"\nshape = "disc:10"\n',
-        "dir_eps": '[director]\ntheta = "phi"\nshape = "disc:10"\neps = "1/(x - 1)"\n',
-        "dir_grid_nan": '[director]\ngrid = "nan.npz"\n',
-        "dir_grid_3d": '[director]\ngrid = "cube.npz"\n',
-        "dir_grid_pixel": '[director]\ngrid = "pixel.npz"\n',
-        "dir_grid_complex": '[director]\ngrid = "complex.npz"\n',
-        "dir_grid_npy": '[director]\ngrid = "plain.npy"\n',
+    two, swimmer = TWO.read_text(), SWIMMER.read_text()
+    texts = {
+        **{name: edited(two, old, new) for name, (old, new) in SPECS.items()},
+        **{name: edited(swimmer, old, new) for name, (old, new) in SWIMMER_SPECS.items()},
+        **DIRECTOR_FILES,
     }
-    for name, text in files.items():
-        (folder / f"{name}.toml").write_text(text)
-        paths[name] = str(folder / f"{name}.toml")
+    paths = write_texts(folder, texts, ".toml")
     theta = np.zeros((8, 8))
     mask = np.ones((8, 8), dtype=bool)
     np.savez(
@@ -120,7 +109,7 @@ def places(tmp_path_factory) -> dict[str, str]:
     np.savez(folder / "pixel.npz", theta=theta, mask=mask, pixel_mm=np.ones(3))
     np.savez(folder / "complex.npz", theta=theta + 1j, mask=mask, pixel_mm=1.0)
     np.save(folder / "plain.npy", theta)
-    return {**paths, "spec": str(TWO), "baromorph": str(EXAMPLES / "directors" / "baromorph.toml")}
+    return {**paths, "baromorph": str(EXAMPLES / "directors" / "baromorph.toml")}
 
 
 COARSE = "--step 0.1 --diagonals 30"

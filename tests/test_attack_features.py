@@ -13,16 +13,12 @@ import json
 import numpy as np
 import pytest
 
-from fabkit.design.solver import solve
-from fabkit.problem.spec import build_spec
 from fabkit.toolpath.job import ToolpathJob, run_job
 from fabkit.toolpath.model import PRINT, Layer, Move, Toolpath, save_toolpath
 from fabkit.writers.export import export
-from tests.attack import assert_refused, case
-from tests.conftest import EXAMPLES, ROOT, example_table
+from tests.attack import assert_refused, case, edited, write_texts
+from tests.conftest import ROOT, coarse_design
 
-TWO = EXAMPLES / "two_shapes.toml"
-THREE = EXAMPLES / "three_shapes.toml"
 SETTINGS = (
     "[process]\nroad_width_mm = 0.4\nlayer_height_mm = 0.3\nprint_speed_mm_s = 8\n"
     "travel_speed_mm_s = 30\n"
@@ -188,16 +184,13 @@ CASES = [
 
 
 @pytest.fixture(scope="module")
-def places(tmp_path_factory) -> dict[str, str]:
+def places(folder) -> dict[str, str]:
     """Coarse Fig. 1 and Fig. 3 designs, a G-code file of Fig. 1, process files, machine
     profiles and toolpaths with channels some writers cannot carry."""
-    folder = tmp_path_factory.mktemp("features")
     designs = {}
     for name, example in (("design", "two_shapes.toml"), ("design3", "three_shapes.toml")):
-        table = example_table(example)
-        table["solver"].update(step=0.1, diagonals=30)
         path = folder / f"{name}.npz"
-        solve(build_spec(table, EXAMPLES)).design.save(path)
+        coarse_design(example).save(path)
         designs[name] = str(path)
     run_job(ToolpathJob(inputs=(designs["design"],), size_mm=20, out=str(folder / "tp")))
     export(folder / "tp" / "toolpath.npz", "marlin_diw_pneumatic", "gcode", folder / "s.gcode")
@@ -225,18 +218,18 @@ def places(tmp_path_factory) -> dict[str, str]:
         + _encode("0", "dose_mj_cm2", "[0, 1]", "[200, 1500]")
         + _encode("1", "cure_dose_mj_cm2", "[-1, 1]", "[100, 1200]"),
     }
-    for name, text in processes.items():
-        (folder / f"{name}.toml").write_text(text)
     profile = (ROOT / "machines" / "marlin_diw_pneumatic.toml").read_text()
-    assert 'method = "alternate"' in profile
-    (folder / "mixing_valves.toml").write_text(
-        profile.replace('method = "alternate"', 'method = "mixing"')
-    )
+    tomls = {
+        **processes,
+        "mixing_valves": edited(profile, 'method = "alternate"', 'method = "mixing"'),
+    }
     line = np.array([[0.0, 0.0], [5.0, 0.0]])
+    toolpaths = {}
     for name, parameter in (("temperature", "temperature_c"), ("dose", "dose_mj_cm2")):
         move = Move.make(PRINT, line, 0.2, 0.4, 5.0, 1.0, {parameter: 210.0})
-        toolpath = Toolpath((Layer(0.2, 0.2, (move,)),), {parameter: "eps"})
-        save_toolpath(toolpath, folder / f"{name}.json")
+        path = folder / f"{name}.json"
+        save_toolpath(Toolpath((Layer(0.2, 0.2, (move,)),), {parameter: "eps"}), path)
+        toolpaths[f"{name}_toolpath"] = str(path)
     bad_laser = folder / "laser"
     bad_laser.mkdir()
     (bad_laser / "manifest.json").write_text(
@@ -244,16 +237,12 @@ def places(tmp_path_factory) -> dict[str, str]:
     )
     return {
         **designs,
-        "spec": str(TWO),
-        "three": str(THREE),
+        **toolpaths,
+        **write_texts(folder, tomls, ".toml"),
         "gcode": str(folder / "s.gcode"),
         "bare_gcode": str(folder / "bare.gcode"),
         "arc_gcode": str(folder / "arc.gcode"),
         "bad_laser": str(bad_laser),
-        "mixing_valves": str(folder / "mixing_valves.toml"),
-        "temperature_toolpath": str(folder / "temperature.json"),
-        "dose_toolpath": str(folder / "dose.json"),
-        **{name: str(folder / f"{name}.toml") for name in processes},
     }
 
 

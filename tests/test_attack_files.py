@@ -15,12 +15,10 @@ import zipfile
 import numpy as np
 import pytest
 
-from fabkit.design.solver import solve
-from fabkit.problem.spec import build_spec
 from fabkit.toolpath.job import ToolpathJob, run_job
 from tests import hostile as h
 from tests.attack import assert_refused, case
-from tests.conftest import EXAMPLES, ROOT, example_table
+from tests.conftest import EXAMPLES, ROOT, coarse_design
 
 TWO = EXAMPLES / "two_shapes.toml"
 SECRET = "root:secret-first-line-of-another-file"
@@ -554,17 +552,13 @@ def _other_files(folder, design) -> dict:
 
 def build(folder) -> dict[str, str]:
     """Every input of the rows above, made in ``folder``."""
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=30)
     design = folder / "design.npz"
-    solve(build_spec(table, ROOT)).design.save(design)
+    coarse_design().save(design)
     run_job(ToolpathJob(director="arctan2(y, x)", shape="disc:5", out=str(folder / "toolpath")))
     toolpath = folder / "toolpath" / "toolpath.npz"
     places = {
         "design": design,
         "toolpath": toolpath,
-        "spec": TWO,
-        "channels": EXAMPLES / "baromorph_channels.toml",
         **_design_files(folder, design),
         **_toolpath_files(folder, toolpath),
         **_data_files(folder),
@@ -576,8 +570,8 @@ def build(folder) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def places(tmp_path_factory) -> dict[str, str]:
-    return build(tmp_path_factory.mktemp("hostile"))
+def places(folder) -> dict[str, str]:
+    return build(folder)
 
 
 @pytest.mark.parametrize("bad", CASES)

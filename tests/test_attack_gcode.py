@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.attack import assert_refused, case
+from tests.attack import assert_refused, case, write_texts
 
 GRBL_SIM = "sim://grbl?baud=0&time_scale=0"
 MARLIN_SIM = "sim://marlin?baud=0&time_scale=0"
@@ -257,15 +257,11 @@ CASES = [
 
 
 @pytest.fixture(scope="module")
-def jobs(tmp_path_factory) -> dict[str, str]:
+def jobs(folder) -> dict[str, str]:
     """Every job of :data:`JOBS` as a file, a sparse file over the size limit, a file with
     a line over the length limit and a folder."""
-    folder = tmp_path_factory.mktemp("gcode")
-    places = {}
-    for name, lines in JOBS.items():
-        path = folder / f"{name}.gcode"
-        path.write_text("\n".join(lines) + "\n")
-        places[name] = str(path)
+    texts = {name: "\n".join(lines) + "\n" for name, lines in JOBS.items()}
+    places = write_texts(folder, texts, ".gcode")
     with (folder / "huge.gcode").open("wb") as handle:
         handle.truncate(64 * 2**20 + 1)
     (folder / "wide.gcode").write_text("G21\nG1 X1 F60 ;" + "x" * 5000 + "\n")

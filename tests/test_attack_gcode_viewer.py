@@ -34,8 +34,7 @@ CASES = [
 
 
 @pytest.fixture(scope="module")
-def places(tmp_path_factory) -> dict[str, str]:
-    folder = tmp_path_factory.mktemp("viewer")
+def places(folder) -> dict[str, str]:
     move = Move.make(PRINT, [[0, 0], [10, 0], [10, 1]], 0.3, 0.41, 8.0)
     save_toolpath(Toolpath((Layer(0.3, 0.3, (move,)),)), folder / "toolpath.npz")
     profile = folder / "slow_e.toml"

@@ -68,8 +68,7 @@ CASES = [
 
 
 @pytest.fixture(scope="module")
-def files(tmp_path_factory) -> dict[str, str]:
-    folder = tmp_path_factory.mktemp("link")
+def files(folder) -> dict[str, str]:
     diw = folder / "diw.gcode"
     moves = [f"G1 X{50 + k % 40} Y{60 + k % 7} F600" for k in range(30)]
     body = ["G21", "G90", "M42 P4 S0", "G28", "G1 Z1 F600", "M42 P4 S255", *moves, "M42 P4 S0"]

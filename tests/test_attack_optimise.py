@@ -10,11 +10,46 @@ import pytest
 
 from fabkit.optimise.search import CHECKPOINT_FORMAT
 from fabkit.optimise.tomlout import dumps
-from tests.attack import assert_refused, case
+from tests.attack import assert_refused, case, write_texts
 from tests.conftest import example_table
 
 OPT = "optimise {fig1} --out {out}/best.toml"
 VARY = "--vary initial.eps[0]=0.2:0.7"
+
+BAD_VARY = [
+    # --vary KEY=LO:HI, what the refusal names, the row's id
+    (
+        "initial.colour[0]=0:1",
+        ("not a key the search can vary", "initial.colour[0]"),
+        "unknown_key",
+    ),
+    ("initial.eps[2]=0:1", ("the spec has no", "initial.eps[2]"), "no_such_index"),
+    (
+        "surfaces.torus.start[0]=0:1",
+        ("no target surface", "torus", "targets: sphere, bump"),
+        "unknown_surface",
+    ),
+    ("surfaces.flat.director[0]=0:1", ("no target surface", "flat"), "flat_sheet_start"),
+    ("initial.eps[0]=0.7:0.2", ("LO must be below HI",), "range_reversed"),
+    ("initial.eps[0]=0.2:inf", ("expected KEY=LO:HI",), "range_infinite"),
+    ("initial.eps[0]", ("expected KEY=LO:HI",), "range_missing"),
+]
+CHECKPOINTS = {
+    # file (a placeholder), its text, what the refusal says, the row's id
+    "other_checkpoint": (
+        json.dumps(
+            {"fabkit_optimise": CHECKPOINT_FORMAT, "fingerprint": "0" * 64, "evaluations": []}
+        ),
+        "belongs to another search",
+        "of_another_search",
+    ),
+    "not_checkpoint": (
+        json.dumps({"evaluations": []}),
+        "not a fabkit optimise checkpoint",
+        "not_one",
+    ),
+    "garbage": ("{ not json", "not valid JSON", "garbage"),
+}
 
 CASES = [
     case(
@@ -23,38 +58,7 @@ CASES = [
         "--curvature-median 0",
         id="optimise_tolerance_zero",
     ),
-    case(
-        f"{OPT} --vary initial.colour[0]=0:1",
-        "not a key the search can vary",
-        "initial.colour[0]",
-        id="optimise_unknown_key",
-    ),
-    case(
-        f"{OPT} --vary initial.eps[2]=0:1",
-        "the spec has no",
-        "initial.eps[2]",
-        id="optimise_no_such_index",
-    ),
-    case(
-        f"{OPT} --vary surfaces.torus.start[0]=0:1",
-        "no target surface",
-        "torus",
-        "targets: sphere, bump",
-        id="optimise_unknown_surface",
-    ),
-    case(
-        f"{OPT} --vary surfaces.flat.director[0]=0:1",
-        "no target surface",
-        "flat",
-        id="optimise_flat_sheet_start",
-    ),
-    case(
-        f"{OPT} --vary initial.eps[0]=0.7:0.2", "LO must be below HI", id="optimise_range_reversed"
-    ),
-    case(
-        f"{OPT} --vary initial.eps[0]=0.2:inf", "expected KEY=LO:HI", id="optimise_range_infinite"
-    ),
-    case(f"{OPT} --vary initial.eps[0]", "expected KEY=LO:HI", id="optimise_range_missing"),
+    *[case(f"{OPT} --vary {vary}", *says, id=f"optimise_{name}") for vary, says, name in BAD_VARY],
     case(OPT, "nothing to vary", id="optimise_nothing_to_vary"),
     case(
         "optimise {curve_in_t} --out {out}/best.toml --vary initial.eps[0]=0:1",
@@ -107,27 +111,15 @@ CASES = [
         "give --scale",
         id="optimise_process_without_scale",
     ),
-    case(
-        f"{OPT} {VARY} --checkpoint {{other_checkpoint}}",
-        "belongs to another search",
-        id="optimise_checkpoint_of_another_search",
-    ),
-    case(
-        f"{OPT} {VARY} --checkpoint {{not_checkpoint}}",
-        "not a fabkit optimise checkpoint",
-        id="optimise_checkpoint_not_one",
-    ),
-    case(
-        f"{OPT} {VARY} --checkpoint {{garbage}}",
-        "not valid JSON",
-        id="optimise_checkpoint_garbage",
-    ),
+    *[
+        case(f"{OPT} {VARY} --checkpoint {{{name}}}", says, id=f"optimise_checkpoint_{suffix}")
+        for name, (_, says, suffix) in CHECKPOINTS.items()
+    ],
 ]
 
 
 @pytest.fixture(scope="module")
-def places(tmp_path_factory) -> dict[str, str]:
-    folder = tmp_path_factory.mktemp("optimise_inputs")
+def places(folder) -> dict[str, str]:
     base = example_table("two_shapes.toml")
     base["solver"] = {"step": 0.1, "diagonals": 10, "quadrants": "all"}
     radius = {"R": {"value": 2.0, "min": 1.0, "max": 4.0}}
@@ -140,22 +132,9 @@ def places(tmp_path_factory) -> dict[str, str]:
         "bad_objective": {"optimise": {"objective": "volume", "parameters": radius}},
         "unknown_table_key": {"optimise": {"budget": 3, "parameters": radius}},
     }
-    paths = {}
-    for name, change in tables.items():
-        path = folder / f"{name}.toml"
-        path.write_text(dumps({**base, **change}))
-        paths[name] = str(path)
-    other = {"fabkit_optimise": CHECKPOINT_FORMAT, "fingerprint": "0" * 64, "evaluations": []}
-    files = {
-        "other_checkpoint": json.dumps(other),
-        "not_checkpoint": json.dumps({"evaluations": []}),
-        "garbage": "{ not json",
-    }
-    for name, text in files.items():
-        path = folder / f"{name}.json"
-        path.write_text(text)
-        paths[name] = str(path)
-    return paths
+    specs = {name: dumps({**base, **change}) for name, change in tables.items()}
+    checkpoints = {name: text for name, (text, _, _) in CHECKPOINTS.items()}
+    return {**write_texts(folder, specs, ".toml"), **write_texts(folder, checkpoints, ".json")}
 
 
 @pytest.mark.parametrize("bad", CASES)

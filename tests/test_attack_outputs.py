@@ -14,10 +14,8 @@ from __future__ import annotations
 import pytest
 
 from fabkit.atomic import MANIFEST
-from fabkit.design.solver import solve
-from fabkit.problem.spec import build_spec
 from tests.attack import assert_refused, case
-from tests.conftest import EXAMPLES, ROOT, example_table
+from tests.conftest import EXAMPLES, coarse_design
 
 COARSE = "--step 0.1 --diagonals 30 --size 20"
 TWO = EXAMPLES / "two_shapes.toml"
@@ -32,26 +30,16 @@ _COMMANDS = {
     "export": "export {design} --machine dmd_photoalign --format laser --size 20 -o",
 }
 
+_OCCUPIED = {
+    "earlier-run": ("{earlier}", ("of an earlier fabkit run", "give --overwrite", "preview.png")),
+    "foreign-file": ("{foreign} --overwrite", ("fabkit did not write", "notes.txt")),
+}
+"""Two ways a folder is occupied: the ``--out`` argument naming it, and what the refusal names."""
+
 CASES = [
     *[
-        case(
-            f"{command} {{earlier}}",
-            "of an earlier fabkit run",
-            "give --overwrite",
-            "preview.png",
-            outputs=(),
-            id=f"outputs-{name}-earlier-run",
-        )
-        for name, command in _COMMANDS.items()
-    ],
-    *[
-        case(
-            f"{command} {{foreign}} --overwrite",
-            "fabkit did not write",
-            "notes.txt",
-            outputs=(),
-            id=f"outputs-{name}-foreign-file",
-        )
+        case(f"{command} {folder}", *says, outputs=(), id=f"outputs-{name}-{kind}")
+        for kind, (folder, says) in _OCCUPIED.items()
         for name, command in _COMMANDS.items()
     ],
     case(
@@ -70,15 +58,12 @@ def snapshot(folder) -> dict[str, bytes]:
 
 
 @pytest.fixture(scope="module")
-def places(tmp_path_factory) -> dict[str, str]:
+def places(folder) -> dict[str, str]:
     """A design, a folder with an earlier toolpath run, one with a user's file beside it,
     and one whose manifest names a link to a file outside it, and that file itself."""
     from fabkit.cli import main
 
-    folder = tmp_path_factory.mktemp("outputs")
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=30)
-    solve(build_spec(table, ROOT)).design.save(folder / "design.npz")
+    coarse_design().save(folder / "design.npz")
     earlier = folder / "earlier"
     assert main(["toolpath", *DISC.split(), "--out", str(earlier)]) == 0
     foreign = folder / "foreign"

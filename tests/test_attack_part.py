@@ -13,12 +13,9 @@ import json
 import ezdxf
 import pytest
 
-from fabkit.design.solver import solve
-from fabkit.problem.spec import build_spec
 from tests.attack import assert_refused, case
-from tests.conftest import EXAMPLES, example_table
+from tests.conftest import coarse_design
 
-TWO = EXAMPLES / "two_shapes.toml"
 TOOLPATH = "toolpath {design} --size 20 --machine marlin_diw_pneumatic --out {out}"
 
 CASES = [
@@ -124,13 +121,10 @@ CASES = [
 
 
 @pytest.fixture(scope="module")
-def places(tmp_path_factory) -> dict[str, str]:
+def places(folder) -> dict[str, str]:
     """A coarse Fig. 1 design and outline files that are no usable outline."""
-    folder = tmp_path_factory.mktemp("part")
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=30)
     design = folder / "design.npz"
-    solve(build_spec(table, EXAMPLES)).design.save(design)
+    coarse_design().save(design)
     files = {
         "far.csv": "x,y\n100,100\n110,100\n110,110\n100,110\n",
         "open.csv": "1,2\n3,4\n",
@@ -148,8 +142,6 @@ def places(tmp_path_factory) -> dict[str, str]:
     drawing.saveas(folder / "line.dxf")
     return {
         "design": str(design),
-        "spec": str(TWO),
-        "channels": str(EXAMPLES / "baromorph_channels.toml"),
         **{name.replace(".", "_"): str(folder / name) for name in (*files, "line.dxf")},
         "far": str(folder / "far.csv"),
     }

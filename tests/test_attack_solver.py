@@ -6,10 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fabkit.design.solver import solve
-from fabkit.problem.spec import build_spec
-from tests.attack import assert_refused, case
-from tests.conftest import EXAMPLES, example_table
+from tests.attack import assert_refused, case, edited, write_texts
+from tests.conftest import EXAMPLES, coarse_design
 
 FIG1 = (EXAMPLES / "two_shapes.toml").read_text()
 COARSE = "[solver]\nstep = 0.1\ndiagonals = 10\n"
@@ -50,27 +48,18 @@ CASES = [
 
 
 @pytest.fixture(scope="module")
-def places(tmp_path_factory) -> dict[str, str]:
-    folder = tmp_path_factory.mktemp("solver_inputs")
-    specs = {
+def places(folder) -> dict[str, str]:
+    lines = {
         "tolerance_negative": "tolerance = -0.01\n",
         "tolerance_zero": "tolerance = 0\n",
         "tolerance_infinite": "tolerance = inf\n",
         "tolerance_text": 'tolerance = "small"\n',
         "extrapolate_text": 'extrapolate = "yes"\n',
     }
-    paths = {}
-    for name, line in specs.items():
-        old = "[solver]\nstep = 0.05\ndiagonals = 200\n"
-        assert old in FIG1
-        text = FIG1.replace(old, COARSE + line)
-        path = folder / f"{name}.toml"
-        path.write_text(text)
-        paths[name] = str(path)
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=10)
-    design = solve(build_spec(table, EXAMPLES)).design
-    design.save(folder / "design.npz")
+    solver = "[solver]\nstep = 0.05\ndiagonals = 200\n"
+    specs = {name: edited(FIG1, solver, COARSE + line) for name, line in lines.items()}
+    paths = write_texts(folder, specs, ".toml")
+    coarse_design(diagonals=10).save(folder / "design.npz")
     arrays = dict(np.load(folder / "design.npz"))
     arrays["error"] = np.where(arrays["valid"], np.inf, arrays["error"])
     np.savez(folder / "inf_error.npz", **arrays)

@@ -18,16 +18,13 @@ import json
 import numpy as np
 import pytest
 
-from fabkit.design.solver import solve
-from fabkit.problem.spec import build_spec
 from fabkit.toolpath.job import ToolpathJob, run_job
 from fabkit.writers.export import export
-from tests.attack import assert_refused, case
-from tests.conftest import EXAMPLES, ROOT, example_table
+from tests.attack import assert_refused, case, edited, write_texts
+from tests.conftest import EXAMPLES, coarse_design
 
 TWO = EXAMPLES / "two_shapes.toml"
 SWIMMER = EXAMPLES / "swimmer.toml"
-CHANNELS = EXAMPLES / "baromorph_channels.toml"
 SIM = "sim://marlin?baud=0&time_scale=0"
 DIW = "marlin_diw_pneumatic"
 
@@ -737,19 +734,10 @@ CASES = [
 ]
 
 
-def edited(text: str, old: str, new: str) -> str:
-    assert old in text, old
-    return text.replace(old, new, 1)
-
-
 @pytest.fixture(scope="module")
-def files(tmp_path_factory) -> dict[str, str]:
+def files(folder) -> dict[str, str]:
     """Bad and good inputs, made once: a coarse Fig. 1 design, a small toolpath, ..."""
-    folder = tmp_path_factory.mktemp("inputs")
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=30)  # a coarse grid keeps the test fast
-    design = solve(build_spec(table, ROOT)).design
-    design.save(folder / "design.npz")
+    coarse_design().save(folder / "design.npz")
     arrays = dict(np.load(folder / "design.npz"))
     arrays["alpha"] = np.where(arrays["valid"], np.nan, arrays["alpha"])
     np.savez(folder / "nan_design.npz", **arrays)
@@ -778,17 +766,12 @@ def files(tmp_path_factory) -> dict[str, str]:
         "one_target": two.split('[[surfaces]]\nname = "bump"')[0]
         + "[initial]"
         + two.split("[initial]")[1],
+        "swimmer_unsafe": edited(
+            SWIMMER.read_text(), 'director = "phi"', "director = \"__import__('os')\""
+        ),
     }
-    for name, text in specs.items():
-        (folder / f"{name}.toml").write_text(text)
-    swimmer = edited(SWIMMER.read_text(), 'director = "phi"', "director = \"__import__('os')\"")
-    (folder / "swimmer_unsafe.toml").write_text(swimmer)
-    paths = {name: str(folder / f"{name}.toml") for name in [*specs, "swimmer_unsafe"]}
     return {
-        **paths,
-        "spec": str(TWO),
-        "swimmer": str(SWIMMER),
-        "channels": str(CHANNELS),
+        **write_texts(folder, specs, ".toml"),
         "design": str(folder / "design.npz"),
         "nan_design": str(folder / "nan_design.npz"),
         "npy": str(folder / "heights.npy"),

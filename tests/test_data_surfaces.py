@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import copy
 import importlib.util
-import json
 import os
 
 import numpy as np
@@ -32,6 +31,7 @@ BUMP = ("exp(-(x**2 + y**2/4))", [-4.0, 4.0, -6.0, 6.0])
 """Fig. 1's Gaussian bump and the domain it is sampled on."""
 WAVY = ("sin(x)*sin(y/4)", [-8.0, 8.0, -12.0, 12.0])
 """Fig. 3's wavy sheet and the domain it is sampled on."""
+SAMPLED = {"bump": BUMP, "wavy": WAVY}
 FACE_GEOMETRY = {"kind": "heightmap", "file": "data/face.npy", "extent": [-16, 16, 0, 40]}
 
 
@@ -285,24 +285,38 @@ def test_fit_is_cached_and_refitted_when_the_file_changes(tmp_path):
 
 
 def write_bytes(name: str, data: bytes):
-    def make(tmp_path):
+    """A maker of file ``name`` holding ``data``: called with a folder, returns the name."""
+
+    def make(tmp_path) -> str:
         (tmp_path / name).write_bytes(data)
+        return name
 
     return make
 
 
 def write_array(name: str, array: np.ndarray):
-    def make(tmp_path):
+    """A maker of the .npy file ``name`` holding ``array`` (as :func:`write_bytes`)."""
+
+    def make(tmp_path) -> str:
         np.save(tmp_path / name, array)
+        return name
 
     return make
 
 
 def write_mesh(name: str, build):
-    def make(tmp_path):
+    """A maker of the mesh file ``name`` of ``build()`` (as :func:`write_bytes`)."""
+
+    def make(tmp_path) -> str:
         build().export(tmp_path / name)
+        return name
 
     return make
+
+
+def absent(name: str):
+    """A maker that makes nothing: the file ``name`` is not there."""
+    return lambda tmp_path: name
 
 
 def folded_sheet() -> trimesh.Trimesh:
@@ -323,98 +337,60 @@ def stacked_sheets() -> trimesh.Trimesh:
 
 
 GRID = sampled(*BUMP, n=20)[2]
+UNIT = {"extent": [0, 1, 0, 1]}
+"""The table keys of a height map whose extent plays no part in its refusal."""
 REFUSALS = [
-    ("missing", None, {"file": "nowhere.npy", "extent": [0, 1, 0, 1]}, "does not exist"),
-    ("empty", write_bytes("e.npy", b""), {"file": "e.npy", "extent": [0, 1, 0, 1]}, "is empty"),
-    (
-        "all-nan",
-        write_array("n.npy", np.full((20, 20), np.nan)),
-        {"file": "n.npy", "extent": [0, 1, 0, 1]},
-        "no finite heights",
-    ),
+    ("missing", absent("nowhere.npy"), UNIT, "does not exist"),
+    ("empty", write_bytes("e.npy", b""), UNIT, "is empty"),
+    ("all-nan", write_array("n.npy", np.full((20, 20), np.nan)), UNIT, "no finite heights"),
     (
         "infinite",
         write_array("i.npy", np.where(GRID > 0.5, np.inf, GRID)),
-        {"file": "i.npy", "extent": BUMP[1]},
+        {"extent": BUMP[1]},
         "infinite heights",
     ),
-    (
-        "corrupt npy",
-        write_bytes("c.npy", b"\x93NUMPY garbage" * 10),
-        {"file": "c.npy", "extent": [0, 1, 0, 1]},
-        "not an .npy file",
-    ),
+    ("corrupt npy", write_bytes("c.npy", b"\x93NUMPY garbage" * 10), UNIT, "not an .npy file"),
     (
         "corrupt npz",
         write_bytes("c.npz", b"PK\x03\x04 not a zip" * 10),
-        {"file": "c.npz", "extent": [0, 1, 0, 1]},
+        UNIT,
         "not an .npz archive",
     ),
     (
         "corrupt png",
         write_bytes("c.png", b"\x89PNG\r\n\x1a\n" + b"x" * 100),
-        {"file": "c.png", "extent": [0, 1, 0, 1]},
+        UNIT,
         "not a readable image",
     ),
-    (
-        "text csv",
-        write_bytes("c.csv", b"a,b\n1,2\n"),
-        {"file": "c.csv", "extent": [0, 1, 0, 1]},
-        "not a grid of numbers",
-    ),
+    ("text csv", write_bytes("c.csv", b"a,b\n1,2\n"), UNIT, "not a grid of numbers"),
     (
         "holes everywhere",
         write_array("h.npy", np.where(np.indices((20, 20)).sum(0) % 4 == 0, np.nan, GRID)),
-        {"file": "h.npy", "extent": BUMP[1]},
+        {"extent": BUMP[1]},
         "too many holes",
     ),
-    (
-        "3d array",
-        write_array("t.npy", np.zeros((20, 20, 3))),
-        {"file": "t.npy", "extent": [0, 1, 0, 1]},
-        "a height grid is 2D",
-    ),
-    (
-        "tiny grid",
-        write_array("s.npy", np.zeros((4, 20))),
-        {"file": "s.npy", "extent": [0, 1, 0, 1]},
-        "nodes per side",
-    ),
-    (
-        "bad suffix",
-        write_bytes("m.txt", b"1"),
-        {"file": "m.txt", "extent": [0, 1, 0, 1]},
-        "unsupported format",
-    ),
-    ("no extent", write_array("g.npy", GRID), {"file": "g.npy"}, "missing key 'extent'"),
-    (
-        "reversed extent",
-        write_array("g.npy", GRID),
-        {"file": "g.npy", "extent": [1, 0, 0, 1]},
-        "x0 < x1",
-    ),
-    (
-        "extent aspect",
-        write_array("g.npy", GRID),
-        {"file": "g.npy", "extent": [0, 100, 0, 1]},
-        "transposed grid",
-    ),
+    ("3d array", write_array("t.npy", np.zeros((20, 20, 3))), UNIT, "a height grid is 2D"),
+    ("tiny grid", write_array("s.npy", np.zeros((4, 20))), UNIT, "nodes per side"),
+    ("bad suffix", write_bytes("m.txt", b"1"), UNIT, "unsupported format"),
+    ("no extent", write_array("g.npy", GRID), {}, "missing key 'extent'"),
+    ("reversed extent", write_array("g.npy", GRID), {"extent": [1, 0, 0, 1]}, "x0 < x1"),
+    ("extent aspect", write_array("g.npy", GRID), {"extent": [0, 100, 0, 1]}, "transposed grid"),
     (
         "zero z_scale",
         write_array("g.npy", GRID),
-        {"file": "g.npy", "extent": BUMP[1], "z_scale": 0},
+        {"extent": BUMP[1], "z_scale": 0},
         "must not be zero",
     ),
     (
         "bad smoothing",
         write_array("g.npy", GRID),
-        {"file": "g.npy", "extent": BUMP[1], "smoothing": -1},
+        {"extent": BUMP[1], "smoothing": -1},
         "zero or positive",
     ),
     (
         "unknown key",
         write_array("g.npy", GRID),
-        {"file": "g.npy", "extent": BUMP[1], "scale": 2},
+        {"extent": BUMP[1], "scale": 2},
         "unknown key 'scale'",
     ),
 ]
@@ -450,25 +426,17 @@ MESH_REFUSALS = [
 
 
 @pytest.mark.parametrize(
-    "make, table, message", [r[1:] for r in REFUSALS], ids=[r[0] for r in REFUSALS]
+    "kind, make, keys, message",
+    [
+        *[pytest.param("heightmap", *row[1:], id=f"heightmap-{row[0]}") for row in REFUSALS],
+        *[pytest.param("mesh", *row[1:], id=f"mesh-{row[0]}") for row in MESH_REFUSALS],
+    ],
 )
-def test_heightmap_refusals(tmp_path, make, table, message):
-    if make:
-        make(tmp_path)
+def test_data_file_refusals(tmp_path, kind, make, keys, message):
+    table = {"kind": kind, "file": make(tmp_path), **keys}
     with pytest.raises(FabkitError, match=message) as error:
-        build_surface("d", {"kind": "heightmap", **table}, "surfaces[2].geometry", tmp_path)
+        build_surface("d", table, "surfaces[2].geometry", tmp_path)
     assert "\n" not in str(error.value) and str(error.value).startswith("surfaces[2].geometry")
-
-
-@pytest.mark.parametrize(
-    "make, keys, message", [r[1:] for r in MESH_REFUSALS], ids=[r[0] for r in MESH_REFUSALS]
-)
-def test_mesh_refusals(tmp_path, make, keys, message):
-    make(tmp_path)
-    name = next(p.name for p in tmp_path.iterdir())
-    with pytest.raises(FabkitError, match=message) as error:
-        build_surface("d", {"kind": "mesh", "file": name, **keys}, "surfaces[2].geometry", tmp_path)
-    assert "\n" not in str(error.value)
 
 
 def test_extent_must_match_the_files_coordinates(tmp_path):
@@ -553,7 +521,7 @@ def assert_isometry_within_twice(data_report, analytic_report):
 @pytest.fixture(scope="module")
 def stl_files(tmp_path_factory):
     folder = tmp_path_factory.mktemp("targets")
-    for name, (expression, extent) in (("bump", BUMP), ("wavy", WAVY)):
+    for name, (expression, extent) in SAMPLED.items():
         xx, yy, z = sampled(expression, extent)
         np.save(folder / f"{name}.npy", z)
         write_stl(folder / f"{name}.stl", xx, yy, z)
@@ -562,32 +530,25 @@ def stl_files(tmp_path_factory):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["heightmap", "mesh"])
-def test_fig1_design_against_data_bump(stl_files, kind, fig1):
-    fig1["solver"].update(step=0.05, diagonals=40)
-    exact = solved_check(copy.deepcopy(fig1))
-    geometry = {
-        "kind": kind,
-        "file": str(stl_files / ("bump.npy" if kind == "heightmap" else "bump.stl")),
-    }
+@pytest.mark.parametrize(
+    ("example", "index", "name", "step"),
+    [
+        pytest.param("two_shapes.toml", 2, "bump", 0.05, id="fig1-bump"),
+        pytest.param("three_shapes.toml", 3, "wavy", 0.1, id="fig3-wavy"),
+    ],
+)
+def test_design_against_data(stl_files, example, index, name, step, kind):
+    """A figure's design with target ``index`` (analytic) swapped for its samples, as a
+    height map or a mesh: the isometry residuals stay within twice the analytic ones."""
+    table = example_table(example)
+    table["solver"].update(step=step, diagonals=40)
+    exact = solved_check(copy.deepcopy(table))
+    suffix = "npy" if kind == "heightmap" else "stl"
+    geometry = {"kind": kind, "file": str(stl_files / f"{name}.{suffix}")}
     if kind == "heightmap":
-        geometry["extent"] = BUMP[1]
-    fig1["surfaces"][2]["geometry"] = geometry
-    assert_isometry_within_twice(solved_check(fig1), exact)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("kind", ["heightmap", "mesh"])
-def test_fig3_design_against_data_wavy(stl_files, kind, fig3):
-    fig3["solver"].update(step=0.1, diagonals=40)
-    exact = solved_check(json.loads(json.dumps(fig3)))
-    geometry = {
-        "kind": kind,
-        "file": str(stl_files / ("wavy.npy" if kind == "heightmap" else "wavy.stl")),
-    }
-    if kind == "heightmap":
-        geometry["extent"] = WAVY[1]
-    fig3["surfaces"][3]["geometry"] = geometry
-    assert_isometry_within_twice(solved_check(fig3), exact)
+        geometry["extent"] = SAMPLED[name][1]
+    table["surfaces"][index]["geometry"] = geometry
+    assert_isometry_within_twice(solved_check(table), exact)
 
 
 @pytest.mark.slow

@@ -6,19 +6,15 @@ import numpy as np
 import pytest
 
 from fabkit.design.design import FORMAT, Design
-from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
-from fabkit.problem.spec import build_spec
-from tests.conftest import EXAMPLES, example_table
+from tests.conftest import coarse_design
 
 
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory) -> tuple:
     """A coarse Fig. 1 design written by this version, and its arrays as read by numpy."""
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=20)
     path = tmp_path_factory.mktemp("format") / "design.npz"
-    solve(build_spec(table, EXAMPLES)).design.save(path)
+    coarse_design(diagonals=20).save(path)
     with np.load(path, allow_pickle=False) as data:
         return path, {key: data[key] for key in data.files}
 

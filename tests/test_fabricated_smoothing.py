@@ -7,9 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fabkit.design.solver import solve
 from fabkit.mechanics.fabricated import default_thickness
-from fabkit.problem.spec import build_spec
 from fabkit.process import Resolution
 from fabkit.verify.machine_file import (
     VerifyOptions,
@@ -19,7 +17,7 @@ from fabkit.verify.machine_file import (
     _smoothing_mm,
 )
 from fabkit.verify.raster import Readback
-from tests.conftest import ROOT, example_table
+from tests.conftest import coarse_design
 
 CELL_MM, WIDTH_MM, THETA = 0.1, 0.4, 0.3
 
@@ -48,9 +46,7 @@ def test_cell_noise_is_averaged_out_over_the_smoothing_length():
 
 @pytest.fixture(scope="module")
 def design():
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=30)
-    return solve(build_spec(table, ROOT)).design
+    return coarse_design()
 
 
 @pytest.mark.parametrize("scale", [5.0, 50.0])

@@ -16,7 +16,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pytest
-from gcodeparser import parse_gcode_lines
 
 from fabkit.errors import FabkitError
 from fabkit.link.gcode import commands_from_lines
@@ -24,7 +23,7 @@ from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from fabkit.toolpath import PRINT, Layer, Move, Toolpath
 from fabkit.writers.gcode import GcodeOptions, gcode_bytes
-from tests.test_writers_common import fig1_toolpath, model_volume
+from tests.test_writers_common import fig1_toolpath, model_volume, read_lines
 
 MACHINES = ["marlin_generic", "klipper_generic", "hyrel_pulse", "grbl_diw", "marlin_diw_pneumatic"]
 FILAMENT_MM2 = math.pi / 4 * 1.75**2
@@ -51,12 +50,9 @@ class Viewer:
 def view(text: str, flow_on: str = "", flow_off: str = "") -> Viewer:
     """Read ``text`` as a slicer viewer does (module docstring)."""
     seen = Viewer()
-    position, e_total, relative = np.full(3, np.nan), 0.0, False
     width = height = math.nan
-    valve = False
-    source = text.splitlines()
-    for line in parse_gcode_lines(text, include_comments=True):
-        if line.command[0] == ";":
+    for line in read_lines(text, flow_on, flow_off):
+        if line.comment is not None:
             key, _, value = line.comment.partition(":")
             if key == "LAYER" and value.isdigit():
                 seen.layers.append(int(value))
@@ -67,33 +63,16 @@ def view(text: str, flow_on: str = "", flow_off: str = "") -> Viewer:
             elif key == "HEIGHT":
                 height = float(value)
             continue
-        bare = source[line.line_index].split(";")[0].strip()
-        valve = True if flow_on and bare == flow_on else False if bare == flow_off else valve
-        name = line.command_str
-        if name in ("M82", "M83"):
-            relative = name == "M83"
-        elif name == "G92" and "E" in line.params:
-            e_total = float(line.params["E"])
-        elif name in ("G0", "G1"):
-            start = position.copy()
-            for k, axis in enumerate("XYZ"):
-                if axis in line.params:
-                    position[k] = float(line.params[axis])
-            de = 0.0
-            if "E" in line.params:
-                value = float(line.params["E"])
-                de = value if relative else value - e_total
-                e_total = e_total + value if relative else value
-            length = float(np.linalg.norm((position - start)[:2]))
-            if de > 0 and length > 0 or valve and length > 0:
-                seen.layer.append(seen.layers[-1] if seen.layers else -1)
-                seen.length.append(length)
-                seen.width.append(width)
-                seen.height.append(height)
-                seen.e.append(de)
-                seen.valve.append(valve)
-            elif de > 0:
-                seen.travel_e += de
+        length = float(np.linalg.norm(line.step[:2]))
+        if line.e_step > 0 and length > 0 or line.flowing and length > 0:
+            seen.layer.append(seen.layers[-1] if seen.layers else -1)
+            seen.length.append(length)
+            seen.width.append(width)
+            seen.height.append(height)
+            seen.e.append(line.e_step)
+            seen.valve.append(line.flowing)
+        elif line.e_step > 0:
+            seen.travel_e += line.e_step
     return seen
 
 

@@ -23,7 +23,7 @@ from fabkit.link.gcode import (
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from fabkit.writers.gcode import gcode_bytes
-from tests.test_writers_common import baromorph_toolpath, fig1_toolpath
+from tests.test_writers_common import baromorph_toolpath, fig1_toolpath, reprap_machine
 
 GRBL = ["G21", "G90", "G94", "G17"]  # the modes a GRBL job must set itself
 MARLIN = ["G21", "G90", "G28", "M82", "G92 E0"]
@@ -66,15 +66,7 @@ def test_fabkits_own_gcode_passes_for_every_machine(name, example):
 
 
 def test_the_reprap_flavour_of_a_profile_passes_too(tmp_path):
-    text = (
-        Path(load_machine("marlin_generic").path)
-        .read_text()
-        .replace('flavour = "marlin"', 'flavour = "reprap"')
-        .replace('name = "marlin_generic"', 'name = "reprap_test"')
-        .replace("filament_diameter_mm = 1.75", 'filament_diameter_mm = 1.75\ne_mode = "relative"')
-    )
-    (tmp_path / "reprap_test.toml").write_text(text)
-    machine = load_machine(tmp_path / "reprap_test.toml")
+    machine = reprap_machine(tmp_path, 1.75)
     data, _ = gcode_bytes(baromorph_toolpath(machine), machine)
     assert check_job(commands_from_lines(data.decode().splitlines()), machine).moves > 100
 

@@ -9,23 +9,30 @@ import threading
 import pytest
 
 from fabkit.errors import FabkitError
-from fabkit.link.gcode import commands_from_lines
+from fabkit.link.emulator.firmware import Counters
+from fabkit.link.gcode import Command, commands_from_lines
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
-from fabkit.link.host.session import LinkControl
+from fabkit.link.host.session import LinkControl, SendReport
 from fabkit.machines import load_machine
 from tests.test_link_support import executed, grbl_job, quick, run_sim
 
 FAST = "sim://grbl?time_scale=0&baud=0"
 
 
+def runs_every_line(url: str, job: list[Command]) -> tuple[SendReport, Counters]:
+    """Stream ``job`` to the GRBL emulator at ``url`` (quick link options), which must run
+    every line exactly once, in order; the send report and the emulator's statistics."""
+    report, emulator = run_sim(url, job, "grbl_diw", options=quick())
+    assert executed(emulator) == [c.text for c in job]
+    return report, emulator.stats()
+
+
 @pytest.mark.slow
 def test_20k_lines_with_lost_garbled_and_spurious_answers_arrive_exactly_once_in_order():
     job = grbl_job(20_000)
     url = f"{FAST}&drop_ok=0.001&garble=0.01&noise=0.01&seed=2"
-    report, emulator = run_sim(url, job, "grbl_diw", options=quick())
-    assert executed(emulator) == [c.text for c in job]
-    stats = emulator.stats()
+    report, stats = runs_every_line(url, job)
     assert stats.dropped_oks > 10 and stats.garbled_lines > 100 and stats.spurious_lines > 100
     assert report.recoveries > 0  # '?' found the machine idle: the lost oks were settled
 
@@ -34,9 +41,7 @@ def test_20k_lines_with_lost_garbled_and_spurious_answers_arrive_exactly_once_in
 def test_character_counting_keeps_the_receive_buffer_from_overflowing():
     job = grbl_job(200, seed=3)
     url = "sim://grbl?time_scale=0.001&baud=1000000&drop_ok=0.005&seed=4"
-    _, emulator = run_sim(url, job, "grbl_diw", options=quick())
-    assert executed(emulator) == [c.text for c in job]
-    stats = emulator.stats()
+    _, stats = runs_every_line(url, job)
     assert stats.overflow_bytes == 0 and 100 < stats.max_rx_bytes <= 127
 
 
@@ -87,9 +92,8 @@ def test_a_profile_buffer_larger_than_the_machine_reports_is_refused():
 def test_a_larger_buffer_is_used_and_silence_about_it_is_a_warning():
     job = grbl_job(300, seed=3)
     url = "sim://grbl?time_scale=0.001&baud=1000000&rx=256"
-    report, emulator = run_sim(url, job, "grbl_diw", options=quick())
-    assert executed(emulator) == [c.text for c in job]
-    assert emulator.stats().overflow_bytes == 0 and emulator.stats().max_rx_bytes > 127
+    _, stats = runs_every_line(url, job)
+    assert stats.overflow_bytes == 0 and stats.max_rx_bytes > 127
     report, emulator = run_sim(f"{FAST}&opt=0&bf=0", job, "grbl_diw")
     assert "did not report its receive buffer" in report.warnings[0]
 

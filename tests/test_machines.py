@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import pytest
@@ -139,7 +138,7 @@ DIW = (MACHINES_DIR / "marlin_diw_pneumatic.toml").read_text()
         ("feature = 1\n", "feature = true\n", "must be a feature name or its position"),
         ('method = "alternate"', 'method = "blend"', "method = 'blend' is not one of"),
         ('method = "alternate"', 'method = "mixing"', "mixing needs a Marlin-like mixing"),
-        ('ink2_on_gcode = "M42 P5 S255"\n', "", "alternate needs \\[gcode\\] ink2_on_gcode"),
+        ('ink2_on_gcode = "M42 P5 S255"\n', "", "alternate needs [gcode] ink2_on_gcode"),
         ("piece_mm = 0.5", "piece_mm = 0", "piece_mm must be > 0"),
         ("max_kpa = 600", "max_kpa = 800", "max_kpa = 800 exceeds full_scale_kpa = 700"),
         ('command = "M106 P1"', 'command = ""', "command must be one G-code command"),
@@ -153,7 +152,7 @@ DIW = (MACHINES_DIR / "marlin_diw_pneumatic.toml").read_text()
         (
             "value = [0.0, 0.3, 0.65, 1.0]",
             "value = [0, 0.3, 0.6, 1.2]",
-            "in \\[0, 1\\]",
+            "in [0, 1]",
         ),
     ],
 )
@@ -165,7 +164,7 @@ def test_channel_inks_and_pressure_mistakes(tmp_path, old, new, expected):
         else:
             assert load_machine(path).process.encodes[1].features == ("1 2",)
         return
-    assert re.search(expected, _error(path))
+    assert expected in _error(path)
 
 
 def test_unknown_machine_names_the_known_ones():
@@ -179,36 +178,36 @@ def test_unknown_machine_names_the_known_ones():
     ("old", "new", "expected"),
     [
         ('flavour = "marlin"', 'flavour = "marlin"\ncolour = "red"', "unknown key 'colour'"),
-        ("x_mm_s = 300", "x_mm_s = 300\nw_mm_s = 3", r"unknown key 'w_mm_s' in \[limits\]"),
-        ("y_mm_s = 300\n", "", r"\[limits\] y_mm_s is missing"),
+        ("x_mm_s = 300", "x_mm_s = 300\nw_mm_s = 3", "unknown key 'w_mm_s' in [limits]"),
+        ("y_mm_s = 300\n", "", "[limits] y_mm_s is missing"),
         ('name = "marlin_generic"\n', "", "name is missing"),
-        ("x_mm_s = 300", 'x_mm_s = "fast"', r"\[limits\] x_mm_s must be a number, got a string"),
+        ("x_mm_s = 300", 'x_mm_s = "fast"', "[limits] x_mm_s must be a number, got a string"),
         ("x_mm_s = 300", "x_mm_s = true", "must be a number, got a boolean"),
-        ("z_mm_s = 5", "z_mm_s = -5", r"\[limits\] z_mm_s must be > 0, got -5"),
+        ("z_mm_s = 5", "z_mm_s = -5", "[limits] z_mm_s must be > 0, got -5"),
         ("retract_mm = 1.0", "retract_mm = -1.0", "retract_mm must not be negative"),
-        ("baud = 115200", "baud = 115200.5", r"\[serial\] baud must be an integer"),
+        ("baud = 115200", "baud = 115200.5", "[serial] baud must be an integer"),
         ('protocol = "marlin"', 'protocol = "smoothie"', "is not one of marlin, grbl"),
         ('kind = "extrusion_printer"', 'kind = "printer"', "kind = 'printer' is not one of"),
-        ("x_mm = [0, 220]", "x_mm = [220, 0]", r"must be \[min, max\] with min < max"),
-        ("x_mm = [0, 220]", "x_mm = [0, 220, 5]", r"must be \[min, max\]"),
+        ("x_mm = [0, 220]", "x_mm = [220, 0]", "must be [min, max] with min < max"),
+        ("x_mm = [0, 220]", "x_mm = [0, 220, 5]", "must be [min, max]"),
         ("nozzle_c = 210", "nozzle_c = 300", "nozzle_c = 300 exceeds nozzle_max_c"),
         ("value = [25, 15, 8, 4]", "value = [25, 15, 8]", "same length"),
         ("eps = [-0.40, -0.30, -0.20, -0.10]", "eps = [-0.4, -0.2, -0.3, -0.1]", "increasing"),
         ('parameter = "print_speed_mm_s"', 'parameter = "colour"', "is not one of"),
-        ("M109 S{nozzle_c}", "M109 S{hot}", r"unknown placeholder \{hot\}"),
+        ("M109 S{nozzle_c}", "M109 S{hot}", "unknown placeholder {hot}"),
         ("rx_buffer_bytes = 128", "rx_buffer_bytes = 8", "rx_buffer_bytes must be >= 32"),
-        ("[envelope]", "envelope = 3\n[envelopes]", r"\[envelope\] must be a table"),
+        ("[envelope]", "envelope = 3\n[envelopes]", "[envelope] must be a table"),
         ('e_units = "filament"', 'e_units = "grams"', "e_units = 'grams' is not one of"),
         ('e_units = "filament"', 'e_mode = "both"', "e_mode = 'both' is not one of"),
         ("filament_diameter_mm = 1.75", "filament_diameter_mm = 0", "must be > 0, got 0"),
         ("value = [25, 15, 8, 4]", "value = [25, 15, 8, 4]\nclip = 1", "clip must be true"),
         ("value = [25, 15, 8, 4]", "value = [25, 15, 15, 4]", "strictly increasing or decr"),
         ('parameter = "print_speed_mm_s"', 'parameter = "dose_mj_cm2"', "is not one of"),
-        ("[serial]", "[laser]\nrelation = 'parallel'\n\n[serial]", r"\[laser\] is only for"),
+        ("[serial]", "[laser]\nrelation = 'parallel'\n\n[serial]", "[laser] is only for"),
     ],
 )
 def test_mistakes_are_one_line_naming_file_and_key(tmp_path, old, new, expected):
-    assert re.search(expected, _error(_edited(tmp_path, old, new)))
+    assert expected in _error(_edited(tmp_path, old, new))
 
 
 def test_bad_toml_is_one_line(tmp_path):
@@ -219,14 +218,14 @@ def test_bad_toml_is_one_line(tmp_path):
     ("old", "new", "expected"),
     [
         ('relation = "perpendicular"', 'relation = "sideways"', "relation = 'sideways'"),
-        ("input_polarisation_deg = 0", "input_polarisation_deg = 180", r"in \[0, 180\)"),
+        ("input_polarisation_deg = 0", "input_polarisation_deg = 180", "in [0, 180)"),
         ("intensity_mw_cm2 = 10", "intensity_mw_cm2 = 0", "intensity_mw_cm2 must be > 0"),
-        ("intensity_mw_cm2 = 10", "power = 3", r"unknown key 'power' in \[laser\]"),
+        ("intensity_mw_cm2 = 10", "power = 3", "unknown key 'power' in [laser]"),
     ],
 )
 def test_laser_table_mistakes(tmp_path, old, new, expected):
     text = (MACHINES_DIR / "dmd_photoalign.toml").read_text()
-    assert re.search(expected, _error(_edited(tmp_path, old, new, text)))
+    assert expected in _error(_edited(tmp_path, old, new, text))
 
 
 def test_flavour_none_must_not_carry_serial_or_gcode(tmp_path):

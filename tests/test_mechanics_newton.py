@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fabkit.design.solver import solve
 from fabkit.field.part import simulation_part
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.shell import Sheet, build_shell
@@ -21,16 +20,13 @@ from fabkit.mechanics.simulate import (
     simulate_design,
     surface_index,
 )
-from fabkit.problem.spec import build_spec
-from tests.conftest import ROOT, example_table
+from tests.conftest import coarse_design
 
 
 @pytest.fixture(scope="module")
 def whole_bump():
     """The Fig. 1 bump on the whole coarse domain (96 triangles), 100 iterations a step."""
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=30)
-    design = solve(build_spec(table, ROOT)).design
+    design = coarse_design()
     part, thickness = simulation_part(design, None, trim=0)
     surface = surface_index(design, "bump")
     settings = Settings(max_iterations=100)

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
-from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.field.part import simulation_part
 from fabkit.figures import cell_integral
@@ -23,8 +22,7 @@ from fabkit.mechanics.simulate import (
     simulate_design,
     surface_index,
 )
-from fabkit.problem.spec import build_spec
-from tests.conftest import ROOT
+from tests.conftest import coarse_design
 
 ALONG, ACROSS = 0.8, 0.8**-0.5
 """A nematic elastomer's contraction along the director and expansion across it."""
@@ -124,11 +122,7 @@ def fit_circle(points: np.ndarray) -> tuple[np.ndarray, float]:
 
 @pytest.fixture(scope="module")
 def fig1_design():
-    from tests.conftest import example_table
-
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=30)  # a coarse grid keeps the test fast
-    return solve(build_spec(table, ROOT)).design
+    return coarse_design()
 
 
 @pytest.mark.slow

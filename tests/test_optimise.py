@@ -39,17 +39,23 @@ VARY = ("initial.eps[0]=0.2:0.7", "initial.slope[0]=-1:1")
 BUDGET = Budget(generations=2, popsize=2, seed=3, batch=4)
 
 
-def coarse_fig1() -> dict:
+def coarse_fig1(**solver) -> dict:
+    """Fig. 1's spec table on the COARSE grid (with ``solver``'s changes)."""
     table = example_table("two_shapes.toml")
-    table["solver"] = dict(COARSE)
+    table["solver"] = {**COARSE, **solver}
     return table
+
+
+def coarse_spec_file(folder: Path, **solver) -> Path:
+    """``folder``/fig1.toml: :func:`coarse_fig1` as a spec file."""
+    path = folder / "fig1.toml"
+    path.write_text(dumps(coarse_fig1(**solver)))
+    return path
 
 
 @pytest.fixture
 def spec_file(tmp_path) -> Path:
-    path = tmp_path / "fig1.toml"
-    path.write_text(dumps(coarse_fig1()))
-    return path
+    return coarse_spec_file(tmp_path)
 
 
 def test_varied_keys_become_parameters_and_the_table_at_a_point_holds_numbers():
@@ -335,10 +341,7 @@ def test_the_check_tolerances_of_the_command_line_reach_the_search(monkeypatch, 
 
 @pytest.mark.slow
 def test_a_search_in_which_nothing_counts_says_so_and_writes_no_best(tmp_path, run_cli):
-    table = example_table("two_shapes.toml")
-    table["solver"] = {"step": 0.1, "diagonals": 10, "quadrants": "all"}
-    spec = tmp_path / "spec.toml"
-    spec.write_text(dumps(table))
+    spec = coarse_spec_file(tmp_path, diagonals=10)
     out = tmp_path / "best.toml"
     code, _, err = run_cli(
         "optimise", spec, "--out", out, "--vary", "initial.eps[0]=0.4:0.6",

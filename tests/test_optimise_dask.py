@@ -8,8 +8,7 @@ import json
 import pytest
 
 from fabkit.optimise.run import outputs
-from fabkit.optimise.tomlout import dumps
-from tests.conftest import example_table
+from tests.test_optimise import coarse_spec_file
 
 ARGS = (
     "--vary", "initial.eps[0]=0.2:0.7", "--vary", "initial.slope[0]=-1:1",
@@ -19,10 +18,7 @@ ARGS = (
 
 @pytest.mark.slow
 def test_dask_local_finds_the_same_best_as_one_local_process(tmp_path, run_cli):
-    table = example_table("two_shapes.toml")
-    table["solver"] = {"step": 0.1, "diagonals": 20, "quadrants": "all"}
-    spec = tmp_path / "fig1.toml"
-    spec.write_text(dumps(table))
+    spec = coarse_spec_file(tmp_path)
     results = {}
     for name, pool in (
         ("local", ("--workers", "1")),

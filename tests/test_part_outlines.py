@@ -11,11 +11,9 @@ import numpy as np
 import pytest
 import shapely
 
-from fabkit.design.solver import solve
 from fabkit.field.outlines import read_outline
 from fabkit.field.part import PartOptions, print_part, scale_for_size, solved_region
-from fabkit.problem.spec import build_spec
-from tests.conftest import EXAMPLES, example_table
+from tests.conftest import coarse_design
 
 SQUARE = [(-5.0, -3.0), (5.0, -3.0), (5.0, 7.0), (-5.0, 7.0)]
 """A 10 mm square, off the origin, in the sheet frame (mm, y up)."""
@@ -69,9 +67,7 @@ def test_curves_are_flattened_and_rings_combine_even_odd(tmp_path):
 
 @pytest.fixture(scope="module")
 def fig1():
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=30)
-    design = solve(build_spec(table, EXAMPLES)).design
+    design = coarse_design()
     solved = solved_region(design)
     return design, solved, scale_for_size(solved, 20.0)
 

@@ -9,20 +9,14 @@ import trimesh
 from fabkit.atomic import MANIFEST
 from fabkit.design.design import Design
 from fabkit.design.patches import grid_triangles, patch_mesh, write_patch_mesh
-from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
-from fabkit.problem.spec import build_spec
-from tests.conftest import EXAMPLES
+from tests.conftest import coarse_design
 
 
 @pytest.fixture(scope="module")
 def fig1_design(tmp_path_factory) -> Design:
-    from tests.conftest import example_table
-
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=20)
     path = tmp_path_factory.mktemp("design") / "design.npz"
-    solve(build_spec(table, EXAMPLES)).design.save(path)
+    coarse_design(diagonals=20).save(path)
     return Design.load(path)
 
 

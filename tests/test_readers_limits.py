@@ -17,7 +17,6 @@ from fabkit import limits
 from fabkit.atomic import inside
 from fabkit.design.design import Design
 from fabkit.design.patches import patch_paths
-from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.machines import GCODE_KEYS, list_machines
 from fabkit.npzfile import read_npz
@@ -25,7 +24,7 @@ from fabkit.problem.spec import build_spec, load_spec
 from fabkit.readfile import parse_json, read_limited, size_text
 from fabkit.tomlfile import read_toml, scan_depth
 from tests import hostile as h
-from tests.conftest import EXAMPLES, ROOT, example_table
+from tests.conftest import EXAMPLES, ROOT, coarse_design, example_table
 
 
 def limit_names() -> list[str]:
@@ -43,10 +42,8 @@ def test_every_limit_is_listed_in_troubleshooting():
 
 @pytest.fixture(scope="module")
 def design_file(tmp_path_factory):
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=30)
     path = tmp_path_factory.mktemp("limits") / "design.npz"
-    solve(build_spec(table, ROOT)).design.save(path)
+    coarse_design().save(path)
     return path
 
 

@@ -23,11 +23,9 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from fabkit.design.design import Design
-from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile, load_machine
 from fabkit.npzfile import NUMBER_KINDS, read_npy, read_npz
-from fabkit.problem.spec import build_spec
 from fabkit.problem.surfaces.data import read_grid, read_mesh
 from fabkit.readfile import nesting_depth, parse_json
 from fabkit.swimmer.spec import SwimmerSpec, load_swimmer
@@ -38,7 +36,7 @@ from fabkit.toolpath.model import Toolpath, load_toolpath
 from fabkit.toolpath.process import Process, load_process
 from fabkit.writers.export import load_geometry
 from tests import hostile as h
-from tests.conftest import EXAMPLES, ROOT, example_table
+from tests.conftest import EXAMPLES, ROOT, coarse_design
 
 SECONDS = 5.0
 """Most time one read may take (a safety bound on a shared 2-core machine)."""
@@ -85,16 +83,9 @@ def refused_or(read, expected: type | tuple[type, ...]):
 
 
 @pytest.fixture(scope="module")
-def folder(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("readers")
-
-
-@pytest.fixture(scope="module")
 def design_file(folder) -> Path:
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.2, diagonals=10)
     path = folder / "design.npz"
-    solve(build_spec(table, ROOT)).design.save(path)
+    coarse_design(step=0.2, diagonals=10).save(path)
     return path
 
 

@@ -3,27 +3,27 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
 from tests.conftest import EXAMPLES
 
 
+def run_ok(run_cli, spec: str, out: Path, *options) -> tuple[dict, str]:
+    """``fabkit run examples/SPEC --out OUT OPTIONS``, which must succeed: the figures of
+    its report.json, and what it printed."""
+    code, text, err = run_cli("run", EXAMPLES / spec, "--out", out, *options)
+    assert code == 0, err
+    return json.loads((out / "report.json").read_text()), text
+
+
 @pytest.mark.slow
 def test_run_writes_every_file(run_cli, tmp_path):
     out = tmp_path / "out"
-    code, text, err = run_cli(
-        "run",
-        EXAMPLES / "two_shapes.toml",
-        "--out",
-        out,
-        "--format",
-        "gcode",
-        "--format",
-        "dxf",
-        "--no-verify",
+    figures, text = run_ok(
+        run_cli, "two_shapes.toml", out, "--format", "gcode", "--format", "dxf", "--no-verify"
     )
-    assert code == 0, err
     expected = [
         "design.npz",
         "design.json",
@@ -45,7 +45,6 @@ def test_run_writes_every_file(run_cli, tmp_path):
         assert (out / name).is_file(), name
     leftovers = [p for p in out.rglob("*") if ".part" in p.name]
     assert leftovers == []
-    figures = json.loads((out / "report.json").read_text())
     assert figures["check"]["passed"]
     quality = figures["toolpath quality"][0]
     # issue 5's bounds for Fig. 1 at 60 mm and the default 0.41 mm road
@@ -98,24 +97,17 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
     import trimesh
 
     out = tmp_path / "baro"
-    code, _, err = run_cli(
-        "run",
-        EXAMPLES / "baromorph.toml",
-        "--out",
-        out,
-        "--baromorph",
-        EXAMPLES / "baromorph_channels.toml",
-    )
-    assert code == 0, err
-    verified = json.loads((out / "report.json").read_text())["verify"]
+    baromorph = ("--baromorph", EXAMPLES / "baromorph_channels.toml")
+    figures, _ = run_ok(run_cli, "baromorph.toml", out, *baromorph)
+    verified = figures["verify"]
     assert verified["kind"] == "channels"  # read back by the channels' widths and directions
     (width,) = verified["features"]
     assert width["channel"] == "channel_width_mm" and width["rms_pct"] < 3.0
     assert verified["director_mean_deg"] < 4.0
-    channels = json.loads((out / "report.json").read_text())["channels"]
+    channels = figures["channels"]
     assert channels["valid"] and channels["connected"]
     assert channels["max_width_error"] <= 0.01 and channels["min_wall_mm"] >= 0.6
-    drawing = json.loads((out / "report.json").read_text())["exports"]["dxf"]
+    drawing = figures["exports"]["dxf"]
     assert "entities per layer CHANNELS" in drawing and "Summary(" not in drawing  # no repr
     document = ezdxf.readfile(out / "channels.dxf")
     assert len(document.audit().errors) == 0
@@ -123,14 +115,7 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
     assert {"CHANNELS", "OUTLINE", "INLET"} <= layers
     assert trimesh.load(out / "channels" / "mould.stl").is_watertight
     code, _, err = run_cli(
-        "run",
-        EXAMPLES / "baromorph.toml",
-        "--out",
-        out,
-        "--format",
-        "gcode",
-        "--baromorph",
-        EXAMPLES / "baromorph_channels.toml",
+        "run", EXAMPLES / "baromorph.toml", "--out", out, "--format", "gcode", *baromorph
     )
     assert code == 2 and "DXF only" in err
 
@@ -138,20 +123,9 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
 @pytest.mark.slow
 def test_run_photoalignment_pattern(run_cli, tmp_path):
     out = tmp_path / "laser"
-    code, _, err = run_cli(
-        "run",
-        EXAMPLES / "two_shapes.toml",
-        "--out",
-        out,
-        "--machine",
-        "dmd_photoalign",
-        "--size",
-        "20",
-        "--no-verify",
-    )
-    assert code == 0, err
+    laser = ("--machine", "dmd_photoalign", "--size", "20", "--no-verify")
+    figures, _ = run_ok(run_cli, "two_shapes.toml", out, *laser)
     manifest = json.loads((out / "laser" / "manifest.json").read_text())
     assert manifest and (out / "laser" / "angle.png").is_file()
     assert not (out / "toolpath").exists()  # a laser writer needs no print lines
-    figures = json.loads((out / "report.json").read_text())
     assert "binning error" in figures["exports"]["laser"]

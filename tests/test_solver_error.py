@@ -14,7 +14,7 @@ from fabkit.design.design import Design
 from fabkit.design.solver import REASONS, solve
 from fabkit.errors import FabkitError
 from fabkit.problem.spec import build_spec
-from tests.conftest import EXAMPLES, example_table
+from tests.conftest import EXAMPLES, coarse_design, example_table
 
 ERROR_STOP = "error estimate beyond solver.tolerance"
 NO_CONTROL = 1e9
@@ -185,9 +185,7 @@ def test_fabkit_check_passes_on_what_fabkit_solve_writes(run_cli, tmp_path, exam
 def test_a_design_file_from_before_the_error_key_still_reads(tmp_path, run_cli):
     """design.npz written before the solver kept its error estimate: 'error' reads as NaN
     (not estimated) and the file checks as before."""
-    table = example_table("two_shapes.toml")
-    table["solver"].update(step=0.1, diagonals=20)
-    solve(build_spec(table, EXAMPLES)).design.save(tmp_path / "new.npz")
+    coarse_design(diagonals=20).save(tmp_path / "new.npz")
     with np.load(tmp_path / "new.npz", allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files if k not in ("error", "format")}
     np.savez_compressed(tmp_path / "old.npz", **arrays)

@@ -152,20 +152,29 @@ def test_flow_without_an_e_axis_is_read_from_the_feed(tmp_path):
     np.testing.assert_allclose(flow, wanted[nearest], rtol=2e-4)
 
 
-def test_alternating_inks_make_the_encoded_share(tmp_path):
+def _printed_roads(
+    tmp_path: Path, parameters: tuple[str, ...], road_width: float = 0.4, unknown=()
+):
+    """``parameters`` planned at ``road_width`` (mm), written for marlin_diw_pneumatic and
+    read back: the printed moves, and their roads in the sheet frame (mm), the parameters
+    ``unknown`` NaN on every road (to be read from the road positions)."""
     machine = load_machine("marlin_diw_pneumatic")
-    toolpath = _plan(("print_speed_mm_s", "ink_fraction"), road_width=0.41)
-    summary = write_gcode(toolpath, machine, tmp_path / "sheet.gcode")
+    summary = write_gcode(_plan(parameters, road_width), machine, tmp_path / "sheet.gcode")
     printed = read_gcode(tmp_path / "sheet.gcode", machine)
-    offset = np.array(summary.offset_mm[:2])
+    count = len(printed.start)
     roads = Roads(
-        printed.start[:, :2] - offset,
-        printed.end[:, :2] - offset,
-        np.full(len(printed.start), 0.41),
+        printed.start[:, :2],
+        printed.end[:, :2],
+        np.full(count, road_width),
         printed.road,
-        {},
+        {name: np.full(count, np.nan) for name in unknown},
         printed.ink,
     )
+    return printed, roads.shifted(np.array(summary.offset_mm))
+
+
+def test_alternating_inks_make_the_encoded_share(tmp_path):
+    printed, roads = _printed_roads(tmp_path, ("print_speed_mm_s", "ink_fraction"), 0.41)
     readback = rasterise(roads, 0.41 / 4)
     x, y = readback.centres()
     inner = (np.abs(x) < 3) & (np.abs(y) < 3) & (readback.hits > 0)
@@ -179,18 +188,8 @@ def test_alternating_inks_make_the_encoded_share(tmp_path):
 
 
 def test_line_spacing_is_read_from_the_road_positions(tmp_path):
-    machine = load_machine("marlin_diw_pneumatic")
-    toolpath = _plan(("line_spacing_mm", "ink_fraction"))
-    summary = write_gcode(toolpath, machine, tmp_path / "sheet.gcode")
-    printed = read_gcode(tmp_path / "sheet.gcode", machine)
-    offset = np.array(summary.offset_mm[:2])
-    roads = Roads(
-        printed.start[:, :2] - offset,
-        printed.end[:, :2] - offset,
-        np.full(len(printed.start), 0.4),
-        printed.road,
-        {"line_spacing_mm": np.full(len(printed.start), np.nan)},
-    )
+    parameters = ("line_spacing_mm", "ink_fraction")
+    _, roads = _printed_roads(tmp_path, parameters, unknown=("line_spacing_mm",))
     readback = rasterise(roads, 0.1)
     x, y = readback.centres()
     inner = (np.abs(x) < 3) & (np.abs(y) < 3) & (readback.hits > 0)

@@ -12,6 +12,7 @@ import functools
 import math
 import shutil
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -132,6 +133,24 @@ def baromorph_toolpath(machine: MachineProfile, layers: int = 2) -> Toolpath:
     return Toolpath(tuple(result), "", {"source": "baromorph test"})
 
 
+def reprap_machine(folder: Path, filament_diameter_mm: float) -> MachineProfile:
+    """marlin_generic as the RepRap-flavoured profile reprap_test (relative E in the
+    profile, ``filament_diameter_mm`` filament), written into ``folder``."""
+    text = (
+        Path(load_machine("marlin_generic").path)
+        .read_text()
+        .replace('flavour = "marlin"', 'flavour = "reprap"')
+        .replace('name = "marlin_generic"', 'name = "reprap_test"')
+        .replace(
+            "filament_diameter_mm = 1.75",
+            f'filament_diameter_mm = {filament_diameter_mm}\ne_mode = "relative"',
+        )
+    )
+    path = folder / "reprap_test.toml"
+    path.write_text(text)
+    return load_machine(path)
+
+
 def model_volume(toolpath: Toolpath) -> float:
     """Sum of length x width x layer height x flow over print segments, mm^3."""
     total = 0.0
@@ -143,6 +162,57 @@ def model_volume(toolpath: Toolpath) -> float:
 
 
 # --------------------------------------------------------------------------- G-code replay
+
+
+@dataclass(frozen=True)
+class ReadLine:
+    """One line of a G-code file as parsed by ``gcodeparser``, with the machine state after
+    it: ``comment`` the text of a comment line (None on a command line), ``name`` the
+    command (G1, M83, ...), ``position`` (3,) mm, ``step`` (3,) mm moved by this line,
+    ``feed`` mm/s, ``e_step`` the E increment, ``flowing`` whether the material flow
+    (flow-on command) is on."""
+
+    comment: str | None
+    name: str
+    position: np.ndarray
+    step: np.ndarray
+    feed: float
+    e_step: float
+    flowing: bool
+
+
+def read_lines(text: str, flow_on: str = "", flow_off: str = "") -> Iterator[ReadLine]:
+    """Every line of ``text`` in order, the machine state kept from line to line (E
+    absolute until M83, position unknown (NaN) until an axis is given)."""
+    position = np.full(3, np.nan)
+    e, feed, absolute_e, flowing = 0.0, math.nan, True, False
+    source = text.splitlines()
+    for line in parse_gcode_lines(text, include_comments=True):
+        name = line.command_str
+        if line.command[0] == ";":
+            yield ReadLine(line.comment, name, position.copy(), np.zeros(3), feed, 0.0, flowing)
+            continue
+        text_line = source[line.line_index].split(";")[0].strip()
+        if flow_on and text_line == flow_on:
+            flowing = True
+        elif flow_off and text_line == flow_off:
+            flowing = False
+        start, e_step = position.copy(), 0.0
+        if name in ("M82", "M83"):
+            absolute_e = name == "M82"
+        elif name == "G92" and "E" in line.params:
+            e = float(line.params["E"])
+        elif name in ("G0", "G1"):
+            for k, axis in enumerate("XYZ"):
+                if axis in line.params:
+                    position[k] = float(line.params[axis])
+            feed = float(line.params.get("F", feed * 60)) / 60
+            if "E" in line.params:
+                value = float(line.params["E"])
+                e_step = value - e if absolute_e else value
+                e = value if absolute_e else e + value
+        step = position - start if name in ("G0", "G1") else np.zeros(3)
+        yield ReadLine(None, name, position.copy(), step, feed, e_step, flowing)
 
 
 @dataclass(frozen=True)
@@ -162,47 +232,17 @@ class Replay:
 
 
 def replay(text: str, flow_on: str = "", flow_off: str = "") -> Replay:
-    position = np.full(3, np.nan)
-    e, feed, absolute_e, flowing = 0.0, math.nan, True, False
-    rows, comments, commands = [], [], []
-    source = text.splitlines()
-    for line in parse_gcode_lines(text, include_comments=True):
-        name = line.command_str
-        if line.command[0] == ";":
-            comments.append(line.comment)
-            continue
-        commands.append(name)
-        text_line = source[line.line_index].split(";")[0].strip()
-        if flow_on and text_line == flow_on:
-            flowing = True
-        elif flow_off and text_line == flow_off:
-            flowing = False
-        if name in ("M82", "M83"):
-            absolute_e = name == "M82"
-        elif name == "G92" and "E" in line.params:
-            e = float(line.params["E"])
-        elif name in ("G0", "G1"):
-            start = position.copy()
-            for k, axis in enumerate("XYZ"):
-                if axis in line.params:
-                    position[k] = float(line.params[axis])
-            feed = float(line.params.get("F", feed * 60)) / 60
-            e_step = 0.0
-            if "E" in line.params:
-                value = float(line.params["E"])
-                e_step = value - e if absolute_e else value
-                e = value if absolute_e else e + value
-            rows.append((name, *position, *(position - start), feed, e_step, flowing))
-    table = np.array([r[1:] for r in rows], dtype=float)
+    lines = list(read_lines(text, flow_on, flow_off))
+    moves = [line for line in lines if line.name in ("G0", "G1")]
     return Replay(
-        code=np.array([r[0] for r in rows]),
-        position=table[:, 0:3],
-        step=table[:, 3:6],
-        feed=table[:, 6],
-        e_step=table[:, 7],
-        flowing=table[:, 8].astype(bool),
-        comments=comments,
-        commands=commands,
+        code=np.array([move.name for move in moves]),
+        position=np.array([move.position for move in moves]).reshape(-1, 3),
+        step=np.array([move.step for move in moves]).reshape(-1, 3),
+        feed=np.array([move.feed for move in moves]),
+        e_step=np.array([move.e_step for move in moves]),
+        flowing=np.array([move.flowing for move in moves], dtype=bool),
+        comments=[line.comment for line in lines if line.comment is not None],
+        commands=[line.name for line in lines if line.comment is None],
     )
 
 

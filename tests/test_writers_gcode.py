@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +18,7 @@ from tests.test_writers_common import (
     fig1_toolpath,
     model_volume,
     replay,
+    reprap_machine,
 )
 
 MACHINES = ["marlin_generic", "klipper_generic", "hyrel_pulse", "grbl_diw", "marlin_diw_pneumatic"]
@@ -197,16 +197,7 @@ def test_pneumatic_flow_multiplier_becomes_a_slower_feed():
 
 
 def test_reprap_flavour_and_the_profiles_e_settings(tmp_path):
-    text = (
-        Path(load_machine("marlin_generic").path)
-        .read_text()
-        .replace('flavour = "marlin"', 'flavour = "reprap"')
-        .replace('name = "marlin_generic"', 'name = "reprap_test"')
-        .replace("filament_diameter_mm = 1.75", 'filament_diameter_mm = 2.85\ne_mode = "relative"')
-    )
-    profile = tmp_path / "reprap_test.toml"
-    profile.write_text(text)
-    machine = load_machine(profile)
+    machine = reprap_machine(tmp_path, 2.85)
     assert "M82" in machine.render("start_gcode")  # the profile's e_mode wins over it
     toolpath = baromorph_toolpath(machine)
     data, summary = gcode_bytes(toolpath, machine)
