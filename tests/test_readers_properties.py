@@ -197,6 +197,17 @@ def test_mutated_geojson_is_read_or_refused(data, folder):
     refused_or(lambda: load_geometry(path), dict)
 
 
+def test_a_geojson_feature_of_an_unknown_geometry_type_is_refused_in_one_line(folder):
+    """shapely raises its own GeometryTypeError for it (hypothesis found "Qolygon")."""
+    geometry = {"type": "Qolygon", "coordinates": [[[0, 0], [10, 0], [10, 10], [0, 0]]]}
+    feature = {"type": "Feature", "properties": {"layer": "outline"}, "geometry": geometry}
+    path = folder / "qolygon.json"
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": [feature]}))
+    with pytest.raises(FabkitError, match=r"feature 0: Unknown geometry type: .qolygon.") as refused:
+        load_geometry(path)
+    assert "\n" not in str(refused.value)
+
+
 # ----------------------------------------------------------------------------- npz / npy
 
 REAL_DTYPES = hnp.boolean_dtypes() | hnp.integer_dtypes() | hnp.floating_dtypes()

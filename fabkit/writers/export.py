@@ -26,6 +26,7 @@ from typing import Any
 
 import shapely
 import shapely.geometry
+from shapely.errors import ShapelyError
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
@@ -266,7 +267,7 @@ def load_geometry(path: Path) -> dict[str, shapely.Geometry]:
             )
         try:
             parts.setdefault(layer, []).append(shapely.geometry.shape(feature["geometry"]))
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError, ShapelyError) as exc:
             raise FabkitError(f"geometry file '{path}': feature {k}: {exc}") from None
     return {layer: shapely.GeometryCollection(items) for layer, items in parts.items()}
 
