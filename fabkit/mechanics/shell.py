@@ -64,7 +64,9 @@ class Sheet:
     opposite vertex stands in on a boundary edge); ``slots`` (F, 3, 4): where a hinge's
     four vertices sit among its face's six; ``shape`` (F, 3, 2): J = sum_a x_a shape[a]^T;
     ``area`` (F,) flat areas; ``edges`` (F, 3, 2) flat edge vectors (edge i opposite
-    vertex i). ``pattern`` is the sparse pattern of the (3V, 3V) Hessian.
+    vertex i). ``pattern`` is the sparse pattern of the (3V, 3V) Hessian and
+    ``hinge_entries`` (H, 144) where each entry of a hinge's (12, 12) block (its vertices
+    p, q, a, b) goes in it.
     """
 
     points: np.ndarray
@@ -77,6 +79,7 @@ class Sheet:
     area: np.ndarray
     edges: np.ndarray
     pattern: _Pattern
+    hinge_entries: np.ndarray
 
     @classmethod
     def build(cls, points: np.ndarray, triangles: np.ndarray) -> Sheet:
@@ -95,6 +98,7 @@ class Sheet:
         elements = np.concatenate([triangles, np.where(top.flaps < 0, triangles, top.flaps)], 1)
         slots = _hinge_slots(triangles, top.hinges, top.face_hinges)
         pattern = _Pattern.build(elements, len(points))
+        hinge_entries = pattern.entries(top.hinges)
         return cls(
             points,
             triangles,
@@ -106,6 +110,7 @@ class Sheet:
             area,
             edges,
             pattern,
+            hinge_entries,
         )
 
     @property
@@ -119,27 +124,46 @@ class Sheet:
 
 @dataclass(frozen=True)
 class _Pattern:
-    """CSR pattern of the assembled Hessian and where each element entry goes in it."""
+    """CSR pattern of the assembled Hessian and where each element entry goes in it
+    (``keys``: row * size + column of every stored entry, sorted)."""
 
     indptr: np.ndarray
     indices: np.ndarray
+    keys: np.ndarray
     scatter: np.ndarray
     size: int
 
     @classmethod
     def build(cls, elements: np.ndarray, vertices: int) -> _Pattern:
-        dofs = (3 * elements[:, :, None] + np.arange(3)).reshape(len(elements), -1)
         size = 3 * vertices
-        keys = (dofs[:, :, None] * size + dofs[:, None, :]).ravel()
+        keys = _block_keys(elements, size).ravel()
         unique, scatter = np.unique(keys, return_inverse=True)
         rows, indices = np.divmod(unique, size)
         indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=size))])
-        return cls(indptr, indices, scatter.ravel(), size)
+        return cls(indptr, indices, unique, scatter.ravel(), size)
 
-    def assemble(self, blocks: np.ndarray) -> sparse.csr_matrix:
-        """Sum element matrices (F, 18, 18) into a (3V, 3V) CSR matrix."""
+    def entries(self, vertices: np.ndarray) -> np.ndarray:
+        """Where the entries of blocks over ``vertices`` (n, k) go: (n, 9 k^2) indices into
+        the stored entries (every pair must be in the pattern)."""
+        return np.searchsorted(self.keys, _block_keys(vertices, self.size))
+
+    def assemble(
+        self, blocks: np.ndarray, extra: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> sparse.csr_matrix:
+        """Sum element matrices (F, 18, 18), and ``extra`` (blocks (n, m, m), their
+        :meth:`entries` (n, m^2)), into a (3V, 3V) CSR matrix."""
         data = np.bincount(self.scatter, weights=blocks.ravel(), minlength=len(self.indices))
+        if extra is not None:
+            more, entries = extra
+            data += np.bincount(entries.ravel(), weights=more.ravel(), minlength=len(data))
         return sparse.csr_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
+
+
+def _block_keys(vertices: np.ndarray, size: int) -> np.ndarray:
+    """row * size + column of every entry of blocks over ``vertices`` (n, k): (n, 9 k^2),
+    rows and columns vertex-major (3 vertex + coordinate)."""
+    dofs = (3 * vertices[:, :, None] + np.arange(3)).reshape(len(vertices), -1)
+    return (dofs[:, :, None] * size + dofs[:, None, :]).reshape(len(vertices), -1)
 
 
 def _hinge_slots(triangles: np.ndarray, hinges: np.ndarray, face_hinges: np.ndarray):
@@ -326,7 +350,7 @@ class Shell:
                 * d_phi[:, None, :]
                 + slope[:, None, None] * dd_phi
             )
-            _add_hinge_blocks(sheet, blocks, curvature)
+            return sheet.pattern.assemble(blocks, (curvature, sheet.hinge_entries))
         return sheet.pattern.assemble(blocks)
 
 
@@ -384,19 +408,6 @@ def _hinge_columns(sheet: Sheet) -> tuple[np.ndarray, np.ndarray]:
     columns = (3 * sheet.slots[:, :, :, None] + np.arange(3)).reshape(*sheet.slots.shape[:2], 12)
     rows = np.broadcast_to(np.arange(3)[None, :, None], columns.shape)
     return rows, columns
-
-
-def _add_hinge_blocks(sheet: Sheet, blocks: np.ndarray, hinge_blocks: np.ndarray) -> None:
-    """Add hinge matrices (H, 12, 12) into the element blocks of their face A."""
-    _, columns = _hinge_columns(sheet)
-    faces, edges = np.nonzero(sheet.face_hinges >= 0)
-    hinge = sheet.face_hinges[faces, edges]
-    is_a = sheet.slots[faces, edges, 2] < 3
-    faces, edges, hinge = faces[is_a], edges[is_a], hinge[is_a]
-    for edge in range(3):  # a face once per edge: plain indexed sums (np.add.at is slow)
-        mine = edges == edge
-        f, cols = faces[mine, None, None], columns[faces[mine], edge]
-        blocks[f, cols[:, :, None], cols[:, None, :]] += hinge_blocks[hinge[mine]]
 
 
 def _positive_part(stress: np.ndarray, shape: np.ndarray) -> np.ndarray:

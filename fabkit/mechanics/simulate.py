@@ -188,16 +188,16 @@ def minimise(
         if slope >= 0:  # no descent left at round-off level
             return x, iteration, True
         move = direction.reshape(-1, 3)
+        size = _largest(move)
         length, trial = 1.0, shell.energy(x + move)
+        if size <= step_tolerance:  # converged; the energy change may be round-off alone
+            return (x + move if trial <= energy else x), iteration, True
         while trial > energy + ARMIJO * length * slope and length > 1e-8:
             length *= 0.5
             trial = shell.energy(x + length * move)
         if trial > energy:
-            return x, iteration, bool(_largest(move) <= step_tolerance)
+            return x, iteration, False
         x, energy = x + length * move, trial
-        size = _largest(move)
-        if length == 1.0 and size <= step_tolerance:
-            return x, iteration, True
         exact = exact or (length == 1.0 and size > CREEP * previous)
         previous = size if length == 1.0 else math.inf
     return x, max_iterations, False
