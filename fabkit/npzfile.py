@@ -24,6 +24,7 @@ import contextlib
 import math
 import re
 import struct
+import warnings
 import zipfile
 import zlib
 from collections.abc import Callable, Collection, Iterator, Mapping
@@ -231,12 +232,14 @@ def _read_header(handle: BinaryIO, key: str, text: Collection[str], where: str) 
     """Read and check an .npy header at the handle's position (left just after it)."""
     try:
         version = np.lib.format.read_magic(handle)
-        if version == (1, 0):
-            shape, _, dtype = np.lib.format.read_array_header_1_0(handle)
-        elif version == (2, 0):
-            shape, _, dtype = np.lib.format.read_array_header_2_0(handle)
-        else:
-            raise ValueError("an .npy format version fabkit does not read")
+        with warnings.catch_warnings():  # a bad escape in the text warns before it fails
+            warnings.simplefilter("ignore")  # (DeprecationWarning, SyntaxWarning on 3.12)
+            if version == (1, 0):
+                shape, _, dtype = np.lib.format.read_array_header_1_0(handle)
+            elif version == (2, 0):
+                shape, _, dtype = np.lib.format.read_array_header_2_0(handle)
+            else:
+                raise ValueError("an .npy format version fabkit does not read")
     # numpy parses the header text with tokenize and ast.literal_eval, which raise many
     # exception types on garbage (ValueError, SyntaxError, tokenize.TokenError,
     # RecursionError, ...); all mean a bad header. Their messages quote the file's bytes,
