@@ -231,3 +231,20 @@ def test_pulse_units_scale_the_volume():
     run = replay(text.decode())
     assert run.e_step.sum() / 0.5 == pytest.approx(model_volume(toolpath), rel=1e-4)
     assert summary.e_units == "pulses"
+
+
+@pytest.mark.parametrize(
+    "options",
+    [GcodeOptions(), GcodeOptions(filament_diameter_mm=2.85), GcodeOptions(e_units="volume")],
+    ids=["profile", "filament-2.85", "volume"],
+)
+def test_verify_reads_the_volume_with_the_e_units_the_file_was_written_with(tmp_path, options):
+    """The writer's E options may differ from the profile's tool; the reader takes them
+    from the file's ;fabkit header, so the volume read back is the volume written."""
+    from fabkit.verify.read_gcode import read_gcode
+
+    machine = load_machine("marlin_generic")
+    toolpath = baromorph_toolpath(machine)
+    summary = write_gcode(toolpath, machine, tmp_path / "sheet.gcode", options)
+    printed = read_gcode(tmp_path / "sheet.gcode", machine)
+    assert printed.volume.sum() == pytest.approx(summary.volume_mm3, rel=1e-4)

@@ -15,7 +15,10 @@ material switch is on (the others). Each depositing move is a :class:`Segment` o
 a road ends where the machine stops depositing. Arcs (G2/G3) and positions the file never
 sets are refused, naming the line. Nothing of the writer is used: the placement of the
 sheet on the machine is read from fabkit's own header comments (``;fabkit ... offset
-X,Y,Z mm`` and ``;fabkit scale: S mm per design unit``) when the file has them.
+X,Y,Z mm`` and ``;fabkit scale: S mm per design unit``) when the file has them, and so
+are the E units per mm^3 it was written with (``;fabkit E mode M, E units U, K E per
+mm^3``: export's --e-units, --filament-diameter or --pulses-per-mm3 may differ from the
+profile's tool, which gives them for any other file).
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ HEADER_LINES = 200
 """Leading lines searched for fabkit's placement comments."""
 _OFFSET = re.compile(r";fabkit .*offset\s+([-+\d.eE]+),([-+\d.eE]+)(?:,([-+\d.eE]+))?\s*mm")
 _SCALE = re.compile(r";fabkit scale:\s*([-+\d.eE]+)\s*mm per design unit")
+_E_PER_MM3 = re.compile(r";fabkit E mode \S+, E units \S+, ([-+\d.eE]+) E per mm\^3")
 _MARLIN_LIKE = ("marlin", "klipper", "reprap", "hyrel")
 
 
@@ -88,14 +92,19 @@ _ACTIONS = {
 class _Machine:
     """The modal state of one job (see the module docstring)."""
 
-    def __init__(self, machine: MachineProfile) -> None:
+    def __init__(self, machine: MachineProfile, written_e_per_mm3: float | None = None) -> None:
         if machine.gcode is None:
             raise FabkitError(f"machine {machine.name} takes no G-code (flavour none)")
         self.machine = machine
         self.grbl = machine.flavour == "grbl"
         self.extra = "A" if self.grbl and machine.kind == "laser_writer" else ""
         self.has_e = not machine.gcode.flow_on_gcode.strip()
-        self.e_per_mm3 = e_per_mm3(machine) if self.has_e else 0.0
+        if not self.has_e:
+            self.e_per_mm3 = 0.0
+        elif written_e_per_mm3 is not None and written_e_per_mm3 > 0:
+            self.e_per_mm3 = written_e_per_mm3  # what fabkit wrote it with (its options)
+        else:
+            self.e_per_mm3 = e_per_mm3(machine)
         self.switches = self._switches()
         self.pressure_block = self.read(machine.pressure.command) if machine.pressure else None
         self.absolute = True
@@ -281,7 +290,9 @@ def read_gcode(path: str | Path, machine: MachineProfile) -> Printed:
     """Read ``path`` as ``machine`` runs it (module docstring); one-line errors."""
     path = Path(path)
     commands = read_job(path)
-    state = _Machine(machine)
+    header = _header(path)
+    found = next(filter(None, map(_E_PER_MM3.search, header)), None)
+    state = _Machine(machine, float(found.group(1)) if found else None)
     for command in commands:
         text = command.text
         try:
@@ -304,20 +315,25 @@ def read_gcode(path: str | Path, machine: MachineProfile) -> Printed:
         ink=rows[:, 11].astype(np.int8),
         road=rows[:, 12].astype(np.int64),
         layers=len(heights),
-        placement=read_placement(path),
+        placement=read_placement(header, path.name),
         commands=len(commands),
     )
 
 
-def read_placement(path: Path) -> Placement:
-    """fabkit's placement comments among the first lines of a G-code file."""
-    offset, scale = None, None
+def _header(path: Path) -> list[str]:
+    """The first :data:`HEADER_LINES` lines of a G-code file (fabkit's records are there)."""
     with path.open(encoding="ascii", errors="replace") as handle:
-        for _, line in zip(range(HEADER_LINES), handle, strict=False):
-            found = _OFFSET.search(line)
-            if found:
-                offset = (float(found.group(1)), float(found.group(2)))
-            found = _SCALE.search(line)
-            if found:
-                scale = float(found.group(1))
-    return Placement(offset, scale, f"{path.name} header")
+        return [line for _, line in zip(range(HEADER_LINES), handle, strict=False)]
+
+
+def read_placement(header: list[str], name: str) -> Placement:
+    """fabkit's placement comments among the ``header`` lines of the G-code file ``name``."""
+    offset, scale = None, None
+    for line in header:
+        found = _OFFSET.search(line)
+        if found:
+            offset = (float(found.group(1)), float(found.group(2)))
+        found = _SCALE.search(line)
+        if found:
+            scale = float(found.group(1))
+    return Placement(offset, scale, f"{name} header")
