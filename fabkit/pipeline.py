@@ -117,7 +117,10 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     """Run every stage; returns the key figures (also written to report.json).
 
     Every input (spec, options, machine, process and channel files, the output folder) is
-    checked before any work, so bad input is refused without writing anything.
+    checked before any work, so bad input is refused without writing anything. The
+    pictures are drawn in a spawned worker process (:mod:`fabkit.background`), which
+    imports the calling script again: a script that calls this keeps its top level under
+    ``if __name__ == "__main__":``, as for any spawned process.
     """
     options = _with_defaults(options)
     inputs = _check_inputs(options)
