@@ -62,8 +62,9 @@ from fabkit.field.part import (
 )
 from fabkit.figures import AREA_UNIT
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
-from fabkit.plot import DESIGN_PICTURES, design_scene, write_pictures
+from fabkit.plot import DESIGN_PICTURES, write_pictures
 from fabkit.plot.report import html_report
+from fabkit.plot.scene import scene
 from fabkit.problem.spec import Spec, load_spec
 from fabkit.process import Process
 from fabkit.toolpath.baromorph import load_baromorph
@@ -156,7 +157,7 @@ def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) ->
         design = solved.design
         drawings.draw(
             "fabkit.plot:draw_design",
-            (design_scene(design, solved.part, solved.maps),),
+            (scene(design, solved.part, solved.maps),),
             partial(write_pictures, folder=out / "pictures"),
         )
         meshes = [
@@ -233,7 +234,7 @@ def _solve(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> 
     return _Solved(design, check, result.maps, solved, part)
 
 
-WORKER_MODULES = ("fabkit.plot", "fabkit.plot.design", "fabkit.toolpath.preview")
+WORKER_MODULES = ("fabkit.plot.design", "fabkit.toolpath.preview")
 """What the worker imports while the run solves: the drawings it will be given."""
 
 

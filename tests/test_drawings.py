@@ -9,7 +9,8 @@ import xml.etree.ElementTree as ET
 import shapely
 
 from fabkit.machines import load_machine
-from fabkit.plot import DESIGN_PICTURES, design_scene, draw_design
+from fabkit.plot import DESIGN_PICTURES, draw_design
+from fabkit.plot.scene import scene
 from fabkit.toolpath.preview import preview_images
 from tests.conftest import coarse_design
 from tests.test_writers_common import baromorph, baromorph_toolpath
@@ -18,9 +19,9 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 
 def test_every_design_picture_is_drawn_as_png_bytes_from_plain_data():
-    scene = design_scene(coarse_design())
-    assert "problem" not in vars(scene.design)  # the worker gets no parsed spec
-    pictures = draw_design(scene)
+    shown = scene(coarse_design())
+    assert "problem" not in vars(shown.design)  # the worker gets no parsed spec
+    pictures = draw_design(shown)
     assert [p.name for p in pictures] == [name for name, _ in DESIGN_PICTURES]
     for picture in pictures:
         assert picture.png.startswith(PNG) and len(picture.png) > 10_000, picture.name

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fabkit.atomic import atomic_path
-from fabkit.design.check import ResidualMaps, residual_maps
+from fabkit.design.check import ResidualMaps
 from fabkit.design.design import Design
 from fabkit.field.part import Part
 from fabkit.plot.scene import Scene, scene
@@ -43,16 +43,6 @@ class Picture:
     name: str
     caption: str
     png: bytes
-
-
-def design_scene(
-    design: Design, part: Part | None = None, maps: tuple[ResidualMaps, ...] | None = None
-) -> Scene:
-    """What the design pictures show, as plain data (:class:`~fabkit.plot.scene.Scene`):
-    the flat sheet with its ``part`` (default: the part of
-    :class:`fabkit.field.part.PartRules`' defaults) and the check's residual ``maps``
-    (computed here if not given)."""
-    return scene(design, part, residual_maps(design) if maps is None else maps)
 
 
 def draw_design(shown: Scene) -> tuple[Picture, ...]:
@@ -87,5 +77,5 @@ def render_design(
     maps: tuple[ResidualMaps, ...] | None = None,
 ) -> list[tuple[str, Path]]:
     """Draw the design pictures into ``folder`` (``part`` and ``maps`` as in
-    :func:`design_scene`); returns (caption, path) pairs."""
-    return write_pictures(draw_design(design_scene(design, part, maps)), folder)
+    :func:`~fabkit.plot.scene.scene`); returns (caption, path) pairs."""
+    return write_pictures(draw_design(scene(design, part, maps)), folder)

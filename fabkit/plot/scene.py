@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from fabkit.design.check import ResidualMaps
+from fabkit.design.check import ResidualMaps, residual_maps
 from fabkit.design.design import Design
 from fabkit.field.part import Part, PartRules, make_part
 
@@ -46,14 +46,17 @@ class Scene:
     surfaces: tuple[SurfaceView, ...]
 
 
-def scene(design: Design, part: Part | None, maps: tuple[ResidualMaps, ...]) -> Scene:
-    """The :class:`Scene` of ``design`` (``part`` default: the margin outline of
-    :func:`fabkit.field.part.make_part` without a trim or minimum width)."""
+def scene(
+    design: Design, part: Part | None = None, maps: tuple[ResidualMaps, ...] | None = None
+) -> Scene:
+    """The :class:`Scene` of ``design``: the flat sheet with its ``part`` (default: the
+    margin outline of :func:`fabkit.field.part.make_part` without a trim or minimum width)
+    and the check's residual ``maps`` (computed here if not given)."""
     return Scene(
         design=replace(design),  # the arrays and the JSON: a copy without the parsed spec
         features=tuple(design.problem.material.features),
         part=part or make_part(design, PartRules()),
-        maps=maps,
+        maps=residual_maps(design) if maps is None else maps,
         surfaces=surface_views(design),
     )
 
