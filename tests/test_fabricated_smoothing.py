@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fabkit.mechanics.fabricated import default_thickness
+from fabkit.mechanics.simulate import default_thickness
 from fabkit.process import Resolution
 from fabkit.verify.machine_file import (
     VerifyOptions,
@@ -52,13 +52,13 @@ def design():
 @pytest.mark.parametrize("scale", [5.0, 50.0])
 def test_the_default_length_is_the_road_width_or_the_thickness(design, scale):
     thickness_mm = default_thickness(design) * scale
-    length = _smoothing_mm(VerifyOptions(), _noisy(), design, scale)
+    length = _smoothing_mm(VerifyOptions(), _noisy(), thickness_mm)
     assert length == pytest.approx(max(WIDTH_MM, thickness_mm))
-    assert _smoothing_mm(VerifyOptions(smoothing_mm=0.0), _noisy(), design, scale) == 0.0
+    assert _smoothing_mm(VerifyOptions(smoothing_mm=0.0), _noisy(), thickness_mm) == 0.0
 
 
 def test_the_report_says_what_the_simulation_used(design):
-    figures = _simulation_figures(0.6, _noisy(), design, 25.0)
+    figures = _simulation_figures(0.6, _noisy(), default_thickness(design) * 25.0)
     assert figures["smoothing_mm"] == 0.6 and figures["seed"] == "dome"
     assert figures["thickness_mm"] == pytest.approx(default_thickness(design) * 25.0)
     note = _simulation_note(figures)

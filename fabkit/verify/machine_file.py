@@ -37,13 +37,8 @@ from fabkit.field.flat import FlatField, feature_names, field_from_design
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
 from fabkit.mechanics.compare import compare
-from fabkit.mechanics.fabricated import (
-    SheetFields,
-    default_thickness,
-    design_fields,
-    simulate_sheet,
-)
-from fabkit.mechanics.simulate import Settings
+from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
+from fabkit.mechanics.simulate import Settings, default_thickness
 from fabkit.process import Encode, Process, Resolution
 from fabkit.readfile import read_json
 from fabkit.tomlfile import number
@@ -244,10 +239,11 @@ def verify(
     elif resolution.ignored or missing:
         notes.append("not simulated: a feature of the design is not in the machine file")
     else:
-        smoothing = _smoothing_mm(options, readback, design, scale)
+        thickness = default_thickness(design)  # design units
+        smoothing = _smoothing_mm(options, readback, thickness * scale)
         fields = _sheet_fields(readback, resolution, sheet, scale, names, smoothing)
-        targets = _simulate(design, fields, options, flat.part, progress)
-        simulation = _simulation_figures(smoothing, readback, design, scale)
+        targets = _simulate(design, fields, options, flat.part, thickness, progress)
+        simulation = _simulation_figures(smoothing, readback, thickness * scale)
         notes.append(_simulation_note(simulation))
     return Verification(
         file=str(machine_file),
@@ -553,25 +549,23 @@ def _features(
     return out
 
 
-def _smoothing_mm(
-    options: VerifyOptions, readback: Readback, design: Design, scale: float
-) -> float:
+def _smoothing_mm(options: VerifyOptions, readback: Readback, thickness_mm: float) -> float:
     """The length (mm) the read-back fields are averaged over: ``options.smoothing_mm``,
     else the larger of the road width (or pixel) and the simulated sheet's thickness."""
     if options.smoothing_mm is not None:
         return options.smoothing_mm
-    return max(readback.width_mm, default_thickness(design) * scale)
+    return max(readback.width_mm, thickness_mm)
 
 
 def _simulation_figures(
-    smoothing: float, readback: Readback, design: Design, scale: float
+    smoothing: float, readback: Readback, thickness_mm: float
 ) -> dict[str, Any]:
     """What the simulations of the sheet as fabricated used (report.json's ``simulation``)."""
     settings = Settings()
     return {
         "smoothing_mm": smoothing,
         "road_width_mm": readback.width_mm,
-        "thickness_mm": default_thickness(design) * scale,
+        "thickness_mm": thickness_mm,
         "seed": settings.seed,
         "path": f"flat sheet as made -> each target's stimulus, {settings.steps} ramp steps",
         "solver": "damped Newton (exact Hessian, Levenberg-Marquardt)",
@@ -657,11 +651,12 @@ def _simulate(
     fields: SheetFields,
     options: VerifyOptions,
     part: Part | None,
+    thickness: float,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[TargetDistance, ...]:
-    """The sheet of ``fields`` on the cells of ``part`` under every target's stimulus (and,
-    if asked, the sheet as designed on the same mesh); ``progress`` over all their ramp
-    steps."""
+    """The sheet of ``fields`` on the cells of ``part``, ``thickness`` thick (design
+    units), under every target's stimulus (and, if asked, the sheet as designed on the
+    same mesh); ``progress`` over all their ramp steps."""
     stride = options.stride or _stride(design)
     settings = Settings(max_iterations=options.max_iterations)
     spec = design.problem
@@ -689,6 +684,7 @@ def _simulate(
             design,
             fields,
             surface,
+            thickness,
             settings=settings,
             part=part,
             stride=stride,
@@ -702,6 +698,7 @@ def _simulate(
                 design,
                 reference,
                 surface,
+                thickness,
                 settings=settings,
                 part=part,
                 stride=stride,
