@@ -71,6 +71,12 @@ CASES = [
         id="part_run_outline_negative_disc",
     ),
     case(
+        f"{TOOLPATH} --outline disc:1e308",
+        "sizes must be between 0.001 and 1e+06 mm",
+        "--outline",
+        id="part_outline_disc_overflow",
+    ),
+    case(
         "export {design} --size 20 --machine marlin_diw_pneumatic --format dxf "
         "--outline {missing}.csv --out {out}",
         "does not exist",

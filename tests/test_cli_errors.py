@@ -275,6 +275,43 @@ CASES = [
         "--shape",
         id="toolpath-shape-nan",
     ),
+    case(
+        "toolpath --director phi --shape disc:1e308 --out {out}",
+        "sizes must be between 0.001 and 1e+06 mm",
+        "'disc'",
+        "got 1e+308",
+        id="toolpath-shape-overflow",
+    ),
+    case(
+        "toolpath --director phi --shape disc:1e-320 --out {out}",
+        "sizes must be between 0.001 and 1e+06 mm",
+        "got 1e-320",
+        id="toolpath-shape-subnormal",
+    ),
+    case(
+        "toolpath --director phi --shape square:inf --out {out}",
+        "sizes must be between 0.001 and 1e+06 mm",
+        "'square'",
+        id="toolpath-shape-infinite",
+    ),
+    case(
+        "toolpath --director phi --shape rect:10,1e-320 --out {out}",
+        "sizes must be between 0.001 and 1e+06 mm",
+        "'rect'",
+        id="toolpath-shape-rect-subnormal",
+    ),
+    case(
+        "toolpath --director phi --shape annulus:1,1e200 --out {out}",
+        "sizes must be between 0.001 and 1e+06 mm",
+        "'annulus'",
+        id="toolpath-shape-annulus-huge",
+    ),
+    case(
+        "toolpath --director phi --shape ellipse:1e308,1e-308 --out {out}",
+        "sizes must be between 0.001 and 1e+06 mm",
+        "'ellipse'",
+        id="toolpath-shape-ellipse-extremes",
+    ),
     case("toolpath --director phi --out {out}", "--director needs --shape", id="toolpath-no-shape"),
     case("toolpath --out {out}", "give a design.npz or director .toml input", id="toolpath-none"),
     case(

@@ -57,6 +57,8 @@ def test_design_with_encoding_and_a_bilayer(tmp_path, capsys):
         (["--director", "phi", "--shape", "disc:3", "--eps", "5"], "outside the calibrated"),
         (["--director", "phi", "--shape", "disc:3", "--machine", "nope"], "nope"),
         (["--director", "phi", "--shape", "blob:3"], "unknown shape"),
+        (["--director", "phi", "--shape", "disc:1e308"], "between 0.001 and 1e+06 mm"),
+        (["--director", "phi", "--shape", "ellipse:3,1e-320"], "between 0.001 and 1e+06 mm"),
         (["--director", "phi"], "--director needs --shape"),
         (["--director", "import os", "--shape", "disc:3"], "cannot parse"),
         (["--director", "phi", "--shape", "disc:3", "--layers", "0"], "--layers"),

@@ -56,13 +56,18 @@ CURVE_SEGMENTS = 64
 """Segments of one flattened SVG curve command (Bezier or arc)."""
 SHAPES = {"disc": 1, "square": 1, "annulus": 2, "rect": 2, "ellipse": 2}
 """The named shapes and their number of sizes."""
+SHAPE_MIN_MM = 1e-3
+"""Smallest size of a named shape, mm (a micrometre, finer than any machine draws); the
+largest is :data:`~fabkit.limits.MAGNITUDE`. Sizes outside both are refused before shapely
+sees them (it would warn of an overflow, or build an empty or degenerate polygon)."""
 
 
 def parse_shape(text: Any, where: str = "shape") -> shapely.Polygon:
     """A named outline centred on the origin, in mm.
 
     ``disc:R`` (radius R), ``annulus:R1,R2``, ``square:S`` (side S), ``rect:W,H``,
-    ``ellipse:A,B`` (semi-axes).
+    ``ellipse:A,B`` (semi-axes); every size from :data:`SHAPE_MIN_MM` to
+    :data:`~fabkit.limits.MAGNITUDE` mm.
     """
     if not isinstance(text, str) or ":" not in text:
         raise FabkitError(f"{where}: expected e.g. 'disc:10' or 'square:20', got {text!r}")
@@ -73,8 +78,14 @@ def parse_shape(text: Any, where: str = "shape") -> shapely.Polygon:
         raise FabkitError(f"{where}: '{arguments}' is not a list of numbers") from None
     if kind not in SHAPES:
         raise FabkitError(f"{where}: unknown shape '{kind}' (use {', '.join(SHAPES)})")
-    if len(values) != SHAPES[kind] or not all(np.isfinite(v) and v > 0 for v in values):
+    if len(values) != SHAPES[kind] or not all(v > 0 for v in values):  # NaN is not > 0
         raise FabkitError(f"{where}: '{kind}' needs {SHAPES[kind]} positive number(s)")
+    for value in values:
+        if not SHAPE_MIN_MM <= value <= MAGNITUDE:  # infinity too
+            raise FabkitError(
+                f"{where}: '{kind}' sizes must be between {SHAPE_MIN_MM:g} and {MAGNITUDE:g} "
+                f"mm, got {value!r}"
+            )
     if kind == "disc":
         return shapely.Point(0, 0).buffer(values[0], quad_segs=128)
     if kind == "square":
