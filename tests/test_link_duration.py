@@ -59,6 +59,37 @@ def test_grbl_rapids_run_at_the_travel_speed():
     assert estimate(job, grbl).total_s == pytest.approx(expected, rel=1e-3)
 
 
+def test_grbl_inverse_time_g93_takes_60_over_f_seconds_and_g94_is_mm_per_min_again():
+    grbl = load_machine("grbl_diw")
+    accel = grbl.limits.acceleration_mm_s2
+    # after homing, G93 then F0.001 (1/min): 200 mm in 1/0.001 min = 1000 min, plus the
+    # ramps (the move's speed is 200 mm * 0.001 / 60 s); before G93 was known: 0 s ($H
+    # unknown) or 12,000,000 s (F read as mm/min)
+    slow = estimate(lines(["$H", "G21", "G90", "G93", "G1 X200 F0.001"]), grbl)
+    assert slow.total_s == pytest.approx(trapezoid_time(200, 0, 0, 200 * 0.001 / 60, accel))
+    assert slow.total_s == pytest.approx(1000 * 60, rel=1e-6)
+    assert slow.waits == ("$H",) and slow.positions[-1][:3] == (200.0, 0.0, 0.0)
+    # a G94 feed does not reach into G93 (there F30 is 1/min: 90 mm in 2 s, 45 mm/s), and
+    # back in G94 F600 is 10 mm/s again
+    job = ["G21", "G90", "G92 X0 Y0 Z0", "G1 X10 F600", "G93", "G1 X100 F30", "G94"]
+    job += ["G1 X0 F600"]
+    expected = (
+        trapezoid_time(10, 0, 10, 10, accel)  # straight on at 10 mm/s
+        + trapezoid_time(90, 10, 0.05, 90 * 30 / 60, accel)  # then a reversal
+        + trapezoid_time(100, 0.05, 0, 10, accel)
+    )
+    assert estimate(lines(job), grbl).total_s == pytest.approx(expected)
+    # an arc: 60/F s over its length (a half circle of radius 10 mm, F6: 10 s), the same
+    # arc as in G94 at its length times F mm/min
+    arc = ["G21", "G90", "G92 X0 Y0 Z0", "G17", "G93", "G2 X20 Y0 I10 J0 F6"]
+    inverse = estimate(lines(arc), grbl).total_s
+    feed = estimate(lines(arc[:4] + [f"G2 X20 Y0 I10 J0 F{10 * math.pi * 6:.9f}"]), grbl)
+    assert inverse == pytest.approx(feed.total_s) and inverse == pytest.approx(10.0, abs=0.02)
+    # Marlin has no G93: F stays mm/min
+    marlin = estimate(lines(["G90", "G92 X0 Y0 Z0", "G93", "G1 X100 F600"]), DIW)
+    assert marlin.total_s == pytest.approx(trapezoid_time(100, 0, 0, 10, 500))
+
+
 def test_the_estimate_is_the_emulators_clock_on_a_dispensing_job():
     # the emulator plans as it receives, 16 blocks ahead; the estimate sees the whole
     # file: when the host keeps the planner full they agree (benchmarks/link_throughput.py

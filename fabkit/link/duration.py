@@ -1,15 +1,16 @@
 """How long a job will take: the moves planned as the firmware's planner plans them.
 
-:func:`estimate` walks the commands with their modal state (G90/G91, M82/M83, G92, G28,
-feed) and plans every move the way Marlin's and GRBL's planners do
-(Marlin/src/module/planner.cpp ``_buffer_steps`` and ``recalculate``, grbl/planner.c
-``plan_buffer_line`` and ``planner_recalculate``):
+:func:`estimate` walks the commands with their modal state (G90/G91, M82/M83, G92, G28
+and GRBL's ``$H``, feed, GRBL's G93/G94 feed mode) and plans every move the way Marlin's
+and GRBL's planners do (Marlin/src/module/planner.cpp ``_buffer_steps`` and
+``recalculate``, grbl/planner.c ``plan_buffer_line`` and ``planner_recalculate``):
 
-* a block's nominal speed is its feed, lowered until no axis exceeds its
-  ``[limits] <axis>_mm_s``; its acceleration is ``[limits] acceleration_mm_s2`` (X, Y),
-  ``z_acceleration_mm_s2`` and ``e_acceleration_mm_s2``, lowered until no axis exceeds
-  its own share (each axis's acceleration scaled by the move's length over its
-  component);
+* a block's nominal speed is its feed (under GRBL's G93, inverse time, its length times
+  F/60: the move takes 60/F s, grbl/planner.c ``programmed_rate *= millimeters``),
+  lowered until no axis exceeds its ``[limits] <axis>_mm_s``; its acceleration is
+  ``[limits] acceleration_mm_s2`` (X, Y), ``z_acceleration_mm_s2`` and
+  ``e_acceleration_mm_s2``, lowered until no axis exceeds its own share (each axis's
+  acceleration scaled by the move's length over its component);
 * the speed at the junction of two moves is limited by junction deviation
   (``[limits] junction_deviation_mm``): ``v^2 = a * d * sin(theta/2) / (1 - sin(theta/2))``
   with theta the angle between the moves' directions (a straight continuation is
@@ -23,7 +24,13 @@ The whole file is one look-ahead here, while a firmware sees only its planner's 
 (16): when the host keeps the planner full the two agree closely. Dwells (G4) add their
 time; heat-ups and homing cannot be known and are listed instead.
 
-Units: mm, mm/s, mm/s^2, s. G-code feeds (``F``) are mm/min.
+Units: mm, mm/s, mm/s^2, s. G-code feeds (``F``) are mm/min; under G93 (GRBL only, as in
+gnea/grbl ``gcode.c``) ``F`` is 1/min and belongs to its own command: none carries over to
+the next, and after a switch back to G94 the feed is unset until an ``F``; ``M2``/``M30``
+return to G94. An arc under G93 takes 60/F s over its length, as the G-code standard and
+the pre-flight check have it (GRBL 1.1 itself runs the arc's segments at F times their
+number, in mm/min: grbl/motion_control.c ``mc_arc``; the number depends on its arc
+tolerance, $12).
 """
 
 from __future__ import annotations
@@ -36,9 +43,9 @@ from fabkit.link.gcode import Command, code_of, words
 from fabkit.machines import MachineProfile
 from fabkit.progress import clock
 
-STOPS = frozenset({"G4", "M400", "G28", "G29", "M109", "M190", "M0", "M1", "M600", "M226"})
+STOPS = frozenset({"G4", "M400", "G28", "G29", "M109", "M190", "M0", "M1", "M600", "M226", "$H"})
 """Commands that wait until every planned move has ended (the planner empties)."""
-UNKNOWN_TIME = frozenset({"G28", "G29", "M109", "M190", "M0", "M1", "M600", "M226"})
+UNKNOWN_TIME = frozenset({"G28", "G29", "M109", "M190", "M0", "M1", "M600", "M226", "$H"})
 """Commands whose duration depends on the machine (homing, heating, the user)."""
 _MOVES = frozenset({"G0", "G1", "G2", "G3"})
 _AXES = "XYZE"
@@ -145,7 +152,7 @@ class _Block:
 
 
 class _Walker:
-    """Modal state while walking a job (logical mm; feed mm/s)."""
+    """Modal state while walking a job (logical mm; feed mm/s, or 1/s under G93)."""
 
     def __init__(self, kinematics: Kinematics) -> None:
         self.k = kinematics
@@ -153,12 +160,22 @@ class _Walker:
         self.absolute = True
         self.absolute_e = True
         self.feed: float | None = None
+        self.inverse = False  # GRBL G93: F is 1/min, the block's own
         self.motion = "G1"
 
     def step(self, code: str, values: dict[str, float]) -> list[float] | None:
         """Apply one command; the move it makes as X, Y, Z, E deltas, or None."""
-        if "F" in values and values["F"] > 0:
-            self.feed = values["F"] / 60.0
+        grbl = self.k.rapid_mm_s is not None
+        given = values["F"] / 60.0 if values.get("F", 0.0) > 0 else None
+        if grbl and code in ("G93", "G94") and self.inverse != (code == "G93"):
+            self.inverse = code == "G93"
+            self.feed = None  # a switch of feed mode does not carry the last F
+        if self.inverse:
+            self.feed = given  # zeroed before and after every block (gcode.c)
+        elif given is not None:
+            self.feed = given
+        if grbl and code in ("M2", "M30"):
+            self.inverse = False  # program end: G94
         if code in ("G90", "G91"):
             self.absolute = self.absolute_e = code == "G90"
         elif code in ("M82", "M83"):
@@ -167,7 +184,7 @@ class _Walker:
             for i, axis in enumerate(_AXES):
                 if axis in values:
                     self.pos[i] = values[axis]
-        elif code == "G28":
+        elif code in ("G28", "$H"):
             named = [axis for axis in "XYZ" if axis in values] or list("XYZ")
             for axis in named:
                 self.pos[_AXES.index(axis)] = 0.0
@@ -252,6 +269,8 @@ def _block(
     unit = tuple(d / length for d in deltas)
     rapid = code == "G0" and k.rapid_mm_s is not None
     speed = k.rapid_mm_s if rapid else walker.feed or k.max_mm_s[0]
+    if walker.inverse and walker.feed and not rapid:
+        speed = walker.feed * length  # G93: the move takes 60/F s
     accel = math.inf
     for i in range(4):
         share = abs(unit[i])
