@@ -26,6 +26,20 @@ The wording comes from each firmware's source (file named where the fact is used
 * RepRapFirmware 3 (src/GCodes/GCodeBuffer/StringParser.cpp, src/GCodes/GCodes.cpp):
   a line with a bad checksum is dropped without an answer and line numbers are not
   checked; ``Error: Bad command: X`` + ``ok``; RRF 2 answered ``rs`` + the line number.
+* Klipper (klippy/gcode.py and extras/heaters.py at 84104bbb, v0.13.0-730): ``N<n>``
+  and ``*<checksum>`` are skipped unchecked, no line is refused and nothing is asked for
+  again (gcode.py:201, 210-218); ``ok`` after every line, never with a number, also after
+  an error (gcode.py:54-62, 222-236); M115 answers on the ok line, ``ok FIRMWARE_NAME:
+  Klipper FIRMWARE_VERSION:...`` (gcode.py:344-351); M105 ``ok B:0.0 /0.0 T0:0.0 /0.0``
+  (ids sorted: bed first, ``T0``; heaters.py:331-347) or ``ok T:0`` without heaters
+  (gcode.py:285-288); M109/M190 print ``B:... T0:...`` once a second while they wait
+  (heaters.py:348-365); information as ``// `` lines, an error as ``!! <text>`` then
+  ``ok`` (gcode.py:250-260): ``!! Must home axis first: X Y Z [E]``, ``!! Move out of
+  range: X Y Z [E]`` (toolhead.py:62-65, kinematics/cartesian.py:97-116); ``// Unknown
+  command:"X"`` + ``ok`` (gcode.py:316); M112 and any shutdown: ``// Klipper state:
+  Shutdown`` (gcode.py:186-192, 263-264), then every command ``!! Shutdown due to ...``
+  (gcode.py:292-293); a restart ``// Klipper state: Disconnect``. No ``busy:``, no
+  ``wait``.
 """
 
 from __future__ import annotations
@@ -56,6 +70,9 @@ TEMPERATURES, POSITION, UNKNOWN_COMMAND, OVERFLOW, START, INFO, EMPTY, OTHER = (
 )
 
 _OK_NUMBER = re.compile(r"ok\s+N?(\d+)\b")
+# a temperature report on the ok line: the answer to M105 (Marlin ``ok T:21.3 /0.0 B:...``,
+# Klipper ``ok B:0.0 /0.0 T0:0.0 /0.0`` or, without heaters, ``ok T:0``)
+_TEMPERATURES = re.compile(r"\s(?:T\d*|B|C):\s*-?\d")
 _RESEND = re.compile(r"(?:resend|rs)\b\D{0,40}?(\d+)", re.IGNORECASE)
 _SKIP = re.compile(r"skip\s+(\d+)")
 _LINE_ERRORS = (
@@ -74,8 +91,10 @@ _FATAL_ERRORS = (
     "mintemp",
     "heating failed",
 )
-_UNKNOWN = re.compile(r'(?:echo:\s*Unknown command:\s*"(.*)"|Unknown command:\s*(.*)|'
+_UNKNOWN = re.compile(r'(?:(?:echo:|//)\s*Unknown command:\s*"(.*)"|Unknown command:\s*(.*)|'
                       r"Error:\s*Bad command:\s*(.*))")  # fmt: skip
+_KLIPPER_DOWN = ("// klipper state: shutdown", "// klipper state: disconnect")
+_REPORT = re.compile(r"\s*(?:T\d*|B|C):\s*-?\d")  # a temperature report (M105, M109, M190)
 _OVERFLOW = re.compile(r"RX BUF overflow.*?(\d+)")
 _INFO = ("echo:", "//", "Info:", "Warning:", "Cap:", "FIRMWARE_NAME", "Debug:", "DEBUG", "X-")
 
@@ -110,7 +129,7 @@ def classify(line: str) -> Answer:
             OK,
             line,
             number=int(number.group(1)) if number else None,
-            temperatures="T:" in line,
+            temperatures=_TEMPERATURES.search(line) is not None,
             ignored=lowered.startswith("ok - ignored"),
         )
     resend = _RESEND.match(line)
@@ -125,11 +144,13 @@ def classify(line: str) -> Answer:
         return Answer(UNKNOWN_COMMAND, fragment.strip())
     if lowered.startswith(("error", "!!")):
         return _error(line, lowered)
+    if lowered.startswith(_KLIPPER_DOWN):
+        return Answer(FATAL, line)
     if lowered.startswith(("busy:", "echo:busy:")):
         return Answer(BUSY, line)
     if lowered == "wait":
         return Answer(WAIT, line)
-    if re.match(r"\s*T:-?\d", line):
+    if _REPORT.match(line):
         return Answer(TEMPERATURES, line)
     if re.match(r"X:-?\d", line):
         return Answer(POSITION, line)
@@ -151,6 +172,33 @@ def _error(line: str, lowered: str) -> Answer:
     return Answer(ERROR, line)
 
 
+_LAST_LINE = re.compile(r"Last Line:\s*(\d+)", re.IGNORECASE)
+_EXPECTED_GOT = re.compile(r"expected line\s+(\d+)\s+got\s+(\d+)", re.IGNORECASE)
+
+
+def refused_line(line: str) -> tuple[int | None, int | None]:
+    """What a line error says: the line the firmware expects and the number of the line
+    it refused, where the wording tells (else None).
+
+    Marlin and Prusa check the number before anything else (Marlin/src/gcode/queue.cpp
+    ``get_serial_commands``), so ``checksum mismatch, Last Line: L`` and ``No Checksum
+    with line number, Last Line: L`` refused line L+1 itself; ``Line Number is not Last
+    Line Number+1`` refused another number and Prusa's ``No Line Number with checksum`` a
+    line without one. Repetier (gcode.cpp) and OctoPrint's VirtualPrinter say ``expected
+    line X got Y``; both check the checksum first, so their checksum errors name no
+    number."""
+    pair = _EXPECTED_GOT.search(line)
+    if pair:
+        return int(pair.group(1)), int(pair.group(2))
+    last = _LAST_LINE.search(line)
+    if last is None:
+        return None, None
+    expects = int(last.group(1)) + 1
+    lowered = line.lower()
+    numbered = "line number is not" not in lowered and "no line number" not in lowered
+    return expects, expects if numbered else None
+
+
 def position(line: str) -> dict[str, float]:
     """The axis values of an ``M114`` answer (``X:1.00 Y:2.00 Z:0.30 E:4.00 Count ...``)."""
     head = line.split("Count", 1)[0]
@@ -166,14 +214,18 @@ class Firmware:
 
     ``resend_ok``: the firmware sends ``ok`` after a resend request (None: unknown, the
     sender then finds out with a probe); ``drains``: it empties its receive buffer when
-    it rejects a line; ``sequenced``: it refuses a line whose number is not the last
-    one + 1 (RepRapFirmware does not, so only one line may be unanswered there).
+    it rejects a line; ``sequenced``: lines may be sent ahead, because the firmware
+    refuses a line whose number is not the last one + 1 or (Klipper, on its
+    pseudo-terminal) loses none (RepRapFirmware does neither, so only one line may be
+    unanswered there); ``echo_word``: its unknown-command echo names the command word
+    alone (Klipper: ``// Unknown command:"M117"``), not the whole line (Marlin).
     """
 
     name: str
     resend_ok: bool | None
     drains: bool
     sequenced: bool = True
+    echo_word: bool = False
 
     @property
     def known(self) -> bool:
@@ -205,5 +257,5 @@ def identify(report: str, flavour: str) -> Firmware:
             return Firmware(name, resend_ok=False, drains=True)
         return Firmware(name, resend_ok=None if patch is None else True, drains=True)
     if "KLIPPER" in text or flavour == "klipper":
-        return Firmware("Klipper", resend_ok=None, drains=False)
+        return Firmware("Klipper", resend_ok=False, drains=False, echo_word=True)
     return Firmware("unknown", resend_ok=None, drains=flavour == "marlin")

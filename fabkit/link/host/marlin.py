@@ -1,64 +1,99 @@
-"""The Marlin protocol (Marlin, Prusa, Repetier, Smoothieware, RepRapFirmware, Klipper).
+"""The Marlin line protocol (Marlin, Prusa, Repetier, Smoothieware, Klipper, RepRapFirmware).
 
-Stream
-    ``N0 M110 N0`` resets the line number, ``N1 M115`` asks the firmware who it is and
-    ``N2 M105`` confirms: its answer, ``ok T:...`` (or ``ok 2`` where oks name their
-    line), is the only answer that names its command. Job lines follow as
-    ``N<n> <command>*<xor>``. The firmware accepts only line last+1 and each line
-    number, once sent, keeps its text (see Resends for the one exception), so nothing
-    is executed twice or out of order. The answers' wording differs between firmwares:
-    :mod:`fabkit.link.dialects` reads them all.
+Numbering
+    ``N0 M110 N0`` resets the firmware's line counter, ``N1 M115`` asks who it is and
+    ``N2 M105`` confirms (any answer to M105: ``ok T:...``, Klipper's ``ok B:... T0:...``,
+    or the third ``ok``). Every later line goes out as ``N<n> <command>*<xor>``. A number,
+    once sent, keeps its text to the end of the job: a job line is never renumbered and
+    never replaced by anything; a probe (``M105``) takes the next number after every line
+    already sent. No ``M110`` follows the handshake. The answers' wording differs between
+    firmwares: :mod:`fabkit.link.dialects` reads them all.
+
+Why every line runs exactly once, in order
+    A sequenced firmware accepts a numbered line only when its number is the last
+    accepted one + 1 and its checksum matches (Marlin/src/gcode/queue.cpp
+    ``get_serial_commands``, Prusa-Firmware cmdqueue.cpp, Repetier gcode.cpp
+    ``checkAndPushCommand``, Smoothieware GcodeDispatch.cpp). The accepted numbers are
+    therefore 1, 2, 3, ..., each once, and with one text per number the lines that run
+    are the numbered texts in order, each once, *whatever* the host sends again, however
+    often and whenever. Sending a line again is always safe; everything below decides
+    only *when* to send it again (so that the job goes on) and how much may be
+    unanswered (so that the receive buffer never overflows). Two things are outside
+    this argument: Marlin and Prusa empty their receive buffer when they refuse a line,
+    and a later line that has only partly arrived then runs its rest without ``N``
+    (see Window); Klipper checks neither numbers nor checksums, which its pseudo-
+    terminal makes unnecessary (it never asks for a line again).
+
+Which answer belongs to which transmission
+    The firmware reads the lines in the order they were sent and answers each one it
+    reads, in that order: ``ok`` (Repetier: ``ok <n>`` once queued) for an accepted
+    line; for a refused one ``Error:...`` and ``Resend: X`` (also ``Resend:X``, ``rs N X``)
+    followed by an ``ok`` that pairs with the refusal (Marlin 2.1 and 1.1, Prusa,
+    Repetier; not Marlin 2.0.x or Smoothieware), or Repetier's ``skip <n>`` + ``ok``.
+    A line Marlin drains, and an answer lost on the way back, leave no answer at all.
+    So counting answers against the transmissions in flight, oldest first, gives each
+    answer its own transmission or an earlier one, never a later one: a loss makes
+    lines look unanswered for longer, which only makes the window more cautious.
+
+The prediction
+    For each transmission in flight the sender keeps the line the firmware will expect
+    when it reads it (``expect``); the transmission is predicted *accepted* when its
+    number is that line, else *refused* with ``Resend: expect``. ``cursor`` is the line
+    the firmware will expect once everything in flight is read, and the next line sent
+    is always ``cursor``: predicted accepted.
+
+    * An answer that matches the prediction of its transmission changes nothing. This
+      is why several identical ``Resend: X`` for one discarded window mean one resend
+      from X: every line sent after the refused one was predicted refused with exactly
+      that request.
+    * An answer that does not match (a refusal where an acceptance was predicted, a
+      request for another line than predicted) is what the firmware says it expects
+      now: the transmissions after the answered one are predicted again in order (a
+      copy of X accepted, X+1 after it, ...; anything else refused), and ``cursor``
+      becomes the first line that no transmission in flight will deliver. Exactly the
+      lines the firmware discarded are sent again; a line still on its way is not. A
+      request the firmware garbled is corrected by the next answer in the same way.
+    * An ``ok`` never belongs to a transmission predicted refused: those ahead of the
+      oldest predicted acceptance are dropped from the window (drained, or their
+      refusal was lost) and the ``ok`` goes to that acceptance.
+    * An ``ok`` after an ``Error:`` line whose ``Resend`` was lost pairs with that refusal
+      (Marlin prints the three together); an ``ok`` whose pairing the firmware does not
+      declare (Marlin 2.0 releases before 2.0.8, unknown firmwares) is taken as the
+      pair, and a probe is sent to find out. Both err on the side of fewer answers.
+
+Anchors
+    ``ok T:`` (or any temperature report on an ``ok`` line: an M105 answer) and
+    ``ok <n>`` name their transmission: the oldest M105 predicted accepted in flight,
+    the oldest copy of line n predicted accepted. Everything sent before it is gone
+    from the firmware's buffer, so the window is emptied up to it. The job is complete
+    when the M105 sent after its last line is answered: the firmware accepts in order,
+    so every line before it has run.
 
 Window
-    Every transmission stays in ``inflight`` until it is known gone. Lines leave the
-    firmware's receive buffer in order and every ``ok``, resend request or ``skip``
-    (Repetier) answers a distinct one, so *k* answers prove the first *k* transmissions
-    gone. Exceptions, counted as nothing (which only errs on the safe side): the ``ok``
-    that follows a resend request (Marlin 2.1 and 1.1, Prusa, Repetier) or a ``skip``,
-    an ``ok`` after an unknown-command echo that is not a line in flight (a fragment of
-    a line split by a corrupted byte) and Smoothieware's ``ok - ignored``. Where the
-    firmware does not say whether an ``ok`` follows a resend request (Marlin 2.0.x,
-    unknown firmwares), that ``ok`` is not counted and a probe is sent at once. An
-    ``ok T:`` or an ``ok <n>`` re-bases the count: every answer owed by lines sent
-    before that line has arrived by then. The unanswered bytes stay within the
-    receive buffer (``rx_buffer_bytes - 1``, lowered when a line error shows the
-    buffer overflowed), their count within the planner depth; job lines leave room
-    for two M105 probes.
-
-    Marlin and Prusa empty their receive buffer when they reject a line. If a later
-    line has only partly arrived then, its rest arrives without ``N<n>`` and runs
-    unchecked. That needs three unanswered lines at once (the command the firmware is
-    stuck in, the rejected line, the partial one), so on draining firmwares at most two
-    job lines are unanswered (a probe may be a third: its fragment is a harmless
-    M105). Lost ``ok`` lines and drained lines only make the window more cautious until
-    the next re-base; so that they cannot fill both slots, a probe follows every
-    ``SYNC_EVERY`` job lines there (fewer after a loss). RepRapFirmware checks no line
-    numbers and drops a line with a bad checksum without a word: one line at a time,
-    and a silence is resolved by ``M114``: the position says whether the line ran.
-
-Resends
-    ``Resend: X`` (also ``Resend:X``, ``rs NX``, ``rs X``) rewinds to line X. The lines
-    sent after the rejected one each trigger the same request again, a ``skip`` or
-    nothing (drained): that many repeats are ignored, as is a request for a line already
-    certainly executed or not yet sent. During the recovery (``sync``) ``ok`` lines are
-    not counted as executed lines; the answer to a numbered M105 ends it with an exact
-    count. After a checksum error on the only copy of line X in flight, that M105
-    becomes line X and the unaccepted lines move up by one: nothing sent earlier can be
-    accepted before it (the firmware waits for X), so it goes first and its answer
-    clears the lines the firmware drained from the window. Otherwise the M105 follows
-    the resent lines. An ``Error:`` line with other wording is fatal unless a resend
-    request follows within ``ERROR_GRACE_S``.
+    Unanswered lines predicted accepted stay within the planner depth, unanswered
+    bytes within the receive buffer (``rx_buffer_bytes - 1``, lowered when a refusal
+    suggests an overflow or Marlin's ``RX BUF overflow`` says so); job lines leave room
+    for two M105 probes. On draining firmwares (Marlin, Prusa) at most
+    ``DRAINING_MAX_LINES`` job lines are unanswered: a line that has only partly
+    arrived when the firmware drains needs three unanswered lines at once (the one the
+    firmware is busy with, the refused one and the partial one); a probe may be a third,
+    its fragment a harmless M105. Lost answers and drained lines only hold the window
+    until the next anchor, so on draining firmwares an M105 follows every ``sync_every``
+    job lines (fewer after a probe found lost answers). Each line is written to the
+    port by its own ``write`` call, as a person typing would send it.
 
 Silence
-    With lines in flight and no answer for a while (adapting to the recent pace), a
-    numbered M105 probes the machine. After ``assume_idle_s`` of silence, or
-    ``probe_max_s`` of answered probes but no job line done (lost answers can leave the
-    probes' answers unplaced), the ring is assumed empty; no answer at all for ``dead_s``
-    (``wait_dead_s`` while a heat-up, homing or dwell is in flight) is a lost
-    connection. ``busy:`` and temperature reports count as answers
-    (a firmware that sends ``busy:`` is probed only after a silence of 1.5 of its
-    ``busy:`` intervals); ``wait`` (an idle firmware whose ``ok`` may be lost) triggers a
-    probe.
+    With lines in flight and no answer for a while (adapting to the recent pace), an
+    M105 probes the machine. After ``assume_idle_s`` of silence, or ``probe_max_s`` of
+    answered probes but no job line done, the window is assumed empty; no answer at all
+    for ``dead_s`` (``wait_dead_s`` while a heat-up, homing or dwell is in flight) is a
+    lost connection. ``busy:`` and temperature reports count as answers (a firmware that
+    sends ``busy:`` is probed only after 1.5 of its ``busy:`` intervals of silence);
+    ``wait`` (an idle firmware whose ``ok`` may be lost) triggers a probe. An ``Error:``
+    with other wording is fatal unless a resend request follows within
+    ``ERROR_GRACE_S``; Klipper's ``!!`` errors and ``// Klipper state: Shutdown`` are fatal.
+
+RepRapFirmware checks no line numbers: one line at a time there (:class:`OneByOne`).
 """
 
 from __future__ import annotations
@@ -78,15 +113,34 @@ WAIT_CODES = frozenset(
 )
 WAIT_PROBE_S = 2.5  # longer than Marlin's default busy: interval
 ERROR_GRACE_S = 0.5  # an unknown Error: is fatal unless a resend request follows by then
-_PROBE = "M105"
-_WHERE = "M114"
-_HANDSHAKE = ("M110 N0", "M115", _PROBE)
-PROBE_LINE, SAFE_STOP, HOUSEKEEPING, DROPPED = -1, -2, -3, -4  # job_index of other lines
+PROBE = "M105"
+WHERE = "M114"
+HANDSHAKE = ("M110 N0", "M115", PROBE)
+PROBE_LINE, SAFE_STOP, HOUSEKEEPING, DROPPED = -1, -2, -3, -4  # origin of non-job lines
 DRAINING_MAX_LINES = 2
 SYNC_EVERY = 200  # most job lines between probes on draining firmwares at first
 SYNC_EVERY_MAX = 800  # ... after probes that found no lost answer (each costs a line)
 SYNC_EVERY_MIN = 10  # ... after probes that did
 REGROW_LINES = 500  # clean lines before a byte window shrunk by an overflow grows again
+
+
+class Transmission:
+    """One line written to the port and not yet answered.
+
+    ``n``: its line number; ``size``: its bytes; ``order``: how many transmissions
+    came before it; ``expect``: the line the firmware is predicted to expect when it
+    reads it (accepted if ``n == expect``); ``backlog``: the unanswered bytes, itself
+    included, when it was sent."""
+
+    __slots__ = ("n", "size", "order", "expect", "backlog")
+
+    def __init__(self, n: int, size: int, order: int, expect: int, backlog: int) -> None:
+        self.n, self.size, self.order, self.expect, self.backlog = n, size, order, expect, backlog
+
+    @property
+    def accepted(self) -> bool:
+        """Predicted accepted."""
+        return self.n == self.expect
 
 
 class MarlinProtocol(Session):
@@ -101,7 +155,7 @@ class MarlinProtocol(Session):
         biggest_n = 10 ** len(str(2 * len(self.job) + 1000)) - 1
         longest = max((len(c.text) for c in self.job), default=0)
         self.longest_frame = len(frame_marlin(biggest_n, "x" * longest))
-        self.probe_frame = len(frame_marlin(biggest_n, _PROBE))
+        self.probe_frame = len(frame_marlin(biggest_n, PROBE))
         self.job_window = self.rx_usable - 2 * self.probe_frame
         if self.job_window < self.longest_frame:
             raise FabkitError(
@@ -111,36 +165,26 @@ class MarlinProtocol(Session):
         self.byte_cap = self.job_window
         self.regrow_after = REGROW_LINES
         self.clean_lines = 0
-        self.next_cap: int | None = None  # the byte window after the current recovery
         self.max_lines = self.options.window_lines or self.serial.planner_depth
-        self.texts: list[str] = list(_HANDSHAKE)
-        self.job_index: list[int] = [HOUSEKEEPING, HOUSEKEEPING, PROBE_LINE]
-        self.cursor = len(_HANDSHAKE)
-        # (n, bytes, transmission, text, unanswered bytes once it was sent)
-        self.inflight: deque[tuple[int, int, int, str, int]] = deque()
+        self.texts: list[str] = list(HANDSHAKE)  # by line number, fixed once sent
+        self.origin: list[int] = [HOUSEKEEPING, HOUSEKEEPING, HOUSEKEEPING]  # job index or kind
+        self.cursor = len(HANDSHAKE)  # the line the firmware expects after all in flight
+        self.highest_sent = len(HANDSHAKE) - 1
+        self.acked = self.highest_sent  # lines up to this one are known accepted
+        self.inflight: deque[Transmission] = deque()
         self.inflight_bytes = 0
-        self.last_tx_of: dict[int, int] = {}
-        self.first_tx: dict[int, int] = {}  # line number -> its first transmission
-        self.copies: dict[int, list[int]] = {}  # line number -> its transmissions
-        self.rejected_until: dict[int, int] = {}  # copies of a line up to this were refused
-        self.answers = 0  # answers counted: that many first transmissions are gone
+        self.inflight_lines = 0  # of them, predicted accepted
+        self.pair_ok = False  # the next ok pairs with a refusal
+        self.pair_unsure = False  # ... perhaps (the firmware did not say): probe
+        self.error_line = False  # an Error: line whose Resend has not come yet
+        self.error_says: tuple[int | None, int | None] = (None, None)  # expects, refused
+        self.unknown_echo: str | None = None
+        self.pending_error: tuple[str, float] | None = None
+        self.probe_wanted = False
+        self.final_probe: int | None = None  # the M105 after the last line
+        self.job_next = 0
         self.since_probe = 0
         self.sync_every = SYNC_EVERY
-        self.highest_sent = len(_HANDSHAKE) - 1
-        self.e_count = self.highest_sent  # lines executed, counted from oks (not in sync)
-        self.e_cert = self.highest_sent  # lines certainly executed (ok T:, ok <n>)
-        self.sync = False
-        self.sync_probe: int | None = None
-        self.m105_scan = self.cursor
-        self.resend_x: int | None = None
-        self.resend_budget = 0
-        self.unknown_echo: str | None = None
-        self.checksum_error = False
-        self.pair_ok = False  # the next ok belongs to a resend request or a skip
-        self.pair_unsure = False  # ... perhaps (the firmware did not say): probe
-        self.resend_tx = 0
-        self.pending_error: tuple[str, float] | None = None
-        self.job_next = 0
         self.tail: list[str] = []
         self.ok_gap_s = 0.05
         self.last_ok_s = time.monotonic()
@@ -161,21 +205,36 @@ class MarlinProtocol(Session):
         self.show(self.done_lines, force=True)
         if self.aborting:
             stopped = "safe-stop sent" if finished else "safe-stop not confirmed"
-            sent = [i for n, i in enumerate(self.job_index) if i >= 0 and n <= self.highest_sent]
+            sent = [i for n, i in enumerate(self.origin) if i >= 0 and n <= self.highest_sent]
             raise self.stopped_error(stopped, self.stop_point, max(sent, default=-1))
         return self.report()
 
+    @property
+    def done_lines(self) -> int:
+        """Job lines known to be executed (a prefix of the job)."""
+        for n in range(min(self.acked, len(self.texts) - 1), 0, -1):
+            if self.origin[n] >= 0:
+                return self.origin[n] + 1
+        return 0
+
+    @property
+    def sent_lines(self) -> int:
+        """Job lines written to the port at least once (a prefix of the job)."""
+        for n in range(self.highest_sent, 0, -1):
+            if self.origin[n] >= 0:
+                return self.origin[n] + 1
+        return 0
+
     def _stream(self) -> bool:
-        """Send the job ahead within the window (see the module docstring); False if an
-        abort's safe stop was not confirmed in time."""
+        """Send ahead within the window; False if an abort's safe stop was not confirmed."""
         deadline = None
         while not self._done():
             if self.control.aborted and not self.aborting:
-                self._begin_abort()
+                self.begin_abort()
                 deadline = time.monotonic() + self.options.finish_s
             if deadline is not None and time.monotonic() > deadline:
                 break
-            self._check_pending_error()
+            self.check_pending_error()
             if b"\n" not in self.rx and self.pending_error is None:
                 self._fill()  # answer everything received before sending more
             line = self.read_line()
@@ -185,53 +244,47 @@ class MarlinProtocol(Session):
                 self._on_line(line)
         return self._done()
 
-    @property
-    def executed(self) -> int:
-        """Line number up to which everything is known to be executed."""
-        return max(self.e_count, self.e_cert)
-
-    @property
-    def done_lines(self) -> int:
-        """Job lines known to be executed."""
-        for n in range(min(self.executed, len(self.texts) - 1), 0, -1):
-            if self.job_index[n] >= 0:
-                return self.job_index[n] + 1
-        return 0
+    def _done(self) -> bool:
+        """The M105 after the last job (or safe-stop) line is answered."""
+        return self.final_probe is not None and self.acked >= self.final_probe
 
     # -- handshake -------------------------------------------------------------------------
 
     def _handshake(self) -> None:
-        """``N0 M110 N0``, ``N1 M115``, ``N2 M105`` until line 2 is answered (a board that
+        """``N0 M110 N0``, ``N1 M115``, ``N2 M105`` until the M105 is answered (a board that
         resets when the port opens loses the first try); after a retry, wait for the line
         to fall quiet so that no answer to an earlier try is mistaken for a job line's."""
         deadline = time.monotonic() + self.options.handshake_s
         self.discard_input()
-        frames = b"".join(frame_marlin(n, text) for n, text in enumerate(_HANDSHAKE))
+        frames = [frame_marlin(n, text) for n, text in enumerate(HANDSHAKE)]
         attempts = 0
         while time.monotonic() < deadline:
-            self.write(frames)
+            for frame in frames:
+                self.write(frame)
             attempts += 1
             report: list[str] = []
+            oks = 0
             retry_at = min(time.monotonic() + 2.0, deadline)
             while time.monotonic() < retry_at:
                 line = self.read_line()
                 if line is None:
                     continue
                 answer = classify(line)
-                if answer.kind == dialects.INFO and line.startswith("FIRMWARE_NAME"):
+                if "FIRMWARE_NAME" in line:
                     report.append(line)
-                last = len(_HANDSHAKE) - 1
-                if answer.kind == dialects.OK and (
-                    answer.temperatures or (answer.number or 0) >= last
-                ):
+                if answer.kind == dialects.RESEND:
+                    break
+                if answer.kind != dialects.OK:
+                    continue
+                oks += 1
+                last = len(HANDSHAKE) - 1
+                if answer.temperatures or (answer.number or 0) >= last or oks == len(HANDSHAKE):
                     if not answer.temperatures:  # acknowledged when queued: let them run
                         report += self._read_until(dialects.TEMPERATURES, 1.0)
                     if attempts > 1:
                         self._settle()
                     self._configure(" ".join(report))
                     return
-                if answer.kind == dialects.RESEND:
-                    break
         raise FabkitError(
             f"no answer from {self.port_name} at {self.serial.baud} baud: is it a "
             "Marlin-protocol machine and the baud rate right?"
@@ -253,7 +306,7 @@ class MarlinProtocol(Session):
             line = self.read_line()
             if line is None:
                 continue
-            if line.startswith("FIRMWARE_NAME"):
+            if "FIRMWARE_NAME" in line:
                 report.append(line)
             if classify(line).kind == kind:
                 break
@@ -268,67 +321,80 @@ class MarlinProtocol(Session):
     # -- sending ---------------------------------------------------------------------------
 
     def _fill(self) -> None:
-        frames = []
+        """Send from ``cursor`` while the window has room, one write per line; a line gets
+        its number when it is first sent."""
         while not self.control.paused or self.aborting:
             n = self.cursor
-            if n == len(self.texts) and not self._append():
-                break
-            text = self.texts[n]
-            probe = self.job_index[n] in (PROBE_LINE, HOUSEKEEPING)
-            if len(self.inflight) >= self.max_lines + (2 if probe else 0):
+            if n < len(self.texts):
+                text, origin = self.texts[n], self.origin[n]
+            else:
+                following = self._following()
+                if following is None:
+                    break
+                text, origin = following
+            probe = origin in (PROBE_LINE, HOUSEKEEPING)
+            if self.inflight_lines >= self.max_lines + (2 if probe else 0):
                 break
             frame = frame_marlin(n, text)
-            if self.inflight_bytes + len(frame) > (self.rx_usable if probe else self.byte_cap):
+            backlog = self.inflight_bytes + len(frame)
+            if backlog > (self.rx_usable if probe else self.byte_cap):
                 break
-            self.inflight_bytes += len(frame)
-            self.inflight.append((n, len(frame), self.transmissions, text, self.inflight_bytes))
-            self.last_tx_of[n] = self.transmissions
-            self.first_tx.setdefault(n, self.transmissions)
-            self.copies.setdefault(n, []).append(self.transmissions)
+            if n == len(self.texts):
+                self._number(text, origin)
+            self.inflight.append(Transmission(n, len(frame), self.transmissions, n, backlog))
+            self.inflight_bytes = backlog
+            self.inflight_lines += 1
             self.transmissions += 1
             self.highest_sent = max(self.highest_sent, n)
-            self.cursor += 1
-            frames.append(frame)
-        if frames:
-            self.write(b"".join(frames))
+            self.cursor = n + 1
+            self.write(frame)
 
-    def _append(self) -> bool:
-        """Number the next line: a job line (or, now and then, a probe) or a safe-stop line."""
-        periodic = self.firmware.drains and self.firmware.sequenced
-        if self.job_next < len(self.job) and not self.aborting:
-            if periodic and self.since_probe >= self.sync_every:
-                self.since_probe = 0
-                self.probes += 1
-                text, index = _PROBE, PROBE_LINE
-            else:
-                text, index = self.job[self.job_next].text, self.job_next
-                self.job_next += 1
-                self.since_probe += 1
-        elif self.tail:
-            text, index = self.tail.pop(0), SAFE_STOP
+    def _following(self) -> tuple[str, int] | None:
+        """The line that comes after every numbered one (text, origin): a wanted or
+        periodic probe, the next job line, a safe-stop line or, after all of them, the
+        final M105; None when the final M105 is numbered and no probe is wanted."""
+        job_left = self.job_next < len(self.job) and not self.aborting
+        periodic = job_left and self.firmware.drains and self.since_probe >= self.sync_every
+        if self.probe_wanted or periodic:
+            return PROBE, PROBE_LINE
+        if job_left:
+            return self.job[self.job_next].text, self.job_next
+        if self.tail:
+            return self.tail[0], SAFE_STOP
+        return (PROBE, PROBE_LINE) if self.final_probe is None else None
+
+    def _number(self, text: str, origin: int) -> None:
+        """Give the line :meth:`_following` chose the next number."""
+        if origin == PROBE_LINE:
+            final = (self.job_next == len(self.job) or self.aborting) and not self.tail
+            self.probes += not (self.probe_wanted or final)  # a periodic one
+            self.probe_wanted = False
+            self.since_probe = 0
+            if final:
+                self.final_probe = len(self.texts)
+        elif origin == SAFE_STOP:
+            self.tail.pop(0)
         else:
-            return False
+            self.job_next += 1
+            self.since_probe += 1
         self.texts.append(text)
-        self.job_index.append(index)
-        return True
+        self.origin.append(origin)
 
-    def _done(self) -> bool:
-        """Every job (or safe-stop) line executed; probes after the last one do not count."""
-        if not (self.job_next == len(self.job) or self.aborting) or self.tail:
-            return False
-        last = len(self.texts) - 1
-        while last >= len(_HANDSHAKE) and self.job_index[last] in (PROBE_LINE, DROPPED):
-            last -= 1
-        return self.executed >= last
+    def _want_probe(self) -> None:
+        """An M105 as soon as every line already numbered is sent."""
+        if not self.probe_wanted:
+            self.probes += 1
+        self.probe_wanted = True
 
-    def _begin_abort(self) -> None:
+    def begin_abort(self) -> None:
         """The safe-stop snippet follows the lines in flight, with an ``M114`` after its
         ``M410`` (which drops the planned moves): where the tool stopped says which line
         to resume from."""
         self.aborting = True
+        self.final_probe = None  # the safe stop goes after it
         self.tail = self.machine.render("safe_stop_gcode")
         at = next((i + 1 for i, text in enumerate(self.tail) if code_of(text) == "M410"), 0)
-        self.tail.insert(at, _WHERE)
+        self.tail.insert(at, WHERE)
         self.warnings.append("aborted by the user: safe-stop snippet sent")
 
     # -- answers ---------------------------------------------------------------------------
@@ -340,18 +406,18 @@ class MarlinProtocol(Session):
             self._on_ok(answer)
         elif kind == dialects.RESEND:
             self.pending_error = None  # the error before it was a line error
-            self._on_resend_request(answer.number)
+            self._on_refusal(answer.number)
         elif kind == dialects.SKIP:
-            self._on_skip()
+            self._on_refusal(None)
         else:
-            self._on_other(answer, line)
+            self.on_other(answer, line)
 
-    def _on_other(self, answer: Answer, line: str) -> None:
+    def on_other(self, answer: Answer, line: str) -> None:
         """Everything but acknowledgements and resend requests (both protocols' loops)."""
         kind = answer.kind
         if kind == dialects.LINE_ERROR:
-            self.checksum_error = "checksum" in line.lower()
-            self._enter_sync()
+            self.error_line = True
+            self.error_says = dialects.refused_line(line)
         elif kind == dialects.ERROR:
             self.pending_error = (line, time.monotonic() + ERROR_GRACE_S)
         elif kind == dialects.FATAL:
@@ -362,10 +428,11 @@ class MarlinProtocol(Session):
             raise self.lost(self.done_lines, "the machine reset during the job")
         elif kind == dialects.UNKNOWN_COMMAND:
             self.unknown_echo = answer.text
-        elif kind == dialects.WAIT and self.inflight and self.cursor > self.highest_sent:
-            self._queue_probe()
+        elif kind == dialects.WAIT and self.inflight:
+            self._want_probe()
         elif kind == dialects.TEMPERATURES:
-            if " W:" in line or any(code_of(e[3]) in ("M109", "M190") for e in self.inflight):
+            heating = any(code_of(self.texts[t.n]) in ("M109", "M190") for t in self.inflight)
+            if " W:" in line or heating:
                 self.heating_note = "heating " + line.strip().split(" W:")[0]
                 self.show(self.done_lines, self.heating_note)
         elif kind == dialects.BUSY:  # its pace: a silence shorter than that is a busy command
@@ -379,16 +446,19 @@ class MarlinProtocol(Session):
             if all(axis in where for axis in "XYZ"):
                 self.stop_point = (where["X"], where["Y"], where["Z"])
         elif kind == dialects.OTHER and self.inflight:
-            self.probes += 1  # perhaps a garbled answer: find out now, before another
-            self._queue_probe()
+            self._want_probe()  # perhaps a garbled answer: find out now
 
     def _reported(self, line: str) -> FabkitError:
-        return FabkitError(
-            f"{self.port_name} reported '{line}' after file line "
-            f"{self.file_line_after(self.done_lines)}"
-        )
+        """The one line for an error the machine reported: it answers the oldest line in
+        flight (where that is a job line, the file line is named)."""
+        origin = self.origin[self.inflight[0].n] if self.inflight else -1
+        if origin >= 0:
+            where = f"at file line {self.job[origin].file_line} ({self.job[origin].text})"
+        else:
+            where = f"after file line {self.file_line_after(self.done_lines)}"
+        return FabkitError(f"{self.port_name} reported '{line}' {where}")
 
-    def _check_pending_error(self) -> None:
+    def check_pending_error(self) -> None:
         if self.pending_error is not None and time.monotonic() > self.pending_error[1]:
             raise self._reported(self.pending_error[0])
 
@@ -411,73 +481,149 @@ class MarlinProtocol(Session):
         self.ok_gap_s = 0.8 * self.ok_gap_s + 0.2 * gap
         self.last_ok_s = now
         echo, self.unknown_echo = self.unknown_echo, None
-        # an echo of a line in flight (perhaps with a garbled N word) answers it; any other
-        # echo is a fragment of a line split by a corrupted byte, answered already
-        garbage = answer.ignored or (
-            echo is not None
-            and not any(
-                echo == entry[3] or echo.endswith(" " + entry[3]) for entry in self.inflight
-            )
-        )
-        if garbage:
-            pass
-        elif answer.temperatures or answer.number is not None or not self.pair_ok:
-            self.answers += 1
-        else:
-            self.pair_ok = False
-            if self.pair_unsure:  # perhaps no resend's ok at all (Marlin 2.0.x): re-base now
-                self.pair_unsure = False
-                self._queue_probe()
-        certain = self._certain_line(answer)
-        if certain is not None:
-            self._rebase(certain)
-        self._retire()
-        if certain is not None:
-            self.e_cert = max(self.e_cert, certain)
-            if self.sync and self.sync_probe is not None and certain >= self.sync_probe:
-                self._leave_sync()
-        elif not self.sync and not garbage:
-            self._count_ok(echo)
-        if not self.sync:
-            self.e_count = max(self.e_count, self.e_cert)
-            if not garbage:
-                self._grow()
+        if answer.ignored or (echo is not None and not self._echoed(echo)):
+            return
+        named = answer.number is not None or answer.temperatures
+        if (self.error_line or self.pair_ok) and not named:  # the refusal's own ok
+            if self.error_line and self.inflight:  # whose resend request was lost
+                self._retire()
+                self._want_probe()
+            if self.pair_unsure:  # perhaps no ok after a resend request (Marlin 2.0.x)
+                self._want_probe()
+            self.pair_ok = self.pair_unsure = self.error_line = False
+            return
+        self.pair_ok = self.pair_unsure = False  # a named answer: the pair did not come
+        sent = self._answered(answer)
+        if sent is None:
+            return
+        if sent.n > self.acked:
+            self.acked = sent.n
+        if echo is not None:
+            self.warnings.append(f"the machine did not know '{self.texts[sent.n]}'")
+        self._grow()
         self._progress()
         self.show(self.done_lines, self.heating_note)
 
-    def _certain_line(self, answer: Answer) -> int | None:
-        """The line an ``ok T:`` (M105) or ``ok <n>`` proves accepted, if any."""
-        if answer.number is not None and answer.number in self.first_tx:
-            return answer.number
-        if answer.temperatures:
-            probe = self._answered_m105()
-            if probe is not None and probe in self.first_tx:
-                return probe
-        return None
-
-    def _count_ok(self, echo: str | None) -> None:
-        n = self.e_count + 1
-        if n > self.highest_sent:
-            return
-        if echo is not None and echo != self.texts[n]:
-            self._enter_sync()  # an ok for a garbled line: recover exactly
-            self._queue_probe()
-            return
-        if echo is not None:
-            self.warnings.append(f"the machine did not know '{self.texts[n]}'")
-        self.e_count = n
-
-    def _idle_for_long(self, now: float) -> bool:
-        """Silent for ``assume_idle_s``; or answering probes (lost answers can leave
-        them unplaced) but no job line done, with no ``busy:``, for ``probe_max_s``: a
-        firmware busy with a line answers no probe behind it."""
-        if now - self.last_rx_s > self.options.assume_idle_s:
+    def _echoed(self, echo: str) -> bool:
+        """Whether the ``ok`` after an unknown-command ``echo`` answers a line in flight: an
+        echo of the line itself does (the firmware took its number and did not know it);
+        an echo ending in a line's text is that line with its N word garbled, run
+        unchecked and not accepted (its number is still expected); any other echo is a
+        fragment of a line split by a corrupted byte, answered already."""
+        texts = [self.texts[t.n] for t in self.inflight]
+        if self.firmware.echo_word:
+            return echo in (text.split(" ", 1)[0] for text in texts)
+        if echo in texts:
             return True
-        busy = self.busy_gap_s is not None and now - self.last_busy_s < 1.5 * self.busy_gap_s
-        return not busy and now - self.last_progress_s > self.options.probe_max_s
+        if any(echo.endswith(" " + text) for text in texts):
+            sent = self._retire()
+            self._predict(sent.expect)
+        return False
+
+    def _answered(self, answer: Answer) -> Transmission | None:
+        """The transmission an acceptance answers, taken out of the window with every one
+        before it (module docstring: Which answer, Anchors)."""
+        if answer.number is not None:
+            named = self._oldest(lambda t: t.n == answer.number)
+            if named is not None:
+                return self._retire_through(named)
+        if answer.temperatures:
+            probe = self._oldest(lambda t: self.texts[t.n] == PROBE)
+            if probe is not None:
+                return self._retire_through(probe)
+        while self.inflight and not self.inflight[0].accepted:
+            self._retire()  # drained, or its refusal was lost: an ok is never its
+        return self._retire() if self.inflight else None
+
+    def _oldest(self, match) -> Transmission | None:
+        return next((t for t in self.inflight if t.accepted and match(t)), None)
+
+    def _retire_through(self, sent: Transmission) -> Transmission:
+        lost = 0
+        while self.inflight[0] is not sent:
+            lost += self.inflight[0].accepted
+            self._retire()
+        self._rebase(lost)
+        return self._retire()
+
+    def _retire(self) -> Transmission:
+        sent = self.inflight.popleft()
+        self.inflight_bytes -= sent.size
+        self.inflight_lines -= sent.accepted
+        return sent
+
+    def _rebase(self, lost: int) -> None:
+        """An anchor found ``lost`` answers lost: probe more often on draining firmwares
+        if so, less often if not."""
+        if lost:
+            self.sync_every = max(SYNC_EVERY_MIN, self.sync_every // 2)
+        else:
+            self.sync_every = min(SYNC_EVERY_MAX, 2 * self.sync_every)
+
+    def _on_refusal(self, x: int | None) -> None:
+        """``Resend: x`` (or Repetier's ``skip``, ``x`` None): a transmission in flight was
+        refused; compare with its prediction (module docstring)."""
+        expects, refused = self.error_says if self.error_line else (None, None)
+        self.error_line = False
+        if x is None:  # skip: a line sent after a refused one; its ok follows
+            self.pair_ok = True
+            if self.inflight:
+                self._retire()
+            return
+        if self.firmware.resend_ok is not False:
+            self.pair_ok = True
+            self.pair_unsure = self.firmware.resend_ok is None
+        sent = self._refused(x if expects == x else None, refused if expects == x else None)
+        if x < 1 or x > self.highest_sent + 1:
+            return  # garbled: the firmware cannot expect a line never sent
+        if sent is not None and not sent.accepted and x == sent.expect:
+            return  # as predicted: one more answer from a discarded window
+        self.resends += 1
+        if sent is not None and sent.accepted:
+            self._suspect_overflow(sent)
+        self._predict(x)
+
+    def _refused(self, expects: int | None, number: int | None) -> Transmission | None:
+        """The refused transmission, out of the window: the oldest one, or, where the error
+        line named the refused number, the oldest copy of it (the ones before it were
+        answered and their answers lost; those the firmware is past were accepted)."""
+        if not self.inflight:
+            return None
+        if number is not None and any(t.n == number for t in self.inflight):
+            while self.inflight[0].n != number:
+                sent = self._retire()
+                if expects is not None and sent.accepted and sent.n < expects:
+                    self.acked = max(self.acked, sent.n)
+        return self._retire()
+
+    def _predict(self, x: int) -> None:
+        """The firmware expects line ``x`` next: predict every transmission in flight again
+        and continue from the first line none of them will deliver."""
+        expect = x
+        lines = 0
+        for sent in self.inflight:
+            sent.expect = expect
+            if sent.n == expect:
+                expect += 1
+                lines += 1
+        self.inflight_lines = lines
+        self.cursor = expect
+        self.acked = min(self.acked, x - 1)
+
+    def _suspect_overflow(self, sent: Transmission) -> None:
+        """A line refused while others were unanswered before it: the receive buffer may be
+        smaller than the profile says (bytes that do not fit are lost, the line garbled),
+        so the byte window shrinks below what was unanswered then. It grows back after
+        ``regrow_after`` clean lines, which doubles each time it shrinks: a buffer that
+        really is smaller costs a few resends, a corrupted byte little."""
+        if sent.backlog <= sent.size:
+            return
+        self.byte_cap = max(self.longest_frame, min(self.byte_cap, sent.backlog * 3 // 4))
+        self.regrow_after = min(16 * REGROW_LINES, 2 * self.regrow_after)
+        self.clean_lines = 0
 
     def _grow(self) -> None:
-        """A clean job line: after enough of them a shrunk byte window grows again."""
+        """A clean line: after enough of them a shrunk byte window grows again."""
         self.clean_lines += 1
         if self.byte_cap < self.job_window and self.clean_lines >= self.regrow_after:
             self.byte_cap = min(self.job_window, self.byte_cap + max(8, self.longest_frame // 2))
@@ -489,147 +635,12 @@ class MarlinProtocol(Session):
             self.last_done = done
             self.last_progress_s = time.monotonic()
 
-    def _retire(self) -> None:
-        """Drop the transmissions known gone from the window (see Window above)."""
-        while self.inflight and self.inflight[0][2] < self.answers:
-            self.inflight_bytes -= self.inflight.popleft()[1]
-
-    def _rebase(self, line: int) -> None:
-        """An ``ok T:`` or ``ok <n>`` for ``line``: every transmission up to the line's is
-        gone, and every answer they owe has arrived (earlier lines execute first;
-        rejected ones are answered when parsed), so later answers count on from there.
-        A resend request proves the copies of its line sent before the transmission it
-        answers refused; of several copies left, which one was accepted is unknown: the
-        first one's predecessors are the safe bound."""
-        first = self.first_tx[line]
-        refused = self.rejected_until.get(line, -1)
-        left = [tx for tx in self.copies.get(line, [first]) if tx > refused]
-        bound = left[0] + 1 if len(left) == 1 else left[0] if left else first
-        # answers were lost: probe more often (on draining firmwares), else less often
-        lost = bound > self.answers
-        self.sync_every = (
-            max(SYNC_EVERY_MIN, self.sync_every // 2)
-            if lost
-            else min(SYNC_EVERY_MAX, 2 * self.sync_every)
-        )
-        self.answers = max(self.answers, bound)
-        # a line sent after the last resend request: that request's ok (if any) came already
-        if first >= self.resend_tx:
-            self.pair_ok = self.pair_unsure = False
-
-    def _answered_m105(self) -> int | None:
-        """The line number of the M105 an ``ok T:`` answers, as low as it can be.
-
-        M105 lines execute in order, after every line counted by an ``ok`` (a count that
-        recovery only lowers): it bounds the number from below as well."""
-        start = max(self.m105_scan, self.e_count + 1)
-        for n in range(start, len(self.texts)):
-            if self.texts[n] == _PROBE and self.job_index[n] in (PROBE_LINE, HOUSEKEEPING):
-                self.m105_scan = n + 1
-                return n
-        return None
-
-    def _enter_sync(self) -> None:
-        if not self.sync:
-            self.sync = True
-            self.sync_probe = None
-
-    def _queue_probe(self, text: str = _PROBE) -> int:
-        """Make the first never-sent line an M105 (inserted there); its line number."""
-        at = max(self.cursor, self.highest_sent + 1)
-        if at == len(self.texts) or self.texts[at] != text:
-            self.texts.insert(at, text)
-            self.job_index.insert(at, PROBE_LINE)
-        if self.sync and self.sync_probe is None and text == _PROBE:
-            self.sync_probe = at
-        return at
-
-    def _leave_sync(self) -> None:
-        self.sync = False
-        if self.next_cap is not None:
-            self.byte_cap, self.next_cap = min(self.byte_cap, self.next_cap), None
-        self.e_count = self.e_cert
-        self.resend_x = None
-        self.resend_budget = 0
-
-    def _on_resend_request(self, x: int | None) -> None:
-        if x is not None:  # it answers transmission number `answers`: x was refused so far
-            self.rejected_until[x] = max(self.rejected_until.get(x, -1), self.answers)
-        self._on_resend(x)
-        self.answers += 1
-        self._retire()
-        if self.firmware.resend_ok is not False:
-            self.pair_ok = True
-            self.pair_unsure = self.firmware.resend_ok is None
-        self.resend_tx = self.transmissions
-
-    def _on_skip(self) -> None:
-        """Repetier's answer to a line after a rejected one (``skip N`` then ``ok``)."""
-        self._enter_sync()
-        if self.resend_budget > 0:
-            self.resend_budget -= 1
-        if self.resend_x is not None:
-            self.rejected_until[self.resend_x] = self.answers
-        self.answers += 1
-        self._retire()
-        self.pair_ok = True
-
-    def _on_resend(self, x: int | None) -> None:
-        self._enter_sync()
-        if x is None or x <= self.e_cert or x > self.highest_sent + 1:
-            return  # stale or garbled: the firmware never asks for an executed line
-        if x == self.resend_x and self.resend_budget > 0:
-            self.resend_budget -= 1
-            return
-        self._suspect_overflow(x)
-        self.e_count = min(self.e_count, x - 1)
-        self.resends += 1
-        self.resend_x = x
-        last = self.last_tx_of.get(x)
-        self.resend_budget = self.transmissions - last - 1 if last is not None else 0
-        self.cursor = x
-        if x < len(self.texts) and self.texts[x] == _PROBE:
-            self.sync_probe = x
-        elif self._no_copy_pending(x):
-            self.texts.insert(x, _PROBE)
-            self.job_index.insert(x, PROBE_LINE)
-            for n in range(x, self.highest_sent + 1):  # these numbers get other lines now
-                for table in (self.first_tx, self.copies, self.rejected_until):
-                    table.pop(n, None)
-            self.highest_sent = x - 1
-            self.sync_probe = x
-        else:
-            later = [n for n in range(x, len(self.texts)) if self.texts[n] == _PROBE]
-            self.sync_probe = later[0] if later else self._queue_probe()
-        self.checksum_error = False
-
-    def _no_copy_pending(self, x: int) -> bool:
-        """No copy of line ``x`` in flight can still be accepted: none is, or the one that is
-        was received and rejected (a checksum error names the line it rejects; otherwise
-        the request answers the oldest unanswered transmission)."""
-        copies = [entry for entry in self.inflight if entry[0] == x]
-        if not copies:
-            return True
-        return len(copies) == 1 and (self.checksum_error or self.inflight[0][0] == x)
-
-    def _suspect_overflow(self, x: int) -> None:
-        """A line rejected while others were unanswered before it: the receive buffer may
-        be smaller than the profile says (bytes that do not fit are lost, the line
-        garbled), so the byte window shrinks below what was unanswered then. It grows
-        back after ``regrow_after`` clean lines, which doubles each time it shrinks: a
-        buffer that really is smaller costs a few resends, a corrupted byte little. The
-        window shrinks once the recovery is over (lost answers may hold some of it now)."""
-        entry = next((e for e in reversed(self.inflight) if e[0] == x), None)
-        if entry is None or entry[4] <= entry[1]:
-            return
-        self.next_cap = max(self.longest_frame, min(self.byte_cap, entry[4] * 3 // 4))
-        self.regrow_after = min(16 * REGROW_LINES, 2 * self.regrow_after)
-        self.clean_lines = 0
-
     # -- silence ---------------------------------------------------------------------------
 
     def _on_silence(self) -> None:
-        if not self.inflight and (self.control.paused or self.executed >= self.highest_sent):
+        if not self.inflight:
+            if self.final_probe is not None and self.cursor == len(self.texts):
+                self._want_probe()  # the final probe's answer was assumed lost: another
             return
         now = time.monotonic()
         options = self.options
@@ -637,9 +648,9 @@ class MarlinProtocol(Session):
         quiet = now - max(self.last_rx_s, self.last_tx_s)
         if quiet < probe_after and now - self.last_rx_s <= options.dead_s:
             return  # the common case, decided cheaply
-        waiting = any(code_of(entry[3]) in WAIT_CODES for entry in self.inflight)
+        waiting = any(code_of(self.texts[t.n]) in WAIT_CODES for t in self.inflight)
         limit = options.wait_dead_s if waiting else options.dead_s
-        if self.inflight and now - self.last_rx_s > limit:
+        if now - self.last_rx_s > limit:
             raise self.lost(self.done_lines, f"no answer for {limit:g} s")
         if waiting:  # heat-ups report every 1 s, busy: comes every 2 s
             probe_after = max(probe_after, WAIT_PROBE_S)
@@ -648,13 +659,22 @@ class MarlinProtocol(Session):
         if quiet < probe_after or now - self.last_probe_s < probe_after:
             return
         self.last_probe_s = now
-        if self.inflight and not waiting and self._idle_for_long(now):
-            self.recoveries += 1  # nothing can be left in the ring
-            self.answers = self.transmissions
-            self._retire()
-        if self.cursor > self.highest_sent:
-            self.probes += 1
-            self._queue_probe()
+        while self.inflight and not self.inflight[0].accepted:
+            self._retire()  # refused lines the firmware has not answered by now: drained
+        if not waiting and self._idle_for_long(now):
+            self.recoveries += 1  # nothing can be left in the firmware's buffer
+            while self.inflight:
+                self._retire()
+        self._want_probe()
+
+    def _idle_for_long(self, now: float) -> bool:
+        """Silent for ``assume_idle_s``; or answering probes (lost answers can leave
+        them unplaced) but no job line done, with no ``busy:``, for ``probe_max_s``: a
+        firmware busy with a line answers no probe behind it."""
+        if now - self.last_rx_s > self.options.assume_idle_s:
+            return True
+        busy = self.busy_gap_s is not None and now - self.last_busy_s < 1.5 * self.busy_gap_s
+        return not busy and now - self.last_progress_s > self.options.probe_max_s
 
 
 # --- one line at a time (RepRapFirmware) ----------------------------------------
@@ -695,11 +715,11 @@ class OneByOne:
         deadline = None
         while not self._done():
             if proto.control.aborted and not proto.aborting:
-                proto._begin_abort()
+                proto.begin_abort()
                 deadline = time.monotonic() + proto.options.finish_s
             if deadline is not None and time.monotonic() > deadline:
                 break
-            proto._check_pending_error()
+            proto.check_pending_error()
             if self.current is None and not self.probes and proto.pending_error is None:
                 self._send_next()
             line = proto.read_line()
@@ -733,7 +753,7 @@ class OneByOne:
         proto = self.proto
         n = len(proto.texts)
         proto.texts.append(text)
-        proto.job_index.append(index)
+        proto.origin.append(index)
         proto.transmissions += 1
         proto.highest_sent = n
         proto.write(frame_marlin(n, text))
@@ -756,7 +776,7 @@ class OneByOne:
             proto.pending_error = None
             self._finish(ran=False)  # RepRapFirmware 2: "rs" instead of an ok
         else:
-            proto._on_other(answer, line)
+            proto.on_other(answer, line)
 
     def _on_ok(self) -> None:
         proto = self.proto
@@ -782,13 +802,13 @@ class OneByOne:
     def _finish(self, *, ran: bool) -> None:
         proto = self.proto
         n, self.current = self.current, None
-        index = proto.job_index[n]
+        index = proto.origin[n]
         if ran:
-            proto.e_count = proto.e_cert = n
+            proto.acked = n
         else:
             proto.resends += 1
-            proto.job_index[n] = -4  # DROPPED: not a job line any more
-            proto.e_count = proto.e_cert = n
+            proto.origin[n] = DROPPED  # not a job line any more
+            proto.acked = n
             if index >= 0:
                 self.next_job = index
             else:
@@ -799,7 +819,7 @@ class OneByOne:
         """Whether line ``n`` ran, judged by the reported position ``seen``: the position
         after it (True) or before it (False); None if it is neither (a garbled answer)."""
         proto = self.proto
-        index = proto.job_index[n]
+        index = proto.origin[n]
         if index < 0:
             return False
         after = self.positions[index]

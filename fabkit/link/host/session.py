@@ -200,8 +200,14 @@ class Session:
     # -- I/O -------------------------------------------------------------------------------
 
     def write(self, data: bytes) -> None:
-        """Send bytes; a dead port becomes the protocol's 'lost connection' error."""
-        self.port.write(data)
+        """Send bytes, all of them (a port may take part of them, as a pyserial port with
+        a write timeout or OctoPrint's VirtualPrinter does, and say how many)."""
+        rest = data
+        while rest:
+            written = self.port.write(rest)
+            if written is None or written >= len(rest):
+                break
+            rest = rest[written:]
         self.bytes_sent += len(data)
         self.last_tx_s = time.monotonic()
         if self.log is not None:
