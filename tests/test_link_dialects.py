@@ -17,7 +17,14 @@ from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
 from fabkit.machines import load_machine
 from tests.test_link_responders import LatencyResponder
-from tests.test_link_support import executed, marlin_job, quick, run_sim, runs_the_file
+from tests.test_link_support import (
+    executed,
+    marlin_job,
+    quick,
+    resumed_once,
+    run_sim,
+    runs_the_file,
+)
 
 FAST = "sim://marlin?time_scale=0&baud=0"
 
@@ -49,17 +56,26 @@ def test_noisy_answers_and_a_busy_machine_in_every_dialect(dialect):
 
 
 @pytest.mark.parametrize("dialect", list(DIALECTS))
-def test_disconnect_and_resume_in_every_dialect(dialect):
-    job = marlin_job(800)
-    port = open_port(f"{FAST}&disconnect_after=400&dialect={dialect}", 115200)
+@pytest.mark.parametrize("fault", ["disconnect_after", "reset_after"], ids=["disconnect", "reset"])
+def test_lost_and_resumed_the_file_runs_once_in_every_dialect(dialect, fault):
+    # 1 % corrupt lines and 0.2 % lost oks on the way; the printed --resume-from loses
+    # nothing, and repeats nothing but lines the message names as perhaps run
+    if fault == "reset_after" and dialect == "reprapfirmware":
+        pytest.skip("a Duet's USB port goes when it resets (a lost connection, tested above)")
+    job = marlin_job(1200)
+    url = f"{FAST}&corrupt=0.01&drop_ok=0.002&seed=3&{fault}=600&dialect={dialect}"
+    port = open_port(url, 115200)
     with pytest.raises(FabkitError) as caught:
         stream_job(port, job, load_machine("marlin_generic"), options=quick())
-    resume = int(re.search(r"--resume-from (\d+)$", str(caught.value)).group(1))
+    message = str(caught.value)
+    assert "\n" not in message
+    port.emulator.poll(time.monotonic() + 600)
     first = executed(port.emulator)
+    resume = int(re.search(r"--resume-from (\d+)$", message).group(1))
     _, emulator = run_sim(
         f"{FAST}&dialect={dialect}", [c for c in job if c.file_line >= resume], "marlin_generic"
     )
-    assert first + executed(emulator) == [c.text for c in job]
+    assert resumed_once(first, executed(emulator), job, message), message
 
 
 @pytest.mark.slow

@@ -22,9 +22,11 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from fabkit.errors import FabkitError
 from fabkit.link.gcode import commands_from_lines, marlin_checksum
 from fabkit.link.host.send import stream_job
 from fabkit.link.host.session import LinkOptions
@@ -64,6 +66,7 @@ class ModelFirmware:
     texts: dict[int, set[str]] = field(default_factory=dict)  # number -> texts it came with
     partial: bytes = b""
     writes: int = 0
+    reset_after: int | None = None  # lines run before the firmware forgets its place
 
     @property
     def in_waiting(self) -> int:
@@ -130,6 +133,8 @@ class ModelFirmware:
 
     def _run(self, number: int | None, text: str, fault: str) -> None:
         self.ran.append((number, text))
+        if len(self.ran) == self.reset_after:
+            self.last_n = 0  # a reset that printed nothing (its banner lost)
         if text == "M115":
             self._answer(FIRMWARES[self.kind], "none")
         self._answer("ok T:20.0 /0.0 B:20.0 /0.0 @:0" if text == "M105" else "ok", fault)
@@ -197,3 +202,19 @@ def test_every_line_runs_once_in_order_whatever_the_faults(kind, schedule, lines
     assert [text for _, text in ran] == [c.text for c in job]
     assert all(len(texts) == 1 for texts in firmware.texts.values()), "a number changed text"
     assert report.job_lines == len(job)
+
+
+@pytest.mark.parametrize("kind", sorted(FIRMWARES))
+def test_a_firmware_that_asks_for_lines_it_acknowledged_has_reset_and_none_runs_twice(kind):
+    # its line count went back to 0 without a word: sending line 1 again would rerun the
+    # job from the start; it is a lost connection with the line to resume from
+    job = commands_from_lines(["G90"] + [f"G1 X{i % 90 + 1} Y{i} F3000" for i in range(400)])
+    firmware = ModelFirmware(kind, deque(), reset_after=300)
+    with pytest.raises(FabkitError) as caught:
+        stream_job(firmware, job, load_machine("marlin_generic"), options=OPTIONS)
+    message = str(caught.value)
+    assert "again, which it had acknowledged: it reset" in message
+    texts = [text for _, text in firmware.ran if text not in SENDER_LINES]
+    assert len(texts) == len(set(texts))  # nothing ran twice
+    resume = int(message.rsplit("--resume-from ", 1)[1])
+    assert resume <= job[len(texts)].file_line  # nothing lost either

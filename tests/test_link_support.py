@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+import re
 import time
 
 from fabkit.link.emulator.port import Emulator
@@ -54,6 +55,22 @@ def runs_the_file(emulator: Emulator, job: list[Command]) -> bool:
     return len(trace) == len(job) and all(
         e.command == c.text or not e.checked for e, c in zip(trace, job, strict=True)
     )
+
+
+def resumed_once(first: list[str], then: list[str], job: list[Command], message: str) -> bool:
+    """A job lost and resumed as the message said ran the file once: ``first`` (what ran
+    before the loss) then ``then`` (what ran from the printed ``--resume-from`` on) is
+    the file, but for lines the message names as sent and not acknowledged, which may
+    have run in both."""
+    resume = int(re.search(r"--resume-from (\d+)$", message).group(1))
+    start = next(i for i, c in enumerate(job) if c.file_line >= resume)
+    texts = [c.text for c in job]
+    ambiguous = re.search(r"file lines? (\d+)(?:-(\d+))? (?:was|were) sent but not", message)
+    end = start
+    if ambiguous:
+        last = int(ambiguous.group(2) or ambiguous.group(1))
+        end = max(i + 1 for i, c in enumerate(job) if c.file_line <= last)
+    return then == texts[start:] and any(first == texts[:i] for i in range(start, end + 1))
 
 
 def numbers_are_contiguous(emulator: Emulator) -> bool:

@@ -22,7 +22,8 @@ The wording comes from each firmware's source (file named where the fact is used
   ``Unknown command:``.
 * Smoothieware (src/modules/communication/GcodeDispatch.cpp): ``rs N100`` and nothing
   else for a bad line; ``ok - ignored`` for a line that is not a command; ``!!`` when
-  halted.
+  halted; ``Smoothie`` + ``ok`` when its USB port (re)attaches, its receive buffer
+  flushed (src/libs/USBDevice/USBSerial/USBSerial.cpp ``on_main_loop``).
 * RepRapFirmware 3 (src/GCodes/GCodeBuffer/StringParser.cpp, src/GCodes/GCodes.cpp):
   a line with a bad checksum is dropped without an answer and line numbers are not
   checked; ``Error: Bad command: X`` + ``ok``; RRF 2 answered ``rs`` + the line number.
@@ -154,7 +155,7 @@ def classify(line: str) -> Answer:
         return Answer(TEMPERATURES, line)
     if re.match(r"X:-?\d", line):
         return Answer(POSITION, line)
-    if lowered == "start":
+    if lowered == "start" or line == "Smoothie":  # Smoothieware: USBSerial.cpp on attach
         return Answer(START, line)
     if line.startswith(_INFO):
         return Answer(INFO, line)

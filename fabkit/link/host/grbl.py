@@ -221,7 +221,7 @@ class GrblProtocol(Session):
             return
         now = time.monotonic()
         if now - self.last_rx_s > self.options.dead_s:
-            raise self.lost(self.acked, f"no answer for {self.options.dead_s:g} s")
+            raise self.lost(self.acked, f"no answer for {self.options.dead_s:g} s", self.sent)
         options = self.options
         probe_after = min(max(8 * self.ok_gap_s, options.probe_min_s), options.probe_max_s)
         quiet = now - max(self.last_rx_s, self.last_tx_s)

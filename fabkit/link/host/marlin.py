@@ -122,6 +122,7 @@ SYNC_EVERY = 200  # most job lines between probes on draining firmwares at first
 SYNC_EVERY_MAX = 800  # ... after probes that found no lost answer (each costs a line)
 SYNC_EVERY_MIN = 10  # ... after probes that did
 REGROW_LINES = 500  # clean lines before a byte window shrunk by an overflow grows again
+BACKWARD_LIMIT = 3  # requests in a row for a line proven accepted that mean a reset
 
 
 class Transmission:
@@ -171,6 +172,8 @@ class MarlinProtocol(Session):
         self.cursor = len(HANDSHAKE)  # the line the firmware expects after all in flight
         self.highest_sent = len(HANDSHAKE) - 1
         self.acked = self.highest_sent  # lines up to this one are known accepted
+        self.certain = self.highest_sent  # ... proven so by an answer naming its line
+        self.backward = 0  # requests in a row for a line proven accepted
         self.inflight: deque[Transmission] = deque()
         self.inflight_bytes = 0
         self.inflight_lines = 0  # of them, predicted accepted
@@ -498,6 +501,7 @@ class MarlinProtocol(Session):
             return
         if sent.n > self.acked:
             self.acked = sent.n
+        self.backward = 0
         if echo is not None:
             self.warnings.append(f"the machine did not know '{self.texts[sent.n]}'")
         self._grow()
@@ -526,10 +530,13 @@ class MarlinProtocol(Session):
         if answer.number is not None:
             named = self._oldest(lambda t: t.n == answer.number)
             if named is not None:
+                if named is self._oldest(lambda t: True):  # as counted: not a garbled number
+                    self.certain = max(self.certain, named.n)
                 return self._retire_through(named)
         if answer.temperatures:
             probe = self._oldest(lambda t: self.texts[t.n] == PROBE)
             if probe is not None:
+                self.certain = max(self.certain, probe.n)
                 return self._retire_through(probe)
         while self.inflight and not self.inflight[0].accepted:
             self._retire()  # drained, or its refusal was lost: an ok is never its
@@ -576,12 +583,30 @@ class MarlinProtocol(Session):
         sent = self._refused(x if expects == x else None, refused if expects == x else None)
         if x < 1 or x > self.highest_sent + 1:
             return  # garbled: the firmware cannot expect a line never sent
+        if self._asks_backward(x):
+            return
         if sent is not None and not sent.accepted and x == sent.expect:
             return  # as predicted: one more answer from a discarded window
         self.resends += 1
         if sent is not None and sent.accepted:
             self._suspect_overflow(sent)
         self._predict(x)
+
+    def _asks_backward(self, x: int) -> bool:
+        """A request for a line an answer naming it proved accepted: a garbled number,
+        which the next answer corrects (so it is not followed), or a firmware that lost
+        its place: ``BACKWARD_LIMIT`` such requests in a row (a probe goes out after
+        the first, so they are fresh answers) are a reset, and sending those lines
+        again would run them twice."""
+        if x > self.certain:
+            self.backward = 0
+            return False
+        self.backward += 1
+        if self.backward >= BACKWARD_LIMIT:
+            reason = f"the machine asked for line {x} again, which it had acknowledged: it reset"
+            raise self.lost(self.done_lines, reason, self.sent_lines)
+        self._want_probe()
+        return True
 
     def _refused(self, expects: int | None, number: int | None) -> Transmission | None:
         """The refused transmission, out of the window: the oldest one, or, where the error
@@ -651,7 +676,7 @@ class MarlinProtocol(Session):
         waiting = any(code_of(self.texts[t.n]) in WAIT_CODES for t in self.inflight)
         limit = options.wait_dead_s if waiting else options.dead_s
         if now - self.last_rx_s > limit:
-            raise self.lost(self.done_lines, f"no answer for {limit:g} s")
+            raise self.lost(self.done_lines, f"no answer for {limit:g} s", self.sent_lines)
         if waiting:  # heat-ups report every 1 s, busy: comes every 2 s
             probe_after = max(probe_after, WAIT_PROBE_S)
         if self.busy_gap_s is not None:  # a firmware that says busy: would have said so

@@ -78,7 +78,8 @@ def stream_job(
     try:
         return protocol.run()
     except (SerialException, OSError) as exc:
-        raise protocol.lost(protocol_done(protocol), str(exc).splitlines()[0]) from None
+        reason = str(exc).splitlines()[0]
+        raise protocol.lost(protocol_done(protocol), reason, protocol_sent(protocol)) from None
     finally:
         if progress is not None:
             progress.close()
@@ -87,6 +88,11 @@ def stream_job(
 def protocol_done(protocol: MarlinProtocol | GrblProtocol) -> int:
     """Job lines the protocol knows to be executed."""
     return protocol.done_lines if isinstance(protocol, MarlinProtocol) else protocol.acked
+
+
+def protocol_sent(protocol: MarlinProtocol | GrblProtocol) -> int:
+    """Job lines the protocol has written to the port at least once."""
+    return protocol.sent_lines if isinstance(protocol, MarlinProtocol) else protocol.sent
 
 
 @dataclass(frozen=True)

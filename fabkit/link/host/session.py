@@ -246,12 +246,30 @@ class Session:
             return 0
         return self.job[done - 1].file_line if done > 0 else self.job[0].file_line - 1
 
-    def lost(self, done: int, reason: str) -> FabkitError:
-        """The one-line error for a connection lost after ``done`` job lines."""
+    def lost(self, done: int, reason: str, sent: int | None = None) -> FabkitError:
+        """The one-line error for a connection lost after ``done`` job lines were
+        acknowledged and ``sent`` (default ``done``) were written at least once. The lines
+        in between are ambiguous: the machine may have run them (a cable pulled while it
+        works through its buffer) or not. The resume line runs them again, so that
+        nothing is lost, and the message says so first."""
         last = self.file_line_after(done)
+        sent = done if sent is None else max(sent, done)
+        if sent == done:
+            return FabkitError(
+                f"lost the connection to {self.port_name} ({reason}); last acknowledged "
+                f"file line {last}; after reconnecting continue with --resume-from {last + 1}"
+            )
+        first, final = self.job[done].file_line, self.job[sent - 1].file_line
+        one = first == final
+        span = f"file line {first} was" if one else f"file lines {first}-{final} were"
+        them = "it" if one else "them"
+        skip = self.job[sent].file_line if sent < len(self.job) else None
+        instead = f" (--resume-from {skip} skips {them})" if skip is not None else ""
         return FabkitError(
-            f"lost the connection to {self.port_name} ({reason}); last acknowledged file line "
-            f"{last}; after reconnecting continue with --resume-from {last + 1}"
+            f"lost the connection to {self.port_name} ({reason}); last acknowledged file "
+            f"line {last}; {span} sent but not acknowledged and may have run, so continuing "
+            f"from {first} may run {them} twice{instead}; after reconnecting continue with "
+            f"--resume-from {first}"
         )
 
     def aborted_error(self, done: int, detail: str) -> FabkitError:
