@@ -524,6 +524,16 @@ def _coordinate_extent(
     return float(x[0]), float(x[-1]), float(y[0]), float(y[-1])
 
 
+def _stl_intact(data: bytes) -> bool:
+    """A text STL (``solid ...``), or a binary one exactly as long as the triangle count in
+    its header says (84 bytes + 50 a triangle): trimesh 5 reads a truncated binary STL as
+    an empty mesh instead of refusing it."""
+    if data.lstrip()[:5].lower() == b"solid" and b"facet" in data[:4096]:
+        return True
+    count = int.from_bytes(data[80:84], "little") if len(data) >= 84 else -1
+    return len(data) == 84 + 50 * count
+
+
 def read_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
     """The mesh's vertices (V, 3) and triangles (T, 3) as vertex indices, checked finite and
     non-empty.
@@ -537,6 +547,12 @@ def read_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
 
     data = read_limited(path, f"{where}.file: mesh", MESH_BYTES)
     kind = path.suffix.lower().lstrip(".")
+    unreadable = FabkitError(
+        f"{where}.file: '{path.name}' is not a readable mesh (corrupt, truncated or not "
+        f"really {path.suffix.lower()})"
+    )
+    if kind == "stl" and not _stl_intact(data):
+        raise unreadable
     try:
         with _quiet("trimesh"), warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")
@@ -545,10 +561,7 @@ def read_mesh(path: Path, where: str) -> tuple[np.ndarray, np.ndarray]:
     # value and unicode errors among them; an ImportError when it tries to guess the text
     # encoding of binary garbage); all of them mean the same to the user.
     except Exception:  # noqa: BLE001
-        raise FabkitError(
-            f"{where}.file: '{path.name}' is not a readable mesh (corrupt, truncated or not "
-            f"really {path.suffix.lower()})"
-        ) from None
+        raise unreadable from None
     faces = getattr(mesh, "faces", None)
     if faces is None or len(faces) == 0:
         raise FabkitError(f"{where}.file: '{path.name}' contains no triangles (empty or corrupt)")
