@@ -128,15 +128,14 @@ BACKWARD_LIMIT = 3  # requests in a row for a line proven accepted that mean a r
 class Transmission:
     """One line written to the port and not yet answered.
 
-    ``n``: its line number; ``size``: its bytes; ``order``: how many transmissions
-    came before it; ``expect``: the line the firmware is predicted to expect when it
-    reads it (accepted if ``n == expect``); ``backlog``: the unanswered bytes, itself
-    included, when it was sent."""
+    ``n``: its line number; ``size``: its bytes; ``expect``: the line the firmware is
+    predicted to expect when it reads it (accepted if ``n == expect``); ``backlog``: the
+    unanswered bytes, itself included, when it was sent."""
 
-    __slots__ = ("n", "size", "order", "expect", "backlog")
+    __slots__ = ("n", "size", "expect", "backlog")
 
-    def __init__(self, n: int, size: int, order: int, expect: int, backlog: int) -> None:
-        self.n, self.size, self.order, self.expect, self.backlog = n, size, order, expect, backlog
+    def __init__(self, n: int, size: int, expect: int, backlog: int) -> None:
+        self.n, self.size, self.expect, self.backlog = n, size, expect, backlog
 
     @property
     def accepted(self) -> bool:
@@ -282,7 +281,7 @@ class MarlinProtocol(Session):
                 oks += 1
                 last = len(HANDSHAKE) - 1
                 if answer.temperatures or (answer.number or 0) >= last or oks == len(HANDSHAKE):
-                    if not answer.temperatures:  # acknowledged when queued: let them run
+                    if answer.number is not None:  # acknowledged when queued: let them run
                         report += self._read_until(dialects.TEMPERATURES, 1.0)
                     if attempts > 1:
                         self._settle()
@@ -344,7 +343,7 @@ class MarlinProtocol(Session):
                 break
             if n == len(self.texts):
                 self._number(text, origin)
-            self.inflight.append(Transmission(n, len(frame), self.transmissions, n, backlog))
+            self.inflight.append(Transmission(n, len(frame), n, backlog))
             self.inflight_bytes = backlog
             self.inflight_lines += 1
             self.transmissions += 1
