@@ -67,6 +67,9 @@ def test_default_settings_3000_lines_lose_only_the_line_virtualprinter_swallows(
     (swallowed,) = sent_as(log.getvalue(), 105)  # one text under that number, sent twice
     assert swallowed in {c.text for c in job} and 105 in accepted
     assert executed == [c.text for c in job if c.text != swallowed]
+    # VirtualPrinter's own account, the numbers it took as received, is the whole file
+    received = [next(iter(sent_as(log.getvalue(), n))) for n in accepted]
+    assert [text for text in received if text not in HOUSEKEEPING] == [c.text for c in job]
     assert report.resends >= 4  # 100, 105, 110, 115 each asked for a line again
 
 
