@@ -2,12 +2,14 @@
 
 Numbering
     ``N0 M110 N0`` resets the firmware's line counter, ``N1 M115`` asks who it is and
-    ``N2 M105`` confirms (any answer to M105: ``ok T:...``, Klipper's ``ok B:... T0:...``,
-    or the third ``ok``). Every later line goes out as ``N<n> <command>*<xor>``. A number,
-    once sent, keeps its text to the end of the job: a job line is never renumbered and
-    never replaced by anything; a probe (``M105``) takes the next number after every line
-    already sent. No ``M110`` follows the handshake. The answers' wording differs between
-    firmwares: :mod:`fabkit.link.dialects` reads them all.
+    ``N2 M105`` confirms (its answer names it: a temperature report on the ``ok`` line,
+    ``ok T:...`` or Klipper's ``ok B:... T0:...``, or ``ok 2`` where oks name their line;
+    the third ``ok`` may be the pair of a refusal, so counting them would not do). Every
+    later line goes out as ``N<n> <command>*<xor>``. A number, once sent, keeps its text
+    to the end of the job: a job line is never renumbered and never replaced by
+    anything; a probe (``M105``) takes the next number after every line already sent.
+    No ``M110`` follows the handshake. The answers' wording differs between firmwares:
+    :mod:`fabkit.link.dialects` reads them all.
 
 Why every line runs exactly once, in order
     A sequenced firmware accepts a numbered line only when its number is the last
@@ -254,18 +256,17 @@ class MarlinProtocol(Session):
 
     def _handshake(self) -> None:
         """``N0 M110 N0``, ``N1 M115``, ``N2 M105`` until the M105 is answered (a board that
-        resets when the port opens loses the first try); after a retry, wait for the line
-        to fall quiet so that no answer to an earlier try is mistaken for a job line's."""
+        resets when the port opens loses the first try). A try is repeated only once the
+        line has fallen quiet: two tries in flight at once would let the later one's
+        ``M110`` reset the count under the job's first lines."""
         deadline = time.monotonic() + self.options.handshake_s
         self.discard_input()
         frames = [frame_marlin(n, text) for n, text in enumerate(HANDSHAKE)]
-        attempts = 0
+        last = len(HANDSHAKE) - 1
         while time.monotonic() < deadline:
             for frame in frames:
                 self.write(frame)
-            attempts += 1
             report: list[str] = []
-            oks = 0
             retry_at = min(time.monotonic() + 2.0, deadline)
             while time.monotonic() < retry_at:
                 line = self.read_line()
@@ -276,17 +277,14 @@ class MarlinProtocol(Session):
                     report.append(line)
                 if answer.kind == dialects.RESEND:
                     break
-                if answer.kind != dialects.OK:
-                    continue
-                oks += 1
-                last = len(HANDSHAKE) - 1
-                if answer.temperatures or (answer.number or 0) >= last or oks == len(HANDSHAKE):
+                if answer.kind == dialects.OK and (
+                    answer.temperatures or (answer.number or 0) >= last
+                ):
                     if answer.number is not None:  # acknowledged when queued: let them run
                         report += self._read_until(dialects.TEMPERATURES, 1.0)
-                    if attempts > 1:
-                        self._settle()
                     self._configure(" ".join(report))
                     return
+            self._settle()
         raise FabkitError(
             f"no answer from {self.port_name} at {self.serial.baud} baud: is it a "
             "Marlin-protocol machine and the baud rate right?"
