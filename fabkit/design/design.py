@@ -22,15 +22,21 @@ error    (nu, nv)        the solver's error estimate of every point (dimensionle
                          (files written before this key existed read as all NaN)
 stimuli  (S, k)          stimulus of every surface
 spec     0-d str         the normalised spec as JSON (a design file is self-describing)
+layering (2,)            (format 3 only) a sheet of ``count`` equal layers: [count,
+                         thickness] (thickness: the whole sheet's, design units)
+turn     (nu, nv)        (format 3) the flat director's turn per unit height (rad per
+                         design unit)
+slope    (N, nu, nv)     (format 3) each feature's change per unit height (per design unit)
 ======== =============== ===========================================================
 
-Everything is NaN outside ``valid``.
+Everything is NaN outside ``valid``. A design of one layer is format 2 (what an older
+fabkit reads); a layered one (:class:`Layering`, :mod:`fabkit.design.layers`) format 3.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -44,11 +50,39 @@ from fabkit.problem.spec import Spec, spec_from_json
 from fabkit.readfile import parse_json
 
 FORMAT = "fabkit-design/2"
-"""The format tag this version writes; a file without a tag is format 1 and still read."""
+"""The format tag of a one-layer design; a file without a tag is format 1 and still read."""
+LAYERED_FORMAT = "fabkit-design/3"
+"""The format tag of a layered design (it carries :data:`LAYER_KEYS`)."""
 KEYS = ("u", "v", "valid", "alpha", "beta", "eps", "r", "n", "error", "stimuli", "spec")
-OPTIONAL = ("error", "format")
+LAYER_KEYS = ("layering", "turn", "slope")
+OPTIONAL = ("error", "format", *LAYER_KEYS)
 """Keys a design file written before they existed lacks: ``error`` reads as NaN there
-(not estimated), no ``format`` means format 1."""
+(not estimated), no ``format`` means format 1; the layer keys come all together or not."""
+MAX_LAYERS = 64
+"""Most layers a design may ask for (a sheet of more is no thin sheet any more)."""
+
+
+@dataclass(frozen=True)
+class Layering:
+    """A sheet of ``count`` equal layers, ``thickness`` thick in all (design units).
+
+    Layer k (0 at the bottom, the flat sheet's -normal side) lies at mid-height
+    z_k = (k - (count - 1) / 2) * thickness / count from the mid-surface; its flat
+    director is the design's turned by z_k * ``turn`` (nu, nv; rad per design unit) and
+    its features are the design's + z_k * ``slope`` (N, nu, nv; per design unit). The
+    layers' mean metric is the design's (to first order in z) and their spread through
+    the thickness gives the sheet a natural curvature (:mod:`fabkit.design.layers`).
+    """
+
+    count: int
+    thickness: float
+    turn: np.ndarray
+    slope: np.ndarray
+
+    @property
+    def heights(self) -> np.ndarray:
+        """Mid-heights (count,) of the layers from the mid-surface, bottom first."""
+        return (np.arange(self.count) - (self.count - 1) / 2) * self.thickness / self.count
 
 
 @dataclass(frozen=True)
@@ -66,6 +100,7 @@ class Design:
     error: np.ndarray
     stimuli: np.ndarray
     spec: str
+    layering: Layering | None = None
 
     @cached_property
     def problem(self) -> Spec:
@@ -83,11 +118,39 @@ class Design:
         """Grid step in u and v (design units)."""
         return float(self.u[1] - self.u[0]) if len(self.u) > 1 else 0.0
 
+    def layer(self, k: int) -> Design:
+        """Layer ``k`` (0 = bottom) of a layered design, as a one-layer design: its own
+        flat director (``n[0]``) and features; the other arrays are the design's."""
+        layering = self.layering
+        if layering is None or not 0 <= k < layering.count:
+            raise FabkitError(f"design: no layer {k} (the design has {self.layers} layer(s))")
+        z = layering.heights[k]
+        turn = z * layering.turn
+        n0 = self.n[0]
+        cos, sin = np.cos(turn), np.sin(turn)
+        turned = np.stack(
+            [cos * n0[..., 0] - sin * n0[..., 1], sin * n0[..., 0] + cos * n0[..., 1]], -1
+        )
+        n = self.n.copy()
+        n[0] = turned
+        return replace(self, n=n, eps=self.eps + z * layering.slope, layering=None)
+
+    @property
+    def layers(self) -> int:
+        """How many layers the sheet is made of (1 without a layering)."""
+        return 1 if self.layering is None else self.layering.count
+
     def save(self, path: str | Path) -> None:
         """Write ``design.npz`` atomically (no half-written file on failure)."""
         arrays = {key: getattr(self, key) for key in KEYS if key != "spec"}
+        tag = FORMAT
+        if self.layering is not None:
+            layering = self.layering
+            arrays["layering"] = np.array([layering.count, layering.thickness], dtype=float)
+            arrays["turn"], arrays["slope"] = layering.turn, layering.slope
+            tag = LAYERED_FORMAT
         with atomic_path(path) as tmp, open(tmp, "wb") as handle:
-            np.savez_compressed(handle, format=np.array(FORMAT), spec=np.array(self.spec), **arrays)
+            np.savez_compressed(handle, format=np.array(tag), spec=np.array(self.spec), **arrays)
 
     @classmethod
     def load(cls, path: str | Path) -> Design:
@@ -106,13 +169,15 @@ class Design:
             check=lambda headers: _check_headers(headers, path),
         )
         spec = str(arrays.pop("spec"))
-        _check_format(str(arrays.pop("format", "")), path)
+        _check_format(str(arrays.pop("format", "")), path, LAYER_KEYS[0] in arrays)
         valid = arrays["valid"]
         arrays.setdefault("error", np.full(valid.shape, np.nan))
-        for key in ("alpha", "beta", "eps", "r", "n"):
-            mask = valid[..., None] if key in ("r", "n") else valid
-            arrays[key] = np.where(mask, arrays[key], np.nan)
-        design = cls(**arrays, spec=spec)
+        for key in ("alpha", "beta", "eps", "r", "n", "turn", "slope"):
+            if key in arrays:
+                mask = valid[..., None] if key in ("r", "n") else valid
+                arrays[key] = np.where(mask, arrays[key], np.nan)
+        layering = _layering(arrays, path)
+        design = cls(**arrays, spec=spec, layering=layering)
         design.check_values(path)
         check_names(spec, path)
         return design
@@ -164,15 +229,51 @@ def _check_keys(found: set[str], path: Path) -> None:
     unknown = sorted(found - set(KEYS) - set(OPTIONAL))
     if unknown:
         raise FabkitError(f"{path}: not a fabkit design file (unknown array '{unknown[0]}')")
+    layered = [key for key in LAYER_KEYS if key in found]
+    if layered and len(layered) < len(LAYER_KEYS):
+        absent = next(key for key in LAYER_KEYS if key not in found)
+        raise FabkitError(f"{path}: a layered design without its '{absent}' array")
 
 
-def _check_format(tag: str, path: Path) -> None:
-    """Refuse a design file tagged with a format this version does not read."""
-    if tag and tag != FORMAT:
+def _check_format(tag: str, path: Path, layered: bool) -> None:
+    """Refuse a design file tagged with a format this version does not read, or whose
+    tag does not say what it holds (layers need format 3)."""
+    if tag and tag not in (FORMAT, LAYERED_FORMAT):
         raise FabkitError(
-            f"{path}: a design file of format '{tag[:40]}', this fabkit reads {FORMAT} "
-            "(or untagged format 1)"
+            f"{path}: a design file of format '{tag[:40]}', this fabkit reads {FORMAT}, "
+            f"{LAYERED_FORMAT} (layered) or untagged format 1"
         )
+    if layered != (tag == LAYERED_FORMAT):
+        raise FabkitError(
+            f"{path}: format '{tag or 1}' {'with' if layered else 'without'} layer arrays"
+        )
+
+
+def _layering(arrays: dict[str, np.ndarray], path: Path) -> Layering | None:
+    """The layering the arrays carry (taken out of ``arrays``), checked; None if none."""
+    if LAYER_KEYS[0] not in arrays:
+        return None
+    header, turn, slope = (arrays.pop(key) for key in LAYER_KEYS)
+    if header.shape != (2,) or header.dtype.kind not in "iuf" or not np.isfinite(header).all():
+        raise FabkitError(f"{path}: 'layering' must hold [count, thickness]")
+    count, thickness = float(header[0]), float(header[1])
+    if count != int(count) or not 2 <= count <= MAX_LAYERS or not 0 < thickness <= MAGNITUDE:
+        raise FabkitError(
+            f"{path}: 'layering' must be 2 to {MAX_LAYERS} layers of a positive thickness, "
+            f"got {count:g} layers, thickness {thickness:g}"
+        )
+    valid = arrays["valid"]
+    for key, values, shape in (
+        ("turn", turn, valid.shape),
+        ("slope", slope, arrays["eps"].shape),
+    ):
+        if values.shape != shape or values.dtype.kind not in "iuf":
+            raise FabkitError(f"{path}: '{key}' has shape {values.shape}, expected {shape}")
+        inside = values[..., valid]
+        if not np.isfinite(inside).all():
+            raise FabkitError(f"{path}: '{key}' has non-finite values (at valid points)")
+        check_magnitude(inside, key, path)
+    return Layering(int(count), thickness, turn.astype(float), slope.astype(float))
 
 
 def _check_headers(headers: Mapping[str, ArrayHeader], path: Path) -> None:
@@ -209,6 +310,9 @@ def _check_shapes(shapes: Mapping[str, tuple[int, ...]], where: str | Path) -> N
         "r": (surfaces, nu, nv, 2),
         "n": (surfaces, nu, nv, 2),
         "error": (nu, nv),
+        "layering": (2,),
+        "turn": (nu, nv),
+        "slope": (features, nu, nv),
     }
     for key, shape in expected.items():
         if key in shapes and tuple(shapes[key]) != shape:

@@ -25,7 +25,7 @@ lambda = 1), so the ramp starts from J^T J, the designed flat metric.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -196,7 +196,7 @@ def _v_side(design: Design) -> float:
 
 def simulate_sheet(
     design: Design,
-    fields: SheetFields,
+    fields: SheetFields | Sequence[SheetFields],
     surface: int,
     thickness: float | None = None,
     poisson: float = 0.5,
@@ -205,37 +205,43 @@ def simulate_sheet(
     stride: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[Design, DesignSimulation]:
-    """Simulate the sheet of ``fields`` under surface ``surface``'s stimulus.
+    """Simulate the sheet of ``fields`` (one, or one per equal layer, bottom first) under
+    surface ``surface``'s stimulus.
 
     The mesh is the design's grid coarsened by ``stride`` (its cells in ``part``, as in
-    :func:`~fabkit.mechanics.mesh.design_mesh`), restricted to where the sheet was made.
-    ``thickness`` defaults to 1 % of the diameter of the design's whole solved flat domain
-    (as ``fabkit simulate``). Returns the coarsened design (compare against it) and the
-    simulation. ``progress(done, total)`` is called after each ramp step.
+    :func:`~fabkit.mechanics.mesh.design_mesh`), restricted to where the first layer was
+    made. ``thickness`` (the whole sheet's, design units) defaults to 1 % of the diameter
+    of the design's whole solved flat domain (as ``fabkit simulate``). Returns the
+    coarsened design (compare against it) and the simulation, whose ``metrics`` are the
+    layers' mean. ``progress(done, total)`` is called after each ramp step.
     """
+    layers = [fields] if isinstance(fields, SheetFields) else list(fields)
     coarse = coarsened(design, stride)
-    mesh = made_mesh(coarse, fields.made, part)
+    mesh = made_mesh(coarse, layers[0].made, part)
     if thickness is None:
         thickness = default_thickness(design)
 
-    def sample(mesh: DesignMesh) -> tuple[np.ndarray, np.ndarray]:
-        theta = np.asarray(fields.theta(mesh.points), dtype=float)
-        eps = np.asarray(fields.features(mesh.points), dtype=float)
-        return theta, eps.reshape(-1, len(mesh.points))
+    def sample(mesh: DesignMesh) -> list[tuple[np.ndarray, np.ndarray]]:
+        sampled = []
+        for layer in layers:
+            theta = np.asarray(layer.theta(mesh.points), dtype=float)
+            eps = np.asarray(layer.features(mesh.points), dtype=float)
+            sampled.append((theta, eps.reshape(-1, len(mesh.points))))
+        return sampled
 
-    theta, eps = sample(mesh)
-    ok = _metric_faces(coarse, mesh, theta, eps)
+    sampled = sample(mesh)
+    ok = np.logical_and.reduce([_metric_faces(coarse, mesh, t, e) for t, e in sampled])
     if not ok.all():
         mesh = _faces(mesh, ok)
-        theta, eps = sample(mesh)
+        sampled = sample(mesh)
+
+    def metrics_at(s: int) -> np.ndarray:
+        stacked = np.stack([sheet_metrics(coarse, mesh, s, t, e) for t, e in sampled])
+        return stacked[0] if len(stacked) == 1 else stacked
+
     metrics, result = simulate_from_made(
-        mesh,
-        lambda s: sheet_metrics(coarse, mesh, s, theta, eps),
-        surface,
-        thickness,
-        poisson,
-        settings or Settings(),
-        progress,
+        mesh, metrics_at, surface, thickness, poisson, settings or Settings(), progress
     )
     name = design.problem.targets[surface].name
-    return coarse, DesignSimulation(surface, name, mesh, metrics, thickness, result)
+    mean = metrics if metrics.ndim == 3 else metrics.mean(axis=0)
+    return coarse, DesignSimulation(surface, name, mesh, mean, thickness, result)

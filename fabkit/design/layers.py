@@ -1,0 +1,353 @@
+"""A layered sheet: the design's metric as the layers' mean, its targets' curvature in
+their spread.
+
+A metric does not fix a shape: a target's mirror image has the same metric and bending
+energy, and a target may have isometric neighbours of lower bending energy, so a sheet
+programmed with the metric alone may buckle into one of those (Fig. 3's wavy sheet does).
+What selects the target is a natural curvature b̄ equal to its second fundamental form
+II: then the target is a state of zero energy. A sheet whose layers have different
+reference metrics has one.
+
+Through the thickness (height z from the mid-surface, -H/2 to H/2) the 3D reference
+metric of a Kirchhoff-Love sheet is ḡ(z) = ā - 2 z b̄ (to first order); a sheet whose
+layers have metrics ā_k takes the ā and b̄ that fit them best in that sense (its elastic
+energy is the integral of |g(z) - ḡ(z)|² over z), the least-squares line through them:
+
+    ā = mean over z of ā(z),   b̄ = -1/2 * slope = -6 / H³ * integral of z ā(z) dz.
+
+Two layers of thicknesses h1 (bottom) and h2 (top), H = h1 + h2:
+
+    ā = (h1 ā_b + h2 ā_t) / H,   b̄ = 3 h1 h2 (ā_b - ā_t) / H³,
+
+so for equal layers b̄ = 3 / (4 H) (ā_b - ā_t), Timoshenko's bimetal curvature
+3 Δε / (2 H) for a strain mismatch Δε (ā_b - ā_t = 2 Δε). (The brief's general form,
+6 h1 h2 (ā_b - ā_t) / H³, is twice this; its equal-layer form agrees with this one when
+its h is the whole thickness. ``tests/test_design_layers.py`` simulates a bilayer strip
+with :mod:`fabkit.mechanics.shell`, which integrates every layer through its own
+thickness, and finds this curvature within 2 %.) For K equal layers whose metrics vary
+linearly in z, ā_k = ā + z_k D, the fit gives ā exactly and
+
+    b̄ = -c_K D,   c_K = (K² - 1) / (2 K²)   (3/8 for two layers, 1/2 for many).
+
+The layering. At every grid point the design gives the flat director and features and
+so, at every stimulus, the metric in material coordinates (u, v):
+A = diag(α λ1, β λ2)² (λ1 along the director, λ2 across). A layer at height z has its
+director turned by z t and its features moved by z s (t and s are what is chosen, per
+unit height); to first order
+
+    dA/dt = α β (λ1² - λ2²) [[0, 1], [1, 0]],
+    dA/ds_i = diag(2 α² λ1² ∂ log λ1 / ∂ eps_i, 2 β² λ2² ∂ log λ2 / ∂ eps_i),
+
+so D = dA/dt t + Σ dA/ds_i s_i and b̄ = -c_K D at each target's stimulus, while the
+layers' mean metric stays the design's (the error is second order in z, reported). In
+the frame of the target's own lengths (components divided by α λ1, β λ2) t and s are
+chosen by weighted least squares over the targets: the off-diagonal part of every
+target's II fixes t, the diagonal parts fix s (a feature acting along the director
+reaches II_uu, one acting across II_vv). With bounds on the features (a process's
+range), a feature whose layers would leave them is scaled back and the others solved
+again. The flat sheet (λ1 = λ2 = 1, no feature has an effect) stays flat.
+
+II of each target comes from its embedding (:meth:`Surface.embed`) at the design's grid
+points, by finite differences in (u, v) (central where both neighbours are solved, else
+one-sided); an intrinsic target (metric only) asks for no curvature.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from fabkit.design.design import MAX_LAYERS, Design, Layering
+from fabkit.errors import FabkitError
+
+TINY = 1e-12
+
+
+@dataclass(frozen=True)
+class LayeringReport:
+    """How well the layers program each target's curvature (shapes (S,), the flat sheet's
+    entries NaN).
+
+    ``matched``: 1 - |b̄ - II| / |II| over the target's solved points (norms in the
+    target's own lengths; 1 is all of II, 0 nothing or worse); ``right_side``: the share
+    of points where b̄ bends towards the target's side, not its mirror image's (where II
+    is not negligible); ``limited``: per feature (N,), the share of points where its
+    bounds scaled its slope down; ``metric_error``: the largest relative difference
+    between the layers' mean metric and the design's, over stimuli and points.
+    """
+
+    names: tuple[str, ...]
+    matched: np.ndarray
+    right_side: np.ndarray
+    limited: np.ndarray
+    metric_error: float
+
+    def lines(self) -> list[str]:
+        """One line per target, for the command line."""
+        return [
+            f"{name}: {max(0.0, matched):.0%} of its curvature programmed, bending to its "
+            f"side at {side:.0%} of the points"
+            for name, matched, side in zip(
+                self.names[1:], self.matched[1:], self.right_side[1:], strict=True
+            )
+        ]
+
+    def to_dict(self) -> dict:
+        return {
+            "curvature_matched": {
+                n: float(m) for n, m in zip(self.names[1:], self.matched[1:], strict=True)
+            },
+            "right_side": {
+                n: float(r) for n, r in zip(self.names[1:], self.right_side[1:], strict=True)
+            },
+            "features_limited": [float(x) for x in self.limited],
+            "metric_error": self.metric_error,
+        }
+
+
+def layered(
+    design: Design,
+    count: int,
+    thickness: float,
+    bounds: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+) -> tuple[Design, LayeringReport]:
+    """``design`` made of ``count`` equal layers, ``thickness`` thick in all (design
+    units), whose natural curvature at every target's stimulus is as near that target's
+    second fundamental form as the material (and ``bounds``, (N, 2) eps ranges the
+    features must keep) allows; ``weights`` (S,) weigh the targets (default 1 each).
+    Returns the layered design and how well it did (module docstring)."""
+    if not isinstance(count, int) or not 2 <= count <= MAX_LAYERS:
+        raise FabkitError(f"--layers {count}: expected 2 to {MAX_LAYERS} layers")
+    if not (np.isfinite(thickness) and thickness > 0):
+        raise FabkitError(f"layers: the sheet's thickness must be positive, got {thickness:g}")
+    forms = second_forms(design)
+    if not np.isfinite(forms[1:]).any():
+        raise FabkitError(
+            "--layers: no target is embedded in 3D (metric-only surfaces), so there is no "
+            "curvature to program"
+        )
+    weights = np.ones(len(design.stimuli)) if weights is None else np.asarray(weights, float)
+    system = _System.build(design, forms, count, weights)
+    reach = (count - 1) / (2 * count) * thickness  # the outer layers' height
+    turn, slope, limited = system.solve(design.eps, reach, bounds)
+    valid = design.valid
+    layering = Layering(
+        count, float(thickness), np.where(valid, turn, np.nan), np.where(valid, slope, np.nan)
+    )
+    result = replace(design, layering=layering)
+    return result, system.report(design, result, turn, slope, limited)
+
+
+def second_forms(design: Design) -> np.ndarray:
+    """(S, 3, nu, nv) second fundamental forms (II_uu, II_uv, II_vv) of every surface at
+    the design's grid points, in material coordinates (u, v), with the surface's normal
+    X_u x X_v; NaN where not solved or not embedded (the flat sheet: 0)."""
+    spec = design.problem
+    forms = np.full((len(spec.targets), 3, *design.valid.shape), np.nan)
+    forms[0] = np.where(design.valid, 0.0, np.nan)
+    for k, target in enumerate(spec.targets[1:], start=1):
+        with np.errstate(all="ignore"):
+            points = target.surface.embed(np.where(design.valid[..., None], design.r[k], 0.0))
+        if points is None:
+            continue
+        points = np.where(design.valid[..., None], points, np.nan)
+        x_u = _derivative(points, design.step, 0)
+        x_v = _derivative(points, design.step, 1)
+        normal = np.cross(x_u, x_v)
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+        x_uu = _derivative(x_u, design.step, 0)
+        x_uv = 0.5 * (_derivative(x_u, design.step, 1) + _derivative(x_v, design.step, 0))
+        x_vv = _derivative(x_v, design.step, 1)
+        for i, second in enumerate((x_uu, x_uv, x_vv)):
+            forms[k, i] = np.sum(second * normal, axis=-1)
+    return forms
+
+
+def _derivative(values: np.ndarray, step: float, axis: int) -> np.ndarray:
+    """d values / d (u or v) (axis 0 or 1 of (nu, nv, ...)): central where both
+    neighbours are finite, else one-sided; NaN where neither neighbour is."""
+    moved = np.moveaxis(values, axis, 0)
+    ahead = np.full_like(moved, np.nan)
+    behind = np.full_like(moved, np.nan)
+    ahead[:-1] = (moved[1:] - moved[:-1]) / step
+    behind[1:] = (moved[1:] - moved[:-1]) / step
+    central = 0.5 * (ahead + behind)
+    out = np.where(np.isfinite(central), central, np.where(np.isfinite(ahead), ahead, behind))
+    return np.moveaxis(out, 0, axis)
+
+
+@dataclass(frozen=True)
+class _System:
+    """The normal equations of the least-squares layering at every grid point, in the
+    targets' own lengths (module docstring). ``shear`` (S, nu, nv): the twist column of
+    the off-diagonal component; ``along``, ``across`` (S, N, nu, nv): the feature columns
+    of the diagonal components; ``target`` (S, 3, nu, nv) the scaled IIs (0 where
+    unknown); ``weights`` (S,); ``factor`` c_K."""
+
+    shear: np.ndarray
+    along: np.ndarray
+    across: np.ndarray
+    target: np.ndarray
+    known: np.ndarray
+    weights: np.ndarray
+    factor: float
+
+    @classmethod
+    def build(cls, design: Design, forms: np.ndarray, count: int, weights: np.ndarray):
+        response = design.problem.material.response(np.nan_to_num(design.eps), design.stimuli)
+        l1, l2 = response.lambda1, response.lambda2
+        scale_u, scale_v = design.alpha * l1, design.beta * l2
+        with np.errstate(all="ignore"):
+            target = np.stack(
+                [
+                    forms[:, 0] / scale_u**2,
+                    forms[:, 1] / (scale_u * scale_v),
+                    forms[:, 2] / scale_v**2,
+                ],
+                axis=1,
+            )
+            shear = (l1**2 - l2**2) / (l1 * l2)
+        known = np.isfinite(target).all(axis=1)
+        known[0] = False  # the flat sheet asks for nothing, and gets nothing
+        return cls(
+            shear=np.nan_to_num(shear),
+            along=2 * np.nan_to_num(response.l1_e),
+            across=2 * np.nan_to_num(response.l2_e),
+            target=np.nan_to_num(target),
+            known=known,
+            weights=weights,
+            factor=(count * count - 1) / (2 * count * count),
+        )
+
+    def _weight(self) -> np.ndarray:
+        """(S, nu, nv) weight of every target at every point (0 where its II is unknown)."""
+        return self.weights[:, None, None] * self.known
+
+    def solve(
+        self, eps: np.ndarray, reach: float, bounds: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Turn (nu, nv), slopes (N, nu, nv) and the share of points where each feature's
+        bounds scaled it down (N,)."""
+        w, c = self._weight(), self.factor
+        # off-diagonal: b̄_uv = -c shear t (counted twice in the Frobenius norm)
+        normal = np.sum(w * (c * self.shear) ** 2, axis=0)
+        right = np.sum(w * (-c * self.shear) * self.target[:, 1], axis=0)
+        turn = np.where(normal > TINY, right / np.where(normal > TINY, normal, 1.0), 0.0)
+        features = eps.shape[0]
+        free = np.ones(eps.shape, dtype=bool)
+        slope = np.zeros(eps.shape)
+        limited = np.zeros(features)
+        for _ in range(features + 1):
+            slope = self._slopes(free, slope)
+            if bounds is None:
+                break
+            room = _room(eps, np.asarray(bounds, dtype=float), reach, slope)
+            over = free & (np.abs(slope) > room)
+            if not over.any():
+                break
+            slope = np.where(over, np.sign(slope) * room, slope)
+            free &= ~over
+        valid = np.isfinite(eps).all(axis=0)
+        if bounds is not None:
+            limited = (~free & valid).sum(axis=(1, 2)) / max(int(valid.sum()), 1)
+        return turn, slope, limited
+
+    def _slopes(self, free: np.ndarray, fixed: np.ndarray) -> np.ndarray:
+        """Least-squares slopes of the ``free`` features, the others held at ``fixed``."""
+        w, c = self._weight(), self.factor
+        columns = [-c * self.along, -c * self.across]  # (S, N, nu, nv) each
+        wanted = [self.target[:, 0], self.target[:, 2]]
+        features = free.shape[0]
+        normal = np.zeros((features, features, *free.shape[1:]))
+        right = np.zeros(free.shape)
+        for column, goal in zip(columns, wanted, strict=True):
+            rest = goal - np.einsum("sn...,n...->s...", column, np.where(free, 0.0, fixed))
+            normal += np.einsum("s...,sm...,sn...->mn...", w, column, column)
+            right += np.einsum("s...,sm...,s...->m...", w, column, rest)
+        mask = free[:, None] & free[None, :]
+        eye = np.eye(features)[:, :, None, None]
+        normal = np.where(mask, normal, eye) + TINY * eye
+        right = np.where(free, right, 0.0)
+        solved = np.linalg.solve(
+            np.moveaxis(normal, (0, 1), (-2, -1)), np.moveaxis(right, 0, -1)[..., None]
+        )[..., 0]
+        return np.where(free, np.moveaxis(solved, -1, 0), fixed)
+
+    def curvature(self, turn: np.ndarray, slope: np.ndarray) -> np.ndarray:
+        """(S, 3, nu, nv) the natural curvature of the layers, scaled as ``target``."""
+        c = self.factor
+        uu = -c * np.einsum("sn...,n...->s...", self.along, slope)
+        uv = -c * self.shear * turn
+        vv = -c * np.einsum("sn...,n...->s...", self.across, slope)
+        return np.stack([uu, uv, vv], axis=1)
+
+    def report(
+        self,
+        design: Design,
+        layered: Design,
+        turn: np.ndarray,
+        slope: np.ndarray,
+        limited: np.ndarray,
+    ) -> LayeringReport:
+        bbar = self.curvature(turn, slope)
+        names = tuple(t.name for t in design.problem.targets)
+        matched = np.full(len(names), np.nan)
+        side = np.full(len(names), np.nan)
+        for k in range(1, len(names)):
+            known = self.known[k] & design.valid
+            if not known.any():
+                continue
+            goal, got = self.target[k][:, known], bbar[k][:, known]
+            size = _norm(goal)
+            matched[k] = 1.0 - _norm(goal - got) / size if size > TINY else 1.0
+            inner = goal[0] * got[0] + 2 * goal[1] * got[1] + goal[2] * got[2]
+            strong = np.sqrt(goal[0] ** 2 + 2 * goal[1] ** 2 + goal[2] ** 2) > 0.1 * np.sqrt(
+                np.mean(goal**2) * 4 / 3
+            )
+            side[k] = float(np.mean(inner[strong] > 0)) if strong.any() else 1.0
+        return LayeringReport(names, matched, side, limited, _metric_error(design, layered))
+
+
+def _norm(parts: np.ndarray) -> float:
+    """Frobenius norm of (3, n) symmetric 2x2 components (uu, uv, vv) over n points."""
+    return float(np.sqrt(np.sum(parts[0] ** 2 + 2 * parts[1] ** 2 + parts[2] ** 2)))
+
+
+def _room(eps: np.ndarray, bounds: np.ndarray, reach: float, slope: np.ndarray) -> np.ndarray:
+    """(N, nu, nv) the largest |slope| keeping every layer's features within ``bounds``."""
+    if bounds.shape != (eps.shape[0], 2):
+        raise FabkitError(f"layers: expected bounds for {eps.shape[0]} features (low, high)")
+    low, high = bounds[:, 0, None, None], bounds[:, 1, None, None]
+    with np.errstate(invalid="ignore"):
+        room = np.where(
+            slope >= 0, np.minimum(high - eps, eps - low), np.minimum(eps - low, high - eps)
+        )
+    return np.clip(np.nan_to_num(room), 0.0, None) / reach
+
+
+def _metric_error(design: Design, layered: Design) -> float:
+    """Largest relative difference of the layers' mean metric (diagonal components in
+    (u, v), the director turn's effect included) from the design's, over every stimulus."""
+    material = design.problem.material
+    base = material.response(np.nan_to_num(design.eps), design.stimuli)
+    count = layered.layers
+    mean = np.zeros((3, *base.lambda1.shape))
+    for k in range(count):
+        layer = layered.layer(k)
+        response = material.response(np.nan_to_num(layer.eps), design.stimuli)
+        turn = layered.layering.heights[k] * np.nan_to_num(layered.layering.turn)
+        cos, sin = np.cos(turn), np.sin(turn)
+        l1, l2 = response.lambda1**2, response.lambda2**2
+        mean[0] += (cos**2 * l1 + sin**2 * l2) / count
+        mean[1] += cos * sin * (l1 - l2) / count
+        mean[2] += (sin**2 * l1 + cos**2 * l2) / count
+    expected = (base.lambda1**2, 0.0, base.lambda2**2)
+    valid = design.valid
+    worst = 0.0
+    for component, goal in zip(mean, expected, strict=True):
+        scale = np.sqrt(base.lambda1**2 * base.lambda2**2)
+        error = np.abs(component - goal) / scale
+        worst = max(worst, float(np.max(error[:, valid])))
+    return worst

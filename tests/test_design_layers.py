@@ -1,0 +1,118 @@
+"""A layered sheet: the natural-curvature formula, the layering of Fig. 3, the file format."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import Delaunay
+
+from fabkit.design.design import Design
+from fabkit.design.layers import layered, second_forms
+from fabkit.errors import FabkitError
+from fabkit.mechanics.simulate import simulate
+from fabkit.mechanics.verdict import design_verdict
+from tests.conftest import coarse_design
+from tests.test_mechanics_simulate import fit_circle
+
+THICKNESS = 0.078  # Fig. 3 at 60 mm: two 0.3 mm layers, in design units
+
+
+def strip_curvature(count: int, strain: float, thickness: float = 0.02) -> float:
+    """A strip of ``count`` equal layers whose reference metric along x falls linearly
+    with height (by 2 ``strain`` over the thickness), Poisson 0: its curvature."""
+    x, y = np.linspace(-1, 1, 41), np.linspace(-0.15, 0.15, 7)
+    points = np.stack(np.meshgrid(x, y), -1).reshape(-1, 2)
+    triangles = Delaunay(points).simplices
+    heights = (np.arange(count) - (count - 1) / 2) * thickness / count
+    gradient = -2 * strain / thickness
+    metrics = np.stack(
+        [np.broadcast_to(np.diag([1 + z * gradient, 1.0]), (len(triangles), 2, 2)) for z in heights]
+    )
+    result = simulate(points, triangles, metrics, thickness, poisson=0.0)
+    assert result.converged
+    _, radius = fit_circle(result.positions[np.abs(points[:, 1]) < 1e-9])
+    return 1 / radius
+
+
+@pytest.mark.parametrize("count", [2, 3, 4])
+def test_a_layered_strip_bends_as_the_least_squares_fit_says(count):
+    # b̄ = -c_K D, c_K = (K^2 - 1) / (2 K^2), D the metric's gradient through the thickness
+    # (fabkit.design.layers); for two layers this is Timoshenko's bimetal curvature
+    # 3 (strain mismatch) / (2 H), which the brief's 6 h1 h2 / H^3 would double
+    strain, thickness = 0.01, 0.02
+    expected = (count**2 - 1) / (2 * count**2) * 2 * strain / thickness
+    assert strip_curvature(count, strain, thickness) == pytest.approx(expected, rel=0.02)
+    if count == 2:
+        # the layers' metrics differ by `strain` along x: a linear strain mismatch of half
+        assert expected == pytest.approx(1.5 * (strain / 2) / thickness, rel=1e-12)
+
+
+@pytest.fixture(scope="module")
+def fig3() -> Design:
+    return coarse_design("three_shapes.toml", step=0.1, diagonals=100)
+
+
+def test_second_forms_of_the_sphere_are_its_metric_over_its_radius(fig3):
+    # a sphere of radius R is umbilic: II = A / R in any coordinates, here (u, v), where the
+    # designed metric at its stimulus is diag((alpha lambda1)^2, (beta lambda2)^2)
+    forms = second_forms(fig3)
+    assert np.all(forms[0][:, fig3.valid] == 0)  # the flat sheet
+    response = fig3.problem.material.response(np.nan_to_num(fig3.eps), fig3.stimuli[1:2])
+    a_uu = (fig3.alpha * response.lambda1[0]) ** 2
+    a_vv = (fig3.beta * response.lambda2[0]) ** 2
+    inside = fig3.valid & np.isfinite(forms[1]).all(axis=0)
+    assert np.median(np.abs(forms[1, 0][inside] / a_uu[inside])) == pytest.approx(0.1, rel=0.02)
+    assert np.median(np.abs(forms[1, 2][inside] / a_vv[inside])) == pytest.approx(0.1, rel=0.02)
+    assert np.median(np.abs(forms[1, 1][inside]) / a_uu[inside]) < 0.01
+
+
+def test_the_layers_program_the_wavy_sheet_and_keep_the_metric(fig3):
+    design, report = layered(fig3, 2, THICKNESS)
+    matched = dict(zip(report.names, report.matched, strict=True))
+    side = dict(zip(report.names, report.right_side, strict=True))
+    assert matched["wavy"] > 0.6 and side["wavy"] > 0.95  # its II_vv is reachable (eps2)
+    assert report.metric_error < 0.01  # second order in the thickness
+    assert design.layers == 2 and np.isnan(design.layering.turn[~design.valid]).all()
+    bottom, top = design.layer(0), design.layer(1)
+    assert np.allclose(0.5 * (bottom.eps + top.eps)[:, fig3.valid], fig3.eps[:, fig3.valid])
+    with pytest.raises(FabkitError, match="--layers 1: expected 2 to 64 layers"):
+        layered(fig3, 1, THICKNESS)
+
+
+def test_bounds_hold_every_layer_within_the_process_range(fig3):
+    eps = fig3.eps[:, fig3.valid]
+    bounds = np.stack([eps.min(axis=1), eps.max(axis=1)], axis=1)
+    design, report = layered(fig3, 3, THICKNESS, bounds=bounds)
+    for k in range(3):
+        layer = design.layer(k).eps[:, fig3.valid]
+        assert (layer >= bounds[:, :1] - 1e-12).all() and (layer <= bounds[:, 1:] + 1e-12).all()
+    assert (report.limited > 0).any()  # the extreme points had no room
+
+
+@pytest.mark.slow
+def test_two_layers_form_all_three_fig3_targets_where_one_misses_the_wavy_sheet(fig3):
+    one = design_verdict(fig3, thickness=THICKNESS)
+    assert [s.target for s in one.shapes if not s.formed] == ["wavy"]
+    assert one.shapes[2].mirrored  # the metric alone picks the mirror image
+    two = design_verdict(layered(fig3, 2, THICKNESS)[0])
+    assert two.formed, two.lines()
+    assert two.shapes[2].rms < 0.015
+
+
+def test_a_layered_design_file_round_trips_and_says_so(fig3, tmp_path):
+    design, _ = layered(fig3, 2, THICKNESS)
+    design.save(tmp_path / "layered.npz")
+    back = Design.load(tmp_path / "layered.npz")
+    assert back.layers == 2 and back.layering.thickness == pytest.approx(THICKNESS)
+    assert np.allclose(back.layering.slope[:, fig3.valid], design.layering.slope[:, fig3.valid])
+    with np.load(tmp_path / "layered.npz", allow_pickle=False) as archive:
+        assert str(archive["format"]) == "fabkit-design/3"
+        arrays = {key: archive[key] for key in archive.files if key != "slope"}
+    np.savez(tmp_path / "broken.npz", **arrays)
+    with pytest.raises(FabkitError, match="a layered design without its 'slope' array"):
+        Design.load(tmp_path / "broken.npz")
+    arrays["slope"] = design.layering.slope
+    arrays["layering"] = np.array([1.0, THICKNESS])
+    np.savez(tmp_path / "one.npz", **arrays)
+    with pytest.raises(FabkitError, match="2 to 64 layers of a positive thickness, got 1 layers"):
+        Design.load(tmp_path / "one.npz")
