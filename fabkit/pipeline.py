@@ -44,13 +44,17 @@ from multiprocessing.pool import AsyncResult
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from fabkit.atomic import atomic_path, check_folder, output_folder, record
 from fabkit.background import Worker, worker
 from fabkit.design.check import CheckReport, ResidualMaps
-from fabkit.design.design import Design
+from fabkit.design.design import MAX_LAYERS, Design
+from fabkit.design.layers import layered
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
 from fabkit.design.report import checked_points, solve_to_file
 from fabkit.errors import FabkitError
+from fabkit.field.flat import feature_names as design_features
 from fabkit.field.part import (
     MIN_WIDTH_PITCHES,
     MIN_WIDTH_ROADS,
@@ -62,6 +66,7 @@ from fabkit.field.part import (
 )
 from fabkit.figures import AREA_UNIT
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
+from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict, design_verdict
 from fabkit.plot import DESIGN_PICTURES, write_pictures
 from fabkit.plot.report import html_report
 from fabkit.plot.scene import scene
@@ -94,7 +99,11 @@ class RunOptions:
     ``ignore_features`` are left out of the machine file on purpose; ``verify`` reads the
     machine file back and checks it (:mod:`fabkit.verify`). ``overwrite`` replaces the
     files an earlier run wrote into ``out`` (else such a folder is refused).
-    ``part_request`` cuts the part (:class:`fabkit.field.part.PartRequest`).
+    ``part_request`` cuts the part (:class:`fabkit.field.part.PartRequest`). ``layers``
+    (>= 2) prints the sheet in that many layers programmed with each target's curvature
+    (:mod:`fabkit.design.layers`); every target is then simulated from flat, as designed
+    and as fabricated, and held to ``form_tolerance`` (RMS, a share of the patch
+    diameter); ``strict`` makes a target not formed an error (the run's exit code).
     """
 
     spec: str
@@ -112,6 +121,9 @@ class RunOptions:
     verify: bool = True
     overwrite: bool = False
     part_request: PartRequest = PartRequest()
+    layers: int = 1
+    strict: bool = False
+    form_tolerance: float = FORM_TOLERANCE
 
 
 def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dict[str, Any]:
@@ -185,10 +197,22 @@ def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) ->
         },
         "check": solved.check.to_dict(),
         "part": solved.part.to_dict(),
+        **({"layers": solved.layering} if solved.layering else {}),
+        "as designed": solved.verdict.to_dict(),
         **fabricated.figures,
         "verify": verification,
         "sent": sent,
         "meshes": meshes,
+    }
+    verdicts = [solved.verdict.to_dict()]
+    final = solved.verdict
+    if verification is not None and verification.get("verdict"):
+        verdicts.append(verification["verdict"])
+        final = None
+    figures["verdicts"] = verdicts
+    figures["verdict"] = {
+        "headline": final.headline() if final else verification["verdict"]["headline"],
+        "formed": all(v["formed"] for v in verdicts),
     }
     html_report(
         f"fabkit run {Path(options.spec).name}",
@@ -204,14 +228,18 @@ def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) ->
 
 @dataclass(frozen=True)
 class _Solved:
-    """The solve stage's results: the ``design``, its check (``check``, the residual
-    ``maps``), the solver's ``summary`` and the ``part`` that is made."""
+    """The solve stage's results: the ``design`` (layered when asked), its check
+    (``check``, the residual ``maps``), the solver's ``summary``, the ``part`` that is
+    made, how well the layers program the curvature (``layering``, None for one layer)
+    and the ``verdict`` on the sheet as designed."""
 
     design: Design
     check: CheckReport
     maps: tuple[ResidualMaps, ...]
     summary: dict[str, Any]
     part: Part
+    layering: dict[str, Any] | None
+    verdict: Verdict
 
 
 def _solve(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> _Solved:
@@ -231,7 +259,54 @@ def _solve(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> 
     design = result.solution.design
     part = _part(options, inputs, design)
     say(f"      {part.summary()}")
-    return _Solved(design, check, result.maps, solved, part)
+    thickness_mm = options.layers * inputs.process.layer_height_mm if inputs.process else None
+    layering = None
+    if options.layers > 1:
+        design, layering = _layer(options, inputs, design, part, say)
+    verdict = design_verdict(
+        design,
+        None if thickness_mm is None else thickness_mm / part.mm_per_unit,
+        tolerance=options.form_tolerance,
+        part=part,
+        mm_per_unit=part.mm_per_unit,
+    )
+    say(f"      {verdict.headline()}:")
+    for line in verdict.lines():
+        say(f"        {line}")
+    return _Solved(design, check, result.maps, solved, part, layering, verdict)
+
+
+def _layer(
+    options: RunOptions, inputs: _Inputs, design: Design, part: Part, say: Callable[[str], None]
+) -> tuple[Design, dict[str, Any]]:
+    """The design made of ``options.layers`` layers of the process's height, each
+    feature within the range its channel encodes, programmed with the curvature of the
+    targets the sheet misses when programmed by its metric alone (simulated at the
+    layers' thickness: a target it forms asks for nothing, and is bent to no other side);
+    it replaces design.npz."""
+    process = inputs.process
+    thickness = options.layers * process.layer_height_mm / part.mm_per_unit
+    names = design_features(design)
+    bounds = process.resolve(names, options.ignore_features).bounds(names)
+    alone = design_verdict(
+        design,
+        thickness,
+        tolerance=options.form_tolerance,
+        part=part,
+        mm_per_unit=part.mm_per_unit,
+    )
+    say(f"      {alone.headline().replace('as designed', 'programmed by its metric alone')}")
+    needed = {shape.target: not shape.formed for shape in alone.shapes}
+    weights = np.array([float(needed.get(t.name, False)) for t in design.problem.targets])
+    design, report = layered(design, options.layers, thickness, bounds, weights)
+    design.save(Path(options.out) / "design.npz")
+    say(
+        f"      {options.layers} layers of {process.layer_height_mm:g} mm, programmed with "
+        "the curvature of the targets the metric misses:"
+    )
+    for line in report.lines():
+        say(f"        {line}")
+    return design, {"metric alone": alone.to_dict(), **report.to_dict()}
 
 
 WORKER_MODULES = ("fabkit.plot.design", "fabkit.toolpath.preview")
@@ -318,6 +393,13 @@ def _check_inputs(options: RunOptions) -> _Inputs:
         raise FabkitError("--send needs --format gcode")
     if not (math.isfinite(options.size_mm) and options.size_mm > 0):
         raise FabkitError(f"--size {options.size_mm:g}: expected a positive finite number")
+    if not 1 <= options.layers <= MAX_LAYERS:
+        raise FabkitError(f"--layers {options.layers}: expected 1 to {MAX_LAYERS} layers")
+    if not (math.isfinite(options.form_tolerance) and 0 < options.form_tolerance < 1):
+        raise FabkitError(
+            f"--form-tolerance {100 * options.form_tolerance:g}: expected a percentage "
+            "between 0 and 100"
+        )
     check_folder(options.out, f"--out {options.out}")
     options.part_request.check()
     spec = load_spec(options.spec)
@@ -332,6 +414,17 @@ def _check_inputs(options: RunOptions) -> _Inputs:
     elif machine.kind == LASER_WRITER and options.formats != ("laser",):
         raise FabkitError(
             f"{options.machine} is a laser writer: use --format laser (or no --format)"
+        )
+    if options.layers > 1 and (options.baromorph or machine.kind == LASER_WRITER):
+        what = "a baromorph's channels" if options.baromorph else f"laser writer {machine.name}"
+        raise FabkitError(
+            f"--layers {options.layers}: {what} make one layer; print a layered sheet on a "
+            "printer (fabkit machines lists them)"
+        )
+    if options.layers > 1 and "dxf" in options.formats:
+        raise FabkitError(
+            f"--layers {options.layers}: fabkit verify reads a DXF's roads as one layer; "
+            "write --format gcode for a layered sheet"
         )
     process = None
     if not options.baromorph:
@@ -364,14 +457,15 @@ def _notice(options: RunOptions) -> str:
 
 def _part(options: RunOptions, inputs: _Inputs, design: Design) -> Part:
     """The part of the flat sheet that is made, at the run's size, for its process: the
-    road width (a baromorph's: two channel pitches) and one layer's height (a baromorph's
-    part thickness) set the default minimum width and the trim."""
+    road width (a baromorph's: two channel pitches) and the sheet's thickness (its layers'
+    heights; a baromorph's part thickness) set the default minimum width and the trim."""
     if options.baromorph:
         settings = load_baromorph(options.baromorph)
         road, thickness = settings.pitch_mm, settings.part_thickness_mm
         roads = MIN_WIDTH_PITCHES
     else:
-        road, thickness = inputs.process.road_width_mm, inputs.process.layer_height_mm
+        road = inputs.process.road_width_mm
+        thickness = options.layers * inputs.process.layer_height_mm
         roads = MIN_WIDTH_ROADS
     solved = solved_region(design)
     return print_part(
@@ -401,6 +495,7 @@ def _verify(run: _Run) -> dict[str, Any] | None:
             ignore_features=options.ignore_features,
             baromorph=options.baromorph,
             part=run.solved.part,
+            form_tolerance=options.form_tolerance,
         ),
         design=run.solved.design,
     )

@@ -472,6 +472,21 @@ class Resolution:
                 return channel
         return None
 
+    def bounds(self, names: Sequence[str]) -> np.ndarray:
+        """(N, 2) the eps range each of the features ``names`` can be encoded in: its
+        table's range (a joint table's: the range measured for that feature, a box around
+        the measured region), (-inf, inf) for a feature no channel encodes."""
+        out = np.tile([-np.inf, np.inf], (len(names), 1))
+        for channel in self.channels:
+            table = channel.table
+            for k, name in enumerate(channel.features):
+                if isinstance(table, JointCalibration):
+                    measured = np.asarray(table.measured[k], dtype=float)
+                    out[names.index(name)] = (np.nanmin(measured), np.nanmax(measured))
+                else:
+                    out[names.index(name)] = table.eps_range
+        return out
+
 
 @dataclass(frozen=True)
 class Process:

@@ -8,6 +8,7 @@ from fabkit import commands
 from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.design.patches import MESH_TYPES
 from fabkit.machines import DEFAULT_MACHINE
+from fabkit.mechanics.verdict import FORM_TOLERANCE
 from fabkit.pipeline import (
     BAROMORPH_MACHINE,
     DEFAULT_SIZE_MM,
@@ -77,16 +78,42 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PORT",
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
     )
+    parser.add_argument(
+        "--layers",
+        type=int,
+        default=1,
+        help="print the sheet in this many layers (>= 2), their differences programmed "
+        "with each target's curvature so that the sheet takes the target, not a mirror "
+        "image or a neighbour (default 1)",
+    )
+    parser.add_argument(
+        "--form-tolerance",
+        type=float,
+        default=100 * FORM_TOLERANCE,
+        metavar="PCT",
+        help="a target is formed when the simulated sheet ends within this RMS distance, "
+        "%% of the patch diameter (default %(default)g)",
+    )
+    parser.add_argument(
+        "--strict",
+        action="store_true",
+        help="exit 1 when the sheet (as designed or as fabricated) does not form every target",
+    )
     commands.add_overwrite(parser)
     part_arguments(parser)
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    options = commands.call_with(RunOptions, args, part_request=part_request(args))
-    figures = run_pipeline(options)
-    print(
-        f"done: see {args.out}/report.html (check "
-        f"{'passed' if figures['check']['passed'] else 'FAILED'})"
+    options = commands.call_with(
+        RunOptions,
+        args,
+        part_request=part_request(args),
+        form_tolerance=args.form_tolerance / 100,
     )
-    return 0
+    figures = run_pipeline(options)
+    check = "check passed" if figures["check"]["passed"] else "check FAILED"
+    verdict = figures["verdict"]
+    print(f"done: see {args.out}/report.html; {check}; {verdict['headline']}")
+    missed = not all(v["formed"] for v in figures["verdicts"])
+    return 1 if args.strict and (missed or not figures["check"]["passed"]) else 0

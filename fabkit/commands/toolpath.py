@@ -39,7 +39,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="line ends stop this fraction of w inside the outline (default 0.45; 0.5: "
         "roads strictly inside)",
     )
-    parser.add_argument("--layers", type=int, default=1, help="number of layers (default 1)")
+    parser.add_argument(
+        "--layers",
+        type=int,
+        help="number of layers (default: a layered design's own, else one per input)",
+    )
     parser.add_argument("--pattern", choices=PATTERNS, default="same", help="layer pattern")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--json", action="store_true", help="also write toolpath.json")

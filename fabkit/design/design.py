@@ -133,7 +133,10 @@ class Design:
         )
         n = self.n.copy()
         n[0] = turned
-        return replace(self, n=n, eps=self.eps + z * layering.slope, layering=None)
+        layer = replace(self, n=n, eps=self.eps + z * layering.slope, layering=None)
+        if "problem" in self.__dict__:  # the spec parsed already: not again
+            layer.knowing(self.problem)
+        return layer
 
     @property
     def layers(self) -> int:

@@ -43,9 +43,13 @@ layers' mean metric stays the design's (the error is second order in z, reported
 the frame of the target's own lengths (components divided by α λ1, β λ2) t and s are
 chosen by weighted least squares over the targets: the off-diagonal part of every
 target's II fixes t, the diagonal parts fix s (a feature acting along the director
-reaches II_uu, one acting across II_vv). With bounds on the features (a process's
-range), a feature whose layers would leave them is scaled back and the others solved
-again. The flat sheet (λ1 = λ2 = 1, no feature has an effect) stays flat.
+reaches II_uu, one acting across II_vv). An unknown shared by targets that want
+opposite signs at a point (Fig. 1's one feature, where the bump's flank curves the
+other way from the sphere) is left at zero there, and one whose best value would bend a
+target to its wrong side is held at zero and the others solved again: the layers never
+push a target towards another shape. With bounds on the features (a process's range),
+a feature whose layers would leave them is scaled back likewise. The flat sheet
+(λ1 = λ2 = 1, no feature has an effect) stays flat.
 
 II of each target comes from its embedding (:meth:`Surface.embed`) at the design's grid
 points, by finite differences in (u, v) (central where both neighbours are solved, else
@@ -82,19 +86,28 @@ class LayeringReport:
     right_side: np.ndarray
     limited: np.ndarray
     metric_error: float
+    weights: np.ndarray
 
     def lines(self) -> list[str]:
         """One line per target, for the command line."""
-        return [
-            f"{name}: {max(0.0, matched):.0%} of its curvature programmed, bending to its "
-            f"side at {side:.0%} of the points"
-            for name, matched, side in zip(
-                self.names[1:], self.matched[1:], self.right_side[1:], strict=True
-            )
-        ]
+        out = []
+        for k in range(1, len(self.names)):
+            name, matched, side = self.names[k], self.matched[k], self.right_side[k]
+            if self.weights[k] > 0:
+                out.append(
+                    f"{name}: {max(0.0, matched):.0%} of its curvature programmed, bending to "
+                    f"its side at {side:.0%} of the points"
+                )
+            else:
+                out.append(
+                    f"{name}: none of its curvature asked for ({max(0.0, matched):.0%} given), "
+                    f"none against it (bending to its side at {side:.0%} of the points)"
+                )
+        return out
 
     def to_dict(self) -> dict:
         return {
+            "weights": {n: float(w) for n, w in zip(self.names[1:], self.weights[1:], strict=True)},
             "curvature_matched": {
                 n: float(m) for n, m in zip(self.names[1:], self.matched[1:], strict=True)
             },
@@ -116,7 +129,8 @@ def layered(
     """``design`` made of ``count`` equal layers, ``thickness`` thick in all (design
     units), whose natural curvature at every target's stimulus is as near that target's
     second fundamental form as the material (and ``bounds``, (N, 2) eps ranges the
-    features must keep) allows; ``weights`` (S,) weigh the targets (default 1 each).
+    features must keep) allows; ``weights`` (S,) weigh the targets (default 1 each; 0:
+    ask nothing for that target, but still bend it to no other side).
     Returns the layered design and how well it did (module docstring)."""
     if not isinstance(count, int) or not 2 <= count <= MAX_LAYERS:
         raise FabkitError(f"--layers {count}: expected 2 to {MAX_LAYERS} layers")
@@ -235,12 +249,31 @@ class _System:
         normal = np.sum(w * (c * self.shear) ** 2, axis=0)
         right = np.sum(w * (-c * self.shear) * self.target[:, 1], axis=0)
         turn = np.where(normal > TINY, right / np.where(normal > TINY, normal, 1.0), 0.0)
+        known = self.known
+        turn = np.where(turn * _allowed([(-self.shear, self.target[:, 1])], known) > 0, turn, 0.0)
         features = eps.shape[0]
-        free = np.ones(eps.shape, dtype=bool)
+        sides = np.stack(
+            [
+                _allowed(
+                    [
+                        (-self.along[:, i], self.target[:, 0]),
+                        (-self.across[:, i], self.target[:, 2]),
+                    ],
+                    known,
+                )
+                for i in range(features)
+            ]
+        )
+        free = sides != 0
         slope = np.zeros(eps.shape)
         limited = np.zeros(features)
-        for _ in range(features + 1):
+        for _ in range(2 * features + 1):
             slope = self._slopes(free, slope)
+            harmful = free & (slope * sides < 0)  # would bend a target to its wrong side
+            if harmful.any():
+                slope = np.where(harmful, 0.0, slope)
+                free &= ~harmful
+                continue
             if bounds is None:
                 break
             room = _room(eps, np.asarray(bounds, dtype=float), reach, slope)
@@ -251,7 +284,10 @@ class _System:
             free &= ~over
         valid = np.isfinite(eps).all(axis=0)
         if bounds is not None:
-            limited = (~free & valid).sum(axis=(1, 2)) / max(int(valid.sum()), 1)
+            room = _room(eps, np.asarray(bounds, dtype=float), reach, slope)
+            limited = ((np.abs(slope) >= room - TINY) & (room < np.inf) & valid).sum(
+                axis=(1, 2)
+            ) / max(int(valid.sum()), 1)
         return turn, slope, limited
 
     def _slopes(self, free: np.ndarray, fixed: np.ndarray) -> np.ndarray:
@@ -307,7 +343,25 @@ class _System:
                 np.mean(goal**2) * 4 / 3
             )
             side[k] = float(np.mean(inner[strong] > 0)) if strong.any() else 1.0
-        return LayeringReport(names, matched, side, limited, _metric_error(design, layered))
+        metric_error = _metric_error(design, layered)
+        return LayeringReport(names, matched, side, limited, metric_error, self.weights)
+
+
+def _allowed(effects: list[tuple[np.ndarray, np.ndarray]], known: np.ndarray) -> np.ndarray:
+    """(nu, nv) the sign an unknown may take without bending any target to its wrong
+    side: +1, -1, or 0 where targets want opposite signs (or none is reached). Each of
+    ``effects`` is (its effect on one component of every target's curvature, that
+    component of every target's II), both (S, nu, nv); every target whose II is
+    ``known`` (S, nu, nv) votes, whatever its weight, where its component is more than a
+    tenth of its typical size and the unknown reaches it."""
+    plus = minus = np.zeros(known.shape[1:], dtype=bool)
+    for column, target in effects:
+        typical = np.sqrt(np.mean(target**2, axis=(1, 2), keepdims=True)) + TINY
+        votes = np.sign(column * target) * (np.abs(target) > 0.1 * typical)
+        votes *= known & (np.abs(column) > TINY)
+        plus = plus | (votes > 0).any(axis=0)
+        minus = minus | (votes < 0).any(axis=0)
+    return np.where(plus & ~minus, 1.0, np.where(minus & ~plus, -1.0, 0.0))
 
 
 def _norm(parts: np.ndarray) -> float:

@@ -53,6 +53,12 @@ ROUND_OFF = 1e-16
 """A damped step refused although it predicted a fall below this share of the energy
 per face (the energy is a sum over the faces) was refused by round-off: the sheet is at
 equilibrium to machine precision."""
+ROUND_OFF_MOVE = 1e3
+"""Such a step, if it moves no vertex more than this many times the step tolerance (a
+thousandth of an edge at the default tolerance), is converged: what is left is noise
+along a soft (near-isometric) mode, no change of shape. The Fig. 3 face as fabricated
+(two layers) stopped so with a step of 4e-7 against a tolerance of 2.6e-7, 2e-8 of its
+diameter, and was called not converged."""
 CREEP = 0.5
 """Projected Newton creeps (converges linearly along soft modes) when a full step is more
 than this share of the full step before it: the damped exact Newton takes over."""
@@ -181,7 +187,7 @@ def minimise(
                         return x, iteration, True
                     continue
                 if -fall <= ROUND_OFF * len(shell.rest) * abs(energy):  # a sum over faces
-                    return x, iteration, bool(_largest(move) <= step_tolerance)
+                    return x, iteration, bool(_largest(move) <= ROUND_OFF_MOVE * step_tolerance)
             damping.failure()
         direction = projected.direction(shell.hessian(x, projected=True), gradient, x)
         slope = float(gradient @ direction)

@@ -111,6 +111,7 @@ class Verdict:
     def to_dict(self) -> dict:
         return {
             "what": self.what,
+            "headline": self.headline(),
             "formed": self.formed,
             "layers": self.layers,
             "thickness_mm": self.thickness_mm,

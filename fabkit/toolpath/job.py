@@ -18,7 +18,7 @@ Every file is written atomically (no half-written output on failure).
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -76,7 +76,7 @@ class ToolpathJob:
     process_file: str | None = None
     road_width_mm: float | None = None
     layer_height_mm: float | None = None
-    layers: int = 1
+    layers: int | None = None
     pattern: str = "same"
     encode: bool = True
     ignore_features: tuple[str, ...] = ()
@@ -104,14 +104,18 @@ def run_job(job: ToolpathJob) -> JobResult:
         raise FabkitError(f"--end-inset {job.end_inset:g}: expected a fraction of w in [0, 1]")
     check_folder(job.out, f"--out {job.out}")
     process = job_process(job)
-    fields = load_fields(job, process.road_width_mm, job.layers * process.layer_height_mm)
+    designs = [p for p in job.inputs if Path(p).suffix == ".npz"]
+    if job.design is None and len(job.inputs) == 1 and designs:
+        job = replace(job, design=Design.load(designs[0]))  # loaded once, for every stage
+    layers = job.layers if job.layers is not None else _design_layers(job)
+    fields = load_fields(job, process.road_width_mm, layers * process.layer_height_mm)
     if job.encode:
         for flat in fields:  # a feature without a channel is refused before planning
             ignore = tuple(name for name in job.ignore_features if name in flat.names)
             resolve_channels(process, flat.names, ignore)
-    _check_extent(fields, process.road_width_mm, job.layers)
+    _check_extent(fields, process.road_width_mm, layers)
     settings = PlanSettings(
-        layers=job.layers,
+        layers=layers,
         pattern=job.pattern,
         encode=job.encode,
         ignore=job.ignore_features,
@@ -133,6 +137,14 @@ def run_job(job: ToolpathJob) -> JobResult:
         save_toolpath(plan.toolpath, files[-1])
     parts = tuple(f.part for f in fields if f.part is not None)
     return JobResult(plan, tuple(files), parts, outlines)
+
+
+def _design_layers(job: ToolpathJob) -> int:
+    """The layers a job prints without ``--layers``: a layered design's, else one per
+    input."""
+    if job.design is not None:
+        return job.design.layers
+    return max(1, len(job.inputs) + (job.director is not None))
 
 
 MAX_ROADS_ACROSS = 5000
@@ -173,7 +185,7 @@ def load_fields(
     options = job.part_request.for_process(road_width_mm, thickness_mm, roads)
     if (job.part is not None or job.design is not None) and len(job.inputs) != 1:
         raise FabkitError("a part or design made already goes with one design input")
-    fields = [_load_input(path, job, job.part or options) for path in job.inputs]
+    fields = [f for path in job.inputs for f in _load_input(path, job, job.part or options)]
     if job.director is not None:
         if job.shape is None:
             raise FabkitError("--director needs --shape (e.g. --shape disc:10)")
@@ -190,15 +202,23 @@ def load_fields(
     return fields
 
 
-def _load_input(path: str, job: ToolpathJob, part: Part | PartOptions) -> FlatField:
+def _load_input(path: str, job: ToolpathJob, part: Part | PartOptions) -> list[FlatField]:
+    """The input's field; a layered design's: one per layer, bottom first, on one part."""
     suffix = Path(path).suffix
     if suffix == ".npz":
-        source = job.design or path  # the one design input, loaded already (fabkit run)
+        design = job.design or Design.load(path)  # the one design input, loaded already (run)
         if isinstance(part, Part):
-            return field_from_design(source, part=part, name=path)
-        return field_from_design(source, job.size_mm, job.mm_per_unit, part, name=path)
+            whole = field_from_design(design, part=part, name=path)
+        else:
+            whole = field_from_design(design, job.size_mm, job.mm_per_unit, part, name=path)
+        if design.layering is None:
+            return [whole]
+        return [
+            field_from_design(design.layer(k), part=whole.part, name=f"{path} layer {k + 1}")
+            for k in range(design.layers)
+        ]
     if suffix == ".toml":
-        return load_director_file(path)
+        return [load_director_file(path)]
     raise FabkitError(f"input '{path}': expected a design .npz or a director .toml file")
 
 

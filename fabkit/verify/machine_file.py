@@ -38,7 +38,8 @@ from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOpti
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
 from fabkit.mechanics.compare import compare
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
-from fabkit.mechanics.simulate import Settings, default_thickness
+from fabkit.mechanics.simulate import Settings
+from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict
 from fabkit.process import Encode, Process, Resolution
 from fabkit.readfile import read_json
 from fabkit.tomlfile import number
@@ -68,7 +69,9 @@ class VerifyOptions:
     ``smoothing_mm`` the Gaussian the read-back fields are averaged over before them
     (default: the larger of the road width and the simulated thickness; 0: none);
     ``baromorph`` the channel settings of a baromorph drawing (its channels are read
-    instead of roads). The design's part (:mod:`fabkit.field.part`) is ``part`` when made
+    instead of roads); ``form_tolerance`` the RMS distance (share of the patch diameter)
+    within which the sheet forms a target (:mod:`fabkit.mechanics.verdict`). The design's
+    part (:mod:`fabkit.field.part`) is ``part`` when made
     already (``fabkit run``), else made as the file's maker made it: by ``part_request``
     for the process's road width and a sheet as thick as
     the layers the file prints (a baromorph drawing: its part thickness). Coverage is
@@ -90,6 +93,7 @@ class VerifyOptions:
     baromorph: str | None = None
     part: Part | None = None
     part_request: PartRequest = PartRequest()
+    form_tolerance: float = FORM_TOLERANCE
 
 
 @dataclass(frozen=True)
@@ -124,8 +128,24 @@ class TargetDistance:
 
 
 @dataclass(frozen=True)
+class LayerReading:
+    """One printed layer (1 = bottom) read back against the design's layer it makes:
+    coverage, director error (degrees) and every feature's error."""
+
+    layer: int
+    designed_layer: int
+    empty_fraction: float
+    mean_overlap: float
+    director_mean_deg: float
+    director_p95_deg: float
+    features: tuple[FeatureError, ...]
+
+
+@dataclass(frozen=True)
 class Verification:
-    """Everything ``fabkit verify`` measured (see the module docstring)."""
+    """Everything ``fabkit verify`` measured (see the module docstring); the top-level
+    coverage, director and feature figures are the bottom layer's, ``layers`` has every
+    layer's when the file prints more than one."""
 
     file: str
     kind: str
@@ -144,9 +164,12 @@ class Verification:
     seconds: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
     simulation: dict[str, Any] = field(default_factory=dict)
+    layers: tuple[LayerReading, ...] = ()
+    verdict: Verdict | None = None
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)
+        data["verdict"] = self.verdict.to_dict() if self.verdict is not None else None
         if self.ignored:
             return {"notice": self.notice(), **data}
         return data
@@ -180,12 +203,22 @@ class Verification:
                 f"  {f.feature} ({f.channel}): error RMS {f.rms_pct:.2f} %, p95 {f.p95_pct:.2f} "
                 f"% of its range {f.design_range:.4g} ({f.cells} cells)"
             )
+        for layer in self.layers[1:]:
+            errors = ", ".join(f"{f.feature} RMS {f.rms_pct:.2f} %" for f in layer.features)
+            lines.append(
+                f"  layer {layer.layer}: empty {100 * layer.empty_fraction:.2f} %, director "
+                f"mean {layer.director_mean_deg:.2f} deg, p95 {layer.director_p95_deg:.2f} deg"
+                + (f"; {errors}" if errors else "")
+            )
+        shapes = {s.target: s for s in self.verdict.shapes} if self.verdict else {}
         for t in self.targets:
             mirror = " (mirror image)" if t.mirrored else ""
             moving = "" if t.converged else " (not converged)"
+            shape = shapes.get(t.target)
+            formed = "" if shape is None else ("formed, " if shape.formed else "NOT formed, ")
             line = (
-                f"  as fabricated vs {t.target}: RMS {t.rms_pct:.2f} %, max {t.max_pct:.2f} % "
-                f"of the patch diameter{mirror}{moving}"
+                f"  as fabricated vs {t.target}: {formed}RMS {t.rms_pct:.2f} %, max "
+                f"{t.max_pct:.2f} % of the patch diameter{mirror}{moving}"
             )
             if t.designed_rms_pct is not None:
                 moving = "" if t.designed_converged else " (not converged)"
@@ -221,29 +254,37 @@ def verify(
     machine = _machine(options, machine_file, kind)
     process = _process(options, machine)
     resolution = process.resolve(names, options.ignore_features)
-    readback, placement, layers = _read(machine_file, kind, machine, process, resolution, options)
-    flat = _flat_field(
-        design, str(design_path), options, placement, _part_options(options, process, layers)
-    )
+    readbacks, placement = _read(machine_file, kind, machine, process, resolution, options)
+    layers = len(readbacks)
+    cut = _part_options(options, process, layers)
+    flat = _flat_field(design, str(design_path), options, placement, cut)
     scale = float(flat.mm_per_unit)
-    sheet = _Sheet.of(readback, flat)
-    features = _features(readback, resolution, sheet, design, names)
-    notes = list(readback.notes)
-    missing = [f.feature for f in features if f.cells == 0]
+    designed = _layer_fields(design, flat, str(design_path), layers)
+    sheets = [_Sheet.of(r, f) for r, f in zip(readbacks, designed, strict=True)]
+    readings = [
+        _features(r, resolution, sheet, design, names)
+        for r, sheet in zip(readbacks, sheets, strict=True)
+    ]
+    features, sheet = readings[0], sheets[0]
+    notes = list(dict.fromkeys(note for r in readbacks for note in r.notes))
+    missing = sorted({f.feature for reading in readings for f in reading if f.cells == 0})
     if missing:
         notes.append(f"not read back (the file carries no value for it): {', '.join(missing)}")
     targets: tuple[TargetDistance, ...] = ()
     simulation: dict[str, Any] = {}
+    thickness_mm = _printed_thickness(options, process, kind, layers)
     if not options.simulate:
         notes.append("not simulated (--no-simulate)")
     elif resolution.ignored or missing:
         notes.append("not simulated: a feature of the design is not in the machine file")
     else:
-        thickness = default_thickness(design)  # design units
-        smoothing = _smoothing_mm(options, readback, thickness * scale)
-        fields = _sheet_fields(readback, resolution, sheet, scale, names, smoothing)
-        targets = _simulate(design, fields, options, flat.part, thickness, progress)
-        simulation = _simulation_figures(smoothing, readback, thickness * scale)
+        smoothing = _smoothing_mm(options, readbacks[0], thickness_mm)
+        fields = [
+            _sheet_fields(r, resolution, sheet, scale, names, smoothing)
+            for r, sheet in zip(readbacks, sheets, strict=True)
+        ]
+        targets = _simulate(design, fields, options, flat.part, thickness_mm / scale, progress)
+        simulation = _simulation_figures(smoothing, readbacks[0], thickness_mm, layers)
         notes.append(_simulation_note(simulation))
     return Verification(
         file=str(machine_file),
@@ -251,7 +292,7 @@ def verify(
         machine=machine.name,
         process=process.source,
         placement=placement.source,
-        cell_mm=readback.cell_mm,
+        cell_mm=readbacks[0].cell_mm,
         empty_fraction=sheet.empty,
         mean_overlap=sheet.overlap,
         director_mean_deg=sheet.director_mean,
@@ -263,7 +304,72 @@ def verify(
         seconds=time.perf_counter() - started,
         extra={"part": _part_figures(flat.part)} if flat.part is not None else {},
         simulation=simulation,
+        layers=_layer_readings(sheets, readings, design.layers) if layers > 1 else (),
+        verdict=_verdict(targets, layers, thickness_mm, options.form_tolerance),
     )
+
+
+def _verdict(
+    targets: tuple[TargetDistance, ...], layers: int, thickness_mm: float, tolerance: float
+) -> Verdict | None:
+    """The verdict on the sheet as fabricated (None when it was not simulated)."""
+    if not targets:
+        return None
+    shapes = tuple(
+        Shape(
+            t.target,
+            t.rms_pct / 100,
+            t.max_pct / 100,
+            t.mirrored,
+            t.converged,
+            tolerance,
+            t.seconds,
+        )
+        for t in targets
+    )
+    return Verdict("as fabricated", shapes, layers, thickness_mm)
+
+
+def _layer_fields(design: Design, flat: FlatField, name: str, layers: int) -> list[FlatField]:
+    """The designed field of every printed layer (bottom first): a layered design's own
+    layers (the file must print as many), else the design's field on every layer."""
+    if design.layering is None:
+        return [flat] * layers
+    if layers != design.layers:
+        raise FabkitError(
+            f"{name}: a design of {design.layers} layers, but the machine file prints "
+            f"{layers}: it was not made from this design"
+        )
+    return [
+        field_from_design(design.layer(k), part=flat.part, name=f"{name} layer {k + 1}")
+        for k in range(layers)
+    ]
+
+
+def _layer_readings(
+    sheets: list[_Sheet], readings: list[list[FeatureError]], designed: int
+) -> tuple[LayerReading, ...]:
+    """Every printed layer's coverage, director and features against its designed layer."""
+    return tuple(
+        LayerReading(
+            layer=k + 1,
+            designed_layer=k + 1 if designed > 1 else 1,
+            empty_fraction=sheet.empty,
+            mean_overlap=sheet.overlap,
+            director_mean_deg=sheet.director_mean,
+            director_p95_deg=sheet.director_p95,
+            features=tuple(reading),
+        )
+        for k, (sheet, reading) in enumerate(zip(sheets, readings, strict=True))
+    )
+
+
+def _printed_thickness(options: VerifyOptions, process: Process, kind: str, layers: int) -> float:
+    """The sheet the file makes, mm: its layers times the layer height (a baromorph
+    drawing: the part's thickness; a laser pattern: the process's film)."""
+    if kind == "channels":
+        return load_baromorph(options.baromorph).part_thickness_mm
+    return layers * process.layer_height_mm
 
 
 def _part_figures(part: Part) -> dict[str, Any]:
@@ -353,9 +459,9 @@ def _read(
     process: Process,
     resolution: Resolution,
     options: VerifyOptions,
-) -> tuple[Readback, Placement, int]:
-    """The file on a grid of the sheet's frame, where the placement came from, and how
-    many layers the file prints."""
+) -> tuple[list[Readback], Placement]:
+    """The file on grids of the sheet's frame, one per layer it prints (bottom first; a
+    DXF, a laser pattern or baromorph channels: one), and where the placement came from."""
     if kind in ("laser", "channels"):
         if kind == "laser":
             readback, found, _ = read_laser(path)
@@ -364,20 +470,20 @@ def _read(
         placement = _placement(options, found)
         shift = np.asarray(placement.offset_mm)
         moved = (readback.origin[0] - shift[0], readback.origin[1] - shift[1])
-        return _replace_origin(readback, moved), placement, 1
+        return [_replace_origin(readback, moved)], placement
     cell = options.cell_mm or process.road_width_mm / CELL_PER_WIDTH
     if kind == "dxf":
         start, end, width, road, values, found = read_dxf(path, process.road_width_mm)
         values = {p: values.get(p, np.full(len(start), np.nan)) for p in resolution.parameters}
-        ink = None
-        roads = Roads(start, end, width, road, values, ink)
+        layers = [Roads(start, end, width, road, values, None)]
     else:
         printed = read_gcode(path, machine)
         found = printed.placement
-        roads = _gcode_roads(printed, machine, process, resolution)
+        heights = np.unique(np.round(printed.start[:, 2], 6)) if len(printed.start) else [0.0]
+        layers = [_gcode_roads(printed, machine, process, resolution, z) for z in heights]
     placement = _placement(options, found)
-    readback = rasterise(roads.shifted(np.asarray(placement.offset_mm)), cell)
-    return readback, placement, roads.layers
+    offset = np.asarray(placement.offset_mm)
+    return [rasterise(roads.shifted(offset), cell) for roads in layers], placement
 
 
 def _read_channels(path: Path, baromorph: str) -> tuple[Readback, Placement]:
@@ -427,14 +533,14 @@ def _flat_field(
 
 
 def _gcode_roads(
-    printed: Printed, machine: MachineProfile, process: Process, resolution: Resolution
+    printed: Printed,
+    machine: MachineProfile,
+    process: Process,
+    resolution: Resolution,
+    height: float,
 ) -> Roads:
-    """The first layer's segments with each channel's parameter per segment."""
-    first = (
-        np.isclose(printed.start[:, 2], printed.start[0, 2], atol=1e-6)
-        if len(printed.start)
-        else np.zeros(0, dtype=bool)
-    )
+    """The segments printed at ``height`` (mm) with each channel's parameter per segment."""
+    first = np.isclose(printed.start[:, 2], height, atol=1e-6)
     start, end = printed.start[first, :2], printed.end[first, :2]
     length = np.linalg.norm(end - start, axis=1)
     feed, volume = printed.feed[first], printed.volume[first]
@@ -457,7 +563,7 @@ def _gcode_roads(
     if "ink_fraction" in values and alternate:
         ink = printed.ink[first]
         del values["ink_fraction"]
-    return Roads(start, end, width, printed.road[first], values, ink, printed.layers)
+    return Roads(start, end, width, printed.road[first], values, ink)
 
 
 @dataclass(frozen=True, eq=False)
@@ -558,7 +664,7 @@ def _smoothing_mm(options: VerifyOptions, readback: Readback, thickness_mm: floa
 
 
 def _simulation_figures(
-    smoothing: float, readback: Readback, thickness_mm: float
+    smoothing: float, readback: Readback, thickness_mm: float, layers: int = 1
 ) -> dict[str, Any]:
     """What the simulations of the sheet as fabricated used (report.json's ``simulation``)."""
     settings = Settings()
@@ -566,6 +672,7 @@ def _simulation_figures(
         "smoothing_mm": smoothing,
         "road_width_mm": readback.width_mm,
         "thickness_mm": thickness_mm,
+        "layers": layers,
         "seed": settings.seed,
         "path": f"flat sheet as made -> each target's stimulus, {settings.steps} ramp steps",
         "solver": "damped Newton (exact Hessian, Levenberg-Marquardt)",
@@ -576,7 +683,8 @@ def _simulation_note(figures: dict[str, Any]) -> str:
     return (
         f"simulated with the read-back fields averaged over a Gaussian of "
         f"{figures['smoothing_mm']:.3g} mm (road width {figures['road_width_mm']:.3g} mm, "
-        f"sheet thickness {figures['thickness_mm']:.3g} mm), {figures['seed']} seed, "
+        f"sheet thickness {figures['thickness_mm']:.3g} mm: {figures['layers']} printed "
+        f"layer{'s' if figures['layers'] > 1 else ''}), {figures['seed']} seed, "
         f"path {figures['path']}"
     )
 
@@ -648,22 +756,26 @@ def _disc(radius: float) -> np.ndarray:
 
 def _simulate(
     design: Design,
-    fields: SheetFields,
+    fields: list[SheetFields],
     options: VerifyOptions,
     part: Part | None,
     thickness: float,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[TargetDistance, ...]:
-    """The sheet of ``fields`` on the cells of ``part``, ``thickness`` thick (design
-    units), under every target's stimulus (and, if asked, the sheet as designed on the
-    same mesh); ``progress`` over all their ramp steps."""
+    """The sheet of ``fields`` (one per layer, bottom first) on the cells of ``part``,
+    ``thickness`` thick in all (design units), under every target's stimulus (and, if
+    asked, the sheet as designed on the same mesh); ``progress`` over all their ramp
+    steps."""
     stride = options.stride or _stride(design)
     settings = Settings(max_iterations=options.max_iterations)
     spec = design.problem
     reference = None
     if options.reference:
-        own = design_fields(design)
-        reference = SheetFields(own.theta, own.features, fields.made)
+        if design.layering is None:
+            own = [design_fields(design)] * len(fields)
+        else:
+            own = [design_fields(design.layer(k)) for k in range(design.layers)]
+        reference = [SheetFields(o.theta, o.features, fields[0].made) for o in own]
     out = []
     surfaces = [
         s

@@ -43,8 +43,7 @@ _CHUNK = 1 << 16
 class Roads:
     """Printed segments, sheet frame (mm): ``start`` and ``end`` (n, 2), ``width`` (n,),
     ``road`` (n,) int (segments of one road share it), ``values`` parameter -> (n,) (NaN
-    where unknown), ``ink`` (n,) 0/1 on machines that alternate two inks, else None;
-    ``layers`` how many layers the file prints (only the first is read)."""
+    where unknown), ``ink`` (n,) 0/1 on machines that alternate two inks, else None."""
 
     start: np.ndarray
     end: np.ndarray
@@ -52,7 +51,6 @@ class Roads:
     road: np.ndarray
     values: dict[str, np.ndarray] = field(default_factory=dict)
     ink: np.ndarray | None = None
-    layers: int = 1
 
     def shifted(self, offset: np.ndarray) -> Roads:
         """The roads moved by ``-offset`` (machine to sheet frame, mm)."""
@@ -64,7 +62,6 @@ class Roads:
             self.road,
             self.values,
             self.ink,
-            self.layers,
         )
 
 
@@ -137,8 +134,6 @@ def rasterise(roads: Roads, cell_mm: float, margin_mm: float = 0.0) -> Readback:
             f"ink_fraction: share of the second ink over a Gaussian window of "
             f"{INK_WINDOW:g} road widths"
         )
-    if roads.layers > 1:
-        notes.append(f"the file prints {roads.layers} layers; the first is read")
     return Readback(
         origin=(float(low[0]), float(low[1])),
         cell_mm=cell_mm,

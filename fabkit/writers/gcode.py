@@ -655,7 +655,9 @@ def _flow_rows(
     build: _RowBuilder, paths: _Paths, segment: np.ndarray, after: np.ndarray, setup: _Setup
 ) -> None:
     """Flow on before and off after every print move (machines without an E axis); with
-    two alternating inks, each run of one ink bracketed by that ink's on and off G-code."""
+    two alternating inks, each run of one ink bracketed by that ink's on and off G-code
+    (:func:`~fabkit.writers.inks.alternate_inks`: each layer repeats the rounding of the
+    one below)."""
     prints = np.flatnonzero(paths.printing)
     if "ink_fraction" not in paths.channels or setup.inks != "alternate":
         if not setup.has_e:
@@ -666,7 +668,9 @@ def _flow_rows(
     off = {0: _FLOW_OFF if setup.flow_off else -1, 1: _INK2_OFF}
     fraction = paths.channels["ink_fraction"]
     width = float(np.median(paths.width[paths.width > 0]))
-    ink = alternate_inks(paths.xyz[:, :2], paths.start, prints, fraction, width, setup.piece_mm)
+    ink = alternate_inks(
+        paths.xyz[:, :2], paths.start, prints, fraction, width, setup.piece_mm, paths.layer
+    )
     rows: list[tuple[int, int, int]] = []  # (move, slot, prefix)
     for move in prints.tolist():
         a, b = paths.start[move] + 1, paths.start[move + 1]
