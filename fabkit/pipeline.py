@@ -42,7 +42,7 @@ from dataclasses import asdict, dataclass, replace
 from functools import partial
 from multiprocessing.pool import AsyncResult
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from fabkit.atomic import atomic_path, check_folder, output_folder, record
 from fabkit.background import Worker, worker
@@ -72,9 +72,6 @@ from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_jo
 from fabkit.toolpath.process import load_process, resolve_channels
 from fabkit.writers.dxf import layout_layers, write_dxf
 from fabkit.writers.export import ExportOptions, describe_dxf, write_machine_file
-
-if TYPE_CHECKING:
-    from fabkit.link.host.session import SendReport
 
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
 BAROMORPH_MACHINE = "laser_cutter"
@@ -298,7 +295,7 @@ def _fabricate(run: _Run) -> tuple[_Fabricated, dict[str, Any] | None, dict[str,
         run.say(f"[6/7] sending sheet.gcode to {options.send}")
         from fabkit.link.host.send import send_file
 
-        sent = _sent(send_file(run.out / "sheet.gcode", options.send, machine=options.machine))
+        sent = send_file(run.out / "sheet.gcode", options.send, machine=options.machine).figures()
     else:
         run.say("[6/7] not sending (no --send)")
     return fabricated, verification, sent
@@ -407,22 +404,6 @@ def _verify(run: _Run) -> dict[str, Any] | None:
     for line in result.table().splitlines()[1:-1]:
         say(f"      {line.strip()}")
     return result.to_dict()
-
-
-def _sent(report: SendReport) -> dict[str, Any]:
-    """What ``--send`` did, each figure named with its unit (report.json, report.html)."""
-    return {
-        "port": report.port,
-        "protocol": report.protocol,
-        "job_lines": report.job_lines,
-        "file_lines": f"{report.first_file_line}-{report.last_file_line}",
-        "seconds": round(report.elapsed_s, 3),
-        "lines_per_second": round(report.lines_per_s, 1),
-        "resent_lines": report.resends,
-        "status_queries_between_lines": report.probes,
-        "recoveries_from_lost_answers": report.recoveries,
-        "warnings": list(report.warnings),
-    }
 
 
 def _with_defaults(options: RunOptions) -> RunOptions:

@@ -94,6 +94,12 @@ def read_job(path: str | Path) -> list[Command]:
     """Read a G-code file into commands (FabkitError, one line, for a file that is missing,
     not a regular file, not ASCII, or over :data:`MAX_JOB_BYTES`, :data:`MAX_JOB_LINES` or
     :data:`MAX_LINE_CHARS`: the size is checked before anything is read)."""
+    return read_job_bytes(path)[1]
+
+
+def read_job_bytes(path: str | Path) -> tuple[bytes, list[Command]]:
+    """The bytes of a G-code file and its commands, read once (so that a printer host gets
+    exactly the bytes that were checked); refused as by :func:`read_job`."""
     path = Path(path)
     raw = _read_bounded(path)
     try:
@@ -110,7 +116,7 @@ def read_job(path: str | Path) -> list[Command]:
         raise FabkitError(
             f"{path}:{line}: line longer than {MAX_LINE_CHARS} characters, the limit for G-code"
         )
-    return commands_from_lines(lines)
+    return raw, commands_from_lines(lines)
 
 
 def _read_bounded(path: Path) -> bytes:
