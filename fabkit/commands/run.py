@@ -74,9 +74,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--send",
-        metavar="PORT",
-        help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
+        metavar="PORT|URL",
+        help="stream the G-code to a port or pyserial URL, e.g. sim://marlin, or print it "
+        "through a printer host, e.g. octoprint+http://HOST:PORT (see fabkit send --host)",
     )
+    commands.add_api_key(parser)
     commands.add_overwrite(parser)
     part_arguments(parser)
     parser.set_defaults(func=run)

@@ -43,6 +43,7 @@ MAX_LINE_CHARS = 4096
 _PAREN_COMMENT = re.compile(r"\([^)]*\)")
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 _LINE_END = re.compile(r"\r\n|\r|\n")
+_LINE_END_BYTES = re.compile(rb"\r\n|\r|\n")
 _LONG_LINE = re.compile(rb"[^\r\n]{%d}" % (MAX_LINE_CHARS + 1))
 
 
@@ -117,6 +118,14 @@ def read_job_bytes(path: str | Path) -> tuple[bytes, list[Command]]:
             f"{path}:{line}: line longer than {MAX_LINE_CHARS} characters, the limit for G-code"
         )
     return raw, commands_from_lines(lines)
+
+
+def line_ends(raw: bytes) -> list[int]:
+    """The byte offset just past each line of a file's bytes ``raw`` (its end of line
+    included; a last line without one ends at ``len(raw)``), lines split as by
+    :func:`read_job`: file line ``n`` ends at ``line_ends(raw)[n - 1]``."""
+    ends = [match.end() for match in _LINE_END_BYTES.finditer(raw)]
+    return ends if ends and ends[-1] == len(raw) else [*ends, len(raw)]
 
 
 def _read_bounded(path: Path) -> bytes:

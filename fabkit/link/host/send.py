@@ -5,7 +5,9 @@
 the one the file's header names, else the port's default), the pre-flight check, the
 duration estimate, ``--resume-from``, ``--dry-run``, the log file, the progress bar and
 the keys (Ctrl-C stops with the profile's safe-stop snippet and raises
-:class:`~fabkit.link.host.session.SendInterrupted`; Ctrl-Z pauses and resumes).
+:class:`~fabkit.link.host.session.SendInterrupted`; Ctrl-Z pauses and resumes). Given a
+printer host's URL instead of a port, it hands the file to
+:func:`~fabkit.link.host.hosts.send_to_host` (OctoPrint, Moonraker).
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from serial import SerialException
 
@@ -39,6 +41,10 @@ from fabkit.link.host.session import (
 )
 from fabkit.machines import MachineProfile
 from fabkit.progress import ProgressBar
+
+if TYPE_CHECKING:
+    from fabkit.link.host.hosts import HostReport
+    from fabkit.link.host.web import HostOptions
 
 PROTOCOLS = {"marlin": MarlinProtocol, "grbl": GrblProtocol}
 
@@ -90,27 +96,60 @@ def protocol_sent(protocol: MarlinProtocol | GrblProtocol) -> int:
 
 def send_file(
     path: str | Path,
-    port: str | None,
+    port: str | None = None,
     *,
+    host: str | None = None,
     baud: int | None = None,
     machine: str | None = None,
     force: bool = False,
+    api_key: str | None = None,
+    api_key_file: str | Path | None = None,
+    no_start: bool = False,
     log_path: str | Path | None = None,
     resume_from: int | None = None,
     dry_run: bool = False,
     options: LinkOptions | None = None,
+    host_options: HostOptions | None = None,
     show_progress: bool = True,
     say: Callable[[str], None] | None = None,
-) -> SendReport | DryRun:
-    """Check ``path`` against the machine, then (unless ``dry_run``) stream it to ``port``.
+) -> SendReport | HostReport | DryRun:
+    """Check ``path`` against the machine, then (unless ``dry_run``) stream it to ``port``,
+    or hand it to the printer host ``host`` (:func:`~fabkit.link.host.hosts.send_to_host`,
+    with ``api_key``, ``api_key_file``, ``no_start`` and ``host_options``).
 
     Returns the check and estimate (dry run) or the send report; every problem is a
     FabkitError, Ctrl-C a :class:`SendInterrupted`. ``say`` gets the lines for the user
     before streaming (which machine, the estimated duration); the progress bar goes to
     stderr unless ``show_progress`` is False.
     """
+    if host is not None:
+        _no_serial_options(port, baud, resume_from, options)
+        from fabkit.link.host.hosts import send_to_host
+
+        return send_to_host(
+            path,
+            host,
+            machine=machine,
+            force=force,
+            api_key=api_key,
+            api_key_file=api_key_file,
+            no_start=no_start,
+            log_path=log_path,
+            dry_run=dry_run,
+            options=host_options,
+            show_progress=show_progress,
+            say=say,
+        )
+    for flag, given in (("--api-key", api_key), ("--api-key-file", api_key_file)):
+        if given is not None:
+            raise FabkitError(f"{flag} is for a printer host (--host), not a serial port")
+    if no_start:
+        raise FabkitError("--no-start is for a printer host (--host), not a serial port")
     if port is None and not dry_run:
-        raise FabkitError("--port is required (or use --dry-run to only check the file)")
+        raise FabkitError(
+            "--port is required (or --host for OctoPrint or Moonraker, or --dry-run to only "
+            "check the file)"
+        )
     prepared = prepare_job(
         path, machine, default_machine(port or ""), force=force, link_takes=_emulates(port)
     )
@@ -159,6 +198,18 @@ def _stream_file(
         raise
     finally:
         handle.close()
+
+
+def _no_serial_options(
+    port: str | None, baud: int | None, resume_from: int | None, options: LinkOptions | None
+) -> None:
+    """Refuse the options of a serial port with a printer host."""
+    serial_only = (("--port", port), ("--baud", baud), ("--resume-from", resume_from))
+    for flag, given in serial_only:
+        if given is not None:
+            raise FabkitError(f"{flag} is for a serial port, not a printer host (--host)")
+    if options is not None:
+        raise FabkitError("link options are for a serial port, not a printer host (--host)")
 
 
 def _emulates(port: str | None) -> Callable[[MachineProfile], None]:
