@@ -38,7 +38,7 @@ import json
 import math
 from collections.abc import Callable
 from contextlib import suppress
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from multiprocessing.pool import AsyncResult
 from pathlib import Path
@@ -79,6 +79,7 @@ from fabkit.writers.dxf import layout_layers, write_dxf
 from fabkit.writers.export import ExportOptions, describe_dxf, write_machine_file
 
 if TYPE_CHECKING:
+    from fabkit.link.host.hosts import HostReport
     from fabkit.link.host.session import SendReport
 
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
@@ -104,6 +105,10 @@ class RunOptions:
     (:mod:`fabkit.design.layers`); every target is then simulated from flat, as designed
     and as fabricated, and held to ``form_tolerance`` (RMS, a share of the patch
     diameter); ``strict`` makes a target not formed an error (the run's exit code).
+    ``send`` is a port, a pyserial URL or a printer host's URL
+    (:mod:`fabkit.link.host.web`), whose API key is ``api_key``, else the first line of
+    ``api_key_file``, else the environment's FABKIT_API_KEY; the key is never shown nor
+    written.
     """
 
     spec: str
@@ -112,6 +117,8 @@ class RunOptions:
     formats: tuple[str, ...] | None = None
     size_mm: float = DEFAULT_SIZE_MM
     send: str | None = None
+    api_key: str | None = field(default=None, repr=False)
+    api_key_file: str | None = None
     process_file: str | None = None
     baromorph: str | None = None
     step: float | None = None
@@ -371,12 +378,22 @@ def _fabricate(run: _Run) -> tuple[_Fabricated, dict[str, Any] | None, dict[str,
     sent = None
     if options.send:
         run.say(f"[6/7] sending sheet.gcode to {options.send}")
-        from fabkit.link.host.send import send_file
-
-        sent = _sent(send_file(run.out / "sheet.gcode", options.send, machine=options.machine))
+        sent = _send(run.out / "sheet.gcode", options).figures()
     else:
         run.say("[6/7] not sending (no --send)")
     return fabricated, verification, sent
+
+
+def _check_send(options: RunOptions) -> None:
+    """Refuse a bad printer host URL or API key before any work (a port is opened only at
+    the send: it may be plugged in meanwhile)."""
+    from fabkit.link.host.web import is_host_url, parse_host_url, resolve_api_key
+
+    if options.send and is_host_url(options.send):
+        parse_host_url(options.send)
+        resolve_api_key(options.api_key, options.api_key_file)
+    elif options.api_key is not None or options.api_key_file is not None:
+        raise FabkitError("--api-key and --api-key-file are for --send to a printer host")
 
 
 def _check_inputs(options: RunOptions) -> _Inputs:
@@ -391,6 +408,7 @@ def _check_inputs(options: RunOptions) -> _Inputs:
         )
     if options.send and "gcode" not in options.formats:
         raise FabkitError("--send needs --format gcode")
+    _check_send(options)
     if not (math.isfinite(options.size_mm) and options.size_mm > 0):
         raise FabkitError(f"--size {options.size_mm:g}: expected a positive finite number")
     if not 1 <= options.layers <= MAX_LAYERS:
@@ -504,20 +522,20 @@ def _verify(run: _Run) -> dict[str, Any] | None:
     return result.to_dict()
 
 
-def _sent(report: SendReport) -> dict[str, Any]:
-    """What ``--send`` did, each figure named with its unit (report.json, report.html)."""
-    return {
-        "port": report.port,
-        "protocol": report.protocol,
-        "job_lines": report.job_lines,
-        "file_lines": f"{report.first_file_line}-{report.last_file_line}",
-        "seconds": round(report.elapsed_s, 3),
-        "lines_per_second": round(report.lines_per_s, 1),
-        "resent_lines": report.resends,
-        "status_queries_between_lines": report.probes,
-        "recoveries_from_lost_answers": report.recoveries,
-        "warnings": list(report.warnings),
-    }
+def _send(path: Path, options: RunOptions) -> SendReport | HostReport:
+    """Send the machine file to ``options.send``, a port or a printer host."""
+    from fabkit.link.host.send import send_file
+    from fabkit.link.host.web import is_host_url
+
+    host = options.send if is_host_url(options.send) else None
+    return send_file(
+        path,
+        None if host else options.send,
+        host=host,
+        machine=options.machine,
+        api_key=options.api_key,
+        api_key_file=options.api_key_file,
+    )
 
 
 def _with_defaults(options: RunOptions) -> RunOptions:

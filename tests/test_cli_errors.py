@@ -27,6 +27,7 @@ TWO = EXAMPLES / "two_shapes.toml"
 SWIMMER = EXAMPLES / "swimmer.toml"
 SIM = "sim://marlin?baud=0&time_scale=0"
 DIW = "marlin_diw_pneumatic"
+NOBODY = "127.0.0.1:1"  # a loopback port nobody listens on (tcpmux, not served)
 
 
 CASES = [
@@ -567,6 +568,88 @@ CASES = [
         outputs=(),
         id="send-log-under-file",
     ),
+    # ------------------------------------------------------------------ send --host
+    case(
+        f"send {{gcode}} --host ftp://{NOBODY}",
+        "expected octoprint+http://HOST:PORT",
+        outputs=(),
+        id="send-host-scheme",
+    ),
+    case(
+        "send {gcode} --host octoprint+http://fabkit:secret@127.0.0.1",
+        "put no credentials in the URL",
+        outputs=(),
+        id="send-host-credentials",
+    ),
+    case(
+        f"send {{gcode}} --host octoprint+http://{NOBODY} --api-key KEY",
+        "cannot reach",
+        "Connection refused",
+        outputs=(),
+        id="send-host-refused",
+    ),
+    case(
+        f"send {{gcode}} --host moonraker+http://{NOBODY}",
+        "runs Klipper but machine",
+        "marlin_diw_pneumatic is flavour marlin",
+        outputs=(),
+        id="send-host-moonraker-marlin",
+    ),
+    case(
+        f"send {{gcode}} --host octoprint+http://{NOBODY} --machine grbl_diw --force",
+        "streams to Marlin-protocol firmware",
+        outputs=(),
+        id="send-host-octoprint-grbl",
+    ),
+    case(
+        f"send {{gcode}} --host octoprint+http://{NOBODY} --baud 9600",
+        "is for a serial port, not a printer host",
+        "--baud",
+        outputs=(),
+        id="send-host-baud",
+    ),
+    case(
+        f"send {{gcode}} --port {SIM} --api-key KEY",
+        "is for a printer host (--host), not a serial port",
+        "--api-key",
+        outputs=(),
+        id="send-port-api-key",
+    ),
+    case(
+        f"send {{gcode}} --port {SIM} --no-start",
+        "is for a printer host (--host), not a serial port",
+        "--no-start",
+        outputs=(),
+        id="send-port-no-start",
+    ),
+    case(
+        f"send {{gcode}} --port {SIM} --host octoprint+http://{NOBODY}",
+        "not allowed with argument",
+        outputs=(),
+        id="send-port-and-host",
+    ),
+    case(
+        f"send {{gcode}} --host octoprint+http://{NOBODY} --api-key-file {{missing}}",
+        "cannot read --api-key-file",
+        outputs=(),
+        id="send-host-key-file-missing",
+    ),
+    case(
+        f"send {{gcode}} --host octoprint+http://{NOBODY} --api-key-file {{empty_key}}",
+        "is empty or holds blanks or control characters",
+        outputs=(),
+        id="send-host-key-file-empty",
+    ),
+    case(
+        "run {spec} --out {out} --send http://fabkit:secret@127.0.0.1",
+        "put no credentials in the URL",
+        id="run-send-host-credentials",
+    ),
+    case(
+        f"run {{spec}} --out {{out}} --send {SIM} --api-key KEY",
+        "are for --send to a printer host",
+        id="run-send-port-api-key",
+    ),
     # ------------------------------------------------------------------ simulate
     case("simulate {missing}.npz --stimulus 1", "does not exist", id="simulate-missing"),
     case("simulate {garbage} --stimulus 1", "cannot read design file", id="simulate-garbage"),
@@ -792,6 +875,7 @@ def files(folder) -> dict[str, str]:
     (folder / "far.gcode").write_text("G90\nG1 X500 Y10 F600\n")
     (folder / "fast.gcode").write_text("G90\nG1 X10 Y10 F6000000\n")
     (folder / "folder").mkdir()
+    (folder / "empty.key").write_text("\n")
     two = TWO.read_text()
     specs = {
         "unknown_key": edited(two, 'name = "flat"\n', 'name = "flat"\ncolour = "red"\n'),
@@ -822,6 +906,7 @@ def files(folder) -> dict[str, str]:
         "far_gcode": str(folder / "far.gcode"),
         "fast_gcode": str(folder / "fast.gcode"),
         "folder": str(folder / "folder"),
+        "empty_key": str(folder / "empty.key"),
     }
 
 

@@ -71,7 +71,10 @@ COMMANDS: dict[str, Command] = {
         "else the port's default; each send says which. PORT is a device (/dev/ttyUSB0, "
         "COM3) or a pyserial URL; sim://marlin and sim://grbl are built-in emulators "
         "(docs/link.md). Ctrl-C stops with the profile's safe-stop snippet, prints the "
-        "--resume-from line and exits with 130; Ctrl-Z pauses and resumes.",
+        "--resume-from line and exits with 130; Ctrl-Z pauses and resumes. With --host the "
+        "file goes to a printer host instead (OctoPrint, Moonraker: docs/link.md), checked "
+        "first the same way, then uploaded, started and followed to its end; Ctrl-C cancels "
+        "the job there.",
     ),
     "simulate": Command(
         "simulate", "simulate the designed sheet at a stimulus and compare with its target"
@@ -143,6 +146,21 @@ def in_out_folder(handler: Handler) -> Handler:
             return handler(args)
 
     return run
+
+
+def add_api_key(parser: argparse._ActionsContainer) -> None:
+    """``--api-key KEY`` and ``--api-key-file FILE``, the key of a printer host (else the
+    environment's FABKIT_API_KEY), in ``args.api_key`` and ``args.api_key_file``."""
+    keys = parser.add_mutually_exclusive_group()
+    keys.add_argument(
+        "--api-key",
+        metavar="KEY",
+        help="the printer host's API key (visible to other users in the process list: "
+        "prefer --api-key-file or the environment variable FABKIT_API_KEY)",
+    )
+    keys.add_argument(
+        "--api-key-file", metavar="FILE", help="a file whose first line is the API key"
+    )
 
 
 def add_machine(parser: argparse._ActionsContainer, help: str) -> None:

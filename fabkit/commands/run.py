@@ -75,8 +75,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--send",
-        metavar="PORT",
-        help="stream the G-code to a port or pyserial URL, e.g. sim://marlin",
+        metavar="PORT|URL",
+        help="stream the G-code to a port or pyserial URL, e.g. sim://marlin, or print it "
+        "through a printer host, e.g. octoprint+http://HOST:PORT (see fabkit send --host)",
     )
     parser.add_argument(
         "--layers",
@@ -99,6 +100,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="exit 1 when the sheet (as designed or as fabricated) does not form every target",
     )
+    commands.add_api_key(parser)
     commands.add_overwrite(parser)
     part_arguments(parser)
     parser.set_defaults(func=run)

@@ -1,26 +1,38 @@
-"""``fabkit send``: check a G-code file against a machine and stream it to a port."""
+"""``fabkit send``: check a G-code file against a machine and stream it to a port, or print
+it through a printer host (OctoPrint, Moonraker)."""
 
 from __future__ import annotations
 
 import argparse
 
-from fabkit.commands import add_command, call_with
+from fabkit.commands import add_api_key, add_command, call_with
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = add_command(subparsers, "send")
     parser.add_argument("path", metavar="FILE", help="G-code file")
-    parser.add_argument("--port", help="device or pyserial URL (not needed with --dry-run)")
+    link = parser.add_mutually_exclusive_group()
+    link.add_argument("--port", help="device or pyserial URL (not needed with --dry-run)")
+    link.add_argument(
+        "--host",
+        metavar="URL",
+        help="a printer host: octoprint+http://HOST:PORT, moonraker+http://HOST:PORT "
+        "(+https too), or http://HOST:PORT to ask the server which it is",
+    )
     parser.add_argument("--baud", type=int, help="baud rate (default: the profile's)")
     parser.add_argument(
         "--machine",
         help="profile name or .toml path (default: the machine in FILE's header, else "
-        "grbl_diw on sim://grbl, else marlin_generic)",
+        "grbl_diw on sim://grbl, klipper_generic through Moonraker, else marlin_generic)",
     )
     parser.add_argument(
         "--force",
         action="store_true",
         help="send with --machine even if FILE's header names another machine",
+    )
+    add_api_key(parser)
+    parser.add_argument(
+        "--no-start", action="store_true", help="with --host: upload the file, do not start it"
     )
     parser.add_argument(
         "--log", metavar="LOGFILE", dest="log_path", help="write all traffic to LOGFILE"
@@ -42,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     def say(text: str) -> None:
         print(text, flush=True)
 
-    # Ctrl-C: a SendInterrupted, which fabkit.cli prints with its resume line (exit 130)
+    # Ctrl-C: a SendInterrupted, which fabkit.cli prints with where the job stopped (exit 130)
     result = call_with(send_file, args, say=say)
     print(result.summary())
     return 0

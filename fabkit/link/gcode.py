@@ -43,6 +43,7 @@ MAX_LINE_CHARS = 4096
 _PAREN_COMMENT = re.compile(r"\([^)]*\)")
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 _LINE_END = re.compile(r"\r\n|\r|\n")
+_LINE_END_BYTES = re.compile(rb"\r\n|\r|\n")
 _LONG_LINE = re.compile(rb"[^\r\n]{%d}" % (MAX_LINE_CHARS + 1))
 
 
@@ -94,6 +95,12 @@ def read_job(path: str | Path) -> list[Command]:
     """Read a G-code file into commands (FabkitError, one line, for a file that is missing,
     not a regular file, not ASCII, or over :data:`MAX_JOB_BYTES`, :data:`MAX_JOB_LINES` or
     :data:`MAX_LINE_CHARS`: the size is checked before anything is read)."""
+    return read_job_bytes(path)[1]
+
+
+def read_job_bytes(path: str | Path) -> tuple[bytes, list[Command]]:
+    """The bytes of a G-code file and its commands, read once (so that a printer host gets
+    exactly the bytes that were checked); refused as by :func:`read_job`."""
     path = Path(path)
     raw = _read_bounded(path)
     try:
@@ -110,7 +117,15 @@ def read_job(path: str | Path) -> list[Command]:
         raise FabkitError(
             f"{path}:{line}: line longer than {MAX_LINE_CHARS} characters, the limit for G-code"
         )
-    return commands_from_lines(lines)
+    return raw, commands_from_lines(lines)
+
+
+def line_ends(raw: bytes) -> list[int]:
+    """The byte offset just past each line of a file's bytes ``raw`` (its end of line
+    included; a last line without one ends at ``len(raw)``), lines split as by
+    :func:`read_job`: file line ``n`` ends at ``line_ends(raw)[n - 1]``."""
+    ends = [match.end() for match in _LINE_END_BYTES.finditer(raw)]
+    return ends if ends and ends[-1] == len(raw) else [*ends, len(raw)]
 
 
 def _read_bounded(path: Path) -> bytes:

@@ -5,26 +5,24 @@
 the one the file's header names, else the port's default), the pre-flight check, the
 duration estimate, ``--resume-from``, ``--dry-run``, the log file, the progress bar and
 the keys (Ctrl-C stops with the profile's safe-stop snippet and raises
-:class:`~fabkit.link.host.session.SendInterrupted`; Ctrl-Z pauses and resumes).
+:class:`~fabkit.link.host.session.SendInterrupted`; Ctrl-Z pauses and resumes). Given a
+printer host's URL instead of a port, it hands the file to
+:func:`~fabkit.link.host.hosts.send_to_host` (OctoPrint, Moonraker).
 """
 
 from __future__ import annotations
 
-import contextlib
-import re
-import signal
 import sys
-from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from serial import SerialException
 
 from fabkit.errors import FabkitError
-from fabkit.link.duration import Estimate, estimate
-from fabkit.link.gcode import Command, read_job
+from fabkit.link.gcode import Command
 from fabkit.link.host.grbl import GrblProtocol
+from fabkit.link.host.job import DryRun, PreparedJob, keys, log_file, prepare_job
 from fabkit.link.host.marlin import MarlinProtocol
 from fabkit.link.host.ports import (
     SIM_DEFAULT_MACHINES,
@@ -33,7 +31,6 @@ from fabkit.link.host.ports import (
     sim_personality,
     sim_time_scale,
 )
-from fabkit.link.host.preflight import JobCheck, check_job
 from fabkit.link.host.session import (
     LinkControl,
     LinkOptions,
@@ -42,12 +39,14 @@ from fabkit.link.host.session import (
     SerialLike,
     send_eta,
 )
-from fabkit.machines import MachineProfile, load_machine
+from fabkit.machines import MachineProfile
 from fabkit.progress import ProgressBar
 
+if TYPE_CHECKING:
+    from fabkit.link.host.hosts import HostReport
+    from fabkit.link.host.web import HostOptions
+
 PROTOCOLS = {"marlin": MarlinProtocol, "grbl": GrblProtocol}
-_HEADER = re.compile(r";\s*Generated with fabkit \S+ for machine (\S+)")
-HEADER_LINES = 40  # the header is at the top of the file
 
 
 def stream_job(
@@ -95,110 +94,94 @@ def protocol_sent(protocol: MarlinProtocol | GrblProtocol) -> int:
     return protocol.sent_lines if isinstance(protocol, MarlinProtocol) else protocol.sent
 
 
-@dataclass(frozen=True)
-class DryRun:
-    """What ``--dry-run`` found: which machine and why, the check, the duration."""
-
-    machine_note: str
-    check: JobCheck
-    estimate: Estimate
-
-    def summary(self) -> str:
-        return f"{self.machine_note}\n{self.check.summary()}\n{self.estimate.summary()}"
-
-
-def machine_in_header(path: str | Path) -> str | None:
-    """The machine a fabkit-written file names in its header (``;Generated with fabkit
-    0.1.0 for machine NAME``), or None."""
-    try:
-        with open(path, encoding="ascii", errors="replace") as handle:
-            for _, line in zip(range(HEADER_LINES), handle, strict=False):
-                match = _HEADER.match(line.strip())
-                if match:
-                    return match.group(1)
-    except OSError:
-        return None
-    return None
-
-
-def choose_machine(
-    path: str | Path, requested: str | None, port: str | None, *, force: bool = False
-) -> tuple[MachineProfile, str]:
-    """The profile to send ``path`` with, and one line saying which and why.
-
-    ``--machine`` wins; without it, the machine the file's header names; without a
-    header, the port's default. ``--machine`` and a header that disagree are refused
-    unless ``force``."""
-    named = machine_in_header(path)
-    if requested is None:
-        if named is not None:
-            return load_machine(named), f"machine {named} (named in the header of {path})"
-        fallback = default_machine(port or "")
-        note = f"machine {fallback} (the default: {path} names no machine in its header)"
-        return load_machine(fallback), note
-    profile = load_machine(requested)
-    if named is not None and named != profile.name and not force:
-        raise FabkitError(
-            f"{path} was written for machine {named} (its header), not {profile.name}: "
-            f"send it with --machine {named}, or add --force"
-        )
-    if named is not None and named != profile.name:
-        return profile, f"machine {profile.name} (--force: the header names {named})"
-    return profile, f"machine {profile.name} (--machine)"
-
-
 def send_file(
     path: str | Path,
-    port: str | None,
+    port: str | None = None,
     *,
+    host: str | None = None,
     baud: int | None = None,
     machine: str | None = None,
     force: bool = False,
+    api_key: str | None = None,
+    api_key_file: str | Path | None = None,
+    no_start: bool = False,
     log_path: str | Path | None = None,
     resume_from: int | None = None,
     dry_run: bool = False,
     options: LinkOptions | None = None,
+    host_options: HostOptions | None = None,
     show_progress: bool = True,
     say: Callable[[str], None] | None = None,
-) -> SendReport | DryRun:
-    """Check ``path`` against the machine, then (unless ``dry_run``) stream it to ``port``.
+) -> SendReport | HostReport | DryRun:
+    """Check ``path`` against the machine, then (unless ``dry_run``) stream it to ``port``,
+    or hand it to the printer host ``host`` (:func:`~fabkit.link.host.hosts.send_to_host`,
+    with ``api_key``, ``api_key_file``, ``no_start`` and ``host_options``).
 
     Returns the check and estimate (dry run) or the send report; every problem is a
     FabkitError, Ctrl-C a :class:`SendInterrupted`. ``say`` gets the lines for the user
     before streaming (which machine, the estimated duration); the progress bar goes to
     stderr unless ``show_progress`` is False.
     """
-    if port is None and not dry_run:
-        raise FabkitError("--port is required (or use --dry-run to only check the file)")
-    job = read_job(path)
-    profile, note = choose_machine(path, machine, port, force=force)
-    if profile.serial is None:
-        raise FabkitError(f"machine {profile.name} has flavour none and takes no G-code")
-    personality = sim_personality(port or "")
-    if personality in SIM_DEFAULT_MACHINES and personality != profile.serial.protocol:
-        raise FabkitError(
-            f"{port} emulates a {personality} machine but profile {profile.name} speaks "
-            f"{profile.serial.protocol}"
+    if host is not None:
+        _no_serial_options(port, baud, resume_from, options)
+        from fabkit.link.host.hosts import send_to_host
+
+        return send_to_host(
+            path,
+            host,
+            machine=machine,
+            force=force,
+            api_key=api_key,
+            api_key_file=api_key_file,
+            no_start=no_start,
+            log_path=log_path,
+            dry_run=dry_run,
+            options=host_options,
+            show_progress=show_progress,
+            say=say,
         )
-    checked = check_job(job, profile, source=str(path))
-    planned = estimate(job, profile)
-    first = 0
-    if resume_from is not None:
-        first = _resume(job, resume_from, path)
+    for flag, given in (("--api-key", api_key), ("--api-key-file", api_key_file)):
+        if given is not None:
+            raise FabkitError(f"{flag} is for a printer host (--host), not a serial port")
+    if no_start:
+        raise FabkitError("--no-start is for a printer host (--host), not a serial port")
+    if port is None and not dry_run:
+        raise FabkitError(
+            "--port is required (or --host for OctoPrint or Moonraker, or --dry-run to only "
+            "check the file)"
+        )
+    prepared = prepare_job(
+        path, machine, default_machine(port or ""), force=force, link_takes=_emulates(port)
+    )
+    first = 0 if resume_from is None else _resume(prepared.job, resume_from, path)
     if dry_run or port is None:
-        return DryRun(note, checked, planned)
+        return prepared.dry_run()
     if say is not None:
-        say(note)
-        say(planned.summary())
-    job = job[first:]
+        say(prepared.machine_note)
+        say(prepared.plan.summary())
+    return _stream_file(prepared, first, port, baud, log_path, options, show_progress)
+
+
+def _stream_file(
+    prepared: PreparedJob,
+    first: int,
+    port: str,
+    baud: int | None,
+    log_path: str | Path | None,
+    options: LinkOptions | None,
+    show_progress: bool,
+) -> SendReport:
+    """Open ``port`` and stream the prepared job from its command ``first`` on, with the
+    log, the progress bar and the keys."""
+    job, profile = prepared.job[first:], prepared.machine
     handle = open_port(port, baud or profile.serial.baud)
     control = LinkControl()
     progress = None
     if show_progress:
-        eta_s = send_eta(planned, len(job), first, sim_time_scale(port))
+        eta_s = send_eta(prepared.plan, len(job), first, sim_time_scale(port))
         progress = ProgressBar("sending", sys.stderr, force=True, eta_s=eta_s, interval_s=0.2)
     try:
-        with _log_file(log_path) as log, _keys(control):
+        with log_file(log_path) as log, keys(control):
             return stream_job(
                 handle,
                 job,
@@ -217,47 +200,35 @@ def send_file(
         handle.close()
 
 
+def _no_serial_options(
+    port: str | None, baud: int | None, resume_from: int | None, options: LinkOptions | None
+) -> None:
+    """Refuse the options of a serial port with a printer host."""
+    serial_only = (("--port", port), ("--baud", baud), ("--resume-from", resume_from))
+    for flag, given in serial_only:
+        if given is not None:
+            raise FabkitError(f"{flag} is for a serial port, not a printer host (--host)")
+    if options is not None:
+        raise FabkitError("link options are for a serial port, not a printer host (--host)")
+
+
+def _emulates(port: str | None) -> Callable[[MachineProfile], None]:
+    """Refuse a profile whose protocol a ``sim://`` port does not emulate."""
+
+    def takes(profile: MachineProfile) -> None:
+        personality = sim_personality(port or "")
+        if personality in SIM_DEFAULT_MACHINES and personality != profile.serial.protocol:
+            raise FabkitError(
+                f"{port} emulates a {personality} machine but profile {profile.name} speaks "
+                f"{profile.serial.protocol}"
+            )
+
+    return takes
+
+
 def _resume(job: list[Command], first_line: int, path: str | Path) -> int:
     """The index of the first command at or after file line ``first_line``."""
     last = job[-1].file_line if job else 0
     if not 1 <= first_line <= last:
         raise FabkitError(f"--resume-from {first_line} is outside {path} (lines 1-{last})")
     return next(i for i, command in enumerate(job) if command.file_line >= first_line)
-
-
-@contextlib.contextmanager
-def _log_file(path: str | Path | None) -> Iterator[TextIO | None]:
-    """The traffic log, appended line by line so that it survives a failed job."""
-    if path is None:
-        yield None
-        return
-    try:
-        handle = open(path, "w", encoding="latin-1", buffering=1)  # noqa: SIM115
-    except OSError as exc:
-        raise FabkitError(f"cannot write log file {path}: {exc.strerror}") from None
-    with handle:
-        yield handle
-
-
-@contextlib.contextmanager
-def _keys(control: LinkControl) -> Iterator[None]:
-    """Ctrl-C stops safely (a second Ctrl-C interrupts at once); Ctrl-Z pauses / resumes."""
-    handlers = {}
-
-    def on_interrupt(signum: int, frame: object) -> None:
-        control.interrupt()
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-
-    wanted = {signal.SIGINT: on_interrupt}
-    if hasattr(signal, "SIGTSTP"):
-        wanted[signal.SIGTSTP] = lambda signum, frame: control.toggle_pause()
-    try:
-        for signum, handler in wanted.items():
-            handlers[signum] = signal.signal(signum, handler)
-    except ValueError:  # not the main thread: no keys
-        pass
-    try:
-        yield
-    finally:
-        for signum, handler in handlers.items():
-            signal.signal(signum, handler)

@@ -12,7 +12,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol, TextIO
+from typing import Any, Protocol, TextIO
 
 from fabkit.errors import FabkitError
 from fabkit.link.duration import Estimate, estimate
@@ -147,6 +147,21 @@ class SendReport:
     @property
     def lines_per_s(self) -> float:
         return self.job_lines / self.elapsed_s if self.elapsed_s > 0 else float("inf")
+
+    def figures(self) -> dict[str, Any]:
+        """The figures, each named with its unit (report.json, report.html)."""
+        return {
+            "port": self.port,
+            "protocol": self.protocol,
+            "job_lines": self.job_lines,
+            "file_lines": f"{self.first_file_line}-{self.last_file_line}",
+            "seconds": round(self.elapsed_s, 3),
+            "lines_per_second": round(self.lines_per_s, 1),
+            "resent_lines": self.resends,
+            "status_queries_between_lines": self.probes,
+            "recoveries_from_lost_answers": self.recoveries,
+            "warnings": list(self.warnings),
+        }
 
     def summary(self) -> str:
         text = (

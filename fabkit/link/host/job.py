@@ -1,0 +1,157 @@
+"""What every way of sending a job shares, over a serial line or through a printer host.
+
+:func:`prepare_job` reads the file once, chooses the machine (``--machine``, else the one
+the file's header names, else the link's default) and checks the job against it and
+estimates its duration, before a single byte leaves; :func:`keys` turns Ctrl-C into an
+abort and Ctrl-Z into pause / resume; :func:`log_file` opens the traffic log.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import signal
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TextIO
+
+from fabkit.errors import FabkitError
+from fabkit.link.duration import Estimate, estimate
+from fabkit.link.gcode import Command, read_job_bytes
+from fabkit.link.host.preflight import JobCheck, check_job
+from fabkit.link.host.session import LinkControl
+from fabkit.machines import MachineProfile, load_machine
+
+_HEADER = re.compile(r";\s*Generated with fabkit \S+ for machine (\S+)")
+HEADER_LINES = 40  # the header is at the top of the file
+
+
+@dataclass(frozen=True)
+class PreparedJob:
+    """A G-code file checked against its machine: the file's bytes (exactly what was
+    checked), its commands, the machine and one line saying which and why, the check and
+    the planned duration."""
+
+    path: str
+    data: bytes
+    job: list[Command]
+    machine: MachineProfile
+    machine_note: str
+    check: JobCheck
+    plan: Estimate
+
+    def dry_run(self) -> DryRun:
+        """What ``--dry-run`` reports of this job."""
+        return DryRun(self.machine_note, self.check, self.plan)
+
+
+@dataclass(frozen=True)
+class DryRun:
+    """What ``--dry-run`` found: which machine and why, the check, the duration."""
+
+    machine_note: str
+    check: JobCheck
+    estimate: Estimate
+
+    def summary(self) -> str:
+        return f"{self.machine_note}\n{self.check.summary()}\n{self.estimate.summary()}"
+
+
+def prepare_job(
+    path: str | Path,
+    requested: str | None,
+    default: str,
+    *,
+    force: bool = False,
+    link_takes: Callable[[MachineProfile], None] | None = None,
+) -> PreparedJob:
+    """Read ``path``, choose its machine (see :func:`choose_machine`; ``default`` is the
+    link's), let ``link_takes`` refuse a machine the link cannot drive (a FabkitError),
+    check the job against the machine and plan its duration; FabkitError at the first
+    problem."""
+    data, job = read_job_bytes(path)
+    profile, note = choose_machine(path, requested, default, force=force)
+    if profile.serial is None:
+        raise FabkitError(f"machine {profile.name} has flavour none and takes no G-code")
+    if link_takes is not None:
+        link_takes(profile)
+    checked = check_job(job, profile, source=str(path))
+    return PreparedJob(str(path), data, job, profile, note, checked, estimate(job, profile))
+
+
+def machine_in_header(path: str | Path) -> str | None:
+    """The machine a fabkit-written file names in its header (``;Generated with fabkit
+    0.1.0 for machine NAME``), or None."""
+    try:
+        with open(path, encoding="ascii", errors="replace") as handle:
+            for _, line in zip(range(HEADER_LINES), handle, strict=False):
+                match = _HEADER.match(line.strip())
+                if match:
+                    return match.group(1)
+    except OSError:
+        return None
+    return None
+
+
+def choose_machine(
+    path: str | Path, requested: str | None, default: str, *, force: bool = False
+) -> tuple[MachineProfile, str]:
+    """The profile to send ``path`` with, and one line saying which and why.
+
+    ``--machine`` wins; without it, the machine the file's header names; without a
+    header, ``default`` (the link's). ``--machine`` and a header that disagree are refused
+    unless ``force``."""
+    named = machine_in_header(path)
+    if requested is None:
+        if named is not None:
+            return load_machine(named), f"machine {named} (named in the header of {path})"
+        note = f"machine {default} (the default: {path} names no machine in its header)"
+        return load_machine(default), note
+    profile = load_machine(requested)
+    if named is not None and named != profile.name and not force:
+        raise FabkitError(
+            f"{path} was written for machine {named} (its header), not {profile.name}: "
+            f"send it with --machine {named}, or add --force"
+        )
+    if named is not None and named != profile.name:
+        return profile, f"machine {profile.name} (--force: the header names {named})"
+    return profile, f"machine {profile.name} (--machine)"
+
+
+@contextlib.contextmanager
+def log_file(path: str | Path | None) -> Iterator[TextIO | None]:
+    """The traffic log, appended line by line so that it survives a failed job."""
+    if path is None:
+        yield None
+        return
+    try:
+        handle = open(path, "w", encoding="latin-1", buffering=1)  # noqa: SIM115
+    except OSError as exc:
+        raise FabkitError(f"cannot write log file {path}: {exc.strerror}") from None
+    with handle:
+        yield handle
+
+
+@contextlib.contextmanager
+def keys(control: LinkControl) -> Iterator[None]:
+    """Ctrl-C stops safely (a second Ctrl-C interrupts at once); Ctrl-Z pauses / resumes."""
+    handlers = {}
+
+    def on_interrupt(signum: int, frame: object) -> None:
+        control.interrupt()
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    wanted = {signal.SIGINT: on_interrupt}
+    if hasattr(signal, "SIGTSTP"):
+        wanted[signal.SIGTSTP] = lambda signum, frame: control.toggle_pause()
+    try:
+        for signum, handler in wanted.items():
+            handlers[signum] = signal.signal(signum, handler)
+    except ValueError:  # not the main thread: no keys
+        pass
+    try:
+        yield
+    finally:
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
