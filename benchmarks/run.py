@@ -1,6 +1,7 @@
-"""The README's main command, today against an earlier revision, in one run.
+"""Fig. 1's run, today against an earlier revision, in one run.
 
 ``fabkit run examples/two_shapes.toml --out OUT --send "sim://marlin?baud=0&time_scale=0"``
+(the README's main command without ``--layers 2``, which earlier revisions do not know)
 runs as ``python -m fabkit`` in a fresh process (interpreter start included), from a
 folder outside the repository, alternately with this checkout's code and with the code
 of ``--base`` (checked out into a temporary git worktree and put first on PYTHONPATH),

@@ -1,6 +1,6 @@
 """``fabkit verify`` on Fig. 3 at 60 mm: its time, stage by stage, and its figures.
 
-    python benchmarks/verify.py [--out DIR] [--reference]
+    python benchmarks/verify.py [--out DIR] [--reference] [--layers K]
 
 Solves examples/three_shapes.toml, plans it for the default two-ink DIW printer
 (marlin_diw_pneumatic: eps1 as the print speed, eps2 as the share of the second ink) at
@@ -9,7 +9,8 @@ back with ``fabkit verify`` and prints the time of each stage (reading the G-cod
 grid of the sheet, the comparison with the design, each forward simulation) against the
 goal of 30 s, and the figures: coverage, director error, each feature's error, and the
 distance of the sheet as fabricated to each target (``--reference``: and of the sheet
-as designed, on the same mesh).
+as designed, on the same mesh). ``--layers 2`` (the layered sheet of ``fabkit run
+--layers 2``: every layer read back, the stacked sheet simulated) has a goal of 60 s.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from fabkit.verify.machine_file import VerifyOptions, verify
 
 ROOT = Path(__file__).resolve().parent.parent
 GOAL_S = 30.0
+LAYERED_GOAL_S = 60.0
 
 
 class _Timed:
@@ -50,10 +52,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("/tmp/fabkit-bench-verify"))
     parser.add_argument("--reference", action="store_true")
+    parser.add_argument("--layers", type=int, default=1)
     args = parser.parse_args()
-    if not (args.out / "sheet.gcode").is_file():
+    out = args.out / f"layers{args.layers}"
+    if not (out / "sheet.gcode").is_file():
         spec = ROOT / "examples" / "three_shapes.toml"
-        run_pipeline(RunOptions(str(spec), str(args.out), verify=False), say=lambda _: None)
+        options = RunOptions(str(spec), str(out), verify=False, layers=args.layers)
+        run_pipeline(options, say=lambda _: None)
     names = {
         "read_gcode": "read the G-code",
         "rasterise": "grid of the sheet",
@@ -65,7 +70,7 @@ def main() -> None:
     try:
         start = time.perf_counter()
         options = VerifyOptions(reference=args.reference)
-        result = verify(args.out / "design.npz", args.out / "sheet.gcode", options)
+        result = verify(out / "design.npz", out / "sheet.gcode", options)
         total = time.perf_counter() - start
     finally:
         for stage in stages:
@@ -76,7 +81,8 @@ def main() -> None:
         print(f"{names[stage.name]:>26}: {stage.seconds:6.1f} s")
     rest = total - sum(stage.seconds for stage in stages)
     print(f"{'the rest (director, ...)':>26}: {rest:6.1f} s")
-    print(f"{'total':>26}: {total:6.1f} s (goal {GOAL_S:g} s)")
+    goal = GOAL_S if args.layers == 1 else LAYERED_GOAL_S
+    print(f"{'total':>26}: {total:6.1f} s (goal {goal:g} s, {args.layers} layer(s))")
     for target in result.targets:
         label = f"simulation {target.target}"
         print(f"{label:>26}: {target.seconds:6.1f} s, {target.triangles} triangles")

@@ -269,7 +269,11 @@ def _solve(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> 
     thickness_mm = options.layers * inputs.process.layer_height_mm if inputs.process else None
     layering = None
     if options.layers > 1:
-        design, layering = _layer(options, inputs, design, part, say)
+        request = LayerRequest(
+            options.layers, inputs.process, part, options.ignore_features, options.form_tolerance
+        )
+        design, layering = layer_design(design, request, say)
+        design.save(Path(options.out) / "design.npz")
     verdict = design_verdict(
         design,
         None if thickness_mm is None else thickness_mm / part.mm_per_unit,
@@ -283,37 +287,61 @@ def _solve(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> 
     return _Solved(design, check, result.maps, solved, part, layering, verdict)
 
 
-def _layer(
-    options: RunOptions, inputs: _Inputs, design: Design, part: Part, say: Callable[[str], None]
+@dataclass(frozen=True)
+class LayerRequest:
+    """A layered sheet asked for: ``layers`` of the ``process``'s layer height on the
+    ``part`` (its scale sets the thickness in design units), features within the ranges
+    their channels encode (``ignore_features`` left out), targets held to ``tolerance``."""
+
+    layers: int
+    process: Process
+    part: Part
+    ignore_features: tuple[str, ...] = ()
+    tolerance: float = FORM_TOLERANCE
+
+
+def layer_design(
+    design: Design, request: LayerRequest, say: Callable[[str], None] = print
 ) -> tuple[Design, dict[str, Any]]:
-    """The design made of ``options.layers`` layers of the process's height, each
-    feature within the range its channel encodes, programmed with the curvature of the
+    """The design made of ``request.layers`` layers, programmed with the curvature of the
     targets the sheet misses when programmed by its metric alone (simulated at the
-    layers' thickness: a target it forms asks for nothing, and is bent to no other side);
-    it replaces design.npz."""
-    process = inputs.process
-    thickness = options.layers * process.layer_height_mm / part.mm_per_unit
+    layers' thickness: a target it forms asks for nothing, and is bent to no other
+    side), and the figures of how well (``fabkit run --layers``, ``fabkit solve
+    --layers``)."""
+    process, part = request.process, request.part
+    thickness = request.layers * process.layer_height_mm / part.mm_per_unit
     names = design_features(design)
-    bounds = process.resolve(names, options.ignore_features).bounds(names)
+    bounds = process.resolve(names, request.ignore_features).bounds(names)
     alone = design_verdict(
-        design,
-        thickness,
-        tolerance=options.form_tolerance,
-        part=part,
-        mm_per_unit=part.mm_per_unit,
+        design, thickness, tolerance=request.tolerance, part=part, mm_per_unit=part.mm_per_unit
     )
     say(f"      {alone.headline().replace('as designed', 'programmed by its metric alone')}")
     needed = {shape.target: not shape.formed for shape in alone.shapes}
     weights = np.array([float(needed.get(t.name, False)) for t in design.problem.targets])
-    design, report = layered(design, options.layers, thickness, bounds, weights)
-    design.save(Path(options.out) / "design.npz")
+    design, report = layered(design, request.layers, thickness, bounds, weights)
     say(
-        f"      {options.layers} layers of {process.layer_height_mm:g} mm, programmed with "
+        f"      {request.layers} layers of {process.layer_height_mm:g} mm, programmed with "
         "the curvature of the targets the metric misses:"
     )
     for line in report.lines():
         say(f"        {line}")
     return design, {"metric alone": alone.to_dict(), **report.to_dict()}
+
+
+def design_part(
+    design: Design,
+    size_mm: float,
+    process: Process,
+    layers: int = 1,
+    request: PartRequest | None = None,
+) -> Part:
+    """The part of a printed sheet (``fabkit run``): at ``size_mm`` (its longest side), for
+    the process's road width and a sheet of ``layers`` of its layer height."""
+    solved = solved_region(design)
+    options = (request or PartRequest()).for_process(
+        process.road_width_mm, layers * process.layer_height_mm, MIN_WIDTH_ROADS
+    )
+    return print_part(design, scale_for_size(solved, size_mm), options, solved)
 
 
 WORKER_MODULES = ("fabkit.plot.design", "fabkit.toolpath.preview")
@@ -477,19 +505,18 @@ def _part(options: RunOptions, inputs: _Inputs, design: Design) -> Part:
     """The part of the flat sheet that is made, at the run's size, for its process: the
     road width (a baromorph's: two channel pitches) and the sheet's thickness (its layers'
     heights; a baromorph's part thickness) set the default minimum width and the trim."""
-    if options.baromorph:
-        settings = load_baromorph(options.baromorph)
-        road, thickness = settings.pitch_mm, settings.part_thickness_mm
-        roads = MIN_WIDTH_PITCHES
-    else:
-        road = inputs.process.road_width_mm
-        thickness = options.layers * inputs.process.layer_height_mm
-        roads = MIN_WIDTH_ROADS
+    if not options.baromorph:
+        return design_part(
+            design, options.size_mm, inputs.process, options.layers, options.part_request
+        )
+    settings = load_baromorph(options.baromorph)
     solved = solved_region(design)
     return print_part(
         design,
         scale_for_size(solved, options.size_mm),
-        options.part_request.for_process(road, thickness, roads),
+        options.part_request.for_process(
+            settings.pitch_mm, settings.part_thickness_mm, MIN_WIDTH_PITCHES
+        ),
         solved,
     )
 

@@ -10,6 +10,7 @@ from fabkit.commands import add_command, call_with
 from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
+from fabkit.mechanics.verdict import FORM_TOLERANCE
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -19,6 +20,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     tolerance_arguments(parser)
     parser.add_argument(
         "--region", type=float, help="check only points with |u|, |v| <= REGION (design units)"
+    )
+    shapes = parser.add_argument_group("which shape the sheet takes (simulated from flat)")
+    shapes.add_argument(
+        "--no-simulate",
+        action="store_false",
+        dest="simulate",
+        help="only the residuals: do not simulate the sheet under every target's stimulus",
+    )
+    shapes.add_argument(
+        "--form-tolerance",
+        type=float,
+        default=100 * FORM_TOLERANCE,
+        metavar="PCT",
+        help="a target is formed when the simulated sheet ends within this RMS distance, "
+        "%% of the patch diameter (default %(default)g)",
+    )
+    shapes.add_argument(
+        "--strict", action="store_true", help="exit 1 also when a target is not formed"
     )
     parser.set_defaults(func=run)
 
@@ -62,6 +81,31 @@ def _positive(option: str, value: float | None) -> None:
 
 def run(args: argparse.Namespace) -> int:
     _positive("--region", args.region)
-    report = check_design(Design.load(args.design), tolerances(args), region=args.region)
-    print(json.dumps(report.to_dict(), indent=2) if args.json else report.table())
-    return 0 if report.passed else 1
+    if not (math.isfinite(args.form_tolerance) and 0 < args.form_tolerance < 100):
+        raise FabkitError(f"--form-tolerance {args.form_tolerance:g}: expected 0 to 100 (%)")
+    design = Design.load(args.design)
+    report = check_design(design, tolerances(args), region=args.region)
+    verdict = None
+    if args.simulate:
+        from fabkit.field.part import simulation_part
+        from fabkit.mechanics.verdict import design_verdict
+
+        thickness = design.layering.thickness if design.layering else None
+        part, thickness = simulation_part(design, thickness)  # as fabkit simulate does
+        verdict = design_verdict(design, thickness, tolerance=args.form_tolerance / 100, part=part)
+    if args.json:
+        data = report.to_dict()
+        data["as designed"] = verdict.to_dict() if verdict else None
+        print(json.dumps(data, indent=2))
+    else:
+        print(report.table())
+        if verdict is not None:
+            made = (
+                f"{design.layers} layers, {thickness:.4g} design units thick"
+                if design.layering
+                else f"one layer, {thickness:.4g} design units thick (1 % of its diameter)"
+            )
+            print(f"{verdict.headline()} ({made}, simulated from flat on its part):")
+            print("\n".join(f"  {line}" for line in verdict.lines()))
+    formed = verdict is None or verdict.formed
+    return 0 if report.passed and (formed or not args.strict) else 1

@@ -5,9 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from fabkit import commands
 from fabkit.commands import add_command
+from fabkit.design.design import MAX_LAYERS
 from fabkit.errors import FabkitError
+from fabkit.machines import DEFAULT_MACHINE, load_machine
+from fabkit.pipeline import DEFAULT_SIZE_MM
+from fabkit.process import Process
 from fabkit.progress import add_progress
+from fabkit.toolpath.process import load_process
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -17,6 +23,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--step", type=float, help="grid step in u and v (design units)")
     parser.add_argument("--diagonals", type=int, help="diagonals to march per quadrant")
     parser.add_argument("--quadrants", type=parse_quadrants, help='"all" or signs like "1,1;-1,1"')
+    layers = parser.add_argument_group("a layered sheet (as fabkit run --layers)")
+    layers.add_argument(
+        "--layers",
+        type=int,
+        default=1,
+        help="make the design of this many layers (>= 2) of the machine's layer height, "
+        "programmed with the curvature of the targets its metric alone misses (default 1)",
+    )
+    commands.add_machine(
+        layers, f"the printer the layers are for (default {DEFAULT_MACHINE}; see fabkit machines)"
+    )
+    commands.add_process(layers, "TOML whose [process] table replaces the machine's")
+    commands.add_length(
+        layers,
+        "--size",
+        "longest side of the flat sheet in mm, as fabkit run --size (default %(default)g)",
+        default=DEFAULT_SIZE_MM,
+    )
     add_progress(parser)
     parser.set_defaults(func=run)
 
@@ -40,7 +64,28 @@ def run(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec).with_solver(
         step=args.step, diagonals=args.diagonals, quadrants=args.quadrants
     )
+    if not 1 <= args.layers <= MAX_LAYERS:
+        raise FabkitError(f"--layers {args.layers}: expected 1 to {MAX_LAYERS} layers")
+    process = None
+    if args.layers > 1:
+        process = _process(args)
     solved = solve_to_file(spec, out, progress=args.progress)
     print(describe(solved.summary, solved.check))
+    if process is not None:
+        from fabkit.pipeline import LayerRequest, design_part, layer_design
+
+        design = solved.solution.design
+        part = design_part(design, args.size_mm, process, args.layers)
+        design, _ = layer_design(design, LayerRequest(args.layers, process, part))
+        design.save(out)
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0
+
+
+def _process(args: argparse.Namespace) -> Process:
+    """The process the layers are made for: --process, else the machine's."""
+    machine = load_machine(args.machine or DEFAULT_MACHINE)
+    process = load_process(args.process_file) if args.process_file else machine.process
+    if process is None:
+        raise FabkitError(f"--layers: machine {machine.name} has no process to print layers with")
+    return process
