@@ -467,11 +467,7 @@ def _check_inputs(options: RunOptions) -> _Inputs:
             f"--layers {options.layers}: {what} make one layer; print a layered sheet on a "
             "printer (fabkit machines lists them)"
         )
-    if options.layers > 1 and "dxf" in options.formats:
-        raise FabkitError(
-            f"--layers {options.layers}: fabkit verify reads a DXF's roads as one layer; "
-            "write --format gcode for a layered sheet"
-        )
+
     process = None
     if not options.baromorph:
         process = load_process(options.process_file) if options.process_file else machine.process

@@ -806,11 +806,6 @@ CASES = [
         id="run-layers-baromorph",
     ),
     case(
-        "run {spec} --out {out} --layers 2 --format dxf",
-        "reads a DXF's roads as one layer",
-        id="run-layers-dxf",
-    ),
-    case(
         "run {spec} --out {out} --form-tolerance 0",
         "expected a percentage between 0 and 100",
         id="run-form-tolerance",

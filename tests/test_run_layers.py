@@ -81,3 +81,21 @@ def test_solve_layers_writes_a_layered_design_that_check_judges(tmp_path, run_cl
     code, text, _ = run_cli("check", out, "--strict")
     assert "(2 layers, " in text and "wavy: formed" in text
     assert code == 0, text
+
+
+@pytest.mark.slow
+def test_a_dxf_of_the_layered_toolpath_reads_back_layer_by_layer(layered_run, tmp_path, run_cli):
+    # every writer carries the layers: a DXF draws each road at its layer's height
+    dxf = tmp_path / "sheet.dxf"
+    toolpath = layered_run / "toolpath" / "toolpath.npz"
+    code, _, err = run_cli(
+        "export", toolpath, "--format", "dxf", "--machine", "marlin_diw_pneumatic", "--out", dxf
+    )
+    assert code == 0, err
+    code, text, err = run_cli("verify", layered_run / "design.npz", dxf, "--no-simulate", "--json")
+    assert code == 0, err
+    figures = json.loads(text)
+    assert [layer["layer"] for layer in figures["layers"]] == [1, 2]
+    for layer in figures["layers"]:
+        assert layer["director_mean_deg"] <= 3.0
+        assert all(f["rms_pct"] <= 2.0 for f in layer["features"])

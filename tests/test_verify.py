@@ -210,7 +210,7 @@ def test_line_spacing_is_read_from_the_road_positions(tmp_path):
 def test_dxf_round_trip(tmp_path, parameters):
     toolpath = _plan(parameters)
     summary = write_dxf(tmp_path / "sheet.dxf", toolpath, machine=load_machine("laser_cutter"))
-    start, end, width, road, values, placement = read_dxf(tmp_path / "sheet.dxf", 0.4)
+    start, end, width, road, values, _, placement = read_dxf(tmp_path / "sheet.dxf", 0.4)
     assert placement.offset_mm == pytest.approx(summary.offset_mm[:2])
     assert width == pytest.approx(0.4)
     shift = np.array(summary.offset_mm[:2])

@@ -473,9 +473,13 @@ def _read(
         return [_replace_origin(readback, moved)], placement
     cell = options.cell_mm or process.road_width_mm / CELL_PER_WIDTH
     if kind == "dxf":
-        start, end, width, road, values, found = read_dxf(path, process.road_width_mm)
+        start, end, width, road, values, height, found = read_dxf(path, process.road_width_mm)
         values = {p: values.get(p, np.full(len(start), np.nan)) for p in resolution.parameters}
-        layers = [Roads(start, end, width, road, values, None)]
+        layers = []
+        for z in np.unique(np.round(height, 6)):  # a layer at each height drawn at
+            at = np.isclose(height, z, atol=1e-6)
+            own = {p: v[at] for p, v in values.items()}
+            layers.append(Roads(start[at], end[at], width[at], road[at], own, None))
     else:
         printed = read_gcode(path, machine)
         found = printed.placement

@@ -35,32 +35,38 @@ DXF_BYTES = 256 << 20
 
 def read_dxf(
     path: str | Path, road_width_mm: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray], Placement]:
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray, Placement
+]:
     """Segments of the drawing's roads (drawing frame, mm): start (n, 2), end (n, 2),
     width (n,) (``road_width_mm`` where a polyline has none), road (n,), values name ->
-    (n,), and the placement its header records."""
+    (n,), the height each is drawn at (n,) (a polyline's elevation, mm: its layer), and
+    the placement its header records."""
     document = _document(path)
     path = Path(path)
-    parts: list[tuple[np.ndarray, float, dict[str, np.ndarray]]] = []
+    parts: list[tuple[np.ndarray, float, dict[str, np.ndarray], float]] = []
     for entity in document.modelspace():
         if entity.dxf.get("layer") != PATHS or entity.dxftype() not in ("LWPOLYLINE", "POLYLINE"):
             continue
         if entity.dxftype() == "LWPOLYLINE":
             points = np.array([(p[0], p[1]) for p in entity.get_points("xy")], dtype=float)
             width = float(entity.dxf.get("const_width", 0.0)) or road_width_mm
+            height = float(entity.dxf.get("elevation", 0.0))
         else:
-            points = np.array([tuple(v.dxf.location)[:2] for v in entity.vertices], dtype=float)
+            located = [tuple(v.dxf.location) for v in entity.vertices]
+            points = np.array([p[:2] for p in located], dtype=float)
             width = road_width_mm
+            height = float(located[0][2]) if located and len(located[0]) > 2 else 0.0
         if len(points) < 2:
             continue
-        parts.append((points, width, _channels(entity, len(points), path)))
+        parts.append((points, width, _channels(entity, len(points), path), height))
     if not parts:
         raise FabkitError(f"{path}: no road on layer {PATHS} (nothing printed)")
-    starts, ends, widths, roads, values = [], [], [], [], {}
-    names = sorted({name for _, _, channels in parts for name in channels})
+    starts, ends, widths, roads, heights, values = [], [], [], [], [], {}
+    names = sorted({name for _, _, channels, _ in parts for name in channels})
     road = -1
     last_end = None
-    for points, width, channels in parts:
+    for points, width, channels, height in parts:
         if last_end is None or not np.allclose(points[0], last_end, atol=1e-6):
             road += 1
         last_end = points[-1]
@@ -69,6 +75,7 @@ def read_dxf(
         ends.append(points[1:])
         widths.append(np.full(count, width))
         roads.append(np.full(count, road))
+        heights.append(np.full(count, height))
         for name in names:
             values.setdefault(name, []).append(channels.get(name, np.full(count + 1, np.nan))[1:])
     return (
@@ -77,6 +84,7 @@ def read_dxf(
         np.concatenate(widths),
         np.concatenate(roads),
         {name: np.concatenate(parts_) for name, parts_ in values.items()},
+        np.concatenate(heights),
         _placement(document, path),
     )
 
