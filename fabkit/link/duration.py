@@ -39,6 +39,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from fabkit.gcode.modes import DistanceModes
 from fabkit.link.gcode import Command, code_of, words
 from fabkit.machines import MachineProfile
 from fabkit.progress import clock
@@ -154,11 +155,10 @@ class _Block:
 class _Walker:
     """Modal state while walking a job (logical mm; feed mm/s, or 1/s under G93)."""
 
-    def __init__(self, kinematics: Kinematics) -> None:
+    def __init__(self, kinematics: Kinematics, flavour: str) -> None:
         self.k = kinematics
         self.pos: list[float | None] = [None, None, None, None]
-        self.absolute = True
-        self.absolute_e = True
+        self.modes = DistanceModes.assumed(flavour)
         self.feed: float | None = None
         self.inverse = False  # GRBL G93: F is 1/min, the block's own
         self.motion = "G1"
@@ -176,11 +176,8 @@ class _Walker:
             self.feed = given
         if grbl and code in ("M2", "M30"):
             self.inverse = False  # program end: G94
-        if code in ("G90", "G91"):
-            self.absolute = self.absolute_e = code == "G90"
-        elif code in ("M82", "M83"):
-            self.absolute_e = code == "M82"
-        elif code == "G92":
+        self.modes.apply(code)  # G90, G91, M82, M83
+        if code == "G92":
             for i, axis in enumerate(_AXES):
                 if axis in values:
                     self.pos[i] = values[axis]
@@ -201,7 +198,8 @@ class _Walker:
         for i, axis in enumerate(_AXES):
             if axis not in values:
                 continue
-            absolute = self.absolute_e if axis == "E" else self.absolute
+            relative = self.modes.e_relative_or_marlin() if axis == "E" else not self.modes.absolute
+            absolute = not relative
             start = self.pos[i]
             end = values[axis] if absolute else None if start is None else start + values[axis]
             if start is not None and end is not None:
@@ -214,7 +212,7 @@ class _Walker:
 def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
     """Plan ``job`` on ``machine`` (see the module docstring)."""
     kinematics = Kinematics.of(machine)
-    walker = _Walker(kinematics)
+    walker = _Walker(kinematics, machine.flavour)
     blocks: list[_Block] = []
     dwell_after: dict[int, float] = {}
     positions: list[tuple[float | None, ...]] = []

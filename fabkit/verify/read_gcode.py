@@ -2,7 +2,8 @@
 
 Every command is read by the firmware's own reader (:mod:`fabkit.link.gcode`: GRBL, or
 Marlin and the Marlin-likes) and followed through the machine's modal state: absolute or
-relative positions (G90/G91) and E (M82/M83; on Marlin G91 also makes E relative),
+relative positions (G90/G91) and E (M82/M83, and G91 as each firmware reads it:
+:class:`fabkit.gcode.modes.DistanceModes`),
 G92 position shifts, homing (G28: the homed axes at 0), the feed (F, mm/min), the
 material switches of the profile (``flow_on_gcode`` / ``flow_off_gcode`` for the first
 ink, ``ink2_on_gcode`` / ``ink2_off_gcode`` for the second: valves, a beam or tool
@@ -31,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.modes import DistanceModes
 from fabkit.link.gcode import (
     Block,
     GcodeError,
@@ -107,8 +109,7 @@ class _Machine:
             self.e_per_mm3 = e_per_mm3(machine)
         self.switches = self._switches()
         self.pressure_block = self.read(machine.pressure.command) if machine.pressure else None
-        self.absolute = True
-        self.e_relative = False
+        self.modes = DistanceModes.assumed("grbl" if self.grbl else machine.flavour)
         self.position = [math.nan] * 3  # logical, mm
         self.shift = [0.0] * 3  # machine = logical + shift
         self.e = 0.0
@@ -153,20 +154,16 @@ class _Machine:
     # -- modes and positions ----------------------------------------------------------
 
     def _G90(self, block: Block) -> None:
-        self.absolute = True
-        if not self.grbl and self.machine.flavour == "marlin":
-            self.e_relative = False
+        self.modes.apply("G90")
 
     def _G91(self, block: Block) -> None:
-        self.absolute = False
-        if not self.grbl and self.machine.flavour == "marlin":
-            self.e_relative = True
+        self.modes.apply("G91")
 
     def _M82(self, block: Block) -> None:
-        self.e_relative = False
+        self.modes.apply("M82")
 
     def _M83(self, block: Block) -> None:
-        self.e_relative = True
+        self.modes.apply("M83")
 
     def _G92(self, block: Block) -> None:
         for axis, letter in enumerate("XYZ"):
@@ -221,12 +218,13 @@ class _Machine:
         for axis, letter in enumerate("XYZ"):
             if letter in values:
                 step = values[letter]
-                self.position[axis] = step if self.absolute else self.position[axis] + step
+                self.position[axis] = step if self.modes.absolute else self.position[axis] + step
         new = [p + s for p, s in zip(self.position, self.shift, strict=True)]
         delta_e = 0.0
         if "E" in values:
-            delta_e = values["E"] if self.e_relative else values["E"] - self.e
-            self.e = self.e + values["E"] if self.e_relative else values["E"]
+            relative = self.modes.e_relative_or_marlin()
+            delta_e = values["E"] if relative else values["E"] - self.e
+            self.e = self.e + values["E"] if relative else values["E"]
         moved = _differ(old[0], new[0]) or _differ(old[1], new[1])
         flowing = delta_e > 0 if self.has_e else (self.on["first"] or self.on["second"])
         if not (flowing and moved):

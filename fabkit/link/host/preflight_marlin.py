@@ -3,7 +3,8 @@
 Rules from Marlin ``gcode/motion/G0_G1.cpp`` and ``G2_G3.cpp``, ``geometry/G92.cpp``,
 ``config/M220.cpp``, ``M221.cpp``, ``control/M42.cpp``, ``module/motion.cpp``
 (``set_axis_is_at_home`` clears the G92 shift) and ``gcode.h`` (G90/G91 also set E's
-mode), and Klipper ``klippy/extras/gcode_move.py`` (E is relative if G91 or M83):
+mode), and Klipper ``klippy/extras/gcode_move.py`` (E is relative if G91 or M83; the
+modes are :class:`fabkit.gcode.modes.DistanceModes`):
 
 * Machine position = logical position + the G92 shift; the job is assumed to start
   without one. Homing an axis clears it; ``G28`` of X or Y alone may first raise Z
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from fabkit.gcode.modes import DistanceModes
 from fabkit.link.arcs import centre_arc, radius_arc
 from fabkit.link.gcode import Block, GcodeError, is_extended
 from fabkit.link.host.tracker import AXES, ArcMove, Span, Speed, Tracker
@@ -80,9 +82,7 @@ class MarlinDialect:
         self.takes = _FLAVOUR_TAKES[flavour]
         self.pin_writes = pin_writes
         self.trusted = trusted
-        self.absolute: bool | None = None
-        self.e_relative: bool | None = None  # Marlin: set by G90/G91 and M82/M83
-        self.absolute_extrude: bool | None = None  # Klipper: M82/M83 only
+        self.modes = DistanceModes(flavour)  # unknown until the job sets them
         self.feed: float | None = None  # mm/min
         self.feed_percent = 100.0
         self.flow_percent = 100.0
@@ -216,20 +216,21 @@ class MarlinDialect:
         for i, axis in enumerate(AXES):
             if axis not in block.values:
                 continue
-            if self.absolute is None:
+            if self.modes.absolute is None:
                 raise GcodeError(
                     f"{label} cannot be checked: no G90/G91 in the job before it, and the "
                     "distance mode an earlier job left is unknown"
                 )
             value = block.values[axis]
-            end[i] = self.shift[i] + value if self.absolute else self.t.relative(label, i, value)
+            absolute = self.modes.absolute
+            end[i] = self.shift[i] + value if absolute else self.t.relative(label, i, value)
         return end
 
     def _extrude(self, label: str, block: Block) -> float:
         """The E travel of a move (firmware units, after the M221 flow factor)."""
         if "E" not in block.values:
             return 0.0
-        value, relative = block.values["E"], self._e_relative()
+        value, relative = block.values["E"], self.modes.e_relative
         if relative is None:
             raise GcodeError(
                 f"{label} cannot be checked: the job has not set the E mode (M82/M83 after "
@@ -247,33 +248,17 @@ class MarlinDialect:
             delta, self.e = value - self.e, value
         return delta * self.flow_percent / 100.0
 
-    def _e_relative(self) -> bool | None:
-        """E is relative: Marlin by the last of G90/G91/M82/M83; Klipper if G91 or M83;
-        RepRapFirmware only when both readings agree."""
-        klipper = None
-        if self.absolute is False or self.absolute_extrude is False:
-            klipper = True
-        elif self.absolute and self.absolute_extrude:
-            klipper = False
-        if self.flavour == "klipper":
-            return klipper
-        if self.flavour == "reprap":
-            return self.e_relative if self.e_relative == klipper else None
-        return self.e_relative
-
-    # -- modes, offsets, homing ------------------------------------------------------------
-
     def _G90(self, label: str, block: Block) -> None:
-        self.absolute, self.e_relative = True, False
+        self.modes.apply("G90")
 
     def _G91(self, label: str, block: Block) -> None:
-        self.absolute, self.e_relative = False, True
+        self.modes.apply("G91")
 
     def _M82(self, label: str, block: Block) -> None:
-        self.e_relative, self.absolute_extrude = False, True
+        self.modes.apply("M82")
 
     def _M83(self, label: str, block: Block) -> None:
-        self.e_relative, self.absolute_extrude = True, False
+        self.modes.apply("M83")
 
     def _G4(self, label: str, block: Block) -> None:
         """A dwell moves nothing (its time counts in fabkit.link.duration)."""

@@ -1,0 +1,1 @@
+"""The G-code language once: the modal state every reader of a job shares."""
