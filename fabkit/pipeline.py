@@ -27,8 +27,10 @@ toolpath/          toolpath.npz, quality.json, preview.png/svg (``fabkit toolpat
 sheet.gcode        machine file(s), one per ``--format`` (``fabkit export``)
 sheet.dxf          (with ``--format dxf``)
 laser/             (with ``--format laser`` on a laser-writer profile)
-report.html        every picture and the key figures (the verification included) in one page
-report.json        the key figures as data
+as_fabricated/     per target, the sheet as fabricated beside it (PNG) and as a mesh (PLY, mm);
+                   ``as_designed/`` when the machine file is not simulated
+report.html        the verdict first, then every picture and figure in words (one page)
+report.json        the key figures as data (``docs/report.schema.json``)
 ================== ==============================================================
 """
 
@@ -46,7 +48,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from fabkit.atomic import atomic_path, check_folder, output_folder, record
+from fabkit.atomic import atomic_path, check_folder, inside, output_folder, record
 from fabkit.background import Worker, worker
 from fabkit.design.check import CheckReport, ResidualMaps
 from fabkit.design.design import MAX_LAYERS, Design
@@ -66,8 +68,10 @@ from fabkit.field.part import (
 )
 from fabkit.figures import AREA_UNIT
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
+from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict, design_verdict
 from fabkit.plot import DESIGN_PICTURES, write_pictures
+from fabkit.plot.page import run_page
 from fabkit.plot.report import html_report
 from fabkit.plot.scene import scene
 from fabkit.problem.spec import Spec, load_spec
@@ -81,6 +85,7 @@ from fabkit.writers.export import ExportOptions, describe_dxf, write_machine_fil
 if TYPE_CHECKING:
     from fabkit.link.host.hosts import HostReport
     from fabkit.link.host.session import SendReport
+    from fabkit.verify.machine_file import Verification
 
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
 BAROMORPH_MACHINE = "laser_cutter"
@@ -161,9 +166,9 @@ class _Inputs:
 def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> dict[str, Any]:
     """Every stage in turn, into the claimed output folder; returns the key figures.
 
-    The design pictures and the toolpath preview are drawn in a second process
-    (:mod:`fabkit.background`) while the later stages run, and written at the report
-    (also when a later stage fails).
+    The design pictures, the toolpath preview and the pictures of the shapes the sheet
+    takes are drawn in a second process (:mod:`fabkit.background`) while the later stages
+    run, and written at the report (also when a later stage fails).
     """
     out = Path(options.out)
     notice = _notice(options)
@@ -183,9 +188,7 @@ def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) ->
             str(path) for path in write_patch_meshes(design, out / "patches", options.mesh_format)
         ]
         try:
-            fabricated, verification, sent = _fabricate(
-                _Run(options, inputs, solved, drawings, say)
-            )
+            made = _fabricate(_Run(options, inputs, solved, drawings, say))
         except FabkitError:
             with suppress(Exception):  # the run fails with its own error; keep what it drew
                 drawings.write()
@@ -194,10 +197,12 @@ def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) ->
     pictures = [(caption, out / "pictures" / name) for name, caption in DESIGN_PICTURES]
 
     say("[7/7] writing report.html and report.json")
+    verification = made.verification.to_dict() if made.verification is not None else None
     figures = {
         **({"notice": notice} if notice else {}),
         "spec": str(options.spec),
         "machine": options.machine,
+        "size_mm": options.size_mm,
         "solve": {
             k: solved.summary[k]
             for k in ("solve_seconds", "valid_points", "area_design_units2", "stop_counts")
@@ -206,28 +211,25 @@ def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) ->
         "part": solved.part.to_dict(),
         **({"layers": solved.layering} if solved.layering else {}),
         "as designed": solved.verdict.to_dict(),
-        **fabricated.figures,
+        **made.fabricated.figures,
+        "machine file": made.machine_file,
         "verify": verification,
-        "sent": sent,
+        "sent": made.sent,
         "meshes": meshes,
+        "shapes": made.shapes,
     }
     verdicts = [solved.verdict.to_dict()]
-    final = solved.verdict
-    if verification is not None and verification.get("verdict"):
-        verdicts.append(verification["verdict"])
-        final = None
+    if made.final is not solved.verdict:
+        verdicts.append(made.final.to_dict())
     figures["verdicts"] = verdicts
     figures["verdict"] = {
-        "headline": final.headline() if final else verification["verdict"]["headline"],
+        "what": made.final.what,
+        "headline": made.final.headline(),
         "formed": all(v["formed"] for v in verdicts),
+        "lines": made.final.lines(),
     }
-    html_report(
-        f"fabkit run {Path(options.spec).name}",
-        figures,
-        pictures + [fabricated.picture],
-        out / "report.html",
-        notice=notice,
-    )
+    page = run_page(figures, pictures, made.fabricated.picture, out)
+    html_report(page, out / "report.html")
     with atomic_path(out / "report.json") as tmp:
         tmp.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
     return figures
@@ -344,7 +346,7 @@ def design_part(
     return print_part(design, scale_for_size(solved, size_mm), options, solved)
 
 
-WORKER_MODULES = ("fabkit.plot.design", "fabkit.toolpath.preview")
+WORKER_MODULES = ("fabkit.plot.design", "fabkit.toolpath.preview", "fabkit.plot.shapes")
 """What the worker imports while the run solves: the drawings it will be given."""
 
 
@@ -391,8 +393,24 @@ class _Run:
         return Path(self.options.out)
 
 
-def _fabricate(run: _Run) -> tuple[_Fabricated, dict[str, Any] | None, dict[str, Any] | None]:
-    """The machine files, their verification and the send: (fabricated, verify, sent)."""
+@dataclass(frozen=True)
+class _Made:
+    """What the stages after the solve made: the ``fabricated`` figures and preview, the
+    first ``machine_file``'s figures, its ``verification`` (None with --no-verify), the
+    ``final`` verdict (as fabricated when the machine file was simulated, else as
+    designed), the ``shapes`` it found (report.json's ``shapes``) and the ``sent``
+    figures (None without --send)."""
+
+    fabricated: _Fabricated
+    machine_file: dict[str, Any]
+    verification: Verification | None
+    final: Verdict
+    shapes: dict[str, Any]
+    sent: dict[str, Any] | None
+
+
+def _fabricate(run: _Run) -> _Made:
+    """The machine files, their verification, the shapes the sheet takes and the send."""
     options = run.options
     if options.baromorph:
         fabricated = _channels(run)
@@ -402,6 +420,10 @@ def _fabricate(run: _Run) -> tuple[_Fabricated, dict[str, Any] | None, dict[str,
         fabricated = _print_lines(run)
 
     verification = _verify(run)
+    final = run.solved.verdict
+    if verification is not None and verification.verdict is not None:
+        final = verification.verdict
+    shapes = _shapes(run, final)
 
     sent = None
     if options.send:
@@ -409,7 +431,41 @@ def _fabricate(run: _Run) -> tuple[_Fabricated, dict[str, Any] | None, dict[str,
         sent = _send(run.out / "sheet.gcode", options).figures()
     else:
         run.say("[6/7] not sending (no --send)")
-    return fabricated, verification, sent
+    return _Made(fabricated, fabricated.machine_file, verification, final, shapes, sent)
+
+
+def _shapes(run: _Run, verdict: Verdict) -> dict[str, Any]:
+    """The shape the sheet takes under every target's stimulus (``verdict``'s meshes): a
+    mesh per target written now (PLY, mm, with each vertex's distance to the target), a
+    picture per target drawn by the worker; both in ``as_fabricated/`` (``as_designed/``
+    when the machine file was not simulated). Returns report.json's ``shapes``."""
+    folder = verdict.what.replace(" ", "_")
+    shown = tuple(shape for shape in verdict.shapes if shape.mesh is not None)
+    targets = []
+    for shape in shown:
+        mesh = shape.mesh
+        path = inside(run.out / folder, f"{shape.target}.ply")
+        save_mesh(path, mesh.vertices_mm, mesh.triangles, {"distance_mm": mesh.distance_mm})
+        targets.append(
+            {
+                "target": shape.target,
+                "mesh": f"{folder}/{shape.target}.ply",
+                "picture": f"{folder}/{shape.target}.png",
+            }
+        )
+    run.drawings.draw(
+        "fabkit.plot.shapes:shape_pictures",
+        (verdict.what, shown),
+        partial(_write_files, [run.out / t["picture"] for t in targets]),
+    )
+    return {"what": verdict.what, "folder": folder, "targets": targets}
+
+
+def _write_files(paths: list[Path], contents: tuple[bytes, ...]) -> None:
+    """Write each of ``contents`` at its path (atomically)."""
+    for path, data in zip(paths, contents, strict=True):
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(data)
 
 
 def _check_send(options: RunOptions) -> None:
@@ -517,7 +573,7 @@ def _part(options: RunOptions, inputs: _Inputs, design: Design) -> Part:
     )
 
 
-def _verify(run: _Run) -> dict[str, Any] | None:
+def _verify(run: _Run) -> Verification | None:
     """Read the first machine file back and check it (None with --no-verify)."""
     options, out, say = run.options, run.out, run.say
     if not options.verify:
@@ -542,7 +598,7 @@ def _verify(run: _Run) -> dict[str, Any] | None:
     )
     for line in result.table().splitlines()[1:-1]:
         say(f"      {line.strip()}")
-    return result.to_dict()
+    return result
 
 
 def _send(path: Path, options: RunOptions) -> SendReport | HostReport:
@@ -577,10 +633,13 @@ def _with_defaults(options: RunOptions) -> RunOptions:
 
 @dataclass(frozen=True)
 class _Fabricated:
-    """Key figures of the fabrication stages and their preview (caption, PNG)."""
+    """Key figures of the fabrication stages, their preview (caption, PNG) and the first
+    machine file's figures (``file`` in the output folder, ``format``, and the writer's
+    :attr:`~fabkit.writers.export.Exported.figures`)."""
 
     figures: dict[str, Any]
     picture: tuple[str, Path]
+    machine_file: dict[str, Any]
 
 
 def _print_lines(run: _Run) -> _Fabricated:
@@ -608,18 +667,20 @@ def _print_lines(run: _Run) -> _Fabricated:
     )
     say(f"[4/7] writing {', '.join(options.formats)}")
     machine = run.inputs.machine
-    exports = {
-        fmt: write_machine_file(job.plan.toolpath, machine, fmt, out / FORMAT_FILES[fmt]).summary
+    written = {
+        fmt: write_machine_file(job.plan.toolpath, machine, fmt, out / FORMAT_FILES[fmt])
         for fmt in options.formats
     }
     figures = {
         "channels": dict(job.plan.toolpath.channels),
         "toolpath quality": [q.to_dict() for q in job.plan.quality],
         "toolpath warnings": list(job.plan.warnings),
-        "exports": exports,
+        "exports": {fmt: exported.summary for fmt, exported in written.items()},
     }
+    first = options.formats[0]
+    machine_file = {"file": FORMAT_FILES[first], "format": first, **written[first].figures}
     caption = "Print lines coloured by the encoded parameter (travels thin)"
-    return _Fabricated(figures, (caption, out / "toolpath" / "preview.png"))
+    return _Fabricated(figures, (caption, out / "toolpath" / "preview.png"), machine_file)
 
 
 def _laser_patterns(run: _Run) -> _Fabricated:
@@ -627,7 +688,7 @@ def _laser_patterns(run: _Run) -> _Fabricated:
     options, inputs, out, say = run.options, run.inputs, run.out, run.say
     say("[3/7] no print lines: a laser writer exposes the director field directly")
     say("[4/7] writing laser/")
-    summary = write_machine_file(
+    written = write_machine_file(
         run.solved.design,
         inputs.machine,
         "laser",
@@ -635,10 +696,14 @@ def _laser_patterns(run: _Run) -> _Fabricated:
         ExportOptions(
             process=inputs.process, ignore_features=options.ignore_features, part=run.solved.part
         ),
-    ).summary
+    )
     record(out / "laser")  # the laser writer renames a whole folder into place
     caption = "Photoalignment pattern: binned director angle and the dose of each exposure (mm)"
-    return _Fabricated({"exports": {"laser": summary}}, (caption, out / "laser" / "preview.png"))
+    return _Fabricated(
+        {"exports": {"laser": written.summary}},
+        (caption, out / "laser" / "preview.png"),
+        {"file": f"{FORMAT_FILES['laser']}/", "format": "laser", **written.figures},
+    )
 
 
 def _channels(run: _Run) -> _Fabricated:
@@ -667,4 +732,5 @@ def _channels(run: _Run) -> _Fabricated:
         "Baromorph channels coloured by their local width (mm), manifold dark grey, sheet "
         "(walls) light grey, inlet red"
     )
-    return _Fabricated(figures, (caption, out / "channels" / "channels.png"))
+    machine_file = {"file": "channels.dxf", "format": "dxf", "entities": dict(drawing.entities)}
+    return _Fabricated(figures, (caption, out / "channels" / "channels.png"), machine_file)

@@ -3,8 +3,9 @@
 ``Browser`` starts ``chromium --headless --remote-debugging-pipe`` (Debian's
 package; ``.ci/run`` installs it when missing), opens one page and collects what a person
 would see in the console: console errors, uncaught exceptions and log entries of level
-error (a resource that failed to load). Messages are JSON separated by NUL bytes on
-file descriptors 3 (to the browser) and 4 (from it).
+error (a resource that failed to load), and the URL of every request the page makes.
+Messages are JSON separated by NUL bytes on file descriptors 3 (to the browser) and 4
+(from it).
 """
 
 from __future__ import annotations
@@ -43,11 +44,12 @@ class Browser:
     def __init__(self, timeout_s: float = 60.0) -> None:
         self.timeout_s = timeout_s
         self.errors: list[str] = []
+        self.requests: list[str] = []
         self._buffer = b""
         self._next = 0
 
     def __enter__(self) -> Browser:
-        self._profile = tempfile.TemporaryDirectory()
+        self._profile = tempfile.TemporaryDirectory(ignore_cleanup_errors=True)
         to_browser_read, self._to_browser = os.pipe()
         self._from_browser, from_browser_write = os.pipe()
 
@@ -72,13 +74,20 @@ class Browser:
         self._session = self._call("Target.attachToTarget", {"targetId": target, "flatten": True})[
             "sessionId"
         ]
-        for domain in ("Page", "Runtime", "Log"):
+        for domain in ("Page", "Runtime", "Log", "Network"):
             self.call(f"{domain}.enable")
         return self
 
     def __exit__(self, *_) -> None:
-        self._process.kill()
-        self._process.wait(timeout=30)
+        # closed over the pipe, the browser ends its own helper processes before it exits
+        # (killed, they may still be writing into the profile as it is removed)
+        try:
+            os.write(self._to_browser, json.dumps({"id": 0, "method": "Browser.close"}).encode())
+            os.write(self._to_browser, b"\0")
+            self._process.wait(timeout=10)
+        except (OSError, subprocess.TimeoutExpired):
+            self._process.kill()
+            self._process.wait(timeout=30)
         os.close(self._to_browser)
         os.close(self._from_browser)
         self._profile.cleanup()
@@ -156,6 +165,8 @@ class Browser:
             self.errors.append("console: " + " ".join(texts))
         elif method == "Runtime.exceptionThrown":
             self.errors.append("exception: " + params["exceptionDetails"].get("text", ""))
+        elif method == "Network.requestWillBeSent":
+            self.requests.append(params["request"]["url"])
         elif method == "Log.entryAdded" and params["entry"].get("level") == "error":
             entry = params["entry"]
             self.errors.append(f"log: {entry.get('text', '')} {entry.get('url', '')}")

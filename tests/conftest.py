@@ -25,6 +25,18 @@ ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
 
 
+def validate_report(figures: dict) -> None:
+    """A run's ``report.json`` figures against ``docs/report.schema.json`` (raises
+    jsonschema's ValidationError where they differ)."""
+    import json
+
+    import jsonschema
+
+    schema = json.loads((ROOT / "docs" / "report.schema.json").read_text())
+    jsonschema.Draft202012Validator.check_schema(schema)
+    jsonschema.validate(figures, schema, cls=jsonschema.Draft202012Validator)
+
+
 def example_table(name: str) -> dict:
     """An example spec as nested dicts, to edit in a test and pass to build_spec."""
     with open(EXAMPLES / name, "rb") as handle:

@@ -1,14 +1,19 @@
 """The drawings fabkit run has its worker make, in memory: the design pictures
-(:func:`fabkit.plot.draw_design`) and the toolpath preview
-(:func:`fabkit.toolpath.preview.preview_images`)."""
+(:func:`fabkit.plot.draw_design`), the toolpath preview
+(:func:`fabkit.toolpath.preview.preview_images`) and the shapes the sheet takes
+(:func:`fabkit.plot.shapes.shape_pictures`)."""
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
+import numpy as np
 import shapely
+from scipy.spatial import Delaunay
 
 from fabkit.machines import load_machine
+from fabkit.mechanics.compare import FormedShape
+from fabkit.mechanics.verdict import Shape
 from fabkit.plot import DESIGN_PICTURES, draw_design
 from fabkit.plot.scene import scene
 from fabkit.toolpath.preview import preview_images
@@ -33,3 +38,24 @@ def test_the_toolpath_preview_is_drawn_as_png_and_svg_bytes():
     images = preview_images(toolpath, [outline], ("png", "svg"), dpi=50)
     assert images["png"].startswith(PNG)
     assert ET.fromstring(images["svg"]).tag.endswith("svg")
+
+
+def test_a_shape_picture_per_target_from_plain_arrays():
+    """A cap (mm) and a sheet that stayed flatter: one PNG per target, the mirror image's
+    too (its title says so)."""
+    from fabkit.plot.shapes import shape_pictures
+
+    grid = np.stack(np.meshgrid(*[np.linspace(-10.0, 10.0, 9)] * 2), -1).reshape(-1, 2)
+    cap = np.column_stack([grid, 4.0 - (grid**2).sum(axis=1) / 50])
+    sheet = cap * [1.0, 1.0, 0.5]
+    triangles = Delaunay(grid).simplices
+    distance = np.linalg.norm(sheet - cap, axis=1)
+    mesh = FormedShape("cap", sheet, cap, triangles, distance, 28.3)
+    shapes = tuple(
+        Shape("cap", 0.02, 0.05, mirrored, True, 0.03, 1.0, 28.3, mesh)
+        for mirrored in (False, True)
+    )
+    pictures = shape_pictures("as fabricated", shapes)
+    assert len(pictures) == 2
+    for picture in pictures:
+        assert picture.startswith(PNG) and len(picture) > 10_000

@@ -1,10 +1,11 @@
 """The same figure is equal wherever it is printed, and every printed figure is plain data.
 
 One coarse ``fabkit run`` (and the single-stage commands on its files): the areas, the
-valid and checked points, the print length, the travel between lines and the G-code's
-non-printing moves must agree across ``design.json``, ``report.json``, ``report.html``,
-``quality.json``, the G-code header and every command's output; a figure that means
-something else carries another name. No Python repr, no ``none (none)``.
+valid and checked points, the print length, the travel between lines, the G-code's
+non-printing moves and the verdict on every target must agree across ``design.json``,
+``report.json``, ``report.html``, ``quality.json``, the G-code header and every command's
+output; a figure that means something else carries another name. No Python repr, no
+``none (none)``. ``report.json`` follows its schema (``docs/report.schema.json``).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import re
 
 import pytest
 
-from tests.conftest import EXAMPLES
+from tests.conftest import EXAMPLES, validate_report
 
 pytestmark = pytest.mark.slow  # every test reads one full fabkit run (about 15 s)
 
@@ -114,7 +115,8 @@ def test_valid_and_checked_points_are_named_apart(made):
     assert len(set(checked)) == 1 and checked[0] < valid
     explained = f"checked points: {checked[0]} per surface (the valid points whose"
     assert explained in made["texts"]["run"] and explained in made["texts"]["solve"]
-    assert "<th>checked_points</th>" in made["html"] and "<th>valid_points</th>" in made["html"]
+    assert f"{valid} grid points solved" in made["html"]
+    assert "<th>points checked</th>" in made["html"] and f"<td>{checked[0]}</td>" in made["html"]
 
 
 def test_lengths_are_one_figure_each(made):
@@ -154,4 +156,32 @@ def test_the_send_figures_are_named_with_their_units(made):
     assert {"resent_lines", "status_queries_between_lines", "recoveries_from_lost_answers"} <= set(
         sent
     )
-    assert "<th>status_queries_between_lines</th>" in made["html"]
+    assert "<th>status queries between lines</th>" in made["html"]
+
+
+def test_the_verdict_is_one_in_the_terminal_the_json_and_the_page(made):
+    """The run's last lines are its verdict, a line per target: the same lines as
+    report.json's and the page's, with the same figures."""
+    import html
+
+    verdict, final = made["report"]["verdict"], made["report"]["verdicts"][-1]
+    lines = made["texts"]["run"].strip().splitlines()
+    count = len(final["targets"])
+    assert lines[-count - 2] == f"      the sheet {verdict['what']}:"
+    assert [line.strip() for line in lines[-count - 1 : -1]] == verdict["lines"]
+    assert lines[-1].startswith(f"done: {verdict['headline']}; the design's check passed; ")
+    assert verdict["lines"] == [t["line"] for t in final["targets"]]
+    for target, line in zip(final["targets"], verdict["lines"], strict=True):
+        style = "formed" if target["formed"] else "missed"
+        assert f'<p class="{style}">{html.escape(line)}</p>' in made["html"]
+        assert f"{target['rms_pct']:.2f} % ({target['rms_mm']:.3g} mm) RMS" in line
+        assert target["rms_mm"] == pytest.approx(
+            target["rms_pct"] / 100 * target["patch_diameter_mm"]
+        )
+    headline = verdict["headline"]
+    assert f"{headline[:1].upper()}{headline[1:]}." in made["html"]
+
+
+def test_report_json_follows_its_schema(made):
+    validate_report(made["report"])
+    assert made["report"]["verify"] is None and made["report"]["sent"]  # --no-verify, --send

@@ -11,7 +11,7 @@ from scipy.spatial import Delaunay
 from fabkit.errors import FabkitError
 from fabkit.field.part import simulation_part
 from fabkit.figures import cell_integral
-from fabkit.mechanics.compare import align, compare, integrated_curvature
+from fabkit.mechanics.compare import align, compare, formed_shape, integrated_curvature
 from fabkit.mechanics.mesh import design_mesh, disc_mesh
 from fabkit.mechanics.metric import edge_lengths, metric_from_director, metric_from_lengths
 from fabkit.mechanics.shell import Sheet
@@ -141,6 +141,30 @@ def test_fig1_targets_are_reproduced_where_the_sheet_is_wide_enough(fig1_design,
     assert report.strain_median <= 5e-3
     report = compare(fig1_design, simulate_design(fig1_design, surface))
     assert report.rms <= whole, report.table()
+
+
+def test_the_formed_shape_is_the_compared_sheet_moved_rigidly_in_mm(fig1_design):
+    """The mesh the pictures and as_fabricated/*.ply show: every vertex (those between the
+    design's grid points too) moved by the rotation and translation compare() fits, scaled
+    to mm; its RMS distance over the grid points is compare()'s."""
+    simulation = simulate_design(fig1_design, 1, refine=2, settings=Settings(max_iterations=8))
+    found = compare(fig1_design, simulation)
+    scale = 3.0  # mm per design unit
+    shape = formed_shape(fig1_design, simulation, scale)
+    nodes, triangles = simulation.mesh.nodes, simulation.mesh.triangles
+    assert not found.mirrored and not nodes.all()
+    assert shape.vertices_mm.shape == shape.target_mm.shape == (len(nodes), 3)
+    assert np.array_equal(shape.triangles, triangles)
+    assert shape.diameter_mm == pytest.approx(scale * found.size)
+    rms = np.sqrt(np.mean(shape.distance_mm[nodes] ** 2)) / shape.diameter_mm
+    assert rms == pytest.approx(found.rms, rel=1e-9)
+    apart = np.linalg.norm(shape.vertices_mm - shape.target_mm, axis=1)
+    assert np.allclose(shape.distance_mm, apart)
+
+    def edges(points):
+        return np.linalg.norm(points[triangles[:, 1]] - points[triangles[:, 0]], axis=1)
+
+    assert np.allclose(edges(shape.vertices_mm), scale * edges(simulation.result.positions))
 
 
 def test_trimming_keeps_the_thickness_of_the_whole_sheet(fig1_design):

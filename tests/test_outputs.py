@@ -1,15 +1,18 @@
 """``--out`` into a folder fabkit wrote before: refused, or ``--overwrite`` replaces exactly
-the earlier run's files (listed in the folder's manifest), never anything else."""
+the earlier run's files (listed in the folder's manifest), never anything else; and the
+README's table lists every file a run writes."""
 
 from __future__ import annotations
 
+import fnmatch
 import os
+import re
 from pathlib import Path
 
 import pytest
 
 from fabkit.atomic import MANIFEST
-from tests.conftest import EXAMPLES
+from tests.conftest import EXAMPLES, ROOT
 
 DISC = ["--director", "arctan2(y, x)", "--shape", "disc:5"]
 COARSE = ["--step", "0.1", "--diagonals", "30", "--size", "20", "--no-verify"]
@@ -123,3 +126,27 @@ def test_laser_export_into_its_earlier_folder(run_cli, tmp_path):
     assert code == 2 and "give --overwrite" in err
     assert run_cli(*args, "-o", out, "--overwrite")[0] == 0
     assert listed(out) == files(out)
+
+
+def readme_files() -> list[str]:
+    """The README's table of the files ``fabkit run`` writes, as patterns (``NAME`` a
+    target's name, a folder ``x/`` every file in it)."""
+    readme = (ROOT / "README.md").read_text()
+    table = readme.split("| file | what |", 1)[1].split("\n\n", 1)[0]
+    rows = [line.split("|")[1] for line in table.splitlines()[2:]]
+    names = [name for row in rows for name in re.findall(r"`([^`]+)`", row)]
+    return [name.replace("NAME", "*") + ("*" if name.endswith("/") else "") for name in names]
+
+
+@pytest.mark.slow
+def test_the_readme_lists_every_file_a_run_writes(run_cli, tmp_path):
+    out = tmp_path / "out"
+    verified = [option for option in COARSE if option != "--no-verify"]
+    assert run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *verified)[0] == 0
+    written = files(out) | {MANIFEST}
+    patterns = readme_files()
+    for name in written:
+        assert any(fnmatch.fnmatch(name, p) for p in patterns), f"{name} is not in the README"
+    for pattern in patterns:
+        assert fnmatch.filter(written, pattern), f"the README lists {pattern}, not written"
+    assert {"as_fabricated/sphere.ply", "as_fabricated/bump.png"} <= written

@@ -1,22 +1,30 @@
-"""``report.html`` in a real browser: it loads with no console error and shows every picture.
+"""``report.html`` in a real browser, as a reader sees it: the verdict first, in words.
 
-A coarse ``fabkit run`` writes the report; headless Chromium (Debian's ``chromium``,
-driven over the DevTools pipe by :mod:`tests.browser`, no network) opens it from a
-``file://`` URL. Every ``<img>`` must be decoded with its caption under it, and the
-screenshot of the whole page must show it: the screenshot's pixels where the browser
-laid it out match the PNG file (scaled as shown) within a few percent.
+Two coarse ``fabkit run``s, verified (Fig. 1 and Fig. 3), write their reports; headless
+Chromium (Debian's ``chromium``, driven over the DevTools pipe by :mod:`tests.browser`, no
+network) opens each from a ``file://`` URL. The visible text holds a verdict line per
+target with its figures (as ``report.json`` has them) and no raw key (a word with an
+underscore: names as written in a file or a command are set as ``<code>``); every
+``<img>`` is decoded with its caption under it, and the screenshot of the whole page
+shows it (its pixels where the browser laid it out match the PNG within a few percent);
+the page logs no console error and asks for nothing but itself and the pictures embedded
+in it.
 """
 
 from __future__ import annotations
 
+import base64
+import html
 import io
+import json
+import re
 
 import numpy as np
 import pytest
 from PIL import Image
 
 from tests.browser import CHROMIUM, Browser
-from tests.conftest import EXAMPLES
+from tests.conftest import EXAMPLES, validate_report
 
 if not CHROMIUM.exists():
     pytest.skip(
@@ -25,52 +33,114 @@ if not CHROMIUM.exists():
         allow_module_level=True,
     )
 
+pytestmark = pytest.mark.slow
+
 _IMAGES = """Array.from(document.images).map(i => {
   const r = i.getBoundingClientRect();
   const caption = i.closest('figure')?.querySelector('figcaption')?.textContent ?? '';
   return {complete: i.complete, natural: [i.naturalWidth, i.naturalHeight], alt: i.alt,
           box: [r.left + scrollX, r.top + scrollY, r.width, r.height], caption: caption};
 })"""
+_PROSE = """(() => { const body = document.body.cloneNode(true);
+  body.querySelectorAll('code').forEach(c => c.remove());
+  return body.innerText; })()"""
+_NAMES = "Array.from(document.querySelectorAll('code')).map(c => c.textContent)"
+SPECS = {"Fig. 1": "two_shapes.toml", "Fig. 3": "three_shapes.toml"}
 
 
-@pytest.fixture(scope="module")
-def report(tmp_path_factory):
+@pytest.fixture(scope="module", params=sorted(SPECS))
+def seen(request, tmp_path_factory):
+    """A coarse verified run of the figure, and what the browser shows of its report."""
     from fabkit.cli import main
 
     out = tmp_path_factory.mktemp("browser") / "out"
-    args = ["run", str(EXAMPLES / "two_shapes.toml"), "--out", str(out), "--step", "0.1"]
-    assert main([*args, "--diagonals", "30", "--size", "20", "--no-verify"]) == 0
-    return out / "report.html"
-
-
-@pytest.mark.slow
-def test_the_report_loads_without_console_errors_and_shows_every_picture(report):
+    args = ["run", str(EXAMPLES / SPECS[request.param]), "--out", str(out), "--step", "0.1"]
+    assert main([*args, "--diagonals", "30", "--size", "20"]) == 0
     with Browser() as browser:
-        browser.open(report.resolve().as_uri())
-        images = browser.evaluate(_IMAGES)
-        shot = Image.open(io.BytesIO(browser.screenshot())).convert("RGB")
-        errors = list(browser.errors)
-    assert errors == []
-    assert len(images) == 5  # flat sheet, eps, surfaces, residuals, toolpath preview
+        browser.open((out / "report.html").resolve().as_uri())
+        shown = {
+            "images": browser.evaluate(_IMAGES),
+            "text": browser.evaluate("document.body.innerText"),
+            "prose": browser.evaluate(_PROSE),
+            "names": browser.evaluate(_NAMES),
+            "shot": Image.open(io.BytesIO(browser.screenshot())).convert("RGB"),
+        }
+        shown["errors"], shown["requests"] = list(browser.errors), list(browser.requests)
+    figures = json.loads((out / "report.json").read_text())
+    return {"out": out, "figures": figures, **shown}
+
+
+def test_the_verdict_comes_first_with_a_line_per_target_and_its_figures(seen):
+    text, verdict = seen["text"], seen["figures"]["verdicts"][-1]
+    assert verdict["what"] == "as fabricated"  # the run read its machine file back
+    first = text.index("Verdict")
+    assert first < text.index("The shapes it will make") < text.index("The design")
+    for target in verdict["targets"]:
+        line = target["line"]
+        assert text.index(line) > first, line
+        assert line.startswith(f"{target['target']}: {'formed' if target['formed'] else 'NOT'}")
+        assert f"{target['rms_pct']:.2f} % ({target['rms_mm']:.3g} mm) RMS" in line
+        assert f"max {target['max_pct']:.2f} % ({target['max_mm']:.3g} mm)" in line
+        assert f"limit {target['limit_pct']:.3g} % ({target['limit_mm']:.3g} mm)" in line
+    headline = seen["figures"]["verdict"]["headline"]
+    assert text.index(headline[:1].upper() + headline[1:]) > first
+
+
+def test_no_raw_key_is_shown(seen):
+    """Words with underscores are names as written (files, the machine, spec keys), set as
+    code; everything else is in words."""
+    assert re.findall(r"[a-z]+_[a-z_]+", seen["prose"]) == []
+    machine = seen["figures"]["machine"]
+    for name in seen["names"]:
+        assert name == machine or "." in name or "/" in name, name
+
+
+def test_the_page_asks_for_nothing_but_itself_and_logs_no_error(seen):
+    assert seen["errors"] == []
+    page = (seen["out"] / "report.html").resolve().as_uri()
+    assert seen["requests"][0] == page
+    for url in seen["requests"][1:]:  # the pictures, embedded in the page
+        assert url.startswith("data:image/png;base64,"), url[:80]
+
+
+def test_every_picture_is_decoded_and_shown_with_its_caption(seen):
+    targets = [t["target"] for t in seen["figures"]["verdicts"][-1]["targets"]]
+    images = seen["images"]
+    # the shapes (one per target), flat sheet, eps, surfaces, residuals, toolpath preview
+    assert len(images) == len(targets) + 5
+    for image, target in zip(images, targets, strict=False):
+        assert image["alt"].startswith(f"{target}: the target (left, grey) and the sheet")
     for image in images:
         assert image["complete"] and min(image["natural"]) > 0, image["alt"]
         assert image["caption"] == image["alt"] and len(image["caption"]) > 20
         left, top, width, height = (int(round(v)) for v in image["box"])
         assert width > 300 and height > 150, image["alt"]
-        shown = np.asarray(shot.crop((left, top, left + width, top + height)), float)
+        shown = np.asarray(seen["shot"].crop((left, top, left + width, top + height)), float)
         assert shown.std() > 10, f"{image['alt']}: blank where the picture should be"
-        assert _difference(shown, _picture(report, image["alt"]), width, height) < 0.03, image[
-            "alt"
-        ]
+        difference = _difference(shown, _picture(seen["out"], image["alt"]), width, height)
+        assert difference < 0.03, image["alt"]
 
 
-def _picture(report, alt: str) -> Image.Image:
+def test_report_json_follows_its_schema(seen):
+    validate_report(seen["figures"])  # verified: the read-back figures and verdict too
+
+
+def test_the_shapes_are_written_beside_the_page(seen):
+    import trimesh
+
+    shapes = seen["figures"]["shapes"]
+    assert shapes["what"] == "as fabricated" and shapes["folder"] == "as_fabricated"
+    for shape in shapes["targets"]:
+        mesh = trimesh.load(seen["out"] / shape["mesh"], process=False)
+        distance = mesh.metadata["_ply_raw"]["vertex"]["data"]["distance_mm"]
+        assert len(distance) == len(mesh.vertices) and np.all(distance >= 0)
+        assert (seen["out"] / shape["picture"]).read_bytes()[:4] == b"\x89PNG"
+        assert f'href="{shape["mesh"]}"' in (seen["out"] / "report.html").read_text()
+
+
+def _picture(out, alt: str) -> Image.Image:
     """The PNG file behind the picture captioned ``alt`` (the report embeds it)."""
-    import base64
-    import html
-    import re
-
-    page = report.read_text()
+    page = (out / "report.html").read_text()
     pictures = dict(re.findall(r'<img alt="([^"]*)" src="data:image/png;base64,([^"]+)"', page))
     data = pictures[html.escape(alt, quote=True)]
     return Image.open(io.BytesIO(base64.b64decode(data)))

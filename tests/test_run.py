@@ -54,10 +54,14 @@ def test_run_writes_every_file(run_cli, tmp_path):
     assert ";LAYER:0" in gcode and "G1" in gcode
     assert "report.html" in text
     page = (out / "report.html").read_text()
-    # the key figures are tables: one row per surface with its residual columns
-    assert "<th>length_u median</th>" in page and "<td>sphere</td>" in page
+    # the key figures are flat tables in words: one row per surface, its residual columns
+    assert "<th>length along u</th>" in page and "<td>sphere</td>" in page
     assert figures["verify"] is None  # --no-verify: tests/test_verify.py reads runs back
-    assert page.count("data:image/png;base64,") == 5
+    # the shapes it takes are the sheet's as designed: a mesh and a picture per target
+    assert figures["shapes"]["folder"] == "as_designed"
+    for name in ("as_designed/sphere.ply", "as_designed/bump.ply", "as_designed/bump.png"):
+        assert (out / name).is_file(), name
+    assert page.count("data:image/png;base64,") == 7  # 2 shapes, 4 design pictures, preview
 
 
 @pytest.mark.slow

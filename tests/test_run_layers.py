@@ -69,8 +69,10 @@ def test_one_layer_names_the_wavy_sheet_and_strict_fails(tmp_path, capsys):
     code = main(["run", str(THREE), "--out", str(out), "--no-verify", "--strict"])
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert code == 1
-    assert last.startswith(f"done: see {out}/report.html; check passed; ")
-    assert "the sheet as designed does NOT form wavy" in last and "mirror image" in last
+    assert (
+        last.startswith("done: the sheet as designed does NOT form wavy") and "mirror image" in last
+    )
+    assert last.endswith(f"; the design's check passed; see {out}/report.html")
 
 
 def test_solve_layers_writes_a_layered_design_that_check_judges(tmp_path, run_cli):

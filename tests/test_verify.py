@@ -348,7 +348,8 @@ def test_run_reports_the_verification(fig1_run):
     assert [t["target"] for t in verified["targets"]] == ["sphere", "bump"]
     assert figures["channels"] == {"print_speed_mm_s": "eps"}
     page = (fig1_run / "report.html").read_text()
-    assert "<th>director_mean_deg</th>" in page and "<th>rms_pct</th>" in page
+    assert "<th>director error, mean / 95th percentile (deg)</th>" in page
+    assert "<th>eps, as the print speed (mm/s), error: RMS / 95th percentile</th>" in page
     assert "NOT ENCODED" not in page
 
 
@@ -367,7 +368,7 @@ def test_an_ignored_feature_is_the_reports_first_line(run_cli, tmp_path):
     assert figures["channels"] == {"print_speed_mm_s": "eps1"}
     assert figures["verify"]["ignored"] == ["eps2"] and figures["verify"]["targets"] == []
     body = (out / "report.html").read_text().split("<body>", 1)[1]
-    assert body.lstrip().startswith('<p class="no">NOT ENCODED: feature eps2')
+    assert body.lstrip().startswith('<p class="notice">NOT ENCODED: feature eps2')
     gcode = (out / "sheet.gcode").read_text()
     assert ";fabkit channels: print_speed_mm_s (eps1)" in gcode
 

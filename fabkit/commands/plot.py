@@ -29,6 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from fabkit.design.design import Design
     from fabkit.design.patches import write_patch_meshes
     from fabkit.plot import render_design
+    from fabkit.plot.page import design_page
     from fabkit.plot.report import html_report
 
     design = Design.load(args.design)
@@ -43,7 +44,8 @@ def run(args: argparse.Namespace) -> int:
         "check": report.to_dict(),
         "meshes": meshes,
     }
-    html_report(f"fabkit design {Path(args.design).name}", figures, pictures, out / "report.html")
+    page = design_page(Path(args.design).name, figures, pictures, meshes, out)
+    html_report(page, out / "report.html")
     for _, path in pictures:
         print(f"wrote {path}")
     print(f"wrote {', '.join(meshes)} and {out / 'report.html'}")

@@ -114,8 +114,13 @@ def run(args: argparse.Namespace) -> int:
         form_tolerance=args.form_tolerance / 100,
     )
     figures = run_pipeline(options)
-    check = "check passed" if figures["check"]["passed"] else "check FAILED"
+    check = (
+        "the design's check passed" if figures["check"]["passed"] else "the design's check FAILED"
+    )
     verdict = figures["verdict"]
-    print(f"done: see {args.out}/report.html; {check}; {verdict['headline']}")
+    print(f"      the sheet {verdict['what']}:")
+    for line in verdict["lines"]:
+        print(f"        {line}")
+    print(f"done: {verdict['headline']}; {check}; see {args.out}/report.html")
     missed = not all(v["formed"] for v in figures["verdicts"])
     return 1 if args.strict and (missed or not figures["check"]["passed"]) else 0

@@ -121,6 +121,13 @@ class CheckReport:
 
 
 RESIDUALS = ("length_u", "length_v", "angle", "curvature")
+RESIDUAL_TITLES = {
+    "length_u": "length along u",
+    "length_v": "length along v",
+    "angle": "angle (|cos| in the metric)",
+    "curvature": "curvature (|K - K target| / K scale)",
+}
+"""Each residual in words (the pictures' titles, the report's columns)."""
 
 
 @dataclass(frozen=True)

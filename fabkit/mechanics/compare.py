@@ -10,6 +10,7 @@ the patch size: the largest distance between two target points.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -50,12 +51,18 @@ def align(source: np.ndarray, target: np.ndarray, mirror: bool = True) -> Alignm
 
 def _kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Source moved by the proper rotation and translation minimising the RMS distance."""
+    return _rigid_motion(source, target)(source)
+
+
+def _rigid_motion(source: np.ndarray, target: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """The proper rotation and translation that minimise the RMS distance from ``source``
+    (n, 3) to ``target`` (n, 3), as a function moving any points (m, 3)."""
     source_mean, target_mean = source.mean(0), target.mean(0)
     covariance = (source - source_mean).T @ (target - target_mean)
     left, _, right = np.linalg.svd(covariance)
     sign = np.sign(np.linalg.det(left @ right)) or 1.0
     rotation = left @ np.diag([1.0, 1.0, sign]) @ right
-    return (source - source_mean) @ rotation + target_mean
+    return lambda points: (points - source_mean) @ rotation + target_mean
 
 
 def _rms(points: np.ndarray, target: np.ndarray) -> float:
@@ -195,4 +202,44 @@ def compare(design: Design, simulation: DesignSimulation) -> Comparison:
         result.iterations,
         result.converged,
         result.seconds,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class FormedShape:
+    """The shape a simulated sheet takes under one target's stimulus, beside that target,
+    in mm (for pictures and mesh files; every array is plain numpy).
+
+    ``vertices_mm`` (V, 3): the simulated sheet moved by the rotation and translation
+    (never a mirror image) that best fit it to the target at the design's grid points;
+    ``target_mm`` (V, 3): the target's points at the same material points (u, v);
+    ``triangles`` (F, 3) index both; ``distance_mm`` (V,): from each vertex to its target
+    point; ``diameter_mm``: the target patch's diameter (what the verdict's percentages
+    are shares of). A sheet that takes the target's mirror image is shown as it is, so
+    its distances here are those to the target itself (no smaller than the verdict's,
+    which are measured after the better of the motion and the mirrored one).
+    """
+
+    name: str
+    vertices_mm: np.ndarray
+    target_mm: np.ndarray
+    triangles: np.ndarray
+    distance_mm: np.ndarray
+    diameter_mm: float
+
+
+def formed_shape(design: Design, simulation: DesignSimulation, mm_per_unit: float) -> FormedShape:
+    """The simulated sheet fitted to its target (:class:`FormedShape`), at ``mm_per_unit``
+    mm per design unit; the fit, as :func:`compare`'s, uses the design's grid points."""
+    nodes = simulation.mesh.nodes
+    positions = simulation.result.positions
+    target = target_points(design, simulation)
+    moved = _rigid_motion(positions[nodes], target[nodes])(positions)
+    return FormedShape(
+        simulation.name,
+        moved * mm_per_unit,
+        target * mm_per_unit,
+        np.asarray(simulation.mesh.triangles),
+        np.linalg.norm(moved - target, axis=1) * mm_per_unit,
+        diameter(target[nodes]) * mm_per_unit,
     )

@@ -7,6 +7,7 @@ counter-clockwise on the flat sheet (so the initial normal is +z). The hinge top
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -163,8 +164,16 @@ def topology(triangles: np.ndarray) -> Topology:
     return Topology(hinges, face_hinges.reshape(faces, 3), flaps.reshape(faces, 3))
 
 
-def save_mesh(path: str | Path, positions: np.ndarray, triangles: np.ndarray) -> None:
-    """Write a 3D mesh as PLY, STL, GLB or OBJ (chosen by the suffix), atomically."""
+def save_mesh(
+    path: str | Path,
+    positions: np.ndarray,
+    triangles: np.ndarray,
+    vertex_values: Mapping[str, np.ndarray] | None = None,
+) -> None:
+    """Write a 3D mesh as PLY, STL, GLB or OBJ (chosen by the suffix), atomically.
+
+    ``vertex_values``: named values (V,) per vertex, written as vertex properties of a PLY
+    (the other formats have no place for them)."""
     import trimesh
 
     path = Path(path)
@@ -172,5 +181,7 @@ def save_mesh(path: str | Path, positions: np.ndarray, triangles: np.ndarray) ->
     if suffix not in MESH_FORMATS:
         raise FabkitError(f"{path}: mesh format must be one of {', '.join(MESH_FORMATS)}")
     mesh = trimesh.Trimesh(positions, triangles, process=False)
+    for name, values in (vertex_values or {}).items():
+        mesh.vertex_attributes[name] = np.asarray(values, dtype=float)
     with atomic_path(path) as tmp:
         mesh.export(tmp, file_type=suffix.lstrip("."))

@@ -14,13 +14,13 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from fabkit.design.design import Design
 from fabkit.field.part import Part
-from fabkit.mechanics.compare import compare
+from fabkit.mechanics.compare import FormedShape, compare, formed_shape
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
 from fabkit.mechanics.simulate import Settings, default_thickness
 
@@ -35,7 +35,10 @@ TARGET_TRIANGLES = 800
 class Shape:
     """What the sheet does under one target's stimulus: its RMS and max distance to the
     target (shares of the patch diameter), whether that is the mirror image, whether the
-    simulation converged, the ``tolerance`` it is held to, and the wall time (s)."""
+    simulation converged, the ``tolerance`` it is held to, and the wall time (s).
+    ``diameter_mm`` is the patch diameter in mm and ``mesh`` the sheet beside its target
+    (:class:`~fabkit.mechanics.compare.FormedShape`), both None where the sheet's scale is
+    unknown."""
 
     target: str
     rms: float
@@ -44,18 +47,31 @@ class Shape:
     converged: bool
     tolerance: float
     seconds: float = 0.0
+    diameter_mm: float | None = None
+    mesh: FormedShape | None = field(default=None, repr=False, compare=False)
 
     @property
     def formed(self) -> bool:
         return self.converged and not self.mirrored and self.rms <= self.tolerance
 
     def line(self) -> str:
-        """One line: ``sphere: formed, 0.72 % RMS (max 2.14 %; limit 3 %)``."""
-        figures = f"{100 * self.rms:.2f} % RMS (max {100 * self.max:.2f} %; limit "
-        figures += f"{100 * self.tolerance:.3g} %)"
-        if self.formed:
-            return f"{self.target}: formed, {figures}"
-        return f"{self.target}: NOT formed, ends {figures} from it{self._why()}"
+        """One line with every figure of the verdict on this target, e.g. ``sphere: formed,
+        0.79 % RMS (0.41 mm), max 2.87 % (1.49 mm) of the patch diameter (52 mm); limit
+        3 % RMS (1.56 mm); converged; not a mirror image`` (no mm where the scale is
+        unknown)."""
+        status = "formed" if self.formed else "NOT formed"
+        diameter = f" ({self.diameter_mm:.3g} mm)" if self.diameter_mm is not None else ""
+        mirror = "the target's mirror image" if self.mirrored else "not a mirror image"
+        return (
+            f"{self.target}: {status}, {self._pct(self.rms)} RMS, max {self._pct(self.max)} of "
+            f"the patch diameter{diameter}; limit {self._pct(self.tolerance, '.3g')} RMS; "
+            f"{'converged' if self.converged else 'NOT converged'}; {mirror}"
+        )
+
+    def _pct(self, share: float, spec: str = ".2f") -> str:
+        """A share of the patch diameter as a percentage, and in mm when known."""
+        text = f"{100 * share:{spec}} %"
+        return text if self.diameter_mm is None else f"{text} ({share * self.diameter_mm:.3g} mm)"
 
     def miss(self) -> str:
         """A missed target in a few words: ``wavy (5.36 % RMS, mirror image)``."""
@@ -65,10 +81,12 @@ class Shape:
         reasons = [("mirror image", self.mirrored), ("not converged", not self.converged)]
         return [reason for reason, holds in reasons if holds]
 
-    def _why(self) -> str:
-        return f" ({', '.join(self._reasons())})" if self._reasons() else ""
-
     def to_dict(self) -> dict:
+        """The figures; the ``_mm`` ones None where the scale is unknown."""
+
+        def mm(share: float) -> float | None:
+            return None if self.diameter_mm is None else share * self.diameter_mm
+
         return {
             "target": self.target,
             "formed": self.formed,
@@ -78,6 +96,11 @@ class Shape:
             "converged": self.converged,
             "limit_pct": 100 * self.tolerance,
             "seconds": self.seconds,
+            "patch_diameter_mm": self.diameter_mm,
+            "rms_mm": mm(self.rms),
+            "max_mm": mm(self.max),
+            "limit_mm": mm(self.tolerance),
+            "line": self.line(),
         }
 
 
@@ -167,6 +190,8 @@ def sheet_verdict(
                 found.converged,
                 tolerance,
                 time.perf_counter() - started,
+                None if mm_per_unit is None else found.size * mm_per_unit,
+                None if mm_per_unit is None else formed_shape(coarse, simulation, mm_per_unit),
             )
         )
     thickness_mm = thickness * mm_per_unit if mm_per_unit is not None else None

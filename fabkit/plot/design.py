@@ -19,7 +19,7 @@ from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.colors import LogNorm  # noqa: E402
 from matplotlib.tri import Triangulation  # noqa: E402
 
-from fabkit.design.check import RESIDUALS, Tolerances  # noqa: E402
+from fabkit.design.check import RESIDUAL_TITLES, RESIDUALS, Tolerances  # noqa: E402
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.patches import grid_triangles  # noqa: E402
 from fabkit.field.part import Part  # noqa: E402
@@ -152,12 +152,6 @@ def _equal_3d(axes, box) -> None:
         axis.set_label_text(f"{name} (design units)", fontsize=9)
 
 
-RESIDUAL_TITLES = {
-    "length_u": "length along u",
-    "length_v": "length along v",
-    "angle": "angle (|cos| in the metric)",
-    "curvature": "curvature (|K - K target| / K scale)",
-}
 FLOOR = 1e-7
 """Residuals below this are drawn at it (the colour bar's bottom)."""
 

@@ -1,99 +1,96 @@
-"""One self-contained HTML page with every picture (embedded) and the key figures."""
+"""One self-contained HTML page: a :class:`~fabkit.plot.page.Page` written out.
+
+The pictures are embedded (PNG, base64) and the page loads nothing else: no script, no
+font, no style sheet from elsewhere; its links point at files the run wrote beside it.
+"""
 
 from __future__ import annotations
 
 import base64
 import html
-from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
 
 from fabkit.atomic import atomic_path
+from fabkit.plot.page import Code, Facts, Figure, Link, Page, Paragraph, Section, Table, Text
 
 STYLE = """
-body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222; }
-table { border-collapse: collapse; margin-bottom: 1em; }
-th, td { border: 1px solid #ccc; padding: 0.3em 0.8em; text-align: left; vertical-align: top; }
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222;
+       padding: 0 1em; line-height: 1.45; }
+h1 { margin-bottom: 0.2em; } h2 { margin-top: 1.8em; border-bottom: 1px solid #ddd; }
+code { font-family: ui-monospace, monospace; font-size: 0.92em; background: #f3f3f3;
+       padding: 0 0.2em; border-radius: 3px; }
+table { border-collapse: collapse; margin: 0.6em 0 1em; }
+th, td { border: 1px solid #ccc; padding: 0.3em 0.7em; text-align: left; vertical-align: top; }
 th { background: #f4f4f4; font-weight: 600; }
-td td, td th { padding: 0.15em 0.5em; }
-td table { margin: 0; font-size: 0.92em; }
-.no { color: #b00; font-weight: 600; }
-figure { margin: 2em 0; } img { max-width: 100%; }
-figcaption { color: #555; }
+table.facts th { font-weight: 500; }
+p.headline { font-size: 1.35em; font-weight: 600; }
+p.formed, p.missed { padding: 0.5em 0.8em; border-left: 6px solid; border-radius: 3px; }
+p.formed { background: #eaf6ea; border-color: #2e7d32; }
+p.missed { background: #fdecea; border-color: #c62828; font-weight: 600; }
+p.notice { color: #b00; font-weight: 600; }
+figure { margin: 1.5em 0; } img { max-width: 100%; }
+figcaption { color: #555; max-width: 70em; }
 """
 
 
-def html_report(
-    title: str,
-    figures: Mapping[str, Any],
-    pictures: Sequence[tuple[str, Path]],
-    path: str | Path,
-    notice: str = "",
-) -> None:
-    """Write ``path``: the key figures as tables, then each (caption, PNG file) inline.
-
-    ``figures`` is plain JSON-like data: a mapping becomes a two-column table, a list of
-    mappings a table with one row per item and one column per (nested) key. ``notice``,
-    if any, is the page's first line (in red).
-    """
-    blocks = []
-    for caption, picture in pictures:
-        data = base64.b64encode(Path(picture).read_bytes()).decode("ascii")
-        blocks.append(
-            f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
-            f"<figcaption>{html.escape(caption)}</figcaption></figure>"
-        )
-    page = f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>
+def html_report(page: Page, path: str | Path) -> None:
+    """Write ``page`` as one HTML file at ``path`` (atomically)."""
+    sections = "\n".join(_section(section) for section in page.sections)
+    document = f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(page.title)}</title>
 <style>{STYLE}</style></head>
-<body>{f'<p class="no">{html.escape(notice)}</p>' if notice else ""}
-<h1>{html.escape(title)}</h1>
-<h2>Key figures</h2>
-{_html(figures)}
-<h2>Pictures</h2>
-{"".join(blocks)}
+<body>
+{f'<p class="notice">{_text(page.notice)}</p>' if page.notice else ""}
+<h1>{_text(page.heading)}</h1>
+{sections}
 </body></html>
 """
     with atomic_path(path) as tmp:
-        tmp.write_text(page, encoding="utf-8")
+        tmp.write_text(document, encoding="utf-8")
 
 
-def _html(value: Any) -> str:
-    """``value`` as HTML: tables for mappings and lists of mappings, escaped text else."""
-    if isinstance(value, Mapping):
+def _section(section: Section) -> str:
+    blocks = "\n".join(_block(block) for block in section.blocks)
+    return f"<section>\n<h2>{html.escape(section.heading)}</h2>\n{blocks}\n</section>"
+
+
+def _block(block: Paragraph | Facts | Table | Figure) -> str:
+    """One block as HTML."""
+    if isinstance(block, Paragraph):
+        style = f' class="{block.style}"' if block.style else ""
+        return f"<p{style}>{_text(block.text)}</p>"
+    if isinstance(block, Facts):
         rows = "".join(
-            f"<tr><th>{html.escape(str(key))}</th><td>{_html(item)}</td></tr>"
-            for key, item in value.items()
+            f"<tr><th>{html.escape(label)}</th><td>{_text(value)}</td></tr>"
+            for label, value in block.rows
         )
-        return f"<table>{rows}</table>" if rows else "none"
-    if isinstance(value, list | tuple):
-        if value and all(isinstance(item, Mapping) for item in value):
-            return _rows_table([_flatten(item) for item in value])
-        return "<br>".join(_html(item) for item in value) or "none"
-    if isinstance(value, bool):
-        return "yes" if value else '<span class="no">no</span>'
-    if isinstance(value, float):
-        return f"{value:.4g}"
-    return "none" if value is None else html.escape(str(value))
-
-
-def _rows_table(rows: list[dict[str, Any]]) -> str:
-    """One row per mapping, one column per key met in any of them."""
-    columns = list(dict.fromkeys(key for row in rows for key in row))
-    head = "".join(f"<th>{html.escape(column)}</th>" for column in columns)
-    body = "".join(
-        "<tr>" + "".join(f"<td>{_html(row.get(column))}</td>" for column in columns) + "</tr>"
-        for row in rows
+        return f'<table class="facts">{rows}</table>'
+    if isinstance(block, Table):
+        head = "".join(f"<th>{html.escape(label)}</th>" for label in block.header)
+        body = "".join(
+            "<tr>" + "".join(f"<td>{_text(cell)}</td>" for cell in row) + "</tr>"
+            for row in block.rows
+        )
+        return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    data = base64.b64encode(block.path.read_bytes()).decode("ascii")
+    caption = html.escape(block.caption)
+    return (
+        f'<figure><img alt="{caption}" src="data:image/png;base64,{data}">'
+        f"<figcaption>{caption}</figcaption></figure>"
     )
-    return f"<table><tr>{head}</tr>{body}</table>"
 
 
-def _flatten(row: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Nested mappings as one level: ``{"a": {"b": 1}}`` -> ``{"a b": 1}``."""
-    flat: dict[str, Any] = {}
-    for key, item in row.items():
-        if isinstance(item, Mapping):
-            flat.update(_flatten(item, f"{prefix}{key} "))
+def _text(text: Text | str) -> str:
+    """Spans as HTML: names as ``<code>``, links as ``<a>``, the rest escaped."""
+    if isinstance(text, str):
+        return html.escape(text)
+    out = []
+    for span in text:
+        if isinstance(span, Code):
+            out.append(f"<code>{html.escape(span.text)}</code>")
+        elif isinstance(span, Link):
+            link = f"<code>{html.escape(span.text)}</code>"  # a file's name, as written
+            out.append(f'<a href="{html.escape(span.href)}">{link}</a>')
         else:
-            flat[f"{prefix}{key}"] = item
-    return flat
+            out.append(html.escape(span))
+    return "".join(out)

@@ -36,7 +36,7 @@ from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField, feature_names, field_from_design
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
-from fabkit.mechanics.compare import compare
+from fabkit.mechanics.compare import FormedShape, compare, formed_shape
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
 from fabkit.mechanics.simulate import Settings
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict
@@ -168,7 +168,7 @@ class Verification:
     verdict: Verdict | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        data = asdict(self)
+        data = asdict(replace(self, verdict=None))  # the verdict's meshes stay out
         data["verdict"] = self.verdict.to_dict() if self.verdict is not None else None
         if self.ignored:
             return {"notice": self.notice(), **data}
@@ -271,6 +271,7 @@ def verify(
     if missing:
         notes.append(f"not read back (the file carries no value for it): {', '.join(missing)}")
     targets: tuple[TargetDistance, ...] = ()
+    shapes: tuple[FormedShape, ...] = ()
     simulation: dict[str, Any] = {}
     thickness_mm = _printed_thickness(options, process, kind, layers)
     if not options.simulate:
@@ -283,7 +284,9 @@ def verify(
             _sheet_fields(r, resolution, sheet, scale, names, smoothing)
             for r, sheet in zip(readbacks, sheets, strict=True)
         ]
-        targets = _simulate(design, fields, options, flat.part, thickness_mm / scale, progress)
+        targets, shapes = _simulate(
+            design, fields, options, flat.part, thickness_mm, scale, progress
+        )
         simulation = _simulation_figures(smoothing, readbacks[0], thickness_mm, layers)
         notes.append(_simulation_note(simulation))
     return Verification(
@@ -305,29 +308,40 @@ def verify(
         extra={"part": _part_figures(flat.part)} if flat.part is not None else {},
         simulation=simulation,
         layers=_layer_readings(sheets, readings, design.layers) if layers > 1 else (),
-        verdict=_verdict(targets, layers, thickness_mm, options.form_tolerance),
+        verdict=_verdict(targets, shapes, layers, thickness_mm, options.form_tolerance),
     )
 
 
 def _verdict(
-    targets: tuple[TargetDistance, ...], layers: int, thickness_mm: float, tolerance: float
+    targets: tuple[TargetDistance, ...],
+    shapes: tuple[FormedShape, ...],
+    layers: int,
+    thickness_mm: float,
+    tolerance: float,
 ) -> Verdict | None:
-    """The verdict on the sheet as fabricated (None when it was not simulated)."""
+    """The verdict on the sheet as fabricated, with the shape it takes under each target's
+    stimulus (None when it was not simulated)."""
     if not targets:
         return None
-    shapes = tuple(
-        Shape(
-            t.target,
-            t.rms_pct / 100,
-            t.max_pct / 100,
-            t.mirrored,
-            t.converged,
-            tolerance,
-            t.seconds,
-        )
-        for t in targets
+    return Verdict(
+        "as fabricated",
+        tuple(
+            Shape(
+                t.target,
+                t.rms_pct / 100,
+                t.max_pct / 100,
+                t.mirrored,
+                t.converged,
+                tolerance,
+                t.seconds,
+                shape.diameter_mm,
+                shape,
+            )
+            for t, shape in zip(targets, shapes, strict=True)
+        ),
+        layers,
+        thickness_mm,
     )
-    return Verdict("as fabricated", shapes, layers, thickness_mm)
 
 
 def _layer_fields(design: Design, flat: FlatField, name: str, layers: int) -> list[FlatField]:
@@ -763,13 +777,16 @@ def _simulate(
     fields: list[SheetFields],
     options: VerifyOptions,
     part: Part | None,
-    thickness: float,
+    thickness_mm: float,
+    mm_per_unit: float,
     progress: Callable[[int, int], None] | None = None,
-) -> tuple[TargetDistance, ...]:
+) -> tuple[tuple[TargetDistance, ...], tuple[FormedShape, ...]]:
     """The sheet of ``fields`` (one per layer, bottom first) on the cells of ``part``,
-    ``thickness`` thick in all (design units), under every target's stimulus (and, if
-    asked, the sheet as designed on the same mesh); ``progress`` over all their ramp
-    steps."""
+    ``thickness_mm`` thick in all, under every target's stimulus (and, if asked, the sheet
+    as designed on the same mesh), at ``mm_per_unit`` mm per design unit; ``progress``
+    over all their ramp steps. Returns the distance to every target and the shape the
+    sheet takes there (mm)."""
+    thickness = thickness_mm / mm_per_unit
     stride = options.stride or _stride(design)
     settings = Settings(max_iterations=options.max_iterations)
     spec = design.problem
@@ -780,7 +797,7 @@ def _simulate(
         else:
             own = [design_fields(design.layer(k)) for k in range(design.layers)]
         reference = [SheetFields(o.theta, o.features, fields[0].made) for o in own]
-    out = []
+    out, shapes = [], []
     surfaces = [
         s
         for s in range(1, len(spec.targets))
@@ -808,6 +825,7 @@ def _simulate(
         )
         made = compare(coarse, simulation)
         seconds = time.perf_counter() - started
+        shapes.append(formed_shape(coarse, simulation, mm_per_unit))
         designed = None
         if reference is not None:
             coarse, simulation = simulate_sheet(
@@ -836,7 +854,7 @@ def _simulate(
                 designed_converged=designed.converged if designed else None,
             )
         )
-    return tuple(out)
+    return tuple(out), tuple(shapes)
 
 
 def _stride(design: Design) -> int:

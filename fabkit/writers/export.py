@@ -77,13 +77,16 @@ class ExportOptions:
 @dataclass(frozen=True)
 class Exported:
     """What one writer wrote: ``path`` (a file, or the laser writer's folder) in ``format``
-    for ``machine``, and ``summary``, its one-paragraph description (``fabkit export``
-    prints it; ``report.json`` keeps it)."""
+    for ``machine``, ``summary``, its one-paragraph description (``fabkit export`` prints
+    it; ``report.json`` keeps it), and ``figures``, its key figures as numbers named with
+    their units (G-code: lines, lengths, material volume, estimated time; DXF: entities
+    per layer; laser patterns: exposures and pixels)."""
 
     path: Path
     format: str
     machine: str
     summary: str
+    figures: dict[str, Any] = field(default_factory=dict)
 
     def __str__(self) -> str:
         return self.summary
@@ -122,8 +125,8 @@ def write_machine_file(
     writers = {"gcode": _gcode, "dxf": _dxf, "laser": _laser}
     if fmt not in writers:
         raise FabkitError(f"format '{fmt}' is not one of {', '.join(FORMATS)}")
-    summary = writers[fmt](source, machine, Path(out), options)
-    return Exported(Path(out), fmt, machine.name, summary)
+    summary, figures = writers[fmt](source, machine, Path(out), options)
+    return Exported(Path(out), fmt, machine.name, summary, figures)
 
 
 def read_input(path: Path, options: ExportOptions | None = None) -> Source:
@@ -162,14 +165,27 @@ def _field(source: Design | FlatField, options: ExportOptions, process: Process)
     return field_from_design(source, options.size_mm, options.mm_per_unit, part)
 
 
-def _gcode(source: Source, machine: MachineProfile, out: Path, options: ExportOptions) -> str:
+Written = tuple[str, dict[str, Any]]
+"""A writer's summary and figures (:class:`Exported`)."""
+
+
+def _gcode(source: Source, machine: MachineProfile, out: Path, options: ExportOptions) -> Written:
     if not isinstance(source, Toolpath):
         raise FabkitError(
             "G-code is written from a toolpath: make one from the design first "
             "(fabkit toolpath), then export the toolpath"
         )
     gcode = replace(options.gcode, offset_mm=options.offset_mm)
-    return describe_gcode(out, write_gcode(source, machine, out, gcode), machine.name)
+    s = write_gcode(source, machine, out, gcode)
+    figures = {
+        "lines": s.lines,
+        "moves": s.motion_lines,
+        "print_length_mm": s.print_length_mm,
+        "non_printing_mm": s.travel_length_mm,
+        "volume_mm3": s.volume_mm3,
+        "estimated_seconds": s.duration_s,
+    }
+    return describe_gcode(out, s, machine.name), figures
 
 
 def describe_gcode(out: Path, s: GcodeSummary, machine: str) -> str:
@@ -191,7 +207,7 @@ def describe_gcode(out: Path, s: GcodeSummary, machine: str) -> str:
     )
 
 
-def _dxf(source: Source, machine: MachineProfile, out: Path, options: ExportOptions) -> str:
+def _dxf(source: Source, machine: MachineProfile, out: Path, options: ExportOptions) -> Written:
     layers = load_geometry(options.geometry) if options.geometry else {}
     toolpath: Toolpath | None = None
     if isinstance(source, Toolpath):
@@ -207,7 +223,7 @@ def _dxf(source: Source, machine: MachineProfile, out: Path, options: ExportOpti
         inlet_radius_mm=options.inlet_radius_mm,
         **layers,
     )
-    return describe_dxf(out, s, machine.name)
+    return describe_dxf(out, s, machine.name), {"entities": dict(s.entities)}
 
 
 def describe_dxf(out: Path, s: DxfSummary, machine: str) -> str:
@@ -216,7 +232,7 @@ def describe_dxf(out: Path, s: DxfSummary, machine: str) -> str:
     return f"wrote {out}: entities per layer {counts}; offset {_xyz(s.offset_mm)} mm on {machine}"
 
 
-def _laser(source: Source, machine: MachineProfile, out: Path, options: ExportOptions) -> str:
+def _laser(source: Source, machine: MachineProfile, out: Path, options: ExportOptions) -> Written:
     if isinstance(source, Toolpath):
         raise FabkitError(
             "laser patterns are written from a director field: export the design.npz "
@@ -240,12 +256,14 @@ def _laser(source: Source, machine: MachineProfile, out: Path, options: ExportOp
     cures = len(s.manifest["cure_exposures"])
     cure = f" and {cures} cure masks" if cures else ""
     notes = "".join(f"; warning: {w}" for w in s.warnings)
-    return (
+    summary = (
         f"wrote {out}/: {s.domain_pixels} domain pixels at {pixel:g} mm in {s.exposures} "
         f"exposure masks{cure}{scan}; binning error max {s.max_binning_error_deg:.2f} deg, rms "
         f"{s.rms_binning_error_deg:.2f} deg; origin {_xyz(s.origin_mm)} mm on {machine.name}"
         f"{notes}"
     )
+    figures = {"exposures": s.exposures, "domain_pixels": s.domain_pixels, "pixel_mm": pixel}
+    return summary, figures
 
 
 def load_geometry(path: Path) -> dict[str, shapely.Geometry]:

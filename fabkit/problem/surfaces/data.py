@@ -737,9 +737,11 @@ def _node_hits(triangles: np.ndarray, nodes: _Nodes, where: str) -> tuple[np.nda
     v = local[triangle, 2] - corner
     p = np.stack([i, j], axis=-1) - corner
     determinant = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    flat = determinant == 0  # upright in mm, but no area left on the grid's scale
+    determinant = np.where(flat, 1.0, determinant)
     s = (p[:, 0] * v[:, 1] - p[:, 1] * v[:, 0]) / determinant
     t = (u[:, 0] * p[:, 1] - u[:, 1] * p[:, 0]) / determinant
-    inside = (s >= -1e-6) & (t >= -1e-6) & (s + t <= 1 + 1e-6)
+    inside = ~flat & (s >= -1e-6) & (t >= -1e-6) & (s + t <= 1 + 1e-6)
     heights = triangles[triangle, :, 2]
     height = (
         heights[:, 0] + s * (heights[:, 1] - heights[:, 0]) + t * (heights[:, 2] - heights[:, 0])
