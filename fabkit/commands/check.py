@@ -28,7 +28,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         dest="simulate",
         help="only the residuals: do not simulate the sheet under every target's stimulus",
     )
-    shapes.add_argument(
+    verdict_arguments(shapes, "exit 1 also when a target is not formed")
+    parser.set_defaults(func=run)
+
+
+def verdict_arguments(group: argparse._ActionsContainer, strict_help: str) -> None:
+    """``--form-tolerance`` and ``--strict``, the verdict's options (``fabkit check``,
+    ``fabkit run``); ``strict_help`` says what exits 1."""
+    group.add_argument(
         "--form-tolerance",
         type=float,
         default=100 * FORM_TOLERANCE,
@@ -36,10 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="a target is formed when the simulated sheet ends within this RMS distance, "
         "%% of the patch diameter (default %(default)g)",
     )
-    shapes.add_argument(
-        "--strict", action="store_true", help="exit 1 also when a target is not formed"
-    )
-    parser.set_defaults(func=run)
+    group.add_argument("--strict", action="store_true", help=strict_help)
 
 
 TOLERANCE_HELP = {

@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 
 from fabkit import commands
+from fabkit.commands.check import verdict_arguments
 from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.design.patches import MESH_TYPES
 from fabkit.machines import DEFAULT_MACHINE
-from fabkit.mechanics.verdict import FORM_TOLERANCE
 from fabkit.pipeline import (
     BAROMORPH_MACHINE,
     DEFAULT_SIZE_MM,
@@ -87,18 +87,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "with each target's curvature so that the sheet takes the target, not a mirror "
         "image or a neighbour (default 1)",
     )
-    parser.add_argument(
-        "--form-tolerance",
-        type=float,
-        default=100 * FORM_TOLERANCE,
-        metavar="PCT",
-        help="a target is formed when the simulated sheet ends within this RMS distance, "
-        "%% of the patch diameter (default %(default)g)",
-    )
-    parser.add_argument(
-        "--strict",
-        action="store_true",
-        help="exit 1 when the sheet (as designed or as fabricated) does not form every target",
+    verdict_arguments(
+        parser, "exit 1 when the sheet (as designed or as fabricated) does not form every target"
     )
     commands.add_api_key(parser)
     commands.add_overwrite(parser)
