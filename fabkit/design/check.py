@@ -84,6 +84,10 @@ class SurfaceCheck:
 
 @dataclass(frozen=True)
 class CheckReport:
+    """The check of a design: one :class:`SurfaceCheck` per target, in the spec's order
+    (dimensionless residuals: median and 95th percentile), and the ``tolerances`` they are
+    held to; ``passed`` when every target passes, ``table()`` as text."""
+
     surfaces: tuple[SurfaceCheck, ...]
     tolerances: Tolerances
 
@@ -178,7 +182,12 @@ def check_design(
     spec: Spec | None = None,
 ) -> CheckReport:
     """Median and 95th percentile of every residual of every surface of ``design``
-    (``spec``: the design's spec when the caller has it, else the design's own)."""
+    (``spec``: the design's spec when the caller has it, else the design's own).
+
+    The residuals are dimensionless (module docstring): relative length errors along u
+    and v, the |cos| of the angle between them, the curvature error relative to the
+    targets' curvature scale; ``region`` (design units) keeps the points with |u|, |v| <=
+    region. Returns a :class:`CheckReport`, one :class:`SurfaceCheck` per target."""
     return check_maps(residual_maps(design, region, spec), tolerances)
 
 

@@ -100,9 +100,40 @@ class JobResult:
 
 def run_job(job: ToolpathJob) -> JobResult:
     """Load, plan and write everything for ``job``."""
+    _check_inset(job)
+    check_folder(job.out, f"--out {job.out}")
+    plan, process, fields = _plan(job)
+    out = Path(job.out)
+    files = [out / "toolpath.npz", out / "quality.json"]
+    save_toolpath(plan.toolpath, files[0])
+    _save_quality(plan, process, files[1], fields)
+    if job.preview:
+        from fabkit.toolpath.preview import save_preview  # matplotlib: only when drawing
+
+        files += [out / "preview.png", out / "preview.svg"]
+        save_preview(plan.toolpath, [f.outline for f in fields], files[2:4])
+    if job.json:
+        files.append(out / "toolpath.json")
+        save_toolpath(plan.toolpath, files[-1])
+    return _result(plan, tuple(files), fields)
+
+
+def plan_job(job: ToolpathJob) -> JobResult:
+    """Load and plan ``job`` in memory, writing nothing (``files`` is empty; ``out``,
+    ``json`` and ``preview`` are not used): :func:`fabkit.api.plan_toolpath`."""
+    _check_inset(job)
+    plan, _, fields = _plan(job)
+    return _result(plan, (), fields)
+
+
+def _check_inset(job: ToolpathJob) -> None:
     if not 0 <= job.end_inset <= 1:
         raise FabkitError(f"--end-inset {job.end_inset:g}: expected a fraction of w in [0, 1]")
-    check_folder(job.out, f"--out {job.out}")
+
+
+def _plan(job: ToolpathJob) -> tuple[Plan, Process, list[FlatField]]:
+    """The plan of ``job``, the process it was planned for and the fields it was planned
+    from (bottom layer first)."""
     process = job_process(job)
     designs = [p for p in job.inputs if Path(p).suffix == ".npz"]
     if job.design is None and len(job.inputs) == 1 and designs:
@@ -121,22 +152,12 @@ def run_job(job: ToolpathJob) -> JobResult:
         ignore=job.ignore_features,
         lines=LineSettings(end_inset=job.end_inset),
     )
-    plan = plan_toolpath(fields, process, settings)
-    out = Path(job.out)
-    files = [out / "toolpath.npz", out / "quality.json"]
-    save_toolpath(plan.toolpath, files[0])
-    _save_quality(plan, process, files[1], fields)
-    outlines = tuple(f.outline for f in fields)
-    if job.preview:
-        from fabkit.toolpath.preview import save_preview  # matplotlib: only when drawing
+    return plan_toolpath(fields, process, settings), process, fields
 
-        files += [out / "preview.png", out / "preview.svg"]
-        save_preview(plan.toolpath, list(outlines), files[2:4])
-    if job.json:
-        files.append(out / "toolpath.json")
-        save_toolpath(plan.toolpath, files[-1])
+
+def _result(plan: Plan, files: tuple[Path, ...], fields: list[FlatField]) -> JobResult:
     parts = tuple(f.part for f in fields if f.part is not None)
-    return JobResult(plan, tuple(files), parts, outlines)
+    return JobResult(plan, files, parts, tuple(f.outline for f in fields))
 
 
 def _design_layers(job: ToolpathJob) -> int:

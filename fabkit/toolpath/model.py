@@ -135,7 +135,8 @@ class Layer:
 
 @dataclass(frozen=True, eq=False)
 class Toolpath:
-    """Layers of moves, the encoded channels, and JSON-able metadata.
+    """Layers of moves, the encoded channels, and JSON-able metadata; every move's vertices
+    ``xyz`` (n, 3), widths (n,) in mm, speeds (n,) in mm/s (module docstring).
 
     ``channels`` maps every encoded parameter (one of :data:`fabkit.process.PARAMETERS`)
     to the feature(s) it encodes (``"eps1"``, or ``"eps1+eps2"`` for a joint table; ``""``

@@ -9,4 +9,7 @@ sheet (coverage, road direction, the values); :mod:`~fabkit.verify.machine_file`
 channel's calibration to read the features back, compares director, features and
 coverage with the design, and forward-simulates the sheet as fabricated under every
 stimulus (:mod:`fabkit.mechanics.fabricated`).
+
+Called, ``fabkit.verify(design, machine_file)`` is the public API's
+:func:`fabkit.api.verify` (``import fabkit`` makes this package callable; docs/api.md).
 """

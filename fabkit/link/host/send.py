@@ -120,7 +120,11 @@ def send_file(
     Returns the check and estimate (dry run) or the send report; every problem is a
     FabkitError, Ctrl-C a :class:`SendInterrupted`. ``say`` gets the lines for the user
     before streaming (which machine, the estimated duration); the progress bar goes to
-    stderr unless ``show_progress`` is False.
+    stderr unless ``show_progress`` is False. ``port``: a device, a pyserial URL or
+    ``sim://marlin?...`` (the emulator); ``baud`` in bit/s (default: the profile's);
+    ``resume_from`` a 1-based line of the file; ``machine`` a profile name or .toml path
+    (default: the one the file's header names). A :class:`SendReport` counts the lines
+    the machine acknowledged and the seconds it took (``elapsed_s``).
     """
     if host is not None:
         _no_serial_options(port, baud, resume_from, options)
