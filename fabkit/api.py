@@ -29,7 +29,7 @@ DEFAULT_SIZE_MM = 60.0
 PLAN_SETTINGS = (
     "mm_per_unit",
     "part_request",
-    "process_file",
+    "process",
     "road_width_mm",
     "layer_height_mm",
     "layers",
@@ -79,7 +79,8 @@ def plan_toolpath(
     is cut to the part that is made (:mod:`fabkit.field.part`), every feature encoded by
     the process's channel for it. ``settings``: any of :data:`PLAN_SETTINGS`, as the
     options of ``fabkit toolpath`` (e.g. ``layers=2``, ``pattern="alternate"``,
-    ``ignore_features=("eps",)``, ``road_width_mm=0.4``). Returns the
+    ``ignore_features=("eps",)``, ``road_width_mm=0.4``; ``process``: a
+    :class:`~fabkit.process.Process` in place of the machine's). Returns the
     :class:`~fabkit.toolpath.plan.Plan`: ``plan.toolpath`` (a
     :class:`~fabkit.toolpath.model.Toolpath`: moves of x, y, z in mm in the sheet's own
     frame, placed on the bed by the writer), ``plan.quality`` (one per layer) and
@@ -93,9 +94,8 @@ def plan_toolpath(
     job = ToolpathJob(
         inputs=("design.npz",),  # the field's name only: the design is given as a value
         design=design,
-        machine=_machine_ref(machine),
         size_mm=size_mm,
-        **settings,
+        **({"process": _profile(machine).process} if machine is not None else {}) | settings,
     )
     return plan_job(job).plan
 
@@ -119,11 +119,9 @@ def write_machine_file(
     :class:`~fabkit.writers.export.Exported`: ``path``, ``summary`` (one paragraph) and
     ``figures`` (lines, lengths in mm, material volume in mm^3, estimated time in s).
     """
-    from fabkit.machines import load_machine
     from fabkit.writers.export import write_machine_file as write
 
-    profile = load_machine(machine) if isinstance(machine, str | Path) else machine
-    return write(source, profile, fmt, out, options)
+    return write(source, _profile(machine), fmt, out, options)
 
 
 def verify(
@@ -151,17 +149,15 @@ def verify(
     from fabkit.verify.machine_file import VerifyOptions
     from fabkit.verify.machine_file import verify as verify_file
 
-    verify_options = VerifyOptions(machine=_machine_ref(machine), **options)
+    profile = None if machine is None else _profile(machine)
+    verify_options = VerifyOptions(machine=profile, **options)
     if isinstance(design, str | Path):
         return verify_file(design, machine_file, verify_options, progress)
     return verify_file("design", machine_file, verify_options, progress, design=design)
 
 
-def _machine_ref(machine: str | Path | MachineProfile | None) -> str | None:
-    """What the stages that load the profile themselves take: a name or a .toml path (a
-    profile's own file)."""
-    if machine is None or isinstance(machine, str):
-        return machine
-    if isinstance(machine, Path):
-        return str(machine)
-    return str(machine.path)
+def _profile(machine: str | Path | MachineProfile) -> MachineProfile:
+    """The profile ``machine`` stands for: itself, or the one its name or .toml path loads."""
+    from fabkit.machines import load_machine
+
+    return load_machine(machine) if isinstance(machine, str | Path) else machine

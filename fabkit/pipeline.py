@@ -76,7 +76,7 @@ from fabkit.plot.report import html_report
 from fabkit.plot.scene import scene
 from fabkit.problem.spec import Spec, load_spec
 from fabkit.process import Process
-from fabkit.toolpath.baromorph import load_baromorph
+from fabkit.toolpath.baromorph import BaromorphSettings, load_baromorph
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.process import load_process, resolve_channels
 from fabkit.writers.dxf import layout_layers, write_dxf
@@ -147,8 +147,9 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
     imports the calling script again: a script that calls this keeps its top level under
     ``if __name__ == "__main__":``, as for any spawned process.
     """
-    options = _with_defaults(options)
-    inputs = _check_inputs(options)
+    machine = load_machine(_machine_name(options))
+    options = _with_defaults(options, machine)
+    inputs = _check_inputs(options, machine)
     with output_folder(options.out, f"--out {options.out}", options.overwrite):
         return _stages(options, inputs, say)
 
@@ -156,11 +157,13 @@ def run_pipeline(options: RunOptions, say: Callable[[str], None] = print) -> dic
 @dataclass(frozen=True)
 class _Inputs:
     """What the checks read once and every stage takes: the spec (the solver options
-    applied), the machine profile and the process (None on a baromorph run)."""
+    applied), the machine profile, the process (None on a baromorph run) and the
+    baromorph's channel settings (None on a print run)."""
 
     spec: Spec
     machine: MachineProfile
     process: Process | None
+    baromorph: BaromorphSettings | None
 
 
 def _stages(options: RunOptions, inputs: _Inputs, say: Callable[[str], None]) -> dict[str, Any]:
@@ -428,7 +431,7 @@ def _fabricate(run: _Run) -> _Made:
     sent = None
     if options.send:
         run.say(f"[6/7] sending sheet.gcode to {options.send}")
-        sent = _send(run.out / "sheet.gcode", options).figures()
+        sent = _send(run.out / "sheet.gcode", options, run.inputs.machine).figures()
     else:
         run.say("[6/7] not sending (no --send)")
     return _Made(fabricated, fabricated.machine_file, verification, final, shapes, sent)
@@ -480,9 +483,9 @@ def _check_send(options: RunOptions) -> None:
         raise FabkitError("--api-key and --api-key-file are for --send to a printer host")
 
 
-def _check_inputs(options: RunOptions) -> _Inputs:
+def _check_inputs(options: RunOptions, machine: MachineProfile) -> _Inputs:
     """Refuse bad input before any work; returns the spec (the solver options applied),
-    the machine profile and the process."""
+    ``machine`` and the process."""
     for fmt in options.formats:
         if fmt not in FORMAT_FILES:
             raise FabkitError(f"--format {fmt}: expected one of {', '.join(FORMAT_FILES)}")
@@ -508,11 +511,11 @@ def _check_inputs(options: RunOptions) -> _Inputs:
     patch_paths(spec.targets, Path(options.out) / "patches", options.mesh_format)
     if options.step is not None or options.diagonals is not None:
         spec = spec.with_solver(step=options.step, diagonals=options.diagonals)
-    machine = load_machine(options.machine)
+    baromorph = None
     if options.baromorph:
         if options.formats != ("dxf",):
             raise FabkitError("a baromorph run writes DXF only: use --format dxf (or no --format)")
-        load_baromorph(options.baromorph)
+        baromorph = load_baromorph(options.baromorph)
     elif machine.kind == LASER_WRITER and options.formats != ("laser",):
         raise FabkitError(
             f"{options.machine} is a laser writer: use --format laser (or no --format)"
@@ -536,7 +539,7 @@ def _check_inputs(options: RunOptions) -> _Inputs:
             f"--size {options.size_mm:g}: the sheet does not fit the envelope of "
             f"{options.machine} ({spans[0]:g} x {spans[1]:g} mm); give a smaller --size"
         )
-    return _Inputs(spec, machine, process)
+    return _Inputs(spec, machine, process, baromorph)
 
 
 def _notice(options: RunOptions) -> str:
@@ -561,7 +564,7 @@ def _part(options: RunOptions, inputs: _Inputs, design: Design) -> Part:
         return design_part(
             design, options.size_mm, inputs.process, options.layers, options.part_request
         )
-    settings = load_baromorph(options.baromorph)
+    settings = inputs.baromorph
     solved = solved_region(design)
     return print_part(
         design,
@@ -587,10 +590,10 @@ def _verify(run: _Run) -> Verification | None:
         out / "design.npz",
         target,
         VerifyOptions(
-            machine=options.machine,
-            process_file=options.process_file,
+            machine=run.inputs.machine,
+            process=run.inputs.process,
             ignore_features=options.ignore_features,
-            baromorph=options.baromorph,
+            baromorph=run.inputs.baromorph,
             part=run.solved.part,
             form_tolerance=options.form_tolerance,
         ),
@@ -601,8 +604,8 @@ def _verify(run: _Run) -> Verification | None:
     return result
 
 
-def _send(path: Path, options: RunOptions) -> SendReport | HostReport:
-    """Send the machine file to ``options.send``, a port or a printer host."""
+def _send(path: Path, options: RunOptions, machine: MachineProfile) -> SendReport | HostReport:
+    """Send the machine file to ``options.send``, a port or a printer host, for ``machine``."""
     from fabkit.link.host.send import send_file
     from fabkit.link.host.web import is_host_url
 
@@ -611,24 +614,29 @@ def _send(path: Path, options: RunOptions) -> SendReport | HostReport:
         path,
         None if host else options.send,
         host=host,
-        machine=options.machine,
+        machine=machine,
         api_key=options.api_key,
         api_key_file=options.api_key_file,
     )
 
 
-def _with_defaults(options: RunOptions) -> RunOptions:
+def _machine_name(options: RunOptions) -> str:
+    """The machine of a run: --machine, else the laser cutter for baromorph channels, else
+    the default printer."""
+    return options.machine or (BAROMORPH_MACHINE if options.baromorph else DEFAULT_MACHINE)
+
+
+def _with_defaults(options: RunOptions, machine: MachineProfile) -> RunOptions:
     """Fill in the machine and the formats that suit the route (see :class:`RunOptions`)."""
-    machine = options.machine or (BAROMORPH_MACHINE if options.baromorph else DEFAULT_MACHINE)
     formats = options.formats
     if not formats:
         if options.baromorph:
             formats = ("dxf",)
-        elif load_machine(machine).kind == LASER_WRITER:
+        elif machine.kind == LASER_WRITER:
             formats = ("laser",)
         else:
             formats = ("gcode",)
-    return replace(options, machine=machine, formats=tuple(formats))
+    return replace(options, machine=_machine_name(options), formats=tuple(formats))
 
 
 @dataclass(frozen=True)
@@ -650,8 +658,7 @@ def _print_lines(run: _Run) -> _Fabricated:
     job = run_job(
         ToolpathJob(
             inputs=(str(out / "design.npz"),),
-            machine=options.machine,
-            process_file=options.process_file,
+            process=run.inputs.process,
             size_mm=options.size_mm,
             ignore_features=options.ignore_features,
             out=str(out / "toolpath"),
@@ -714,7 +721,7 @@ def _channels(run: _Run) -> _Fabricated:
         inputs=(str(out / "design.npz"),), part=run.solved.part, design=run.solved.design
     )
     result = run_channel_job(
-        ChannelJob(fields=fields, baromorph=options.baromorph, out=str(out / "channels"))
+        ChannelJob(fields=fields, baromorph=run.inputs.baromorph, out=str(out / "channels"))
     )
     say("[4/7] writing channels.dxf")
     drawing = write_dxf(

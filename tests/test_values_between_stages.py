@@ -1,6 +1,8 @@
 """Issue 20: each command parses the spec once and computes the residual maps once; `fabkit
 run` hands the design and the toolpath from stage to stage in memory (the files it writes
-are side outputs, read by no later stage)."""
+are side outputs, read by no later stage). Issue 28: every command reads each of its
+TOML files (spec, machine profile, process, baromorph settings) once, and the stages take
+the values."""
 
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import shapely
 
 import fabkit.design.check
 import fabkit.problem.spec
+import fabkit.tomlfile
 import fabkit.toolpath.model
 from fabkit.cli import main
 from fabkit.design.design import Design
@@ -36,7 +39,14 @@ def counting():
     """Counts of the spec parses, residual-map computations and file reloads while the
     block runs: every fabkit module that holds the function (imported by name) gets the
     counting wrapper."""
-    for module in ("fabkit.pipeline", "fabkit.commands.verify", "fabkit.commands.toolpath"):
+    for module in (
+        "fabkit.pipeline",
+        "fabkit.commands.verify",
+        "fabkit.commands.toolpath",
+        "fabkit.commands.export",
+        "fabkit.commands.send",
+        "fabkit.link.host.send",
+    ):
         importlib.import_module(module)  # load every stage before wrapping
     calls: Counter[str] = Counter()
     with pytest.MonkeyPatch.context() as patch:
@@ -52,6 +62,15 @@ def counting():
                         if value is real:
                             patch.setattr(module, attribute, wrapper)
 
+        real_read = fabkit.tomlfile.read_toml
+
+        def read_toml(path, what, *args, **kwargs):
+            calls[f"{what} reads"] += 1
+            return real_read(path, what, *args, **kwargs)
+
+        for name, module in list(sys.modules.items()):
+            if name.startswith("fabkit") and getattr(module, "read_toml", None) is real_read:
+                patch.setattr(module, "read_toml", read_toml)
         count(fabkit.problem.spec.build_spec, "spec parses")
         count(fabkit.design.check.residual_maps, "residual maps")
         count(fabkit.toolpath.model.load_toolpath, "toolpath loads")
@@ -77,7 +96,8 @@ def run(tmp_path_factory):
 
 def test_run_parses_once_computes_maps_once_and_reloads_nothing(run):
     out, calls = run
-    assert calls == {"spec parses": 1, "residual maps": 1}, calls
+    once = {"spec reads": 1, "machine reads": 1}
+    assert calls == {"spec parses": 1, "residual maps": 1, **once}, calls
     assert (out / "design.npz").is_file() and (out / "sheet.gcode").is_file()
 
 
@@ -87,11 +107,69 @@ def test_verify_and_toolpath_parse_the_embedded_spec_once(run, tmp_path, run_cli
     with counting() as calls:
         code, _, err = run_cli(*verify, "--machine", "marlin_diw_pneumatic")
     assert code == 0, err
-    assert calls == {"spec parses": 1, "design loads": 1}, calls
+    assert calls == {"spec parses": 1, "design loads": 1, "machine reads": 1}, calls
     toolpath = ("toolpath", out / "design.npz", "--size", "60", "--out", tmp_path / "tp")
     with counting() as calls:
         assert run_cli(*toolpath)[0] == 0
-    assert calls == {"spec parses": 1, "design loads": 1}, calls
+    assert calls == {"spec parses": 1, "design loads": 1, "machine reads": 1}, calls
+
+
+def process_file(folder: Path) -> Path:
+    """A process file holding the default machine's own [process] table."""
+    text = (EXAMPLES.parent / "machines" / "marlin_diw_pneumatic.toml").read_text()
+    path = folder / "process.toml"
+    path.write_text("[process]" + text.split("\n[process]", 1)[1].split("\n[inks]", 1)[0])
+    return path
+
+
+@pytest.mark.slow
+def test_every_command_reads_each_file_once(run, tmp_path, run_cli):
+    """The machine profile, the process and the baromorph settings are read once per
+    command, whatever stages the command runs (a file read twice could change between
+    the reads, and is work done twice)."""
+    out, _ = run
+    design, gcode, process = out / "design.npz", out / "sheet.gcode", process_file(tmp_path)
+    channels = EXAMPLES / "baromorph_channels.toml"
+    commands = {
+        "verify, the machine its header names": (
+            ("verify", design, gcode, "--no-simulate"),
+            {"machine reads": 1},
+        ),
+        "verify with a process": (
+            ("verify", design, gcode, "--no-simulate", "--process", process),
+            {"machine reads": 1, "process reads": 1},
+        ),
+        "toolpath with a process": (
+            ("toolpath", design, "--size", "60", "--process", process, "--out", tmp_path / "t"),
+            {"machine reads": 1, "process reads": 1},
+        ),
+        "channels": (
+            ("channels", "--director", "arctan2(y, x)", "--shape", "disc:20", "--eps", "0.4")
+            + ("--out", tmp_path / "c", "--baromorph", channels),
+            {"baromorph reads": 1},
+        ),
+        "send": (
+            ("send", gcode, "--port", "sim://marlin?baud=0&time_scale=0"),
+            {"machine reads": 1},
+        ),
+    }
+    for name, (argv, reads) in commands.items():
+        with counting() as calls:
+            code, _, err = run_cli(*argv)
+        assert code == 0, f"{name}: {err}"
+        counted = {key: n for key, n in calls.items() if key.endswith(" reads")}
+        assert counted == reads, (name, calls)
+
+
+@pytest.mark.slow
+def test_a_baromorph_run_reads_its_settings_once(tmp_path):
+    out = tmp_path / "out"
+    argv = ["run", str(EXAMPLES / "baromorph.toml"), "--out", str(out), *COARSE, "--size", "60"]
+    argv += ["--baromorph", str(EXAMPLES / "baromorph_channels.toml")]
+    with counting() as calls, contextlib.redirect_stdout(io.StringIO()):
+        assert main(argv) == 0
+    counted = {key: n for key, n in calls.items() if key.endswith(" reads")}
+    assert counted == {"spec reads": 1, "machine reads": 1, "baromorph reads": 1}, calls
 
 
 def test_export_from_a_value_writes_what_export_from_the_file_writes(run, tmp_path):

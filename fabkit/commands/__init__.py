@@ -20,7 +20,11 @@ from __future__ import annotations
 import argparse
 import functools
 from collections.abc import Callable
-from typing import Any, NamedTuple, TypeVar
+from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
+
+if TYPE_CHECKING:
+    from fabkit.process import Process
+    from fabkit.toolpath.baromorph import BaromorphSettings
 
 T = TypeVar("T")
 
@@ -172,6 +176,31 @@ def add_process(parser: argparse._ActionsContainer, help: str) -> None:
     """``--process FILE``: a TOML whose [process] table stands for the machine's; its path is
     ``args.process_file``, as the options of every stage name it."""
     parser.add_argument("--process", metavar="FILE", dest="process_file", help=help)
+
+
+def chosen_process(args: argparse.Namespace) -> Process:
+    """The process of ``--process`` (``args.process_file``), else that of ``--machine``
+    (default marlin_diw_pneumatic), each file read once; a bad ``--machine`` is reported
+    even with ``--process``."""
+    from fabkit.machines import DEFAULT_MACHINE, load_machine
+    from fabkit.toolpath.process import load_process
+
+    machine = load_machine(args.machine or DEFAULT_MACHINE)
+    return load_process(args.process_file) if args.process_file else machine.process
+
+
+def given_process(args: argparse.Namespace) -> Process | None:
+    """The process of ``--process``, read once, or None (the machine's)."""
+    from fabkit.toolpath.process import load_process
+
+    return load_process(args.process_file) if args.process_file else None
+
+
+def given_baromorph(args: argparse.Namespace) -> BaromorphSettings | None:
+    """The channel settings of ``--baromorph``, read once, or None."""
+    from fabkit.toolpath.baromorph import load_baromorph
+
+    return load_baromorph(args.baromorph) if args.baromorph else None
 
 
 def add_ignore_feature(parser: argparse._ActionsContainer, help: str) -> None:

@@ -77,13 +77,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fabkit.toolpath.process import load_process
     from fabkit.writers.export import ExportOptions, export
 
     options = commands.call_with(
         ExportOptions,
         args,
-        process=load_process(args.process_file) if args.process_file else None,
+        process=commands.given_process(args),
         part_request=part_request(args),
         gcode=commands.call_with(GcodeOptions, args),
         laser={

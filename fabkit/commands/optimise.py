@@ -109,18 +109,14 @@ def _limits(args: argparse.Namespace):
                 name = option.replace("_", "-")
                 raise _error(f"--{name} applies with --machine or --process only")
         return None
-    from fabkit.machines import load_machine
     from fabkit.optimise.objective import process_limits
     from fabkit.problem.spec import load_spec
-    from fabkit.toolpath.process import load_process
 
     if args.scale is None or not 0 < args.scale < float("inf"):
         raise _error("--machine/--process: give --scale MM_PER_UNIT (> 0) to compare widths")
     if args.min_width is not None and not 0 <= args.min_width < float("inf"):
         raise _error(f"--min-width {args.min_width}: expected a width >= 0 (mm)")
-    process = (
-        load_process(args.process_file) if args.process_file else load_machine(args.machine).process
-    )
+    process = commands.chosen_process(args)
     features = load_spec(args.spec).material.features
     return process_limits(process, features, args.scale, args.min_width, args.ignore_features)
 

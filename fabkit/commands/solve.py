@@ -9,11 +9,10 @@ from fabkit import commands
 from fabkit.commands import add_command
 from fabkit.design.design import MAX_LAYERS
 from fabkit.errors import FabkitError
-from fabkit.machines import DEFAULT_MACHINE, load_machine
+from fabkit.machines import DEFAULT_MACHINE
 from fabkit.pipeline import DEFAULT_SIZE_MM
 from fabkit.process import Process
 from fabkit.progress import add_progress
-from fabkit.toolpath.process import load_process
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -84,8 +83,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _process(args: argparse.Namespace) -> Process:
     """The process the layers are made for: --process, else the machine's."""
-    machine = load_machine(args.machine or DEFAULT_MACHINE)
-    process = load_process(args.process_file) if args.process_file else machine.process
+    process = commands.chosen_process(args)
     if process is None:
-        raise FabkitError(f"--layers: machine {machine.name} has no process to print layers with")
+        machine = args.machine or DEFAULT_MACHINE
+        raise FabkitError(f"--layers: machine {machine} has no process to print layers with")
     return process

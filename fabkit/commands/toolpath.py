@@ -108,12 +108,14 @@ def part_request(args: argparse.Namespace) -> PartRequest:
 
 def _job(args: argparse.Namespace) -> ToolpathJob:
     """The job the options ask for (``channels``: its field options alone)."""
-    return commands.call_with(ToolpathJob, args, part_request=part_request(args))
+    process = commands.chosen_process(args) if hasattr(args, "process_file") else None
+    return commands.call_with(ToolpathJob, args, part_request=part_request(args), process=process)
 
 
 @commands.in_out_folder
 def run_channels(args: argparse.Namespace) -> int:
-    result = run_channel_job(ChannelJob(_job(args), args.baromorph, args.out))
+    settings = commands.given_baromorph(args)
+    result = run_channel_job(ChannelJob(_job(args), settings, args.out))
     if result.part is not None:
         print(result.part.summary())
     print(result.report.summary())

@@ -21,7 +21,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "machine_file", help="sheet.gcode, sheet.dxf, or a laser pattern folder (laser/)"
     )
     commands.add_machine(
-        parser, "machine profile (default: a laser folder's own, else marlin_diw_pneumatic)"
+        parser,
+        "machine profile (default: the one the file names in its header or manifest, else "
+        "marlin_diw_pneumatic; the laser cutter for --baromorph)",
     )
     commands.add_process(parser, "TOML whose [process] replaces the machine's")
     parser.add_argument(
@@ -82,7 +84,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from fabkit.verify.machine_file import VerifyOptions, verify
 
-    options = commands.call_with(VerifyOptions, args, part_request=part_request(args))
+    options = commands.call_with(
+        VerifyOptions,
+        args,
+        part_request=part_request(args),
+        process=commands.given_process(args),
+        baromorph=commands.given_baromorph(args),
+    )
     bar = ProgressBar("simulating the sheet as made", force=args.progress)
     try:
         result = verify(args.design, args.machine_file, options, bar)

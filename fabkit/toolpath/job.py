@@ -1,8 +1,9 @@
 """One toolpath job, as the command line states it: inputs, process, layers, outputs.
 
 :func:`run_job` loads the inputs (design files, director TOML files, or a director
-expression on a named shape), reads the process settings (machine profile, ``--process``
-file, overrides), plans the toolpath, and writes into the output folder:
+expression on a named shape), takes the process it is given (the command line reads the
+machine profile or ``--process`` file once) with the overrides, plans the toolpath, and
+writes into the output folder:
 
 * ``toolpath.npz`` (and ``toolpath.json`` on request): the :class:`Toolpath`;
 * ``quality.json``: the quality of every layer, the settings and any warnings;
@@ -39,17 +40,17 @@ from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOpti
 from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES
 from fabkit.process import Process
 from fabkit.toolpath.baromorph import (
+    BaromorphSettings,
     ChannelLayout,
     ChannelReport,
     check_channels,
     layout_channels,
-    load_baromorph,
 )
 from fabkit.toolpath.lines import LineSettings
 from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.mould import POLARITY, mould_mesh, save_mould
 from fabkit.toolpath.plan import Plan, PlanSettings, plan_toolpath
-from fabkit.toolpath.process import load_process, machine_process, resolve_channels
+from fabkit.toolpath.process import machine_process, resolve_channels
 
 
 @dataclass(frozen=True)
@@ -60,7 +61,7 @@ class ToolpathJob:
     outline also clips a director field; its trim is in bending lengths of a sheet as thick
     as the layers); ``part`` and ``design``: the part made
     and the design loaded already (``fabkit run``) for the one design input, which then
-    names them.
+    names them; ``process``: the process to print with (default: the default machine's).
     """
 
     inputs: tuple[str, ...] = ()
@@ -72,8 +73,7 @@ class ToolpathJob:
     part_request: PartRequest = PartRequest()
     part: Part | None = None
     design: Design | None = None
-    machine: str | None = None
-    process_file: str | None = None
+    process: Process | None = None
     road_width_mm: float | None = None
     layer_height_mm: float | None = None
     layers: int | None = None
@@ -244,10 +244,8 @@ def _load_input(path: str, job: ToolpathJob, part: Part | PartOptions) -> list[F
 
 
 def job_process(job: ToolpathJob) -> Process:
-    """The machine's (or default) process, replaced by --process, then the overrides."""
-    process = machine_process(job.machine)  # a bad --machine is reported even with --process
-    if job.process_file:
-        process = load_process(job.process_file)
+    """The job's process (default: the default machine's), then the overrides."""
+    process = job.process or machine_process(None)
     process = process.with_overrides(
         road_width_mm=job.road_width_mm, layer_height_mm=job.layer_height_mm
     )
@@ -275,7 +273,7 @@ class ChannelJob:
     """Baromorph channels for one input (the field options as in :class:`ToolpathJob`)."""
 
     fields: ToolpathJob
-    baromorph: str
+    baromorph: BaromorphSettings
     out: str = "channels"
 
 
@@ -294,7 +292,7 @@ class ChannelResult:
 def run_channel_job(job: ChannelJob) -> ChannelResult:
     """Lay out, check and write baromorph channels and their mould."""
     check_folder(job.out, f"--out {job.out}")
-    settings = load_baromorph(job.baromorph)
+    settings = job.baromorph
     fields = load_fields(
         job.fields, settings.pitch_mm, settings.part_thickness_mm, MIN_WIDTH_PITCHES
     )

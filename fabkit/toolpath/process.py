@@ -53,12 +53,16 @@ def resolve_channels(
     """``process.resolve``, whose refusal of a feature without a channel also names the
     shipped machines whose own process encodes every feature (when the process is a
     machine's)."""
-    hint = ""
-    if process.source.startswith("machine "):
+    try:
+        return process.resolve(features, ignore)
+    except FabkitError:
+        if not process.source.startswith("machine "):
+            raise
         able = [m.name for m in list_machines() if _encodes_all(m.process, features, ignore)]
-        if able:
-            hint = f"; machines whose process encodes every feature: {', '.join(able)}"
-    return process.resolve(features, ignore, hint)
+        if not able:
+            raise
+        hint = f"; machines whose process encodes every feature: {', '.join(able)}"
+        return process.resolve(features, ignore, hint)
 
 
 def _encodes_all(process: Process, features: tuple[str, ...], ignore: tuple[str, ...]) -> bool:

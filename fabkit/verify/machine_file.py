@@ -35,20 +35,19 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField, feature_names, field_from_design
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
-from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
+from fabkit.machines import DEFAULT_MACHINE, MachineProfile
 from fabkit.mechanics.compare import FormedShape, compare, formed_shape
 from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
 from fabkit.mechanics.simulate import Settings
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict
 from fabkit.process import Encode, Process, Resolution
-from fabkit.readfile import read_json
 from fabkit.tomlfile import number
-from fabkit.toolpath.baromorph import load_baromorph
-from fabkit.toolpath.process import load_process
+from fabkit.toolpath.baromorph import BaromorphSettings
 from fabkit.verify.raster import Readback, Roads, rasterise
 from fabkit.verify.read_dxf import read_channels, read_dxf
 from fabkit.verify.read_gcode import Placement, Printed, read_gcode
 from fabkit.verify.read_laser import read_laser
+from fabkit.writers.which_machine import choose_machine
 
 CELL_PER_WIDTH = 4
 """Grid cells per road width (roads are read on cells of w / 4)."""
@@ -60,9 +59,10 @@ TARGET_TRIANGLES = 800
 class VerifyOptions:
     """What ``fabkit verify`` is told; None = from the file or the default.
 
-    ``machine`` the profile (default marlin_diw_pneumatic; a laser folder: its manifest's
-    machine); ``process_file`` replaces its process; ``size_mm`` / ``mm_per_unit`` the
-    sheet's scale and ``offset_mm`` its placement (default: the file's records);
+    ``machine`` the profile (or its name; default: the one the file names, else
+    marlin_diw_pneumatic, the laser cutter for baromorph channels:
+    :mod:`fabkit.writers.which_machine`); ``process`` replaces its process; ``size_mm`` /
+    ``mm_per_unit`` the sheet's scale and ``offset_mm`` its placement (default: the file's records);
     ``cell_mm`` the grid (default w / 4, or the laser pixel); ``simulate`` runs the
     forward simulations, ``reference`` adds the sheet as designed; ``stride`` coarsens
     the design's grid for them (default: about :data:`TARGET_TRIANGLES` triangles);
@@ -78,8 +78,8 @@ class VerifyOptions:
     measured on the part, and the simulations mesh its cells.
     """
 
-    machine: str | None = None
-    process_file: str | None = None
+    machine: MachineProfile | str | None = None
+    process: Process | None = None
     size_mm: float | None = None
     mm_per_unit: float | None = None
     offset_mm: tuple[float, ...] | None = None
@@ -90,7 +90,7 @@ class VerifyOptions:
     stride: int | None = None
     max_iterations: int = 100
     smoothing_mm: float | None = None
-    baromorph: str | None = None
+    baromorph: BaromorphSettings | None = None
     part: Part | None = None
     part_request: PartRequest = PartRequest()
     form_tolerance: float = FORM_TOLERANCE
@@ -382,7 +382,7 @@ def _printed_thickness(options: VerifyOptions, process: Process, kind: str, laye
     """The sheet the file makes, mm: its layers times the layer height (a baromorph
     drawing: the part's thickness; a laser pattern: the process's film)."""
     if kind == "channels":
-        return load_baromorph(options.baromorph).part_thickness_mm
+        return options.baromorph.part_thickness_mm
     return layers * process.layer_height_mm
 
 
@@ -394,7 +394,7 @@ def _part_options(options: VerifyOptions, process: Process, layers: int) -> Part
     """How the file's maker cut the part: the options, the process's road width, and a
     sheet as thick as the layers the file prints (a baromorph drawing: its part)."""
     if options.baromorph:
-        settings = load_baromorph(options.baromorph)
+        settings = options.baromorph
         road, thickness, roads = settings.pitch_mm, settings.part_thickness_mm, MIN_WIDTH_PITCHES
     else:
         road, thickness = process.road_width_mm, layers * process.layer_height_mm
@@ -428,22 +428,20 @@ def _kind(path: Path) -> str:
 
 
 def _machine(options: VerifyOptions, path: Path, kind: str) -> MachineProfile:
-    """The profile named, else a laser pattern's own machine, else the default (the laser
-    cutter for baromorph channels)."""
-    if options.machine:
-        return load_machine(options.machine)
-    if kind == "channels":
-        return load_machine("laser_cutter")
-    if kind == "laser":
-        return load_machine(manifest_machine(path))
-    return load_machine(DEFAULT_MACHINE)
+    """The profile asked for, else the one the file names, else the default (the laser
+    cutter for baromorph channels; a laser pattern folder must name its own)."""
+    if isinstance(options.machine, MachineProfile):
+        return options.machine
+    defaults = {"channels": "laser_cutter", "laser": None}
+    default = defaults.get(kind, DEFAULT_MACHINE)
+    return choose_machine(path, options.machine, default, force=True)[0]
 
 
 def _process(options: VerifyOptions, machine: MachineProfile) -> Process:
-    """The process the file was made with: --process, the baromorph channel settings (a
-    channel-width channel for the first feature), else the machine's."""
+    """The process the file was made with: the one given, the baromorph channel settings
+    (a channel-width channel for the first feature), else the machine's."""
     if options.baromorph:
-        settings = load_baromorph(options.baromorph)
+        settings = options.baromorph
         channel = Encode((0,), settings.calibration)
         return Process(
             settings.pitch_mm,
@@ -451,19 +449,9 @@ def _process(options: VerifyOptions, machine: MachineProfile) -> Process:
             1.0,
             1.0,
             (channel,),
-            f"baromorph {options.baromorph}",
+            "baromorph channel settings",
         )
-    return load_process(options.process_file) if options.process_file else machine.process
-
-
-def manifest_machine(folder: Path) -> str:
-    """The machine a laser pattern folder was written for (its manifest's ``machine``)."""
-    path = folder / "manifest.json"
-    manifest = read_json(path, "laser manifest")
-    name = manifest.get("machine") if isinstance(manifest, dict) else None
-    if not isinstance(name, str) or not name:
-        raise FabkitError(f"{path}: names no machine; give --machine")
-    return name
+    return options.process or machine.process
 
 
 def _read(
@@ -504,10 +492,9 @@ def _read(
     return [rasterise(roads.shifted(offset), cell) for roads in layers], placement
 
 
-def _read_channels(path: Path, baromorph: str) -> tuple[Readback, Placement]:
-    """A baromorph drawing's channels with the settings it was laid out with: the band
+def _read_channels(path: Path, settings: BaromorphSettings) -> tuple[Readback, Placement]:
+    """A baromorph drawing's channels with the ``settings`` it was laid out with: the band
     along the outline holding the manifold ring is left out."""
-    settings = load_baromorph(baromorph)
     widest = max(settings.calibration.value)
     band = settings.min_wall_mm + settings.manifold_width_mm + settings.pitch_mm / 2
     return read_channels(path, settings.pitch_mm, widest, band)

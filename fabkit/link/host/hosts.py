@@ -38,6 +38,7 @@ from fabkit.link.host.web import (
     parse_host_url,
     resolve_api_key,
 )
+from fabkit.machines import MachineProfile
 from fabkit.progress import ProgressBar
 
 HOSTS: dict[str, Callable[[WebClient], PrintHost]] = {
@@ -89,7 +90,7 @@ def send_to_host(
     path: str | Path,
     host: str,
     *,
-    machine: str | None = None,
+    machine: str | MachineProfile | None = None,
     force: bool = False,
     api_key: str | None = None,
     api_key_file: str | Path | None = None,

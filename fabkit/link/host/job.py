@@ -9,7 +9,6 @@ abort and Ctrl-Z into pause / resume; :func:`log_file` opens the traffic log.
 from __future__ import annotations
 
 import contextlib
-import re
 import signal
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -21,10 +20,8 @@ from fabkit.link.duration import Estimate, estimate
 from fabkit.link.gcode import Command, read_job_bytes
 from fabkit.link.host.preflight import JobCheck, check_job
 from fabkit.link.host.session import LinkControl
-from fabkit.machines import MachineProfile, load_machine
-
-_HEADER = re.compile(r";\s*Generated with fabkit \S+ for machine (\S+)")
-HEADER_LINES = 40  # the header is at the top of the file
+from fabkit.machines import MachineProfile
+from fabkit.writers.which_machine import choose_machine
 
 
 @dataclass(frozen=True)
@@ -60,7 +57,7 @@ class DryRun:
 
 def prepare_job(
     path: str | Path,
-    requested: str | None,
+    requested: str | MachineProfile | None,
     default: str,
     *,
     force: bool = False,
@@ -78,45 +75,6 @@ def prepare_job(
         link_takes(profile)
     checked = check_job(job, profile, source=str(path))
     return PreparedJob(str(path), data, job, profile, note, checked, estimate(job, profile))
-
-
-def machine_in_header(path: str | Path) -> str | None:
-    """The machine a fabkit-written file names in its header (``;Generated with fabkit
-    0.1.0 for machine NAME``), or None."""
-    try:
-        with open(path, encoding="ascii", errors="replace") as handle:
-            for _, line in zip(range(HEADER_LINES), handle, strict=False):
-                match = _HEADER.match(line.strip())
-                if match:
-                    return match.group(1)
-    except OSError:
-        return None
-    return None
-
-
-def choose_machine(
-    path: str | Path, requested: str | None, default: str, *, force: bool = False
-) -> tuple[MachineProfile, str]:
-    """The profile to send ``path`` with, and one line saying which and why.
-
-    ``--machine`` wins; without it, the machine the file's header names; without a
-    header, ``default`` (the link's). ``--machine`` and a header that disagree are refused
-    unless ``force``."""
-    named = machine_in_header(path)
-    if requested is None:
-        if named is not None:
-            return load_machine(named), f"machine {named} (named in the header of {path})"
-        note = f"machine {default} (the default: {path} names no machine in its header)"
-        return load_machine(default), note
-    profile = load_machine(requested)
-    if named is not None and named != profile.name and not force:
-        raise FabkitError(
-            f"{path} was written for machine {named} (its header), not {profile.name}: "
-            f"send it with --machine {named}, or add --force"
-        )
-    if named is not None and named != profile.name:
-        return profile, f"machine {profile.name} (--force: the header names {named})"
-    return profile, f"machine {profile.name} (--machine)"
 
 
 @contextlib.contextmanager

@@ -100,7 +100,7 @@ def send_file(
     *,
     host: str | None = None,
     baud: int | None = None,
-    machine: str | None = None,
+    machine: str | MachineProfile | None = None,
     force: bool = False,
     api_key: str | None = None,
     api_key_file: str | Path | None = None,
@@ -122,7 +122,7 @@ def send_file(
     before streaming (which machine, the estimated duration); the progress bar goes to
     stderr unless ``show_progress`` is False. ``port``: a device, a pyserial URL or
     ``sim://marlin?...`` (the emulator); ``baud`` in bit/s (default: the profile's);
-    ``resume_from`` a 1-based line of the file; ``machine`` a profile name or .toml path
+    ``resume_from`` a 1-based line of the file; ``machine`` a profile (or its name or .toml path)
     (default: the one the file's header names). A :class:`SendReport` counts the lines
     the machine acknowledged and the seconds it took (``elapsed_s``).
     """
