@@ -12,28 +12,19 @@ are only ever produced by the template placeholders that say so (``*_feed_mm_min
 
 from __future__ import annotations
 
-import math
 import string
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import numpy as np
 
 from fabkit.errors import FabkitError
 from fabkit.limits import MAGNITUDE, TEMPLATE_CHARS, TEMPLATE_LINE_CHARS
-from fabkit.process import (
-    LIGHT_PARAMETERS,
-    PRINT_PARAMETERS,
-    SETTING_KEYS,
-    Calibration,
-    Encode,
-    JointCalibration,
-    Process,
-)
+from fabkit.process import Process, parse_process
 from fabkit.shipped import PROFILES_DIR
-from fabkit.tomlfile import read_toml
+from fabkit.tomlfile import Table, read_toml
 
 MACHINES_DIR = PROFILES_DIR
 """The shipped profiles (see :mod:`fabkit.shipped`)."""
@@ -51,8 +42,6 @@ RELATIONS = ("perpendicular", "parallel")
 """How a photoalignment layer's director lies with respect to the light's polarisation."""
 DEFAULT_RELATION = "perpendicular"
 """Azo dyes such as SD1 align the director perpendicular to the polarisation."""
-CALIBRATION_PARAMETERS = PRINT_PARAMETERS + LIGHT_PARAMETERS
-"""Parameters a channel of a profile may encode (light ones on laser writers only)."""
 INK_METHODS = ("alternate", "mixing")
 """How a machine makes a share of a second ink: alternating the two inks along every road
 (valves or tools switched by ``ink2_on_gcode`` / ``ink2_off_gcode``), or a mixing
@@ -365,171 +354,16 @@ def _num(value: float) -> str:
     return f"{value:.4f}".rstrip("0").rstrip(".")
 
 
-class _Table:
-    """Typed access to one TOML table; every error names the file, table and key."""
-
-    def __init__(self, data: Any, where: str, path: Path) -> None:
-        self.where = where
-        self.path = path
-        if not isinstance(data, Mapping):
-            self.fail(f"{where} must be a table")
-        self.data = dict(data)
-        self.seen: set[str] = set()
-
-    def fail(self, message: str) -> NoReturn:
-        raise FabkitError(f"{_display(self.path)}: {message}")
-
-    def _raw(self, key: str) -> Any:
-        self.seen.add(key)
-        if key not in self.data:
-            self.fail(f"{self._name(key)} is missing")
-        return self.data[key]
-
-    def optional(self, key: str, read: Callable[[str], Any], default: Any) -> Any:
-        """``read(key)`` (one of the typed getters) if the table has ``key``, else ``default``."""
-        self.seen.add(key)
-        return read(key) if key in self.data else default
-
-    def _name(self, key: str) -> str:
-        return f"{self.where} {key}" if self.where else key
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def text(self, key: str, choices: tuple[str, ...] | None = None) -> str:
-        value = self._raw(key)
-        if not isinstance(value, str):
-            self.fail(f"{self._name(key)} must be a string, got {_type(value)}")
-        if choices is not None and value not in choices:
-            self.fail(f"{self._name(key)} = '{value}' is not one of {', '.join(choices)}")
-        return value
-
-    def number(self, key: str, *, positive: bool = False) -> float:
-        value = self._raw(key)
-        return self._check_number(key, value, positive)
-
-    def _check_number(self, key: str, value: Any, positive: bool) -> float:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            self.fail(f"{self._name(key)} must be a number, got {_type(value)}")
-        if not math.isfinite(value):
-            self.fail(f"{self._name(key)} must be finite, got {value}")
-        if positive and value <= 0:
-            self.fail(f"{self._name(key)} must be > 0, got {value}")
-        if value < 0:
-            self.fail(f"{self._name(key)} must not be negative, got {value}")
-        if value > MAGNITUDE:
-            self.fail(f"{self._name(key)} = {value:g} is beyond the plausible {MAGNITUDE:g}")
-        return float(value)
-
-    def flag(self, key: str) -> bool:
-        value = self._raw(key)
-        if not isinstance(value, bool):
-            self.fail(f"{self._name(key)} must be true or false, got {_type(value)}")
-        return value
-
-    def integer(self, key: str) -> int:
-        value = self._raw(key)
-        if isinstance(value, bool) or not isinstance(value, int):
-            self.fail(f"{self._name(key)} must be an integer, got {_type(value)}")
-        if value <= 0:
-            self.fail(f"{self._name(key)} must be > 0, got {value}")
-        return value
-
-    def numbers(self, key: str) -> tuple[float, ...]:
-        value = self._raw(key)
-        if not isinstance(value, list):
-            self.fail(f"{self._name(key)} must be an array of numbers, got {_type(value)}")
-        return tuple(self._number_item(key, item) for item in value)
-
-    def span(self, key: str) -> tuple[float, float]:
-        value = self.numbers(key)
-        if len(value) != 2 or not value[0] < value[1]:
-            self.fail(f"{self._name(key)} must be [min, max] with min < max, got {list(value)}")
-        return value[0], value[1]
-
-    def table(self, key: str) -> _Table:
-        return _Table(self._raw(key), f"[{self._qualified(key)}]", self.path)
-
-    def count(self, key: str) -> int:
-        """How many tables the array of tables ``key`` holds (0 if absent)."""
-        self.seen.add(key)
-        if key not in self.data:
-            return 0
-        if not isinstance(self.data[key], list):
-            self.fail(f"{self._name(key)} must be an array of tables ([[{self._qualified(key)}]])")
-        return len(self.data[key])
-
-    def item(self, key: str, index: int) -> _Table:
-        """Table ``index`` of the array of tables ``key``."""
-        return _Table(self.data[key][index], f"[[{self._qualified(key)}]] {index + 1}", self.path)
-
-    def feature(self, key: str, value: Any = None) -> str | int:
-        """A feature by name (a string) or position (an integer >= 0, 0 = the first)."""
-        value = self._raw(key) if value is None else value
-        if isinstance(value, str) and value.strip():
-            return value
-        if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
-            return value
-        self.fail(
-            f"{self._name(key)} must be a feature name or its position (0 = the first), "
-            f"got {value!r}"
-        )
-
-    def choice(self, key: str, value: Any, choices: tuple[str, ...]) -> str:
-        if not isinstance(value, str) or value not in choices:
-            self.fail(f"{self._name(key)}: '{value}' is not one of {', '.join(choices)}")
-        return value
-
-    def pair(self, key: str, read: Callable[[str, Any], Any]) -> tuple[Any, Any]:
-        """Two items read by ``read(key, item)``."""
-        value = self._raw(key)
-        if not isinstance(value, list) or len(value) != 2:
-            self.fail(f"{self._name(key)} must be an array of two items, got {value!r}")
-        return read(key, value[0]), read(key, value[1])
-
-    def matrix(self, key: str) -> tuple[tuple[float, ...], ...]:
-        """An array of arrays of finite numbers."""
-        value = self._raw(key)
-        if not isinstance(value, list) or not all(isinstance(row, list) for row in value):
-            self.fail(f"{self._name(key)} must be an array of arrays of numbers")
-        return tuple(tuple(self._number_item(key, item) for item in row) for row in value)
-
-    def _number_item(self, key: str, item: Any) -> float:
-        """One item of the array ``key``: a finite number within +-MAGNITUDE."""
-        if isinstance(item, bool) or not isinstance(item, int | float):
-            self.fail(f"{self._name(key)} must hold numbers only, got {_type(item)}")
-        if not math.isfinite(item):
-            self.fail(f"{self._name(key)} must hold finite numbers, got {item}")
-        if abs(item) > MAGNITUDE:
-            self.fail(f"{self._name(key)} holds {item:g}, beyond the plausible +-{MAGNITUDE:g}")
-        return float(item)
-
-    def _qualified(self, key: str) -> str:
-        return f"{self.where.strip('[]')}.{key}" if self.where else key
-
-    def finish(self) -> None:
-        unknown = sorted(set(self.data) - self.seen)
-        if unknown:
-            where = f" in {self.where}" if self.where else ""
-            self.fail(f"unknown key '{unknown[0]}'{where}")
-
-
-def _type(value: Any) -> str:
-    return {str: "a string", bool: "a boolean", list: "an array", dict: "a table"}.get(
-        type(value), type(value).__name__
-    )
-
-
 def _parse(data: dict[str, Any], path: Path) -> MachineProfile:
-    top = _Table(data, "", path)
+    top = Table(data, _display(path))
     flavour = top.text("flavour", FLAVOURS)
     kind = top.text("kind", KINDS)
     streamable = flavour != "none"
     for key in ("gcode", "serial"):
         if not streamable and top.has(key):
-            top.fail(f"[{key}] must be absent for flavour none (the machine takes no G-code)")
+            top.expected(key, "no table for flavour none (the machine takes no G-code)", top[key])
     if kind != "laser_writer" and top.has("laser"):
-        top.fail(f"[laser] is only for kind laser_writer, not {kind}")
+        top.expected("laser", f"no table for kind {kind} (only for laser_writer)", top["laser"])
     laser = None
     if kind == "laser_writer":
         laser = top.optional("laser", lambda key: _laser(top.table(key)), LaserOptics())
@@ -545,7 +379,7 @@ def _parse(data: dict[str, Any], path: Path) -> MachineProfile:
         temperature=_temperatures(top.table("temperature")),
         gcode=_gcode(top.table("gcode")) if streamable else None,
         serial=_serial(top.table("serial")) if streamable else None,
-        process=_process(
+        process=parse_process(
             top.table("process"), light=kind == "laser_writer", source=f"machine {name}"
         ),
         laser=laser,
@@ -561,8 +395,8 @@ def _parse(data: dict[str, Any], path: Path) -> MachineProfile:
     return profile
 
 
-def _envelope(t: _Table) -> Envelope:
-    out = Envelope(x_mm=t.span("x_mm"), y_mm=t.span("y_mm"), z_mm=t.span("z_mm"))
+def _envelope(t: Table) -> Envelope:
+    out = Envelope(**{key: t.span(key, bound=MAGNITUDE) for key in ("x_mm", "y_mm", "z_mm")})
     t.finish()
     return out
 
@@ -576,8 +410,8 @@ _MOTION_KEYS = (
 )
 
 
-def _limits(t: _Table) -> Limits:
-    speeds = {key: t.number(key, positive=True) for key in _SPEED_KEYS}
+def _limits(t: Table) -> Limits:
+    speeds = {key: _positive(t)(key) for key in _SPEED_KEYS}
     motion = {
         key: t.optional(key, _positive(t), Limits.__dataclass_fields__[key].default)
         for key in _MOTION_KEYS
@@ -587,12 +421,12 @@ def _limits(t: _Table) -> Limits:
     return out
 
 
-def _tool(t: _Table) -> Tool:
+def _tool(t: Table) -> Tool:
     out = Tool(
-        nozzle_diameter_mm=t.number("nozzle_diameter_mm", positive=True),
-        travel_lift_mm=t.number("travel_lift_mm"),
-        retract_mm=t.number("retract_mm"),
-        retract_speed_mm_s=t.number("retract_speed_mm_s"),
+        nozzle_diameter_mm=_positive(t)("nozzle_diameter_mm"),
+        travel_lift_mm=_size(t)("travel_lift_mm"),
+        retract_mm=_size(t)("retract_mm"),
+        retract_speed_mm_s=_size(t)("retract_speed_mm_s"),
         e_mode=t.optional("e_mode", lambda key: t.text(key, E_MODES), None),
         e_units=t.optional("e_units", lambda key: t.text(key, E_UNITS), None),
         filament_diameter_mm=t.optional("filament_diameter_mm", _positive(t), 1.75),
@@ -603,20 +437,26 @@ def _tool(t: _Table) -> Tool:
     return out
 
 
-def _positive(t: _Table) -> Callable[[str], float]:
-    return lambda key: t.number(key, positive=True)
+def _positive(t: Table) -> Callable[[str], float]:
+    """A reader of positive numbers within MAGNITUDE."""
+    return lambda key: t.number(key, positive=True, bound=MAGNITUDE)
 
 
-def _temperatures(t: _Table) -> Temperatures:
-    out = Temperatures(**{key: t.number(key) for key in Temperatures.__dataclass_fields__})
+def _size(t: Table) -> Callable[[str], float]:
+    """A reader of numbers >= 0 within MAGNITUDE."""
+    return lambda key: t.number(key, nonnegative=True, bound=MAGNITUDE)
+
+
+def _temperatures(t: Table) -> Temperatures:
+    out = Temperatures(**{key: _size(t)(key) for key in Temperatures.__dataclass_fields__})
     t.finish()
     for key, limit in (("nozzle_c", "nozzle_max_c"), ("bed_c", "bed_max_c")):
         if getattr(out, key) > getattr(out, limit):
-            t.fail(f"[temperature] {key} = {getattr(out, key):g} exceeds {limit}")
+            t.expected(key, f"at most {limit} = {getattr(out, limit):g}", t[key])
     return out
 
 
-def _gcode(t: _Table) -> GcodeTemplates:
+def _gcode(t: Table) -> GcodeTemplates:
     out = GcodeTemplates(
         **{
             key: t.optional(key, t.text, "") if key in OPTIONAL_GCODE_KEYS else t.text(key)
@@ -627,12 +467,12 @@ def _gcode(t: _Table) -> GcodeTemplates:
     return out
 
 
-def _pressure(t: _Table) -> PressureOutput:
+def _pressure(t: Table) -> PressureOutput:
     out = PressureOutput(
         command=t.text("command"),
         s_max=t.integer("s_max"),
-        full_scale_kpa=t.number("full_scale_kpa", positive=True),
-        max_kpa=t.number("max_kpa", positive=True),
+        full_scale_kpa=_positive(t)("full_scale_kpa"),
+        max_kpa=_positive(t)("max_kpa"),
     )
     t.finish()
     if (
@@ -640,15 +480,13 @@ def _pressure(t: _Table) -> PressureOutput:
         or any(c in out.command for c in ";(\n")
         or len(out.command) > TEMPLATE_LINE_CHARS
     ):
-        t.fail(f"[pressure] command must be one G-code command, got {out.command!r}")
+        t.expected("command", "one G-code command", out.command)
     if out.max_kpa > out.full_scale_kpa:
-        t.fail(
-            f"[pressure] max_kpa = {out.max_kpa:g} exceeds full_scale_kpa = {out.full_scale_kpa:g}"
-        )
+        t.expected("max_kpa", f"at most full_scale_kpa = {out.full_scale_kpa:g}", t["max_kpa"])
     return out
 
 
-def _inks(t: _Table) -> Inks:
+def _inks(t: Table) -> Inks:
     out = Inks(
         method=t.text("method", INK_METHODS),
         piece_mm=t.optional("piece_mm", _positive(t), Inks.piece_mm),
@@ -657,22 +495,30 @@ def _inks(t: _Table) -> Inks:
     return out
 
 
-def _check_outputs(profile: MachineProfile, top: _Table) -> None:
+def _check_outputs(profile: MachineProfile, top: Table) -> None:
     """The [pressure] and [inks] tables need G-code, and [inks] what its method uses."""
     gcode = profile.gcode
     for key, table in (("pressure", profile.pressure), ("inks", profile.inks)):
         if table is not None and gcode is None:
-            top.fail(f"[{key}] needs a machine that takes G-code (flavour is none)")
+            top.expected(key, "no table for flavour none (it needs G-code)", top[key])
     if profile.inks is None or gcode is None:
         return
     if profile.inks.method == "alternate" and not gcode.ink2_on_gcode.strip():
-        top.fail("[inks] method alternate needs [gcode] ink2_on_gcode and ink2_off_gcode")
+        top.expected(
+            "gcode.ink2_on_gcode",
+            "G-code switching to ink 2 (inks.method alternate needs it)",
+            gcode.ink2_on_gcode,
+        )
     marlin_like = profile.flavour in ("marlin", "klipper", "reprap")
     if profile.inks.method == "mixing" and (gcode.flow_on_gcode.strip() or not marlin_like):
-        top.fail("[inks] method mixing needs a Marlin-like mixing extruder (an E axis)")
+        top.expected(
+            "inks.method",
+            "alternate (mixing needs a Marlin-like mixing extruder with an E axis)",
+            profile.inks.method,
+        )
 
 
-def _serial(t: _Table) -> SerialSettings:
+def _serial(t: Table) -> SerialSettings:
     out = SerialSettings(
         baud=t.integer("baud"),
         protocol=t.text("protocol", PROTOCOLS),
@@ -681,80 +527,15 @@ def _serial(t: _Table) -> SerialSettings:
     )
     t.finish()
     if out.rx_buffer_bytes < 32:
-        t.fail(f"[serial] rx_buffer_bytes must be >= 32, got {out.rx_buffer_bytes}")
+        t.expected("rx_buffer_bytes", "an integer >= 32", out.rx_buffer_bytes)
     return out
 
 
-def parse_process(
-    data: Mapping[str, Any], path: Path, *, light: bool = True, source: str | None = None
-) -> Process:
-    """A ``[process]`` table (settings and channels) read from the file ``path``.
-
-    ``light``: light parameters (LIGHT_PARAMETERS) are allowed (a laser writer's profile,
-    or a ``--process`` file); ``source`` names it in messages (default: the path).
-    Errors are one line naming the file and the key.
-    """
-    return _process(_Table(data, "[process]", path), light=light, source=source or str(path))
-
-
-def _process(t: _Table, *, light: bool, source: str) -> Process:
-    values = {key: t.number(key, positive=True) for key in SETTING_KEYS}
-    parameters = CALIBRATION_PARAMETERS if light else PRINT_PARAMETERS
-    encodes = [_encode(t.item("encode", k), parameters) for k in range(t.count("encode"))]
-    encodes += [_joint(t.item("joint", k), parameters) for k in range(t.count("joint"))]
-    if t.has("calibration"):
-        if encodes:
-            t.fail(
-                "[process.calibration] (one table for the first feature) cannot be mixed "
-                "with [[process.encode]] / [[process.joint]]: use [[process.encode]] only"
-            )
-        encodes.append(_legacy(t.table("calibration"), parameters))
-    t.finish()
-    return Process(**values, encodes=tuple(encodes), source=source)
-
-
-def _encode(t: _Table, parameters: tuple[str, ...]) -> Encode:
-    feature = t.feature("feature")
-    table = _calibration(t, parameters)
-    t.finish()
-    return Encode((feature,), table)
-
-
-def _legacy(t: _Table, parameters: tuple[str, ...]) -> Encode:
-    """``[process.calibration]`` of the one-feature format: the design's first feature."""
-    table = _calibration(t, parameters)
-    t.finish()
-    return Encode((0,), table)
-
-
-def _calibration(t: _Table, parameters: tuple[str, ...]) -> Calibration:
-    parameter = t.text("parameter", parameters)
-    eps, value = t.numbers("eps"), t.numbers("value")
-    clip = t.optional("clip", t.flag, False)
-    try:
-        return Calibration(parameter, eps, value, clip)
-    except FabkitError as exc:
-        t.fail(f"{t.where} {exc}")
-
-
-def _joint(t: _Table, parameters: tuple[str, ...]) -> Encode:
-    features = t.pair("features", t.feature)
-    names = t.pair("parameters", lambda key, item: t.choice(key, item, parameters))
-    table_values = (t.numbers("grid1"), t.numbers("grid2"))
-    measured = (t.matrix("measured1"), t.matrix("measured2"))
-    clip = t.optional("clip", t.flag, False)
-    t.finish()
-    try:
-        return Encode(features, JointCalibration(names, *table_values, measured, clip))
-    except FabkitError as exc:
-        t.fail(f"{t.where} {exc}")
-
-
-def _laser(t: _Table) -> LaserOptics:
+def _laser(t: Table) -> LaserOptics:
     out = LaserOptics(
         pixel_pitch_mm=t.optional("pixel_pitch_mm", _positive(t), None),
         relation=t.optional("relation", lambda key: t.text(key, RELATIONS), DEFAULT_RELATION),
-        input_polarisation_deg=t.optional("input_polarisation_deg", t.number, 0.0),
+        input_polarisation_deg=t.optional("input_polarisation_deg", _size(t), 0.0),
         intensity_mw_cm2=t.optional("intensity_mw_cm2", _positive(t), None),
         max_power_mw=t.optional("max_power_mw", _positive(t), None),
         dose_levels=t.optional("dose_levels", t.integer, None),
@@ -762,8 +543,7 @@ def _laser(t: _Table) -> LaserOptics:
     )
     t.finish()
     if not out.input_polarisation_deg < 180:
-        angle = out.input_polarisation_deg
-        t.fail(f"[laser] input_polarisation_deg must be in [0, 180), got {angle:g}")
+        t.expected("input_polarisation_deg", "an angle in [0, 180)", t["input_polarisation_deg"])
     return out
 
 
@@ -775,23 +555,25 @@ def _check_placeholders(gcode: GcodeTemplates, path: Path) -> None:
         template = getattr(gcode, key)
         if len(template) > TEMPLATE_CHARS:
             raise FabkitError(
-                f"{_display(path)}: [gcode] {key} is {len(template)} characters, more than the "
-                f"limit of {TEMPLATE_CHARS}"
+                f"{_display(path)}: gcode.{key}: expected at most {TEMPLATE_CHARS} characters, "
+                f"got {len(template)}"
             )
         try:
             fields = list(string.Formatter().parse(template))
         except ValueError as exc:
-            raise FabkitError(f"{_display(path)}: [gcode] {key}: {exc}") from None
+            raise FabkitError(
+                f"{_display(path)}: gcode.{key}: expected a G-code template, got {exc}"
+            ) from None
         for _, name, spec, conversion in fields:
             if name is not None and name not in PLACEHOLDERS:
                 raise FabkitError(
-                    f"{_display(path)}: [gcode] {key} uses unknown placeholder {{{name}}}; "
-                    f"known: {', '.join(PLACEHOLDERS)}"
+                    f"{_display(path)}: gcode.{key}: expected placeholders among "
+                    f"{', '.join(PLACEHOLDERS)}, got {{{name}}}"
                 )
             if name is not None and (spec or conversion):
                 raise FabkitError(
-                    f"{_display(path)}: [gcode] {key}: placeholder {{{name}}} carries a format "
-                    f"spec or conversion; write plain {{{name}}}"
+                    f"{_display(path)}: gcode.{key}: expected plain {{{name}}}, got a format "
+                    "spec or conversion"
                 )
 
 
@@ -804,7 +586,7 @@ def _check_rendered(profile: MachineProfile) -> None:
         longest = max((len(line) for line in lines), default=0)
         if size > TEMPLATE_CHARS or longest > TEMPLATE_LINE_CHARS:
             raise FabkitError(
-                f"{_display(profile.path)}: [gcode] {key} renders {size} characters with a "
-                f"line of {longest}, more than the limit of {TEMPLATE_CHARS} characters in lines "
-                f"of {TEMPLATE_LINE_CHARS}"
+                f"{_display(profile.path)}: gcode.{key}: expected at most {TEMPLATE_CHARS} "
+                f"characters in lines of {TEMPLATE_LINE_CHARS} once rendered, got {size} with "
+                f"a line of {longest}"
             )

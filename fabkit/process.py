@@ -19,9 +19,10 @@ numerically. A joint table is interpolated bilinearly in the parameter pair; its
 the eps pair is refused unless it is one-to-one (the Jacobian keeps one sign and the
 boundary does not fold over), and it is inverted cell by cell with Newton's method.
 
-This module is plain data and numbers: :mod:`fabkit.machines` parses the ``[process]``
-table of a profile or a ``--process`` file into it, the toolpath stage encodes with it,
-the writers emit the channels, and ``fabkit verify`` decodes with it.
+This module is plain data and numbers, and :func:`parse_process`, which reads the
+``[process]`` table of a machine profile (for :mod:`fabkit.machines`) or of a
+``--process`` file (for :mod:`fabkit.toolpath.process`) into it; the toolpath stage
+encodes with it, the writers emit the channels, and ``fabkit verify`` decodes with it.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ from functools import cached_property
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.limits import MAGNITUDE
+from fabkit.tomlfile import Table
 
 PRINT_PARAMETERS = (
     "print_speed_mm_s",
@@ -76,6 +79,8 @@ LABELS = {
 """Human names with units (pictures, reports)."""
 FRACTIONS = ("ink_fraction",)
 """Parameters whose values lie in [0, 1]; every other parameter's values are > 0."""
+CALIBRATION_PARAMETERS = PRINT_PARAMETERS + LIGHT_PARAMETERS
+"""Parameters a channel of a process may encode (light ones on laser writers only)."""
 SETTING_KEYS = ("road_width_mm", "layer_height_mm", "print_speed_mm_s", "travel_speed_mm_s")
 DECODE_SAMPLES = 4097
 """Points of the encoding curve sampled to invert it (relative error ~1e-7 of the range)."""
@@ -583,3 +588,92 @@ def _refuse_twice(channels: Sequence[Encode], source: str) -> None:
                         f"{source}: {twice.format(name)} ({seen[name]}; {channel.label})"
                     )
                 seen[name] = channel.label
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def parse_process(t: Table, *, light: bool = True, source: str | None = None) -> Process:
+    """The ``[process]`` table ``t`` (settings and channels) of a machine profile or a
+    ``--process`` file.
+
+    ``light``: light parameters (LIGHT_PARAMETERS) are allowed (a laser writer's profile,
+    or a ``--process`` file); ``source`` names it in messages (default: the file).
+    Errors are one line naming the file and the key path (:mod:`fabkit.tomlfile`).
+    """
+    values = {key: t.number(key, positive=True, bound=MAGNITUDE) for key in SETTING_KEYS}
+    parameters = CALIBRATION_PARAMETERS if light else PRINT_PARAMETERS
+    encodes = [_encode(t.item("encode", k), parameters) for k in range(t.count("encode"))]
+    encodes += [_joint(t.item("joint", k), parameters) for k in range(t.count("joint"))]
+    if t.has("calibration"):
+        if encodes:
+            t.expected(
+                "calibration",
+                "[[process.encode]] tables only ([process.calibration], one table for the "
+                "first feature, cannot be mixed with [[process.encode]] / [[process.joint]])",
+                t.get("calibration"),
+            )
+        encodes.append(_legacy(t.table("calibration"), parameters))
+    t.finish()
+    return Process(**values, encodes=tuple(encodes), source=source or t.shown)
+
+
+def _encode(t: Table, parameters: tuple[str, ...]) -> Encode:
+    feature = _feature(t, "feature", t.raw("feature", _FEATURE))
+    table = _calibration(t, parameters)
+    t.finish()
+    return Encode((feature,), table)
+
+
+def _legacy(t: Table, parameters: tuple[str, ...]) -> Encode:
+    """``[process.calibration]`` of the one-feature format: the design's first feature."""
+    table = _calibration(t, parameters)
+    t.finish()
+    return Encode((0,), table)
+
+
+def _calibration(t: Table, parameters: tuple[str, ...]) -> Calibration:
+    parameter = t.text("parameter", parameters)
+    eps, value = t.numbers("eps", bound=MAGNITUDE), t.numbers("value", bound=MAGNITUDE)
+    clip = t.flag("clip", default=False)
+    try:
+        return Calibration(parameter, eps, value, clip)
+    except FabkitError as exc:
+        t.fail(str(exc))
+
+
+_FEATURE = "a feature name or its position (0 = the first)"
+
+
+def _feature(t: Table, key: str, value: object) -> str | int:
+    """A feature by name (a string) or position (an integer >= 0, 0 = the first)."""
+    if isinstance(value, str) and value.strip():
+        return value
+    if isinstance(value, int) and not isinstance(value, bool) and value >= 0:
+        return value
+    t.expected(key, _FEATURE, value)
+
+
+def _pair(t: Table, key: str, what: str) -> list:
+    value = t.raw(key, f"an array of two {what}")
+    if not isinstance(value, list) or len(value) != 2:
+        t.expected(key, f"an array of two {what}", value)
+    return value
+
+
+def _joint(t: Table, parameters: tuple[str, ...]) -> Encode:
+    features = tuple(
+        _feature(t, f"features[{i}]", v) for i, v in enumerate(_pair(t, "features", "features"))
+    )
+    names = _pair(t, "parameters", "parameters")
+    for i, name in enumerate(names):
+        if not isinstance(name, str) or name not in parameters:
+            t.expected(f"parameters[{i}]", f"one of {', '.join(parameters)}", name)
+    table_values = (t.numbers("grid1", bound=MAGNITUDE), t.numbers("grid2", bound=MAGNITUDE))
+    measured = (t.matrix("measured1", bound=MAGNITUDE), t.matrix("measured2", bound=MAGNITUDE))
+    clip = t.flag("clip", default=False)
+    t.finish()
+    try:
+        return Encode(features, JointCalibration(tuple(names), *table_values, measured, clip))
+    except FabkitError as exc:
+        t.fail(str(exc))

@@ -9,8 +9,8 @@ from tests.attack import assert_refused, case
 CASES = [
     case(
         "verify {missing} {missing} --smoothing -1",
-        "expected 0 or more mm",
-        "--smoothing -1",
+        "--smoothing: expected a finite number >= 0",
+        "got -1",
         id="fabricated-negative-smoothing",
     ),
     case(

@@ -71,7 +71,7 @@ CASES = [
     case(
         "run {three} --out {out} --process {folded}",
         "cannot be inverted",
-        "[[process.joint]] 1",
+        "process.joint[0]",
         id="features-joint-folds",
     ),
     case(

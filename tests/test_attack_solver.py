@@ -30,7 +30,8 @@ CASES = [
     ),
     case(
         "solve {tolerance_text} --out {out}/design.npz",
-        "solver.tolerance: expected a number",
+        "solver.tolerance: expected a positive finite number",
+        "got 'small' (a string)",
         id="solver-tolerance-text",
     ),
     case(

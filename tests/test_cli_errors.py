@@ -39,8 +39,8 @@ CASES = [
     case("spec {unknown_key}", "unknown key", "colour", outputs=(), id="spec-unknown-key"),
     case(
         "spec {unknown_surface}",
-        "unknown surface kind",
-        "torus",
+        "geometry.kind: expected one of",
+        "got 'torus'",
         outputs=(),
         id="spec-unknown-surface",
     ),
@@ -76,8 +76,8 @@ CASES = [
     ),
     case(
         "spec {one_target}",
-        "need exactly",
-        "surfaces",
+        "[[surfaces]] tables",
+        "surfaces: expected 3",
         outputs=(),
         id="spec-too-few-surfaces",
     ),
@@ -345,7 +345,7 @@ CASES = [
     ),
     case(
         "channels {design} --baromorph {spec} --size 60 --out {out}",
-        "missing table [baromorph]",
+        "baromorph: missing (expected a table)",
         id="channels-settings-no-table",
     ),
     case(
@@ -740,7 +740,7 @@ CASES = [
     # ------------------------------------------------------------------ swimmer
     case("swimmer {missing}.toml --out {out}", "does not exist", id="swimmer-missing"),
     case("swimmer {bad_toml} --out {out}", "not valid TOML", id="swimmer-bad-toml"),
-    case("swimmer {spec} --out {out}", "unknown key", "'initial'", id="swimmer-design-spec"),
+    case("swimmer {spec} --out {out}", "unknown key", "initial: unknown", id="swimmer-design-spec"),
     case(
         "swimmer {swimmer_unsafe} --out {out}",
         "is not allowed in",
@@ -766,8 +766,8 @@ CASES = [
     case("run {unknown_key} --out {out}", "unknown key", "colour", id="run-unknown-key"),
     case(
         "run {unknown_surface} --out {out}",
-        "unknown surface kind",
-        "torus",
+        "geometry.kind: expected one of",
+        "got 'torus'",
         id="run-unknown-surface",
     ),
     case(

@@ -23,6 +23,7 @@ from fabkit.errors import FabkitError
 from fabkit.problem.spec import build_spec
 from fabkit.problem.surfaces import build_surface
 from fabkit.problem.surfaces.data import HOLE_MARGIN
+from fabkit.tomlfile import Table
 from tests.conftest import EXAMPLES, example_table
 
 N = 200
@@ -46,7 +47,7 @@ make_face = _load_make_face()
 
 
 def analytic(expression: str):
-    return build_surface("analytic", {"kind": "graph", "z": expression}, "test")
+    return build_surface("analytic", Table({"kind": "graph", "z": expression}, "", "test"))
 
 
 def sampled(expression: str, extent: list[float], n: int = N):
@@ -83,7 +84,7 @@ def k_error(surface, expression: str, points: np.ndarray) -> float:
 def heightmap(tmp_path, z: np.ndarray, extent: list[float], name: str = "map.npy", **keys):
     np.save(tmp_path / name, z)
     table = {"kind": "heightmap", "file": name, "extent": extent, **keys}
-    return build_surface("data", table, "surfaces[1].geometry", tmp_path)
+    return build_surface("data", Table(table, "", "surfaces[1].geometry"), tmp_path)
 
 
 def write_stl(path, xx, yy, zz) -> None:
@@ -92,7 +93,7 @@ def write_stl(path, xx, yy, zz) -> None:
 
 def mesh(tmp_path, name: str = "map.stl", **keys):
     table = {"kind": "mesh", "file": name, **keys}
-    return build_surface("data", table, "surfaces[1].geometry", tmp_path)
+    return build_surface("data", Table(table, "", "surfaces[1].geometry"), tmp_path)
 
 
 # --- K accuracy -----------------------------------------------------------------------------
@@ -222,7 +223,7 @@ def test_npz_mask_and_nodata_make_holes(tmp_path):
     mask[20:30, 20:30] = True
     np.savez(tmp_path / "m.npz", z=z, mask=mask)
     masked = build_surface(
-        "d", {"kind": "heightmap", "file": "m.npz", "extent": BUMP[1]}, "g", tmp_path
+        "d", Table({"kind": "heightmap", "file": "m.npz", "extent": BUMP[1]}, "", "g"), tmp_path
     )
     with_nodata = heightmap(tmp_path, np.where(mask, -999.0, z), BUMP[1], nodata=-999)
     for surface in (masked, with_nodata):
@@ -252,7 +253,7 @@ def test_formats_give_the_same_surface(tmp_path):
     ]
     points = interior_points(extent, n=80, count=2000)
     for table in tables:
-        surface = build_surface("d", {"kind": "heightmap", **table}, "g", tmp_path)
+        surface = build_surface("d", Table({"kind": "heightmap", **table}, "", "g"), tmp_path)
         assert surface.bounds == reference.bounds
         difference = np.abs(surface.curvature(points) - reference.curvature(points))
         assert np.median(difference) <= 0.01, table["file"]
@@ -262,7 +263,7 @@ def test_image_top_row_is_the_largest_y(tmp_path):
     ramp = np.tile(np.arange(20, dtype=np.uint16)[:, None] * 1000, (1, 20))
     Image.fromarray(ramp).save(tmp_path / "ramp.png")
     table = {"kind": "heightmap", "file": "ramp.png", "extent": [0, 19, 0, 19]}
-    surface = build_surface("d", table, "g", tmp_path)
+    surface = build_surface("d", Table(table, "", "g"), tmp_path)
     bottom, top = surface.embed(np.array([[9.5, 0.5], [9.5, 18.5]]))[:, 2]
     assert top < bottom
 
@@ -271,12 +272,12 @@ def test_fit_is_cached_and_refitted_when_the_file_changes(tmp_path):
     z = sampled(*BUMP, n=40)[2]
     first = heightmap(tmp_path, z, BUMP[1])
     table = {"kind": "heightmap", "file": "map.npy", "extent": BUMP[1]}
-    assert build_surface("d", table, "surfaces[1].geometry", tmp_path).fit is first.fit
+    assert build_surface("d", Table(table, "", "surfaces[1].geometry"), tmp_path).fit is first.fit
     path = tmp_path / "map.npy"
     np.save(path, 2 * z)
     later = path.stat().st_mtime_ns + 10**9
     os.utime(path, ns=(later, later))
-    changed = build_surface("d", table, "surfaces[1].geometry", tmp_path)
+    changed = build_surface("d", Table(table, "", "surfaces[1].geometry"), tmp_path)
     origin = np.zeros((1, 2))
     assert np.isclose(changed.embed(origin)[0, 2], 2 * first.embed(origin)[0, 2])
 
@@ -379,19 +380,19 @@ REFUSALS = [
         "zero z_scale",
         write_array("g.npy", GRID),
         {"extent": BUMP[1], "z_scale": 0},
-        "must not be zero",
+        "z_scale: expected a non-zero number, got 0",
     ),
     (
         "bad smoothing",
         write_array("g.npy", GRID),
         {"extent": BUMP[1], "smoothing": -1},
-        "zero or positive",
+        "smoothing: expected a number >= 0 at most 1e\\+06, got -1",
     ),
     (
         "unknown key",
         write_array("g.npy", GRID),
         {"extent": BUMP[1], "scale": 2},
-        "unknown key 'scale'",
+        "geometry\\.scale: unknown key \\(allowed: extent, file",
     ),
 ]
 MESH_REFUSALS = [
@@ -421,7 +422,12 @@ MESH_REFUSALS = [
         "faces face the other way",
     ),
     ("stacked sheets", write_mesh("s.ply", stacked_sheets), {}, "overlapping sheets"),
-    ("bad axis", write_mesh("s.ply", stacked_sheets), {"axis": "w"}, 'expected "x", "y" or "z"'),
+    (
+        "bad axis",
+        write_mesh("s.ply", stacked_sheets),
+        {"axis": "w"},
+        "axis: expected one of x, y, z, got 'w'",
+    ),
 ]
 
 
@@ -435,7 +441,7 @@ MESH_REFUSALS = [
 def test_data_file_refusals(tmp_path, kind, make, keys, message):
     table = {"kind": kind, "file": make(tmp_path), **keys}
     with pytest.raises(FabkitError, match=message) as error:
-        build_surface("d", table, "surfaces[2].geometry", tmp_path)
+        build_surface("d", Table(table, "", "surfaces[2].geometry"), tmp_path)
     assert "\n" not in str(error.value) and str(error.value).startswith("surfaces[2].geometry")
 
 
@@ -444,7 +450,7 @@ def test_extent_must_match_the_files_coordinates(tmp_path):
     np.savez(tmp_path / "m.npz", z=z, x=xx[0], y=yy[:, 0])
     table = {"kind": "heightmap", "file": "m.npz", "extent": [-4, 4, -6, 7]}
     with pytest.raises(FabkitError, match="does not match the file's coordinates"):
-        build_surface("d", table, "g", tmp_path)
+        build_surface("d", Table(table, "", "g"), tmp_path)
 
 
 # --- the face of Fig. 3 -----------------------------------------------------------------------
@@ -468,7 +474,7 @@ def test_face_heightmap_and_stl_follow_the_face_function():
         (FACE_GEOMETRY, 0.01),
         ({"kind": "mesh", "file": "data/face.stl"}, 0.05),
     ):
-        surface = build_surface("face", geometry, "g", EXAMPLES)
+        surface = build_surface("face", Table(geometry, "", "g"), EXAMPLES)
         assert surface.bounds == ((-16.0, 16.0), (0.0, 40.0))
         error = np.abs(surface.curvature(points) - truth)
         assert np.percentile(error, 95) <= tolerance * scale, geometry["kind"]

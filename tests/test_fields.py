@@ -213,7 +213,9 @@ def test_director_files_and_clipping(tmp_path):
     with pytest.raises(FabkitError, match="exactly one of shape and outline"):
         load_director_file(bad)
     bad.write_text('[director]\ntheta = "phi"\nshape = "disc:1"\ncolour = 1\n')
-    with pytest.raises(FabkitError, match="unknown key 'colour'"):
+    with pytest.raises(
+        FabkitError, match=r"bad\.toml: director\.colour: unknown key \(allowed: eps, grid"
+    ):
         load_director_file(bad)
     outline = tmp_path / "outline.toml"
     outline.write_text('[director]\ntheta = "0"\noutline = [[0, 0], [4, 0], [4, 3]]\n')

@@ -9,13 +9,13 @@ import pytest
 from fabkit.cli import main
 from fabkit.errors import FabkitError
 from fabkit.machines import (
-    CALIBRATION_PARAMETERS,
     FLAVOURS,
     KINDS,
     MACHINES_DIR,
     list_machines,
     load_machine,
 )
+from fabkit.process import CALIBRATION_PARAMETERS
 
 SHIPPED = [
     "marlin_generic",
@@ -134,20 +134,40 @@ DIW = (MACHINES_DIR / "marlin_diw_pneumatic.toml").read_text()
     ("old", "new", "expected"),
     [
         ("feature = 1\n", 'feature = "1 2"\n', None),
-        ("feature = 1\n", "feature = -1\n", "must be a feature name or its position"),
-        ("feature = 1\n", "feature = true\n", "must be a feature name or its position"),
-        ('method = "alternate"', 'method = "blend"', "method = 'blend' is not one of"),
+        ("feature = 1\n", "feature = -1\n", "feature: expected a feature name or its position"),
+        ("feature = 1\n", "feature = true\n", "feature: expected a feature name or its position"),
+        (
+            'method = "alternate"',
+            'method = "blend"',
+            "inks.method: expected one of alternate, mixing, got 'blend'",
+        ),
         ('method = "alternate"', 'method = "mixing"', "mixing needs a Marlin-like mixing"),
-        ('ink2_on_gcode = "M42 P5 S255"\n', "", "alternate needs [gcode] ink2_on_gcode"),
-        ("piece_mm = 0.5", "piece_mm = 0", "piece_mm must be > 0"),
-        ("max_kpa = 600", "max_kpa = 800", "max_kpa = 800 exceeds full_scale_kpa = 700"),
-        ('command = "M106 P1"', 'command = ""', "command must be one G-code command"),
-        ("s_max = 255", "s_max = 2.5", "s_max must be an integer"),
+        (
+            'ink2_on_gcode = "M42 P5 S255"\n',
+            "",
+            "gcode.ink2_on_gcode: expected G-code switching to ink 2",
+        ),
+        (
+            "piece_mm = 0.5",
+            "piece_mm = 0",
+            "inks.piece_mm: expected a positive number at most 1e+06, got 0",
+        ),
+        (
+            "max_kpa = 600",
+            "max_kpa = 800",
+            "pressure.max_kpa: expected at most full_scale_kpa = 700, got 800",
+        ),
+        (
+            'command = "M106 P1"',
+            'command = ""',
+            "pressure.command: expected one G-code command, got ''",
+        ),
+        ("s_max = 255", "s_max = 2.5", "pressure.s_max: expected a positive integer, got 2.5"),
         ("[[process.encode]]              # the design's second", "[[process.joint]]  #", None),
         (
             'parameter = "ink_fraction"',
             'parameter = "dose_mj_cm2"',
-            "parameter = 'dose_mj_cm2' is not one of",
+            "encode[1].parameter: expected one of print_speed_mm_s",
         ),
         (
             "value = [0.0, 0.3, 0.65, 1.0]",
@@ -160,7 +180,7 @@ def test_channel_inks_and_pressure_mistakes(tmp_path, old, new, expected):
     path = _edited(tmp_path, old, new, DIW)
     if expected is None:  # a string feature name is fine; a joint table needs its keys
         if "joint" in new:
-            assert "features is missing" in _error(path)
+            assert "process.joint[0].features: missing (expected" in _error(path)
         else:
             assert load_machine(path).process.encodes[1].features == ("1 2",)
         return
@@ -177,33 +197,101 @@ def test_unknown_machine_names_the_known_ones():
 @pytest.mark.parametrize(
     ("old", "new", "expected"),
     [
-        ('flavour = "marlin"', 'flavour = "marlin"\ncolour = "red"', "unknown key 'colour'"),
-        ("x_mm_s = 300", "x_mm_s = 300\nw_mm_s = 3", "unknown key 'w_mm_s' in [limits]"),
-        ("y_mm_s = 300\n", "", "[limits] y_mm_s is missing"),
-        ('name = "marlin_generic"\n', "", "name is missing"),
-        ("x_mm_s = 300", 'x_mm_s = "fast"', "[limits] x_mm_s must be a number, got a string"),
-        ("x_mm_s = 300", "x_mm_s = true", "must be a number, got a boolean"),
-        ("z_mm_s = 5", "z_mm_s = -5", "[limits] z_mm_s must be > 0, got -5"),
-        ("retract_mm = 1.0", "retract_mm = -1.0", "retract_mm must not be negative"),
-        ("baud = 115200", "baud = 115200.5", "[serial] baud must be an integer"),
-        ('protocol = "marlin"', 'protocol = "smoothie"', "is not one of marlin, grbl"),
-        ('kind = "extrusion_printer"', 'kind = "printer"', "kind = 'printer' is not one of"),
-        ("x_mm = [0, 220]", "x_mm = [220, 0]", "must be [min, max] with min < max"),
-        ("x_mm = [0, 220]", "x_mm = [0, 220, 5]", "must be [min, max]"),
-        ("nozzle_c = 210", "nozzle_c = 300", "nozzle_c = 300 exceeds nozzle_max_c"),
+        (
+            'flavour = "marlin"',
+            'flavour = "marlin"\ncolour = "red"',
+            "colour: unknown key (allowed: description, envelope",
+        ),
+        ("x_mm_s = 300", "x_mm_s = 300\nw_mm_s = 3", "limits.w_mm_s: unknown key (allowed: "),
+        ("y_mm_s = 300\n", "", "limits.y_mm_s: missing (expected a positive number"),
+        ('name = "marlin_generic"\n', "", "name: missing (expected a string)"),
+        (
+            "x_mm_s = 300",
+            'x_mm_s = "fast"',
+            "limits.x_mm_s: expected a positive number at most 1e+06, got 'fast' (a string)",
+        ),
+        (
+            "x_mm_s = 300",
+            "x_mm_s = true",
+            "limits.x_mm_s: expected a positive number at most 1e+06, got true (a boolean)",
+        ),
+        (
+            "z_mm_s = 5",
+            "z_mm_s = -5",
+            "limits.z_mm_s: expected a positive number at most 1e+06, got -5",
+        ),
+        (
+            "retract_mm = 1.0",
+            "retract_mm = -1.0",
+            "tool.retract_mm: expected a number >= 0 at most 1e+06, got -1.0",
+        ),
+        (
+            "baud = 115200",
+            "baud = 115200.5",
+            "serial.baud: expected a positive integer, got 115200.5",
+        ),
+        (
+            'protocol = "marlin"',
+            'protocol = "smoothie"',
+            "serial.protocol: expected one of marlin, grbl, got 'smoothie'",
+        ),
+        (
+            'kind = "extrusion_printer"',
+            'kind = "printer"',
+            "kind: expected one of extrusion_printer, pneumatic_diw",
+        ),
+        (
+            "x_mm = [0, 220]",
+            "x_mm = [220, 0]",
+            "envelope.x_mm: expected [min, max] with min < max, got [220",
+        ),
+        ("x_mm = [0, 220]", "x_mm = [0, 220, 5]", "envelope.x_mm: expected an array of 2 numbers"),
+        (
+            "nozzle_c = 210",
+            "nozzle_c = 300",
+            "temperature.nozzle_c: expected at most nozzle_max_c = 260, got 300",
+        ),
         ("value = [25, 15, 8, 4]", "value = [25, 15, 8]", "same length"),
         ("eps = [-0.40, -0.30, -0.20, -0.10]", "eps = [-0.4, -0.2, -0.3, -0.1]", "increasing"),
-        ('parameter = "print_speed_mm_s"', 'parameter = "colour"', "is not one of"),
-        ("M109 S{nozzle_c}", "M109 S{hot}", "unknown placeholder {hot}"),
-        ("rx_buffer_bytes = 128", "rx_buffer_bytes = 8", "rx_buffer_bytes must be >= 32"),
-        ("[envelope]", "envelope = 3\n[envelopes]", "[envelope] must be a table"),
-        ('e_units = "filament"', 'e_units = "grams"', "e_units = 'grams' is not one of"),
-        ('e_units = "filament"', 'e_mode = "both"', "e_mode = 'both' is not one of"),
-        ("filament_diameter_mm = 1.75", "filament_diameter_mm = 0", "must be > 0, got 0"),
-        ("value = [25, 15, 8, 4]", "value = [25, 15, 8, 4]\nclip = 1", "clip must be true"),
+        ('parameter = "print_speed_mm_s"', 'parameter = "colour"', "parameter: expected one of"),
+        ("M109 S{nozzle_c}", "M109 S{hot}", "gcode.start_gcode: expected placeholders among"),
+        (
+            "rx_buffer_bytes = 128",
+            "rx_buffer_bytes = 8",
+            "serial.rx_buffer_bytes: expected an integer >= 32, got 8",
+        ),
+        ("[envelope]", "envelope = 3\n[envelopes]", "envelope: expected a table, got 3"),
+        (
+            'e_units = "filament"',
+            'e_units = "grams"',
+            "tool.e_units: expected one of filament, volume, pulses, got 'grams'",
+        ),
+        (
+            'e_units = "filament"',
+            'e_mode = "both"',
+            "tool.e_mode: expected one of absolute, relative, got 'both'",
+        ),
+        (
+            "filament_diameter_mm = 1.75",
+            "filament_diameter_mm = 0",
+            "tool.filament_diameter_mm: expected a positive number at most 1e+06, got 0",
+        ),
+        (
+            "value = [25, 15, 8, 4]",
+            "value = [25, 15, 8, 4]\nclip = 1",
+            "process.encode[0].clip: expected true or false, got 1",
+        ),
         ("value = [25, 15, 8, 4]", "value = [25, 15, 15, 4]", "strictly increasing or decr"),
-        ('parameter = "print_speed_mm_s"', 'parameter = "dose_mj_cm2"', "is not one of"),
-        ("[serial]", "[laser]\nrelation = 'parallel'\n\n[serial]", "[laser] is only for"),
+        (
+            'parameter = "print_speed_mm_s"',
+            'parameter = "dose_mj_cm2"',
+            "parameter: expected one of",
+        ),
+        (
+            "[serial]",
+            "[laser]\nrelation = 'parallel'\n\n[serial]",
+            "laser: expected no table for kind extrusion_printer",
+        ),
     ],
 )
 def test_mistakes_are_one_line_naming_file_and_key(tmp_path, old, new, expected):
@@ -217,10 +305,22 @@ def test_bad_toml_is_one_line(tmp_path):
 @pytest.mark.parametrize(
     ("old", "new", "expected"),
     [
-        ('relation = "perpendicular"', 'relation = "sideways"', "relation = 'sideways'"),
-        ("input_polarisation_deg = 0", "input_polarisation_deg = 180", "in [0, 180)"),
-        ("intensity_mw_cm2 = 10", "intensity_mw_cm2 = 0", "intensity_mw_cm2 must be > 0"),
-        ("intensity_mw_cm2 = 10", "power = 3", "unknown key 'power' in [laser]"),
+        (
+            'relation = "perpendicular"',
+            'relation = "sideways"',
+            "laser.relation: expected one of perpendicular, parallel, got 'sideways'",
+        ),
+        (
+            "input_polarisation_deg = 0",
+            "input_polarisation_deg = 180",
+            "laser.input_polarisation_deg: expected an angle in [0, 180), got 180",
+        ),
+        (
+            "intensity_mw_cm2 = 10",
+            "intensity_mw_cm2 = 0",
+            "laser.intensity_mw_cm2: expected a positive number at most 1e+06, got 0",
+        ),
+        ("intensity_mw_cm2 = 10", "power = 3", "laser.power: unknown key (allowed: bins"),
     ],
 )
 def test_laser_table_mistakes(tmp_path, old, new, expected):
@@ -231,7 +331,7 @@ def test_laser_table_mistakes(tmp_path, old, new, expected):
 def test_flavour_none_must_not_carry_serial_or_gcode(tmp_path):
     text = (MACHINES_DIR / "dmd_photoalign.toml").read_text()
     path = _edited(tmp_path, "[process]", "[serial]\nbaud = 9600\n\n[process]", text)
-    assert "[serial] must be absent for flavour none" in _error(path)
+    assert "serial: expected no table for flavour none" in _error(path)
     with pytest.raises(FabkitError, match="takes no G-code"):
         load_machine("dmd_photoalign").render("start_gcode")
 

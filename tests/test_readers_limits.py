@@ -218,7 +218,10 @@ def test_a_template_with_a_format_spec_is_refused(tmp_path):
     for field in ("{bed_c:>9}", "{bed_c!s}", "{bed_c:{nozzle_c}}", "{bed_c:.3}"):
         path = tmp_path / "profile.toml"
         path.write_text(text.replace("{bed_c}", field, 1))
-        with pytest.raises(FabkitError, match=re.escape("write plain {bed_c}")):
+        with pytest.raises(
+            FabkitError,
+            match=re.escape("gcode.start_gcode: expected plain {bed_c}, got a format spec"),
+        ):
             load_machine(path)
 
 

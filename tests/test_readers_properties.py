@@ -29,7 +29,7 @@ from fabkit.npzfile import NUMBER_KINDS, read_npy, read_npz
 from fabkit.problem.surfaces.data import read_grid, read_mesh
 from fabkit.readfile import nesting_depth, parse_json
 from fabkit.swimmer.spec import SwimmerSpec, load_swimmer
-from fabkit.tomlfile import read_toml, scan_depth
+from fabkit.tomlfile import Table, read_toml, scan_depth
 from fabkit.toolpath.baromorph import BaromorphSettings, load_baromorph
 from fabkit.toolpath.job import ToolpathJob, run_job
 from fabkit.toolpath.model import Toolpath, load_toolpath
@@ -386,7 +386,8 @@ def test_any_triangles_make_a_mesh_surface_or_a_one_line_error(triangles, folder
     path = h.ascii_stl(folder / "random.stl", triangles)
     table = {"kind": "mesh", "file": path.name}
     refused_or(
-        lambda: MeshSurface.from_table("m", table, "surfaces[1].geometry", folder), MeshSurface
+        lambda: MeshSurface.from_table("m", Table(table, "", "surfaces[1].geometry"), folder),
+        MeshSurface,
     )
 
 
@@ -418,7 +419,10 @@ def test_any_height_grid_makes_a_surface_or_a_one_line_error(z, extent, z_scale,
 
     np.save(folder / "random_h.npy", z)
     table = {"kind": "heightmap", "file": "random_h.npy", "extent": extent, "z_scale": z_scale}
-    refused_or(lambda: HeightMap.from_table("h", table, "surfaces[1].geometry", folder), HeightMap)
+    refused_or(
+        lambda: HeightMap.from_table("h", Table(table, "", "surfaces[1].geometry"), folder),
+        HeightMap,
+    )
 
 
 def _zip_fields(raw: bytes, flag: int | None = None, version: int | None = None) -> bytes:

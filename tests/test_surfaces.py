@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from fabkit.problem.surfaces import build_surface
+from fabkit.tomlfile import Table
 
 RNG = np.random.default_rng(7)
 
@@ -43,12 +44,12 @@ SURFACES = {
 
 
 def test_sphere_curvature_is_inverse_radius_squared():
-    sphere = build_surface("s", {"kind": "sphere", "radius": 2.5}, "s")
+    sphere = build_surface("s", Table({"kind": "sphere", "radius": 2.5}, "", "s"))
     assert np.allclose(sphere.curvature(np.array([[0.4, 1.0], [2.0, 3.0]])), 1 / 2.5**2)
 
 
 def test_graph_curvature_formula():
-    graph = build_surface("g", {"kind": "graph", "z": "sin(x)*cos(2*y) + x**3*y"}, "s")
+    graph = build_surface("g", Table({"kind": "graph", "z": "sin(x)*cos(2*y) + x**3*y"}, "", "s"))
     x, y = RNG.normal(size=(2, 20))
     fx = np.cos(x) * np.cos(2 * y) + 3 * x**2 * y
     fy = -2 * np.sin(x) * np.sin(2 * y) + x**3
@@ -60,21 +61,21 @@ def test_graph_curvature_formula():
 
 
 def test_torus_curvature():
-    torus = build_surface("t", SURFACES["torus"][0], "s")
+    torus = build_surface("t", Table(SURFACES["torus"][0], "", "s"))
     r = SURFACES["torus"][1]
     expected = np.cos(r[:, 1]) / (1 * (3 + np.cos(r[:, 1])))
     assert np.allclose(torus.curvature(r), expected, rtol=1e-10)
 
 
 def test_poincare_half_plane_has_curvature_minus_one():
-    plane = build_surface("p", SURFACES["poincare"][0], "s")
+    plane = build_surface("p", Table(SURFACES["poincare"][0], "", "s"))
     assert np.allclose(plane.curvature(SURFACES["poincare"][1]), -1.0)
 
 
 @pytest.mark.parametrize("name", SURFACES)
 def test_christoffel_symbols_match_metric_derivatives(name):
     table, points = SURFACES[name]
-    surface = build_surface(name, table, "s")
+    surface = build_surface(name, Table(table, "", "s"))
     assert np.allclose(
         surface.christoffel(points), christoffel_from_metric(surface, points), atol=1e-6
     )
@@ -83,7 +84,7 @@ def test_christoffel_symbols_match_metric_derivatives(name):
 @pytest.mark.parametrize("name", ["sphere", "graph", "torus"])
 def test_metric_is_pullback_of_embedding(name):
     table, points = SURFACES[name]
-    surface = build_surface(name, table, "s")
+    surface = build_surface(name, Table(table, "", "s"))
     h = 1e-6
     jacobian = np.stack(
         [
@@ -98,13 +99,15 @@ def test_metric_is_pullback_of_embedding(name):
 
 
 def test_chart_domain():
-    sphere = build_surface("s", {"kind": "sphere"}, "s")
+    sphere = build_surface("s", Table({"kind": "sphere"}, "", "s"))
     assert sphere.contains(np.array([[1.0, 0.0], [-0.1, 0.0], [np.pi + 0.1, 0.0]])).tolist() == [
         True,
         False,
         False,
     ]
-    bounded = build_surface("g", {"kind": "graph", "z": "x", "domain": [0, 1, 0, 2]}, "s")
+    bounded = build_surface(
+        "g", Table({"kind": "graph", "z": "x", "domain": [0, 1, 0, 2]}, "", "s")
+    )
     assert bounded.contains(np.array([[0.5, 1.5], [1.5, 1.0], [np.nan, 1.0]])).tolist() == [
         True,
         False,

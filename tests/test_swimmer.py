@@ -192,15 +192,24 @@ def test_refined_keeps_corners_and_refuses_a_bad_stride(elastic_cycle):
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        (lambda t: t.update(extra={}), "unknown key 'extra'"),
+        (lambda t: t.update(extra={}), r"^swimmer: extra: unknown key \(allowed: fabrication"),
         (lambda t: t["sheet"].pop("radius"), "sheet.radius"),
-        (lambda t: t["sheet"].update(thickness=20.0), "thinner"),
+        (
+            lambda t: t["sheet"].update(thickness=20.0),
+            r"sheet\.thickness: expected much less than radius = 10, got 20\.0",
+        ),
         (lambda t: t["stimuli"].update(path=[[0, 0]]), "at least two"),
-        (lambda t: t["stimuli"].update(path=[[0, 0], [1]]), "2 stimulus values"),
+        (
+            lambda t: t["stimuli"].update(path=[[0, 0], [1]]),
+            r"stimuli\.path\[1\]: expected a stimulus vector of 2 values, got \[1\]",
+        ),
         (lambda t: t["stimuli"].update(path=[[0, 0], [0, 0]]), "consecutive"),
         (lambda t: t["stimuli"].update(stations=0), "positive integer"),
         (lambda t: t["layers"][0].update(lambda1="1 - 0.2*T"), "layers\\[0\\].lambda1"),
-        (lambda t: t["layers"][1].pop("director"), "missing key 'director'"),
+        (
+            lambda t: t["layers"][1].pop("director"),
+            r"layers\[1\]\.director: missing \(expected an expression",
+        ),
         (lambda t: t["hydrodynamics"].update(rings=2.5), "hydrodynamics.rings"),
         (lambda t: t["mechanics"].update(poisson=0.7), "poisson"),
     ],

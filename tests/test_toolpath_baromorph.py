@@ -46,10 +46,22 @@ def test_a_pitch_too_small_for_the_walls_is_refused(tmp_path):
 @pytest.mark.parametrize(
     ("old", "new", "message"),
     [
-        ("min_wall_mm = 0.6", "min_wall_mm = -1", "must be > 0"),
-        ("inlet = [0.0, -31.0]", "inlet = [0.0]", "inlet must be"),
+        (
+            "min_wall_mm = 0.6",
+            "min_wall_mm = -1",
+            r"b\.toml: baromorph\.min_wall_mm: expected a positive number .*, got -1",
+        ),
+        (
+            "inlet = [0.0, -31.0]",
+            "inlet = [0.0]",
+            r"baromorph\.inlet: expected an array of 2 numbers, got \[0\.0\]",
+        ),
         ("value = [0.8, 1.4, 2.2]", "value = [0.8, 1.4]", "same length"),
-        ("part_thickness_mm = 2.5", "part_thickness_mm = 0.5", "must exceed"),
+        (
+            "part_thickness_mm = 2.5",
+            "part_thickness_mm = 0.5",
+            r"part_thickness_mm: expected more than channel_depth_mm = 1, got 0\.5",
+        ),
     ],
 )
 def test_bad_baromorph_files(tmp_path, old, new, message):

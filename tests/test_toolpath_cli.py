@@ -78,7 +78,7 @@ def test_design_with_encoding_and_a_bilayer(tmp_path, capsys):
                 "klipper_generic",
             ]
             + ["--process", str(EXAMPLES.parent / "three_shapes.toml")],
-            "missing table [process]",
+            "process: missing (expected a table)",
         ),
     ],
 )

@@ -71,11 +71,15 @@ def test_process_files_and_their_errors(tmp_path):
     assert process.road_width_mm == 0.3 and channel.table.clip
     assert channel.features == (0,)  # the one-feature table: the design's first feature
     cases = {
-        "[process]\nroad_width_mm = 0.3\n": "layer_height_mm is missing",
-        "[other]\n": "missing table \\[process\\]",
-        good.read_text().replace("0.3", "'wide'"): "road_width_mm must be a number",
-        good.read_text().replace("clip = true", "colour = 1"): "unknown key 'colour'",
-        good.read_text().replace("extrusion_multiplier", "pressure"): "not one of",
+        "[process]\nroad_width_mm = 0.3\n": r"process\.layer_height_mm: missing \(expected",
+        "[other]\n": "bad\\.toml: process: missing \\(expected a table\\)",
+        good.read_text().replace(
+            "0.3", "'wide'"
+        ): "process\\.road_width_mm: expected a positive number .*, got 'wide' \\(a string\\)",
+        good.read_text().replace(
+            "clip = true", "colour = 1"
+        ): "process\\.calibration\\.colour: unknown key \\(allowed: ",
+        good.read_text().replace("extrusion_multiplier", "pressure"): "parameter: expected one of",
         good.read_text()
         + "[[process.encode]]\nfeature = 1\nparameter = 'temperature_c'\n"
         + "eps = [0, 1]\nvalue = [200, 220]\n": "cannot be mixed",

@@ -28,7 +28,7 @@ import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import contourpy
 import numpy as np
@@ -45,7 +45,7 @@ from fabkit.field.part import Part, PartOptions, print_part, scale_for_size, sol
 from fabkit.npzfile import ArrayHeader, read_npz
 from fabkit.problem.expr import parse, shorten
 from fabkit.shipped import user_or_example
-from fabkit.tomlfile import check_keys, number, read_toml
+from fabkit.tomlfile import Table, expected, read_toml, real
 
 PlaneFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """A vectorised function of x and y (mm, broadcast arrays) returning an array of their shape."""
@@ -300,7 +300,7 @@ def field_from_grid(
                 f"{source}: {label} is not finite at {len(bad)} of {int(mask.sum())} nodes of "
                 f"the mask (first at node {tuple(int(i) for i in bad[0])}); mask them out"
             )
-    pixel_mm = number(pixel_mm, f"{source}: pixel_mm", positive=True)
+    pixel_mm = real(pixel_mm, f"{source}: pixel_mm", positive=True)
     xs = origin[0] + pixel_mm * np.arange(theta.shape[0])
     ys = origin[1] + pixel_mm * np.arange(theta.shape[1])
     filled = _fill_nearest(mask, np.cos(2 * theta), np.sin(2 * theta))
@@ -391,8 +391,8 @@ def field_from_design(
             )
         solved = solved_region(design, str(path))
         if size_mm is not None:
-            mm_per_unit = scale_for_size(solved, number(size_mm, "--size", positive=True))
-        scale = number(mm_per_unit, "--scale", positive=True)
+            mm_per_unit = scale_for_size(solved, real(size_mm, "--size", positive=True))
+        scale = real(mm_per_unit, "--scale", positive=True)
         part = print_part(design, scale, part or PartOptions(), solved, str(path))
     arrays = {key: getattr(design, key) for key in DESIGN_KEYS}
     names = feature_names(design, str(path))
@@ -589,23 +589,21 @@ def load_director_file(path: str | Path) -> FlatField:
     # or, instead of theta/eps: grid = "theta.npz" with theta, mask, pixel_mm (, eps)
     """
     path = user_or_example(path)
-    table = read_toml(path, "director")
-    check_keys(table, {"director"}, str(path))
-    director = table.get("director")
-    if not isinstance(director, Mapping):
-        raise FabkitError(f"{path}: missing table [director]")
-    where = f"{path}: director"
-    check_keys(director, {"theta", "shape", "outline", "eps", "grid"}, where)
+    top = Table(read_toml(path, "director"), str(path))
+    top.check_keys({"director"})
+    director = top.table("director")
+    where = director.at()
+    director.check_keys({"theta", "shape", "outline", "eps", "grid"})
     if "grid" in director:
         return _grid_file(path.parent / str(director["grid"]), where)
-    if "theta" not in director:
-        raise FabkitError(f"{where}: give theta (an expression) or grid (an .npz file)")
+    director.require(("theta",), "an expression in x, y, r and phi (or grid, an .npz file)")
     if ("shape" in director) == ("outline" in director):
-        raise FabkitError(f"{where}: give exactly one of shape and outline")
+        given = [key for key in ("shape", "outline") if key in director]
+        director.expected(None, "exactly one of shape and outline", given)
     if "shape" in director:
-        outline = parse_shape(director["shape"], f"{where}.shape")
+        outline = parse_shape(director["shape"], director.at("shape"))
     else:
-        outline = _outline_points(director["outline"], f"{where}.outline")
+        outline = _outline_points(director["outline"], director.at("outline"))
     field = field_from_expression(director["theta"], outline, director.get("eps"), where)
     return replace(field, source=f"{path}")
 
@@ -616,11 +614,27 @@ def _outline_points(value: Any, where: str) -> shapely.Polygon:
     except (TypeError, ValueError):
         points = np.zeros((0,))
     if points.ndim != 2 or points.shape[1] != 2 or len(points) < 3 or not np.isfinite(points).all():
-        raise FabkitError(f"{where}: expected a list of at least 3 [x, y] points (mm)")
+        _refuse_points(value, where)
     polygon = shapely.Polygon(points)
     if not polygon.is_valid:
         polygon = polygonal(shapely.make_valid(polygon))
     return polygon
+
+
+def _refuse_points(value: Any, where: str) -> NoReturn:
+    """Refuse an outline that is not at least 3 [x, y] points, naming the first bad item."""
+    if isinstance(value, list) and len(value) >= 3:
+        for i, point in enumerate(value):
+            if not isinstance(point, list) or len(point) != 2:
+                expected(f"{where}[{i}]", "an [x, y] point (mm)", point)
+            for j, coordinate in enumerate(point):
+                try:
+                    finite = bool(np.isfinite(float(coordinate)))
+                except (TypeError, ValueError):
+                    finite = False
+                if not finite:
+                    expected(f"{where}[{i}][{j}]", "a finite number", coordinate)
+    expected(where, "a list of at least 3 [x, y] points (mm)", value)
 
 
 GRID_ARRAYS = {"theta": 2, "mask": 2, "pixel_mm": 0, "eps": 2, "origin": 1}

@@ -1,7 +1,8 @@
 """The design problem as a researcher writes it: a TOML spec, validated into a :class:`Spec`.
 
 See ``docs/spec.md`` for every key. Every problem a user can make in a spec is a
-:class:`FabkitError` with one line naming the key and what to fix.
+:class:`FabkitError` with one line naming the file, the key path and what to fix, read
+with :class:`fabkit.tomlfile.Table` (whose module documents the wording).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from fabkit.problem.material import ALONG, Material, check_unstretched
 from fabkit.problem.surfaces import Surface, build_surface
 from fabkit.problem.surfaces.base import UNBOUNDED
 from fabkit.shipped import user_or_example
-from fabkit.tomlfile import check_keys, number, read_toml
+from fabkit.tomlfile import Table, read_toml, real
 
 ALL_QUADRANTS = ((1, 1), (-1, 1), (-1, -1), (1, -1))
 PERPENDICULAR_TOLERANCE = 1e-6
@@ -138,7 +139,9 @@ class Spec:
             if value is not None:
                 solver_table[key] = [list(q) for q in value] if key == "quadrants" else value
                 labels[key] = f"--{key}"
-        solver, normalised = _solver(solver_table, len(self.material.features), labels)
+        solver, normalised = _solver(
+            Table(solver_table, "spec", "solver"), len(self.material.features), labels
+        )
         return replace(self, solver=solver, normalised={**self.normalised, "solver": normalised})
 
     def with_parameters(self, values: Mapping[str, float]) -> Spec:
@@ -152,17 +155,17 @@ class Spec:
             replace(p, value=float(values.get(p.name, p.value))) for p in self.optimise.parameters
         )
         optimise = replace(self.optimise, parameters=parameters)
-        table = self.normalised
+        table = Table(self.normalised, "spec")
         targets = [self.targets[0]]
         for index, target in enumerate(self.targets[1:], start=1):
             start, director = _placement(
-                target.surface, table["surfaces"][index], f"surfaces[{index}]", optimise.values
+                target.surface, table.item("surfaces", index), optimise.values
             )
             targets.append(replace(target, start=start, director=director))
-        initial, _ = _initial(table["initial"], self.material, self.classes, optimise.values)
-        targets = _with_flat_start(tuple(targets), initial)
-        _check_material_at_start(self.material, initial, targets)
-        normalised = {**table, "optimise": _optimise_table(optimise)}
+        initial, _ = _initial(table.table("initial"), self.material, self.classes, optimise.values)
+        targets = _with_flat_start(tuple(targets), initial, table.at("initial"))
+        _check_material_at_start(self.material, initial, targets, table.shown)
+        normalised = {**self.normalised, "optimise": _optimise_table(optimise)}
         return replace(
             self, targets=targets, initial=initial, optimise=optimise, normalised=normalised
         )
@@ -172,7 +175,7 @@ def load_spec(path: str | Path) -> Spec:
     """Read and validate a TOML spec file (or a shipped example, see
     :func:`fabkit.shipped.user_or_example`)."""
     path = user_or_example(path)
-    return build_spec(read_toml(path, "spec"), path.resolve().parent)
+    return build_spec(read_toml(path, "spec"), path.resolve().parent, str(path))
 
 
 def spec_from_json(text: str) -> Spec:
@@ -181,28 +184,26 @@ def spec_from_json(text: str) -> Spec:
         table = json.loads(text)
     except json.JSONDecodeError as exc:
         raise FabkitError(f"embedded spec is not valid JSON: {exc}") from None
-    return build_spec(table, Path("."))
+    return build_spec(table, Path("."), "embedded spec")
 
 
-def build_spec(table: Mapping[str, Any], base_dir: Path) -> Spec:
-    """Validate a spec given as nested tables; ``base_dir`` resolves data file paths."""
-    check_keys(table, {"material", "surfaces", "initial", "solver", "optimise"}, "spec")
-    for key in ("material", "surfaces", "initial"):
-        if key not in table:
-            raise FabkitError(f"spec: missing section [{key}]")
-    optimise = _optimise(_table(table.get("optimise", {}), "optimise"))
-    material, material_table = _material(_table(table["material"], "material"))
-    targets, surface_tables = _targets(table["surfaces"], material, base_dir, optimise.values)
+def build_spec(table: Mapping[str, Any], base_dir: Path, shown: str = "spec") -> Spec:
+    """Validate a spec given as nested tables; ``base_dir`` resolves data file paths,
+    ``shown`` names the file in errors."""
+    top = Table(table, shown)
+    top.check_keys({"material", "surfaces", "initial", "solver", "optimise"})
+    top.require(("material",), "a table [material]")
+    top.require(("surfaces",), "[[surfaces]] tables")
+    top.require(("initial",), "a table [initial]")
+    optimise = _optimise(top.table("optimise", default={}))
+    material, material_table = _material(top.table("material"))
+    targets, surface_tables = _targets(top, material, base_dir, optimise.values)
     stimuli = np.array([t.stimulus for t in targets])
     classes = material.classify(stimuli[1:])
-    initial, initial_table = _initial(
-        _table(table["initial"], "initial"), material, classes, optimise.values
-    )
-    targets = _with_flat_start(targets, initial)
-    _check_material_at_start(material, initial, targets)
-    solver, solver_table = _solver(
-        _table(table.get("solver", {}), "solver"), len(material.features)
-    )
+    initial, initial_table = _initial(top.table("initial"), material, classes, optimise.values)
+    targets = _with_flat_start(targets, initial, top.at("initial"))
+    _check_material_at_start(material, initial, targets, shown)
+    solver, solver_table = _solver(top.table("solver", default={}), len(material.features))
     normalised = {
         "material": material_table,
         "surfaces": surface_tables,
@@ -214,38 +215,37 @@ def build_spec(table: Mapping[str, Any], base_dir: Path) -> Spec:
     return Spec(material, classes, targets, initial, solver, normalised, optimise)
 
 
-def _with_flat_start(targets: tuple[Target, ...], initial: InitialData) -> tuple[Target, ...]:
-    """The targets with the flat sheet's start point and director from the initial curves."""
-    u_start, director = _check_curves(initial)
+def _with_flat_start(
+    targets: tuple[Target, ...], initial: InitialData, where: str
+) -> tuple[Target, ...]:
+    """The targets with the flat sheet's start point and director from the initial curves
+    (the ``[initial]`` table at ``where``)."""
+    u_start, director = _check_curves(initial, where)
     flat = targets[0]
     return (Target(flat.name, flat.surface, flat.stimulus, u_start, director), *targets[1:])
 
 
-def _optimise(table: Mapping[str, Any]) -> OptimiseSettings:
+def _optimise(t: Table) -> OptimiseSettings:
     """The ``[optimise]`` table: ``objective`` and ``[optimise.parameters]``, each a table
     ``{ value = V, min = LO, max = HI }`` (LO < HI, LO <= V <= HI)."""
-    check_keys(table, {"objective", "parameters"}, "optimise")
-    objective = table.get("objective", "flat")
-    if objective not in OBJECTIVES:
-        raise FabkitError(f"optimise.objective: expected one of {', '.join(OBJECTIVES)}")
+    t.check_keys({"objective", "parameters"})
+    objective = t.text("objective", OBJECTIVES, default="flat")
+    table = t.table("parameters", default={})
     parameters = []
-    for name, entry in _table(table.get("parameters", {}), "optimise.parameters").items():
-        where = f"optimise.parameters.{name}"
+    for name in table:
         if not name.isidentifier() or name in RESERVED or name == "t":
-            raise FabkitError(
-                f"{where}: a parameter needs a name like 'radius' (letters, digits, _; not t, "
-                "pi, e or a function name)"
+            table.fail(
+                "expected a parameter name like 'radius' (letters, digits, _; not t, pi, e or "
+                f"a function name), got {name!r}",
+                name,
             )
-        entry = _table(entry, where)
-        check_keys(entry, {"value", "min", "max"}, where)
-        for key in ("value", "min", "max"):
-            if key not in entry:
-                raise FabkitError(f"{where}: missing key '{key}' (value = V, min = LO, max = HI)")
-        value, low, high = (number(entry[k], f"{where}.{k}") for k in ("value", "min", "max"))
+        entry = table.table(name)
+        entry.check_keys({"value", "min", "max"})
+        value, low, high = (entry.number(k) for k in ("value", "min", "max"))
         if not low < high:
-            raise FabkitError(f"{where}: min must be below max")
+            entry.expected("min", f"a number below max = {high:g}", entry["min"])
         if not low <= value <= high:
-            raise FabkitError(f"{where}: value {value:g} lies outside [{low:g}, {high:g}]")
+            entry.expected("value", f"a number in [{low:g}, {high:g}]", entry["value"])
         parameters.append(Parameter(name, value, low, high))
     return OptimiseSettings(objective, tuple(parameters))
 
@@ -260,34 +260,28 @@ def _optimise_table(settings: OptimiseSettings) -> dict[str, Any]:
     }
 
 
-def _table(value: Any, where: str) -> Mapping[str, Any]:
-    if not isinstance(value, Mapping):
-        raise FabkitError(f"{where}: expected a table [{where}]")
-    return value
-
-
-def _names(value: Any, where: str) -> tuple[str, ...]:
-    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-        raise FabkitError(f'{where}: expected a list of names, like ["eps"]')
-    if len(set(value)) != len(value):
-        raise FabkitError(f"{where}: names must be distinct")
+def _names(t: Table, key: str) -> tuple[str, ...]:
+    what = 'a list of distinct names, like ["eps"]'
+    value = t.array(key, what)
+    if not all(isinstance(v, str) for v in value) or len(set(value)) != len(value):
+        t.expected(key, what, value)
     return tuple(value)
 
 
-def _material(table: Mapping[str, Any]) -> tuple[Material, dict[str, Any]]:
-    check_keys(table, {"features", "stimuli", "lambda1", "lambda2"}, "material")
-    for key in ("features", "stimuli", "lambda1", "lambda2"):
-        if key not in table:
-            raise FabkitError(f"material: missing key '{key}'")
-    features = _names(table["features"], "material.features")
-    stimuli = _names(table["stimuli"], "material.stimuli")
+def _material(t: Table) -> tuple[Material, dict[str, Any]]:
+    t.check_keys({"features", "stimuli", "lambda1", "lambda2"})
+    t.require(("features", "stimuli"), 'a list of names, like ["eps"]')
+    t.require(("lambda1", "lambda2"), "an expression in the features and stimuli")
+    features = _names(t, "features")
+    stimuli = _names(t, "stimuli")
     if not features:
-        raise FabkitError("material.features: at least one designable feature is needed")
+        t.expected("features", "at least one designable feature", [])
     if set(features) & set(stimuli):
-        raise FabkitError("material: a name cannot be both a feature and a stimulus")
+        both = sorted(set(features) & set(stimuli))[0]
+        t.expected("stimuli", "names that are not features", both)
     names = features + stimuli
-    lambda1 = parse(table["lambda1"], names, "material.lambda1")
-    lambda2 = parse(table["lambda2"], names, "material.lambda2")
+    lambda1 = parse(t.get("lambda1"), names, t.at("lambda1"))
+    lambda2 = parse(t.get("lambda2"), names, t.at("lambda2"))
     normalised = {
         "features": list(features),
         "stimuli": list(stimuli),
@@ -298,15 +292,16 @@ def _material(table: Mapping[str, Any]) -> tuple[Material, dict[str, Any]]:
 
 
 def _vector(
-    value: Any,
+    t: Table,
+    key: str,
     length: int,
-    where: str,
     what: str,
     parameters: Mapping[str, float] = MappingProxyType({}),
 ) -> np.ndarray:
+    value = t.raw(key, f"{what}, a list of {length} numbers")
     if not isinstance(value, list) or len(value) != length:
-        raise FabkitError(f"{where}: expected {what}, a list of {length} numbers")
-    return np.array([_constant(v, where, parameters) for v in value])
+        t.expected(key, f"{what}, a list of {length} numbers", value)
+    return np.array([_constant(v, t.at(key), parameters) for v in value])
 
 
 def _constant(
@@ -316,24 +311,25 @@ def _constant(
     use the spec's ``parameters``)."""
     if isinstance(value, str):
         expression = parse(value, (), where, parameters)
-        return number(float(expression()), where)
-    return number(value, where)
+        return real(float(expression()), where)
+    return real(value, where)
 
 
-def _targets(value: Any, material: Material, base_dir: Path, parameters: Mapping[str, float]):
+def _targets(top: Table, material: Material, base_dir: Path, parameters: Mapping[str, float]):
     count = len(material.features) + 2
-    if not isinstance(value, list) or not all(isinstance(v, Mapping) for v in value):
-        raise FabkitError("surfaces: expected [[surfaces]] tables")
+    what = (
+        f"{count} [[surfaces]] tables ({len(material.features)} feature(s): the flat sheet and "
+        f"{count - 1} targets)"
+    )
+    value = top.array("surfaces", what)
     if len(value) != count:
-        raise FabkitError(
-            f"surfaces: {len(material.features)} feature(s) need exactly {count} surfaces "
-            f"(the flat sheet and {count - 1} targets), got {len(value)}"
-        )
+        top.expected("surfaces", what, value)
     targets, tables, seen = [], [], set()
-    for index, table in enumerate(value):
+    for index in range(count):
+        table = top.item("surfaces", index)
         target, normalised = _target(index, table, material, base_dir, parameters)
         if target.name in seen:
-            raise FabkitError(f"surfaces[{index}].name: '{target.name}' is used twice")
+            table.expected("name", "a name no other surface has", target.name)
         seen.add(target.name)
         targets.append(target)
         tables.append(normalised)
@@ -342,34 +338,28 @@ def _targets(value: Any, material: Material, base_dir: Path, parameters: Mapping
 
 def _target(
     index: int,
-    table: Mapping[str, Any],
+    t: Table,
     material: Material,
     base_dir: Path,
     parameters: Mapping[str, float],
 ):
-    where = f"surfaces[{index}]"
     allowed = {"name", "stimulus", "geometry"} | ({"start", "director"} if index else set())
-    check_keys(table, allowed, where)
-    name = check_name(table.get("name", f"surface{index}"), f"{where}.name")
-    if "stimulus" not in table:
-        raise FabkitError(f"{where}: missing key 'stimulus'")
+    t.check_keys(allowed)
+    name = check_name(t.get("name", f"surface{index}"), t.at("name"))
     stimulus = _vector(
-        table["stimulus"],
-        len(material.stimuli),
-        f"{where}.stimulus",
-        f"one value per stimulus {list(material.stimuli)}",
+        t, "stimulus", len(material.stimuli), f"one value per stimulus {list(material.stimuli)}"
     )
-    geometry = dict(_table(table.get("geometry"), f"{where}.geometry"))
-    surface = build_surface(name, geometry, f"{where}.geometry", base_dir)
-    geometry = _absolute_files(geometry, base_dir)
+    table = t.table("geometry")
+    surface = build_surface(name, table, base_dir)
+    geometry = _absolute_files(dict(table.data), base_dir)
     normalised = {"name": name, "stimulus": stimulus.tolist(), "geometry": geometry}
     if index == 0:
         if surface.kind != "plane" or surface.bounds != UNBOUNDED:
-            raise FabkitError(f'{where}.geometry: the flat sheet must be kind = "plane"')
-        check_unstretched(material, stimulus, f"{where}.stimulus")
+            t.expected("geometry", 'kind = "plane" without a domain (the flat sheet)', geometry)
+        check_unstretched(material, stimulus, t.at("stimulus"))
         return Target(name, surface, tuple(stimulus), np.zeros(2), np.array([1.0, 0.0])), normalised
-    start, director = _placement(surface, table, where, parameters)
-    normalised |= {key: _entries(table[key]) for key in ("start", "director")}
+    start, director = _placement(surface, t, parameters)
+    normalised |= {key: _entries(t[key]) for key in ("start", "director")}
     return Target(name, surface, tuple(stimulus), start, director), normalised
 
 
@@ -379,21 +369,18 @@ def _entries(value: list) -> list:
 
 
 def _placement(
-    surface: Surface, table: Mapping[str, Any], where: str, parameters: Mapping[str, float]
+    surface: Surface, t: Table, parameters: Mapping[str, float]
 ) -> tuple[np.ndarray, np.ndarray]:
     """A target's start point (chart) and director (unit in the metric) from its table."""
-    for key in ("start", "director"):
-        if key not in table:
-            raise FabkitError(f"{where}: missing key '{key}' (a 2-vector in chart coordinates)")
-    start = _vector(table["start"], 2, f"{where}.start", "a chart point", parameters)
-    direction = _vector(table["director"], 2, f"{where}.director", "chart components", parameters)
-    _check_geometry_at_start(surface, start, f"{where}.geometry")
+    start = _vector(t, "start", 2, "a chart point", parameters)
+    direction = _vector(t, "director", 2, "chart components", parameters)
+    _check_geometry_at_start(surface, start, t.at("geometry"))
     if not surface.contains(start[None])[0]:
-        raise FabkitError(f"{where}.start: {start.tolist()} lies outside the {surface.kind} chart")
+        t.expected("start", f"a point inside the {surface.kind} chart", start.tolist())
     g = surface.metric(start)
     length_squared = direction @ g @ direction
     if not length_squared > 0:
-        raise FabkitError(f"{where}.director: must be a non-zero vector")
+        t.expected("director", "a non-zero vector", direction.tolist())
     return start, direction / np.sqrt(length_squared)
 
 
@@ -424,29 +411,28 @@ def _absolute_files(geometry: dict[str, Any], base_dir: Path) -> dict[str, Any]:
 
 
 def _initial(
-    table: Mapping[str, Any],
+    t: Table,
     material: Material,
     classes: tuple[str, ...],
     parameters: Mapping[str, float],
 ):
-    check_keys(table, {"u_curve", "v_curve", "eps", "slope"}, "initial")
+    t.check_keys({"u_curve", "v_curve", "eps", "slope"})
     count = len(material.features)
     curves = []
     for key in ("u_curve", "v_curve"):
-        value = table.get(key)
-        if not isinstance(value, list) or len(value) != 2:
-            raise FabkitError(f'initial.{key}: expected two expressions in t, like ["t", "0"]')
-        curves.append(tuple(parse(v, ("t",), f"initial.{key}", parameters) for v in value))
+        what = 'two expressions in t, like ["t", "0"]'
+        value = t.array(key, what)
+        if len(value) != 2:
+            t.expected(key, what, value)
+        curves.append(tuple(parse(v, ("t",), t.at(key), parameters) for v in value))
     series = []
     for key in ("eps", "slope"):
-        value = table.get(key)
-        if not isinstance(value, list) or len(value) != count:
-            raise FabkitError(
-                f"initial.{key}: expected {count} expression(s) in t, one per feature "
-                f"{list(material.features)}"
-            )
+        what = f"{count} expression(s) in t, one per feature {list(material.features)}"
+        value = t.array(key, what)
+        if len(value) != count:
+            t.expected(key, what, value)
         series.append(
-            tuple(parse(v, ("t",), f"initial.{key}[{i}]", parameters) for i, v in enumerate(value))
+            tuple(parse(v, ("t",), t.at(f"{key}[{i}]"), parameters) for i, v in enumerate(value))
         )
     initial = InitialData(curves[0], curves[1], series[0], series[1])
     normalised = {
@@ -455,11 +441,11 @@ def _initial(
         "eps": [e.text for e in initial.eps],
         "slope": [e.text for e in initial.slope],
     }
-    _check_finite_initial(initial, classes)
+    _check_finite_initial(initial, classes, t)
     return initial, normalised
 
 
-def _check_finite_initial(initial: InitialData, classes: tuple[str, ...]) -> None:
+def _check_finite_initial(initial: InitialData, classes: tuple[str, ...], t: Table) -> None:
     """eps, its derivative along its curve and the slope must be finite at t = 0."""
     for i, kind in enumerate(classes):
         carrier = "u_curve" if kind == ALONG else "v_curve"
@@ -468,14 +454,15 @@ def _check_finite_initial(initial: InitialData, classes: tuple[str, ...]) -> Non
             value, grad, _ = expression.jets(0.0, wrt=("t",), order=order)
             if not np.isfinite(value) or (order and not np.isfinite(grad[0])):
                 what = "it or its derivative is" if order else "it is"
-                raise FabkitError(
-                    f"initial.{label}[{i}]: not finite at t = 0 on the {carrier} ({what} "
-                    f"not finite: '{shorten(expression.text)}')"
+                t.fail(
+                    f"not finite at t = 0 on the {carrier} ({what} not finite: "
+                    f"'{shorten(expression.text)}')",
+                    f"{label}[{i}]",
                 )
 
 
 def _check_material_at_start(
-    material: Material, initial: InitialData, targets: tuple[Target, ...]
+    material: Material, initial: InitialData, targets: tuple[Target, ...], shown: str
 ) -> None:
     """lambda1, lambda2 and (where lambda > 0) their log-derivatives by eps must be finite
     at the start point's eps (the initial eps at t = 0) under every surface's stimulus."""
@@ -496,21 +483,21 @@ def _check_material_at_start(
             values = [*eps[:, 0], *target.stimulus]
             at = ", ".join(f"{n} = {v:.6g}" for n, v in zip(names, values, strict=True))
             raise FabkitError(
-                f"material.{label}: not finite at the start point, or its log-derivatives by "
-                f"eps are not, at {at} (the initial eps under the stimulus of "
-                f"surfaces[{index}] '{target.name}')"
+                f"{shown}: material.{label}: not finite at the start point, or its "
+                f"log-derivatives by eps are not, at {at} (the initial eps under the stimulus "
+                f"of surfaces[{index}] '{target.name}')"
             )
 
 
-def _check_curves(initial: InitialData) -> tuple[np.ndarray, np.ndarray]:
-    """The common start point and the flat-sheet director (unit u-curve tangent) at t = 0."""
+def _check_curves(initial: InitialData, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """The common start point and the flat-sheet director (unit u-curve tangent) at t = 0;
+    ``where`` is the ``[initial]`` table (``FILE: initial``)."""
     for key in ("u_curve", "v_curve"):
         for expression in getattr(initial, key):
             if not all(np.all(np.isfinite(p)) for p in expression.jets(0.0, wrt=("t",))):
                 raise FabkitError(
-                    f"initial.{key}: not finite at t = 0: '{shorten(expression.text)}' or its "
-                    "first or "
-                    "second derivative (the curve, its tangent or its curvature)"
+                    f"{where}.{key}: not finite at t = 0: '{shorten(expression.text)}' or its "
+                    "first or second derivative (the curve, its tangent or its curvature)"
                 )
     u_point = np.array([c(0.0) for c in initial.u_curve])
     v_point = np.array([c(0.0) for c in initial.v_curve])
@@ -518,56 +505,42 @@ def _check_curves(initial: InitialData) -> tuple[np.ndarray, np.ndarray]:
     v_tangent = np.array([c.diff("t")(0.0) for c in initial.v_curve])
     if np.linalg.norm(u_point - v_point) > 1e-9 * (1 + np.linalg.norm(u_point)):
         raise FabkitError(
-            f"initial: the u-curve starts at {u_point.tolist()} but the v-curve at "
+            f"{where}: the u-curve starts at {u_point.tolist()} but the v-curve at "
             f"{v_point.tolist()}; they must meet at t = 0"
         )
     u_speed, v_speed = np.linalg.norm(u_tangent), np.linalg.norm(v_tangent)
     if not (u_speed > 0 and v_speed > 0):
-        raise FabkitError("initial: the u- and v-curves need non-zero tangents at t = 0")
+        raise FabkitError(f"{where}: the u- and v-curves need non-zero tangents at t = 0")
     cosine = float(u_tangent @ v_tangent) / (u_speed * v_speed)
     if abs(cosine) > PERPENDICULAR_TOLERANCE:
         raise FabkitError(
-            f"initial: the u- and v-curves must be perpendicular at t = 0 (cos = {cosine:.3g})"
+            f"{where}: the u- and v-curves must be perpendicular at t = 0 (cos = {cosine:.3g})"
         )
     cross = u_tangent[0] * v_tangent[1] - u_tangent[1] * v_tangent[0]
     if cross < 0:
         raise FabkitError(
-            "initial: the v-curve must leave the start point 90 degrees counter-clockwise from "
+            f"{where}: the v-curve must leave the start point 90 degrees counter-clockwise from "
             "the u-curve (reverse the v-curve's parameter)"
         )
     return u_point, u_tangent / u_speed
 
 
 def _solver(
-    table: Mapping[str, Any], features: int, labels: Mapping[str, str] = MappingProxyType({})
+    t: Table, features: int, labels: Mapping[str, str] = MappingProxyType({})
 ) -> tuple[SolverSettings, dict[str, Any]]:
     """Solver settings for ``features`` designable features; ``labels`` name the
     command-line options that gave some keys (``{"step": "--step"}``) in the grid's
     bounds (:func:`_check_grid`)."""
-    check_keys(
-        table,
-        {"step", "diagonals", "quadrants", "max_strain", "extrapolate", "tolerance"},
-        "solver",
-    )
+    t.check_keys({"step", "diagonals", "quadrants", "max_strain", "extrapolate", "tolerance"})
     defaults = SolverSettings()
-    step = number(table.get("step", defaults.step), "solver.step", positive=True)
-    diagonals = table.get("diagonals", defaults.diagonals)
-    if isinstance(diagonals, bool) or not isinstance(diagonals, int) or diagonals < 1:
-        raise FabkitError("solver.diagonals: expected a positive integer")
-    quadrants = _quadrants(table.get("quadrants", "all"))
-    max_strain = number(
-        table.get("max_strain", defaults.max_strain), "solver.max_strain", positive=True
-    )
-    extrapolate = table.get("extrapolate", defaults.extrapolate)
-    if not isinstance(extrapolate, bool):
-        raise FabkitError("solver.extrapolate: expected true or false")
-    tolerance = number(
-        table.get("tolerance", defaults.tolerance), "solver.tolerance", positive=True
-    )
+    step = t.number("step", positive=True, default=defaults.step)
+    diagonals = t.integer("diagonals", default=defaults.diagonals)
+    quadrants = _quadrants(t)
+    max_strain = t.number("max_strain", positive=True, default=defaults.max_strain)
+    extrapolate = t.flag("extrapolate", default=defaults.extrapolate)
+    tolerance = t.number("tolerance", positive=True, default=defaults.tolerance)
     settings = SolverSettings(step, diagonals, quadrants, max_strain, extrapolate, tolerance)
-    _check_grid(
-        settings, features, {"step": "solver.step", "diagonals": "solver.diagonals"} | labels
-    )
+    _check_grid(settings, features, {"step": t.at("step"), "diagonals": t.at("diagonals")} | labels)
     normalised = {
         "step": step,
         "diagonals": diagonals,
@@ -634,12 +607,13 @@ def _check_grid(settings: SolverSettings, features: int, labels: Mapping[str, st
         )
 
 
-def _quadrants(value: Any) -> tuple[tuple[int, int], ...]:
+def _quadrants(t: Table) -> tuple[tuple[int, int], ...]:
+    value = t.get("quadrants", "all")
     if value == "all":
         return ALL_QUADRANTS
-    message = 'solver.quadrants: expected "all" or a list like [[1, 1], [-1, 1]]'
+    what = '"all" or a list of distinct quadrants like [[1, 1], [-1, 1]]'
     if not isinstance(value, list) or not value:
-        raise FabkitError(message)
+        t.expected("quadrants", what, value)
     quadrants = []
     for item in value:
         if (
@@ -647,10 +621,10 @@ def _quadrants(value: Any) -> tuple[tuple[int, int], ...]:
             or len(item) != 2
             or any(isinstance(s, bool) or s not in (1, -1) for s in item)
         ):
-            raise FabkitError(message)
+            t.expected("quadrants", what, value)
         quadrants.append((int(item[0]), int(item[1])))
     if len(set(quadrants)) != len(quadrants):
-        raise FabkitError("solver.quadrants: each quadrant may appear once")
+        t.expected("quadrants", what, value)
     return tuple(quadrants)
 
 

@@ -10,16 +10,13 @@ multiple of the number of spec layers.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from fabkit.errors import FabkitError
 from fabkit.field.flat import field_from_expression, parse_shape
 from fabkit.machines import DEFAULT_MACHINE
 from fabkit.swimmer.spec import SwimmerSpec
-from fabkit.tomlfile import check_keys, number
+from fabkit.tomlfile import Table
 from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.plan import PATTERNS, PlanSettings, plan_toolpath
 from fabkit.toolpath.preview import save_preview
@@ -46,19 +43,17 @@ class Made:
     lines: tuple[str, ...]
 
 
-def fabrication_settings(table: Mapping[str, Any]) -> Fabrication:
+def fabrication_settings(t: Table) -> Fabrication:
     """Validate the ``[fabrication]`` table (all keys optional)."""
-    check_keys(table, {"machine", "road_width_mm", "layer_height_mm", "pattern"}, "fabrication")
-    machine = table.get("machine", DEFAULT_MACHINE)
+    t.check_keys({"machine", "road_width_mm", "layer_height_mm", "pattern"})
+    machine = t.get("machine", DEFAULT_MACHINE)
     if not isinstance(machine, str):
-        raise FabkitError("fabrication.machine: expected a profile name or path")
-    pattern = table.get("pattern", "alternate")
-    if pattern not in PATTERNS:
-        raise FabkitError(f"fabrication.pattern: expected one of {', '.join(PATTERNS)}")
+        t.expected("machine", "a profile name or path", machine)
+    pattern = t.text("pattern", PATTERNS, default="alternate")
     overrides = {
-        key: number(table[key], f"fabrication.{key}", positive=True)
+        key: t.number(key, positive=True)
         for key in ("road_width_mm", "layer_height_mm")
-        if key in table
+        if key in t
     }
     return Fabrication(machine=machine, pattern=pattern, **overrides)
 

@@ -3,7 +3,8 @@
 A TOML file (see ``docs/swimmer.md`` and ``examples/swimmer.toml``) with sections
 ``[sheet]``, ``[stimuli]``, ``[[layers]]`` (bottom layer first), and optionally
 ``[mechanics]``, ``[hydrodynamics]`` and ``[fabrication]``. Lengths are in mm. Every
-problem is a one-line :class:`FabkitError` naming the key.
+problem is a one-line :class:`FabkitError` naming the file and the key path
+(:mod:`fabkit.tomlfile`).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from fabkit.limits import MAGNITUDE, SWIMMER_MESH_RINGS, SWIMMER_SHAPES, WORK_BY
 from fabkit.problem.expr import Expression, parse, shorten
 from fabkit.readfile import size_text
 from fabkit.shipped import user_or_example
-from fabkit.tomlfile import check_keys, number, read_toml
+from fabkit.tomlfile import Table, expected, read_toml, real, whole
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,8 @@ class SwimmerSpec:
 
     ``radius`` and ``thickness`` (mm, the whole sheet; layers are equal); ``stimuli``
     names (k); ``path`` (P, k) the polygon walked in stimulus space, ``stations`` shapes
-    per leg; ``layers`` bottom first; ``fabrication`` the raw ``[fabrication]`` table.
+    per leg; ``layers`` bottom first; ``fabrication`` the ``[fabrication]`` table, read
+    when the swimmer is made (:func:`fabkit.swimmer.fabricate.fabrication_settings`).
     """
 
     radius: float
@@ -83,12 +85,12 @@ class SwimmerSpec:
     layers: tuple[Layer, ...]
     mechanics: Mechanics
     hydrodynamics: Hydrodynamics
-    fabrication: Mapping[str, Any]
+    fabrication: Table
 
     def with_path(self, path: np.ndarray, stations: int | None = None) -> SwimmerSpec:
         """The same swimmer walking another polygon (P, k), optionally with other stations."""
-        path = _path(np.asarray(path, dtype=float).tolist(), len(self.stimuli))
-        stations = self.stations if stations is None else _count(stations, "stations")
+        path = _path(np.asarray(path, dtype=float).tolist(), len(self.stimuli), "stimuli.path")
+        stations = self.stations if stations is None else whole(stations, "--stations")
         _check_shapes(stations, path)
         return SwimmerSpec(
             self.radius,
@@ -105,111 +107,93 @@ class SwimmerSpec:
 
 def load_swimmer(path: str | Path) -> SwimmerSpec:
     """Read and validate a swimmer TOML file."""
-    return build_swimmer(read_toml(user_or_example(path), "swimmer"))
+    path = user_or_example(path)
+    return build_swimmer(read_toml(path, "swimmer"), str(path))
 
 
-def build_swimmer(table: Mapping[str, Any]) -> SwimmerSpec:
-    """Validate a swimmer given as nested tables (a parsed TOML file)."""
-    allowed = {"sheet", "stimuli", "layers", "mechanics", "hydrodynamics", "fabrication"}
-    check_keys(table, allowed, "swimmer")
-    for key in ("sheet", "stimuli", "layers"):
-        if key not in table:
-            raise FabkitError(f"swimmer: missing section [{key}]")
-    sheet = _table(table["sheet"], "sheet")
-    check_keys(sheet, {"radius", "thickness"}, "sheet")
-    radius = _length(sheet.get("radius"), "sheet.radius")
-    thickness = _length(sheet.get("thickness"), "sheet.thickness")
+def build_swimmer(table: Mapping[str, Any], shown: str = "swimmer") -> SwimmerSpec:
+    """Validate a swimmer given as nested tables (a parsed TOML file); ``shown`` names the
+    file in errors."""
+    top = Table(table, shown)
+    top.check_keys({"sheet", "stimuli", "layers", "mechanics", "hydrodynamics", "fabrication"})
+    top.require(("sheet", "stimuli"), lambda key: f"a table [{key}]")
+    top.require(("layers",), "one or more [[layers]] tables, bottom first")
+    sheet = top.table("sheet")
+    sheet.check_keys({"radius", "thickness"})
+    radius = sheet.number("radius", positive=True, bound=MAGNITUDE)
+    thickness = sheet.number("thickness", positive=True, bound=MAGNITUDE)
     if thickness >= radius:
-        raise FabkitError("sheet.thickness: a sheet must be much thinner than its radius")
-    stimuli_table = _table(table["stimuli"], "stimuli")
-    check_keys(stimuli_table, {"names", "path", "stations"}, "stimuli")
-    names = _names(stimuli_table.get("names"))
-    path = _path(stimuli_table.get("path"), len(names))
-    stations = _count(stimuli_table.get("stations", 6), "stimuli.stations")
-    _check_shapes(stations, path)
-    layers = table["layers"]
-    if not isinstance(layers, list) or not layers:
-        raise FabkitError("layers: expected one or more [[layers]] tables, bottom first")
-    built = tuple(
-        _layer(_table(layer, f"layers[{i}]"), names, i, radius, path)
-        for i, layer in enumerate(layers)
-    )
-    mechanics = _settings(table.get("mechanics", {}), Mechanics, "mechanics")
-    hydrodynamics = _settings(table.get("hydrodynamics", {}), Hydrodynamics, "hydrodynamics")
-    _check_rings(mechanics.rings, hydrodynamics.rings)
-    fabrication = _table(table.get("fabrication", {}), "fabrication")
+        sheet.expected("thickness", f"much less than radius = {radius:g}", sheet["thickness"])
+    stimuli = top.table("stimuli")
+    stimuli.check_keys({"names", "path", "stations"})
+    names = _names(stimuli)
+    path = _path(stimuli.get("path"), len(names), stimuli.at("path"))
+    stations = stimuli.integer("stations", default=6)
+    _check_shapes(stations, path, stimuli.at("stations"))
+    layers = top.array("layers", "one or more [[layers]] tables, bottom first")
+    if not layers:
+        top.expected("layers", "one or more [[layers]] tables, bottom first", layers)
+    built = tuple(_layer(top.item("layers", i), names, i, radius, path) for i in range(len(layers)))
+    mechanics = _settings(top.table("mechanics", default={}), Mechanics)
+    hydrodynamics = _settings(top.table("hydrodynamics", default={}), Hydrodynamics)
+    _check_rings(mechanics.rings, hydrodynamics.rings, top)
+    fabrication = top.table("fabrication", default={})
     return SwimmerSpec(
         radius, thickness, names, path, stations, built, mechanics, hydrodynamics, fabrication
     )
 
 
-def _table(value: Any, where: str) -> Mapping[str, Any]:
-    if not isinstance(value, Mapping):
-        raise FabkitError(f"{where}: expected a table")
-    return value
-
-
-def _names(value: Any) -> tuple[str, ...]:
-    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
-        raise FabkitError('stimuli.names: expected a list of names, e.g. ["L1", "L2"]')
-    if len(set(value)) != len(value):
-        raise FabkitError("stimuli.names: names must differ")
+def _names(t: Table) -> tuple[str, ...]:
+    what = 'a list of distinct names, e.g. ["L1", "L2"]'
+    value = t.raw("names", what)
+    if (
+        not isinstance(value, list)
+        or not value
+        or not all(isinstance(v, str) for v in value)
+        or len(set(value)) != len(value)
+    ):
+        t.expected("names", what, value)
     return tuple(value)
 
 
-def _path(value: Any, count: int) -> np.ndarray:
-    where = "stimuli.path"
+def _path(value: Any, count: int, where: str) -> np.ndarray:
+    what = f"a list of at least two stimulus vectors of {count} values, no two consecutive equal"
     if not isinstance(value, list) or len(value) < 2:
-        raise FabkitError(f"{where}: expected a list of at least two stimulus vectors")
+        expected(where, what, value)
     rows = []
-    for row in value:
+    for i, row in enumerate(value):
         if not isinstance(row, list) or len(row) != count:
-            raise FabkitError(f"{where}: every vertex needs {count} stimulus values")
-        rows.append([number(v, where) for v in row])
+            expected(f"{where}[{i}]", f"a stimulus vector of {count} values", row)
+        rows.append([real(v, f"{where}[{i}][{j}]") for j, v in enumerate(row)])
     path = np.array(rows)
     if np.any(np.all(np.diff(path, axis=0) == 0, axis=1)):
-        raise FabkitError(f"{where}: two consecutive vertices are equal")
+        expected(where, what, value)
     return path
 
 
-def _length(value: Any, where: str) -> float:
-    """A positive length (mm) within +-MAGNITUDE."""
-    length = number(value, where, positive=True)
-    if length > MAGNITUDE:
-        raise FabkitError(f"{where}: {length:g} is beyond the plausible {MAGNITUDE:g} mm")
-    return length
-
-
-def _check_shapes(stations: int, path: np.ndarray) -> None:
+def _check_shapes(stations: int, path: np.ndarray, where: str = "stimuli.stations") -> None:
     """At most SWIMMER_SHAPES equilibrium shapes along the cycle (stations per leg)."""
     shapes = stations * (len(path) - 1)
     if shapes > SWIMMER_SHAPES:
         raise FabkitError(
-            f"stimuli.stations: {stations} stations on {len(path) - 1} legs make {shapes} "
+            f"{where}: {stations} stations on {len(path) - 1} legs make {shapes} "
             f"shapes, more than the limit of {SWIMMER_SHAPES}"
         )
 
 
-def _check_rings(mesh_rings: int, stokes_rings: int) -> None:
+def _check_rings(mesh_rings: int, stokes_rings: int, top: Table) -> None:
     """The elastic mesh at most SWIMMER_MESH_RINGS rings; the dense Stokeslet matrix of
     about 1 + pi R (R + 1) points (112 N^2 bytes with its work arrays) within WORK_BYTES."""
     if mesh_rings > SWIMMER_MESH_RINGS:
-        raise FabkitError(
-            f"mechanics.rings: {mesh_rings} is more than the limit of {SWIMMER_MESH_RINGS}"
-        )
+        top.expected("mechanics.rings", f"at most {SWIMMER_MESH_RINGS}", mesh_rings)
     points = 1 + math.pi * stokes_rings * (stokes_rings + 1)
     need = 112 * points**2
     if need > WORK_BYTES:
         raise FabkitError(
-            f"hydrodynamics.rings: {stokes_rings} rings make about {points:.3g} Stokeslet points "
-            f"whose matrix needs {size_text(need)}, more than the limit of {size_text(WORK_BYTES)}"
+            f"{top.at('hydrodynamics.rings')}: {stokes_rings} rings make about {points:.3g} "
+            f"Stokeslet points whose matrix needs {size_text(need)}, more than the limit of "
+            f"{size_text(WORK_BYTES)}"
         )
-
-
-def _count(value: Any, where: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise FabkitError(f"{where}: expected a positive integer, got {value!r}")
-    return value
 
 
 PATH_SAMPLES = 64
@@ -217,18 +201,16 @@ PATH_SAMPLES = 64
 
 
 def _layer(
-    table: Mapping[str, Any], stimuli: tuple[str, ...], index: int, radius: float, path: np.ndarray
+    t: Table, stimuli: tuple[str, ...], index: int, radius: float, path: np.ndarray
 ) -> Layer:
     """One layer; its director must be finite on the disc of ``radius`` (mm) and its
     stretches finite along the stimulus ``path`` (P, k), vertices and legs."""
-    where = f"layers[{index}]"
-    check_keys(table, {"name", "director", "lambda1", "lambda2"}, where)
-    for key in ("director", "lambda1", "lambda2"):
-        if key not in table:
-            raise FabkitError(f"{where}: missing key '{key}'")
-    name = table.get("name", f"layer {index}")
-    if not isinstance(name, str):
-        raise FabkitError(f"{where}.name: expected a string")
+    where = t.at()
+    table = t
+    t.check_keys({"name", "director", "lambda1", "lambda2"})
+    t.require(("director",), "an expression in x, y, r and phi (radians)")
+    t.require(("lambda1", "lambda2"), "an expression in the stimuli")
+    name = t.text("name", default=f"layer {index}")
     theta = planar_expression(table["director"], f"{where}.director")
     disc = parse_shape(f"disc:{radius:.12g}", "sheet.radius")
     check_finite_on_sheet(theta, disc, f"{where}.director", str(table["director"]))
@@ -249,17 +231,15 @@ def _layer(
     return Layer(name, str(table["director"]), theta, *stretches)
 
 
-def _settings(value: Any, kind: type, where: str) -> Any:
-    table = _table(value, where)
+def _settings(t: Table, kind: type) -> Any:
     defaults = kind()
-    check_keys(table, set(defaults.__dataclass_fields__), where)
+    t.check_keys(set(defaults.__dataclass_fields__))
     values = {}
     for key, default in vars(defaults).items():
-        raw = table.get(key, default)
         if isinstance(default, int):
-            values[key] = _count(raw, f"{where}.{key}")
+            values[key] = t.integer(key, default=default)
         else:
-            values[key] = number(raw, f"{where}.{key}", positive=key != "poisson")
+            values[key] = t.number(key, positive=key != "poisson", default=default)
     if "poisson" in values and not -1.0 < values["poisson"] <= 0.5:
-        raise FabkitError(f"{where}.poisson: expected -1 < nu <= 0.5")
+        t.expected("poisson", "-1 < nu <= 0.5", values["poisson"])
     return kind(**values)

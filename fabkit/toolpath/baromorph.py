@@ -22,11 +22,8 @@ channel's width (cut perpendicular to its centreline) against the calibration.
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import shapely
@@ -37,7 +34,7 @@ from fabkit.field.flat import FlatField
 from fabkit.limits import MAGNITUDE
 from fabkit.process import CHANNEL_WIDTH, Calibration
 from fabkit.shipped import user_or_example
-from fabkit.tomlfile import read_toml
+from fabkit.tomlfile import Table, read_toml
 from fabkit.toolpath.lines import (
     LineSettings,
     is_closed,
@@ -115,72 +112,44 @@ class ChannelReport:
 
 
 def load_baromorph(path: str | Path) -> BaromorphSettings:
-    """Read the ``[baromorph]`` table of a TOML file (see ``docs/toolpath.md``)."""
+    """Read the ``[baromorph]`` table of a TOML file (see ``docs/toolpath.md``); errors
+    name the file and the key path (:mod:`fabkit.tomlfile`)."""
     path = user_or_example(path)
-    table = read_toml(path, "baromorph")
-    try:
-        return _settings(table.get("baromorph"))
-    except FabkitError as exc:
-        raise FabkitError(f"{path}: {exc}") from None
+    top = Table(read_toml(path, "baromorph"), str(path))
+    return _settings(top.table("baromorph"))
 
 
-def _settings(table: Any) -> BaromorphSettings:
-    if not isinstance(table, Mapping):
-        raise FabkitError("missing table [baromorph]")
-    allowed = {*LENGTH_KEYS, "inlet", "calibration"}
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise FabkitError(f"unknown key '{unknown[0]}' in [baromorph]")
-    for key in ("pitch_mm", "min_wall_mm", "manifold_width_mm", "inlet", "calibration"):
-        if key not in table:
-            raise FabkitError(f"[baromorph] {key} is missing")
-    lengths = {k: _positive(table[k], f"[baromorph] {k}") for k in LENGTH_KEYS if k in table}
-    inlet = table["inlet"]
-    if not (isinstance(inlet, list) and len(inlet) == 2):
-        raise FabkitError("[baromorph] inlet must be [x, y] in mm")
-    x, y = (_finite(v, "[baromorph] inlet") for v in inlet)
-    calibration = _channel_calibration(table["calibration"])
+def _settings(t: Table) -> BaromorphSettings:
+    t.check_keys({*LENGTH_KEYS, "inlet", "calibration"})
+    t.require(("pitch_mm", "min_wall_mm", "manifold_width_mm"), "a positive length (mm)")
+    t.require(("inlet",), "[x, y] in mm")
+    t.require(("calibration",), "a table [baromorph.calibration]")
+    lengths = {
+        key: t.number(key, positive=True, bound=MAGNITUDE) for key in LENGTH_KEYS if key in t
+    }
+    x, y = t.numbers("inlet", length=2, bound=MAGNITUDE)
+    calibration = _channel_calibration(t.table("calibration"))
     settings = BaromorphSettings(inlet=(x, y), calibration=calibration, **lengths)
     if settings.part_thickness_mm <= settings.channel_depth_mm:
-        raise FabkitError("[baromorph] part_thickness_mm must exceed channel_depth_mm")
+        t.expected(
+            "part_thickness_mm",
+            f"more than channel_depth_mm = {settings.channel_depth_mm:g}",
+            t.get("part_thickness_mm", settings.part_thickness_mm),
+        )
     return settings
 
 
-def _channel_calibration(table: Any) -> Calibration:
-    where = "[baromorph.calibration]"
-    if not isinstance(table, Mapping):
-        raise FabkitError(f"{where} must be a table")
-    unknown = sorted(set(table) - {"parameter", "eps", "value", "clip"})
-    if unknown:
-        raise FabkitError(f"unknown key '{unknown[0]}' in {where}")
-    if table.get("parameter", CHANNEL_PARAMETER) != CHANNEL_PARAMETER:
-        raise FabkitError(f"{where} parameter must be '{CHANNEL_PARAMETER}'")
-    if "eps" not in table or "value" not in table:
-        raise FabkitError(f"{where} needs eps and value (channel width, mm)")
-    clip = table.get("clip", False)
-    if not isinstance(clip, bool):
-        raise FabkitError(f"{where} clip must be true or false")
-    numbers = []
-    for key in ("eps", "value"):
-        if not isinstance(table[key], list):
-            raise FabkitError(f"{where} {key} must be an array of numbers")
-        numbers.append(tuple(_finite(v, f"{where} {key}") for v in table[key]))
-    return Calibration(CHANNEL_PARAMETER, numbers[0], numbers[1], clip)
-
-
-def _finite(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise FabkitError(f"{where} must be a finite number, got {value!r}")
-    if abs(value) > MAGNITUDE:
-        raise FabkitError(f"{where} = {value:g} is beyond the plausible +-{MAGNITUDE:g}")
-    return float(value)
-
-
-def _positive(value: Any, where: str) -> float:
-    number = _finite(value, where)
-    if number <= 0:
-        raise FabkitError(f"{where} must be > 0, got {value!r}")
-    return number
+def _channel_calibration(t: Table) -> Calibration:
+    t.check_keys({"parameter", "eps", "value", "clip"})
+    t.text("parameter", (CHANNEL_PARAMETER,), default=CHANNEL_PARAMETER)
+    t.require(("eps",), "an array of numbers")
+    t.require(("value",), "an array of channel widths (mm)")
+    clip = t.flag("clip", default=False)
+    eps, value = (t.numbers(key, bound=MAGNITUDE) for key in ("eps", "value"))
+    try:
+        return Calibration(CHANNEL_PARAMETER, eps, value, clip)
+    except FabkitError as exc:
+        t.fail(str(exc))
 
 
 # --------------------------------------------------------------------------- layout

@@ -3,7 +3,8 @@
 The settings and the channels are :class:`fabkit.process.Process` (one type for every
 stage). They live in the ``[process]`` table of a machine profile (``machines/*.toml``,
 read by :mod:`fabkit.machines`); ``--process FILE`` replaces that table with the one in
-FILE, read by :func:`load_process` with the profile's parser (the same keys)::
+FILE, read by :func:`load_process` with the profile's parser
+(:func:`fabkit.process.parse_process`, the same keys)::
 
     [process]
     road_width_mm = 0.4
@@ -28,9 +29,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from fabkit.errors import FabkitError
-from fabkit.machines import DEFAULT_MACHINE, list_machines, load_machine, parse_process
-from fabkit.process import Process, Resolution
-from fabkit.tomlfile import read_toml
+from fabkit.machines import DEFAULT_MACHINE, list_machines, load_machine
+from fabkit.process import Process, Resolution, parse_process
+from fabkit.tomlfile import Table, read_toml
 
 
 def machine_process(name_or_path: str | None) -> Process:
@@ -41,10 +42,8 @@ def machine_process(name_or_path: str | None) -> Process:
 def load_process(path: str | Path) -> Process:
     """Read the ``[process]`` table of a TOML file (module docstring); one-line errors."""
     path = Path(path)
-    table = read_toml(path, "process")
-    if "process" not in table:
-        raise FabkitError(f"{path}: missing table [process]")
-    return parse_process(table["process"], path)
+    top = Table(read_toml(path, "process"), str(path))
+    return parse_process(top.table("process"), source=str(path))
 
 
 def resolve_channels(

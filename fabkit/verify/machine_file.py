@@ -41,7 +41,7 @@ from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_she
 from fabkit.mechanics.simulate import Settings
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict
 from fabkit.process import Encode, Process, Resolution
-from fabkit.tomlfile import number
+from fabkit.tomlfile import real
 from fabkit.toolpath.baromorph import BaromorphSettings
 from fabkit.verify.raster import Readback, Roads, rasterise
 from fabkit.verify.read_dxf import read_channels, read_dxf
@@ -410,9 +410,9 @@ def _check_options(options: VerifyOptions) -> None:
         ("--scale", options.mm_per_unit),
     ):
         if value is not None:
-            number(value, name, positive=True)
-    if options.smoothing_mm is not None and not number(options.smoothing_mm, "--smoothing") >= 0:
-        raise FabkitError(f"--smoothing {options.smoothing_mm:g}: expected 0 or more mm")
+            real(value, name, positive=True)
+    if options.smoothing_mm is not None:
+        real(options.smoothing_mm, "--smoothing", nonnegative=True)
     for name, value, least in (
         ("--stride", options.stride, 1),
         ("--max-iterations", options.max_iterations, 1),

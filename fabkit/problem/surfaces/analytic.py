@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any, Self
+from typing import Self
 
 import numpy as np
 
-from fabkit.errors import FabkitError
 from fabkit.problem.expr import Expression, parse
 from fabkit.problem.surfaces.base import (
     UNBOUNDED,
@@ -17,19 +15,20 @@ from fabkit.problem.surfaces.base import (
     immersion_geometry,
     metric_geometry,
 )
-from fabkit.tomlfile import check_keys, number
+from fabkit.tomlfile import Table, real
 
 
-def domain_bounds(table: Mapping[str, Any], where: str) -> Bounds:
+def domain_bounds(t: Table) -> Bounds:
     """Optional ``domain = [r1_min, r1_max, r2_min, r2_max]``; unbounded if absent."""
-    if "domain" not in table:
+    if "domain" not in t:
         return UNBOUNDED
-    values = table["domain"]
-    if not isinstance(values, list) or len(values) != 4:
-        raise FabkitError(f"{where}.domain: expected [r1_min, r1_max, r2_min, r2_max]")
-    low1, high1, low2, high2 = (number(v, f"{where}.domain") for v in values)
+    what = "[r1_min, r1_max, r2_min, r2_max] with each minimum below its maximum"
+    values = t.array("domain", what)
+    if len(values) != 4:
+        t.expected("domain", what, values)
+    low1, high1, low2, high2 = (real(v, t.at(f"domain[{i}]")) for i, v in enumerate(values))
     if not (low1 < high1 and low2 < high2):
-        raise FabkitError(f"{where}.domain: each minimum must be below its maximum")
+        t.expected("domain", what, values)
     return ((low1, high1), (low2, high2))
 
 
@@ -43,9 +42,9 @@ class Plane(Surface):
         self.name, self.bounds = name, bounds
 
     @classmethod
-    def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir) -> Plane:
-        check_keys(table, {"kind", "domain"}, where)
-        return cls(name, domain_bounds(table, where))
+    def from_table(cls, name: str, t: Table, base_dir) -> Plane:
+        t.check_keys({"kind", "domain"})
+        return cls(name, domain_bounds(t))
 
     def geometry(self, r):
         r = np.asarray(r, dtype=float)
@@ -69,9 +68,9 @@ class Sphere(Surface):
         self.bounds = ((0.0, np.pi), (-np.inf, np.inf))
 
     @classmethod
-    def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir) -> Sphere:
-        check_keys(table, {"kind", "radius"}, where)
-        return cls(name, number(table.get("radius", 1.0), f"{where}.radius", positive=True))
+    def from_table(cls, name: str, t: Table, base_dir) -> Sphere:
+        t.check_keys({"kind", "radius"})
+        return cls(name, t.number("radius", positive=True, default=1.0))
 
     def geometry(self, r):
         r = np.asarray(r, dtype=float)
@@ -110,11 +109,10 @@ class Graph(Surface):
         self._derivatives = _jets((height,))
 
     @classmethod
-    def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir) -> Graph:
-        check_keys(table, {"kind", "z", "domain"}, where)
-        if "z" not in table:
-            raise FabkitError(f'{where}: a graph needs z = "f(x, y)"')
-        return cls(name, parse(table["z"], ("x", "y"), f"{where}.z"), domain_bounds(table, where))
+    def from_table(cls, name: str, t: Table, base_dir) -> Graph:
+        t.check_keys({"kind", "z", "domain"})
+        z = t.raw("z", 'an expression in x and y, like z = "f(x, y)"')
+        return cls(name, parse(z, ("x", "y"), t.at("z")), domain_bounds(t))
 
     def geometry(self, r):
         """Closed forms from f's derivatives; NaN wherever f itself is not finite."""
@@ -154,13 +152,11 @@ class _Formulas(Surface):
         self._derivatives = _jets(formulas)
 
     @classmethod
-    def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir) -> Self:
-        check_keys(table, {"kind", *cls.keys, "domain"}, where)
-        missing = [k for k in cls.required if k not in table]
-        if missing:
-            raise FabkitError(f'{where}: a {cls.kind} surface needs {missing[0]} = "...(a, b)"')
-        formulas = tuple(parse(table.get(k, "0"), cls.chart, f"{where}.{k}") for k in cls.keys)
-        return cls(name, formulas, domain_bounds(table, where))
+    def from_table(cls, name: str, t: Table, base_dir) -> Self:
+        t.check_keys({"kind", *cls.keys, "domain"})
+        t.require(cls.required, "an expression in a and b")
+        formulas = tuple(parse(t.get(k, "0"), cls.chart, t.at(k)) for k in cls.keys)
+        return cls(name, formulas, domain_bounds(t))
 
     def expressions(self) -> dict[str, Expression]:
         return dict(zip(self.keys, self.formulas, strict=True))

@@ -45,7 +45,7 @@ from fabkit.npzfile import ArrayHeader, Check, check_magnitude, npz_keys, read_n
 from fabkit.problem.surfaces.base import Surface, graph_geometry
 from fabkit.problem.surfaces.fit import SurfaceFit, fit_grid
 from fabkit.readfile import decode_utf8, read_limited
-from fabkit.tomlfile import check_keys, number
+from fabkit.tomlfile import Table, expected, real
 
 MIN_SIDE = 8
 """Fewest nodes per side of a height grid."""
@@ -116,15 +116,15 @@ class DataSurface(Surface):
         self.curvature_range = self._curvature_range()
 
     @classmethod
-    def from_table(cls, name: str, table: Mapping[str, Any], where: str, base_dir: Path) -> Self:
+    def from_table(cls, name: str, t: Table, base_dir: Path) -> Self:
         """The surface of a spec's geometry table: its ``file`` (relative to ``base_dir``,
         one of ``formats``), the kind's ``options`` and ``smoothing``, read and fitted."""
-        check_keys(table, {"kind", "file", *cls.options, "smoothing"}, where)
-        return cls._load(name, data_file(table, where, base_dir, cls.formats), table, where)
+        t.check_keys({"kind", "file", *cls.options, "smoothing"})
+        return cls._load(name, data_file(t, base_dir, cls.formats), t)
 
     @classmethod
     @abstractmethod
-    def _load(cls, name: str, path: Path, table: Mapping[str, Any], where: str) -> Self:
+    def _load(cls, name: str, path: Path, t: Table) -> Self:
         """The surface of the existing data file ``path``, with the rest of ``table``."""
 
     def geometry(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -184,13 +184,14 @@ class HeightMap(DataSurface):
     formats = GRID_FORMATS
 
     @classmethod
-    def _load(cls, name: str, path: Path, table: Mapping[str, Any], where: str) -> HeightMap:
-        extent = _extent(table["extent"], f"{where}.extent") if "extent" in table else None
-        z_scale = number(table.get("z_scale", 1.0), f"{where}.z_scale")
+    def _load(cls, name: str, path: Path, t: Table) -> HeightMap:
+        where = t.at()
+        extent = _extent(t["extent"], t.at("extent")) if "extent" in t else None
+        z_scale = t.number("z_scale", default=1.0)
         if z_scale == 0:
-            raise FabkitError(f"{where}.z_scale: must not be zero")
-        nodata = number(table["nodata"], f"{where}.nodata") if "nodata" in table else None
-        smoothing = _smoothing(table, where)
+            t.expected("z_scale", "a non-zero number", t["z_scale"])
+        nodata = t.number("nodata") if "nodata" in t else None
+        smoothing = _smoothing(t)
         grid, fit = _heightmap_fit(
             str(path), _stamp(path), extent, z_scale, nodata, smoothing, where
         )
@@ -205,12 +206,10 @@ class MeshSurface(DataSurface):
     formats = MESH_FORMATS
 
     @classmethod
-    def _load(cls, name: str, path: Path, table: Mapping[str, Any], where: str) -> MeshSurface:
-        axis = table.get("axis", "z")
-        if axis not in CHARTS:
-            raise FabkitError(f'{where}.axis: expected "x", "y" or "z", got {axis!r}')
-        smoothing = _smoothing(table, where)
-        grid, fit = _mesh_fit(str(path), _stamp(path), axis, smoothing, where)
+    def _load(cls, name: str, path: Path, t: Table) -> MeshSurface:
+        axis = t.text("axis", tuple(CHARTS), default="z")
+        smoothing = _smoothing(t)
+        grid, fit = _mesh_fit(str(path), _stamp(path), axis, smoothing, t.at())
         return cls(name, path.name, grid, fit, axis)
 
 
@@ -221,13 +220,12 @@ def footprint_cells(valid: np.ndarray) -> np.ndarray:
     return trusted[:-1, :-1] & trusted[1:, :-1] & trusted[:-1, 1:] & trusted[1:, 1:]
 
 
-def data_file(
-    table: Mapping[str, Any], where: str, base_dir: Path, formats: tuple[str, ...]
-) -> Path:
+def data_file(t: Table, base_dir: Path, formats: tuple[str, ...]) -> Path:
     """The existing, non-empty data file named by ``file``, relative to base_dir."""
-    name = table.get("file")
+    where = t.at()
+    name = t.raw("file", 'a file name, like file = "face.npy"')
     if not isinstance(name, str) or not name:
-        raise FabkitError(f'{where}.file: expected a file name, like file = "face.npy"')
+        t.expected("file", 'a file name, like file = "face.npy"', name)
     path = Path(base_dir) / name
     if path.suffix.lower() not in formats:
         raise FabkitError(
@@ -246,29 +244,27 @@ def _stamp(path: Path) -> tuple[int, int]:
     return status.st_mtime_ns, status.st_size
 
 
-def _smoothing(table: Mapping[str, Any], where: str) -> tuple[float, float] | None:
+def _smoothing(t: Table) -> tuple[float, float] | None:
     """``smoothing = L`` or ``[L1, L2]`` (chart units, >= 0), or None when absent."""
-    if "smoothing" not in table:
+    if "smoothing" not in t:
         return None
-    value = table["smoothing"]
+    value = t["smoothing"]
     values = value if isinstance(value, list) else [value, value]
     if len(values) != 2:
-        raise FabkitError(f"{where}.smoothing: expected a length or two, like 0.5 or [0.5, 1]")
-    lengths = tuple(number(v, f"{where}.smoothing") for v in values)
-    if min(lengths) < 0 or max(lengths) > MAGNITUDE:
-        raise FabkitError(
-            f"{where}.smoothing: lengths must be zero or positive, at most {MAGNITUDE:g}"
-        )
-    return lengths
+        t.expected("smoothing", "a length or two, like 0.5 or [0.5, 1]", value)
+    where = t.at("smoothing")
+    lengths = tuple(real(v, where, nonnegative=True, bound=MAGNITUDE) for v in values)
+    return lengths[0], lengths[1]
 
 
 def _extent(value: Any, where: str) -> tuple[float, float, float, float]:
+    what = "[x0, x1, y0, y1] with x0 < x1 and y0 < y1"
     if not isinstance(value, list) or len(value) != 4:
-        raise FabkitError(f"{where}: expected [x0, x1, y0, y1]")
-    x0, x1, y0, y1 = (number(v, where) for v in value)
+        expected(where, what, value)
+    x0, x1, y0, y1 = (real(v, f"{where}[{i}]") for i, v in enumerate(value))
     check_magnitude(np.array([x0, x1, y0, y1]), "extent", where)
     if not (x0 < x1 and y0 < y1):
-        raise FabkitError(f"{where}: expected x0 < x1 and y0 < y1, got {value}")
+        expected(where, what, value)
     return x0, x1, y0, y1
 
 
