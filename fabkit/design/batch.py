@@ -116,6 +116,7 @@ def _pairs(signs: np.ndarray, group: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def stop_order(stop: Stop) -> tuple[float, float, float]:
+    """Sort key of stops: nearest the origin first, then by u and v."""
     return (abs(stop.u) + abs(stop.v), stop.u, stop.v)
 
 

@@ -46,6 +46,7 @@ class GcodeSummary:
 
 
 def lines_bytes(lines: list[str]) -> bytes:
+    """Lines as ASCII bytes, each ended by a newline."""
     return "".join(f"{line}\n" for line in lines).encode("ascii")
 
 

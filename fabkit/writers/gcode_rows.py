@@ -23,8 +23,6 @@ from fabkit.writers.line_table import Word
 
 # Columns of the row table, and how each is written.
 COL_L, COL_X, COL_Y, COL_Z, COL_E, COL_F, COL_S, COL_P, COL_W = range(9)
-
-
 WORDS = (
     Word("", 0),
     Word(" X", 3),
@@ -36,38 +34,25 @@ WORDS = (
     Word(" P", 2),
     Word("", 3),
 )
-
-
 XYZ_SCALE, E_SCALE, F_SCALE = 1e3, 1e5, 1e1
-
-
 # Row prefixes: the fixed vocabulary, then the profile's snippets.
 ROW_G0, ROW_G1, ROW_LAYER, ROW_TYPE, ROW_HEIGHT, ROW_WIDTH, ROW_M104, ROW_M163, ROW_M164 = range(9)
-
-
 ROW_FLOW_ON, ROW_FLOW_OFF, ROW_INK2_ON, ROW_INK2_OFF, ROW_PRESSURE = range(9, 14)
-
-
 PREFIXES = (
     "G0", "G1", ";LAYER:", ";TYPE:FILL", ";HEIGHT:", ";WIDTH:", "M104", "M163", "M164"
 )  # fmt: skip
-
-
 WIDTH_STEP_MM = 1e-3
 """``;WIDTH:`` is written to the micrometre, and again only where that value changes."""
-
-
 # Order of rows inside one move (slot in the sort key). Vertex k's row comes at
 # SLOT_VERTEX + 2 k - 1, the channel commands for its segment just before it (for the first
 # segment: at SLOT_CHANNELS, before the flow is turned on).
 SLOT_LAYER, SLOT_TYPE, SLOT_RETRACT, SLOT_LIFT, SLOT_CHANNELS, SLOT_FLOW_ON, SLOT_VERTEX = range(7)
-
-
 MIX_STEP = 0.01
 """Mixing ratios are written in hundredths."""
 
 
 def row_prefixes(setup: Setup) -> tuple[str, ...]:
+    """Every row prefix by its number: the fixed vocabulary, then the profile's snippets."""
     return (
         *PREFIXES,
         setup.flow_on,

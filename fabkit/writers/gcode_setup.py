@@ -14,11 +14,7 @@ from fabkit.machines import MachineProfile
 from fabkit.toolpath.model import Toolpath
 
 E_MODES = ("absolute", "relative")
-
-
 E_UNITS = ("filament", "volume", "pulses")
-
-
 DEFAULT_RETRACT_MIN_TRAVEL_MM = 1.0
 """Travels shorter than this (mm) neither lift nor retract (slicers' "minimum travel")."""
 
@@ -42,8 +38,8 @@ class GcodeOptions:
     G-code selects, else relative. ``e_units``: "filament" (mm of filament), "volume"
     (mm^3 = uL) or "pulses"; default "volume" for flavour hyrel, else "filament".
     ``offset_mm``: sheet-to-machine offset (x, y[, z]); default: centred on the bed.
-    ``nominal_e``: write nominal E on a Marlin machine without an E axis (module
-    docstring); default: the profile's ``[tool] nominal_e``.
+    ``nominal_e``: write nominal E on a Marlin machine without an E axis
+    (:mod:`fabkit.writers.gcode`); default: the profile's ``[tool] nominal_e``.
     """
 
     e_mode: str | None = None
