@@ -44,7 +44,8 @@ stored files small (a few hundred KB in all)."""
 @dataclass(frozen=True)
 class Example:
     """A stored toolpath: ``name`` (its file), the command that makes it (``fabkit`` and
-    its arguments, ``OUT`` for the output folder) and the G-code file that command writes."""
+    its arguments, ``OUT`` for the output folder), the G-code file that command writes and
+    the machine it writes it for (every example's default; :func:`make` checks it)."""
 
     name: str
     command: tuple[str, ...]
@@ -88,7 +89,7 @@ EXAMPLES = (
             *COARSE,
         ),
     ),
-    Example("swimmer", ("swimmer", "SWIMMER", "--out", "OUT"), gcode="swimmer.gcode", machine=""),
+    Example("swimmer", ("swimmer", "SWIMMER", "--out", "OUT"), gcode="swimmer.gcode"),
 )
 """Every example of examples/README.md whose machine file is G-code (the baromorph gives a
 DXF, the photoalignment runs laser patterns; ``fabkit toolpath`` alone writes no G-code),
@@ -128,8 +129,7 @@ def cases() -> tuple[Case, ...]:
     writes it), the profile toolpath for every G-code profile, and the writer's options
     the profiles do not choose (relative E on marlin_generic, E in volume and in pulses,
     nominal E in relative and absolute mode)."""
-    swimmer_machine = _swimmer_machine()
-    own = [Case(e.name, e.name, e.machine or swimmer_machine) for e in EXAMPLES]
+    own = [Case(e.name, e.name, e.machine) for e in EXAMPLES]
     profiles = [Case(f"{PROFILE_TOOLPATH}@{p}", PROFILE_TOOLPATH, p) for p in PROFILES[1:]]
     options = [
         Case("two_shapes@marlin_generic+relative", PROFILE_TOOLPATH, "marlin_generic",
@@ -144,16 +144,6 @@ def cases() -> tuple[Case, ...]:
              "marlin_diw_pneumatic", {"nominal_e": True, "e_mode": "absolute"}),
     ]  # fmt: skip
     return (*own, *profiles, *options)
-
-
-def _swimmer_machine() -> str:
-    """The machine examples/swimmer.toml prints on."""
-    from fabkit.swimmer.fabricate import fabrication_settings
-    from fabkit.swimmer.spec import load_swimmer
-
-    return fabrication_settings(
-        load_swimmer(ROOT / "examples" / "swimmer.toml").fabrication
-    ).machine
 
 
 def coarse_swimmer(folder: Path) -> Path:
@@ -173,11 +163,15 @@ def make(names: list[str]) -> None:
     """Run the named examples (all when empty) and store their toolpaths."""
     from fabkit.cli import main
     from fabkit.machines import load_machine
+    from fabkit.swimmer.fabricate import fabrication_settings
+    from fabkit.swimmer.spec import load_swimmer
     from fabkit.toolpath.model import load_toolpath
     from fabkit.writers.gcode import gcode_bytes
 
     TOOLPATHS.mkdir(parents=True, exist_ok=True)
-    machines = {c.toolpath: c.machine for c in cases() if c.name == c.toolpath}
+    table = load_swimmer(ROOT / "examples" / "swimmer.toml").fabrication
+    if fabrication_settings(table).machine != EXAMPLES[-1].machine:
+        raise SystemExit("examples/swimmer.toml prints on another machine: update EXAMPLES")
     for example in EXAMPLES:
         if names and example.name not in names:
             continue
@@ -197,7 +191,7 @@ def make(names: list[str]) -> None:
             target = TOOLPATHS / f"{example.name}.npz"
             shutil.copyfile(source, target)
             written = (out / example.gcode).read_bytes()
-            again, _ = gcode_bytes(load_toolpath(target), load_machine(machines[example.name]))
+            again, _ = gcode_bytes(load_toolpath(target), load_machine(example.machine))
             if written != again:
                 raise SystemExit(
                     f"{example.name}: the G-code written again from the stored toolpath "
