@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fabkit.design import kernels, solver
+from fabkit.design import batch, kernels, march, solver
 from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES, example_table
 
@@ -49,20 +49,20 @@ def test_rates_at_the_masked_points_do_not_depend_on_the_others():
     """A point's rates and failure are its own: computed alone, with others, or for every
     point, they are the same; off the mask there are none (index -1, code 0)."""
     problem, state = diagonal_state()
-    (du_all, dv_all, at_all), failed_all = solver._rates(problem, state)
+    (du_all, dv_all, at_all), failed_all = march.point_rates(problem, state)
     assert np.array_equal(at_all.ravel(), np.arange(at_all.size))
-    assert failed_all[0, 2] == solver.ALPHA
+    assert failed_all[0, 2] == batch.ALPHA
     assert (failed_all[:, [0, 1, 3]] == 0).all()
     mask = np.zeros(failed_all.shape, dtype=bool)
     mask[0, 2] = mask[1, 1:4] = mask[-1, -1] = True
-    (du, dv, at), failed = solver._rates(problem, state, mask)
+    (du, dv, at), failed = march.point_rates(problem, state, mask)
     assert np.array_equal(failed, np.where(mask, failed_all, 0))
     assert np.array_equal(at[mask], np.arange(mask.sum())) and (at[~mask] == -1).all()
     for every, some in ((du_all, du), (dv_all, dv)):
         assert every.keys() == some.keys()
         for key, value in some.items():
             assert np.array_equal(value, every[key][at_all[mask]]), key
-    (du_none, _, at_none), failed_none = solver._rates(problem, state, np.zeros_like(mask))
+    (du_none, _, at_none), failed_none = march.point_rates(problem, state, np.zeros_like(mask))
     assert not failed_none.any() and len(du_none["beta"]) == 0 and (at_none == -1).all()
 
 
@@ -144,4 +144,4 @@ def test_cross_derivatives_from_eps_along_the_diagonal():
 
 def test_the_kernels_failure_codes_are_the_solvers():
     for name in ("NON_FINITE", "ALPHA", "BETA", "LAMBDA", "STRAIN", "ISOTROPIC", "DET_M", "CHART"):
-        assert getattr(kernels, name) == getattr(solver, name), name
+        assert getattr(kernels, name) == getattr(batch, name), name

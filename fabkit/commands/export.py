@@ -13,7 +13,7 @@ from fabkit import commands
 from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.machines import RELATIONS
 from fabkit.writers.common import FORMATS, IMAGE_FORMATS
-from fabkit.writers.gcode import E_MODES, E_UNITS, GcodeOptions
+from fabkit.writers.gcode_setup import E_MODES, E_UNITS, GcodeOptions
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -1,7 +1,8 @@
 """Writers: toolpaths and director fields as machine files.
 
 * :mod:`fabkit.writers.gcode` -- G-code for printers and dispensers (Marlin, Klipper,
-  RepRapFirmware, GRBL, Hyrel), checked against the machine profile before writing.
+  RepRapFirmware, GRBL, Hyrel), checked against the machine profile before writing;
+  its stages are ``gcode_setup``, ``gcode_rows``, ``gcode_checks`` and ``gcode_header``.
 * :mod:`fabkit.writers.dxf` -- DXF drawings (paths, travels, channels, outline, inlet).
 * :mod:`fabkit.writers.laser` -- photoalignment patterns: angle and dose maps, binned DMD
   masks with a JSON manifest, scan lines for scanning writers.
