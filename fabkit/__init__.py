@@ -32,6 +32,7 @@ import importlib
 import types
 
 from fabkit.errors import FabkitError
+from fabkit.version import __version__
 
 TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (5 ms)
 if TYPE_CHECKING:  # what the lazy names are, for type checkers and editors
@@ -49,7 +50,6 @@ if TYPE_CHECKING:  # what the lazy names are, for type checkers and editors
     from fabkit.toolpath.plan import Plan
     from fabkit.verify.machine_file import Verification
 
-__version__ = "0.1.0"
 
 _PUBLIC = {
     "load_spec": "fabkit.problem.spec:load_spec",

@@ -23,9 +23,9 @@ import traceback
 from collections.abc import Iterable
 from typing import NoReturn
 
-import fabkit
 from fabkit.commands import COMMANDS
 from fabkit.errors import FabkitError
+from fabkit.version import __version__
 
 
 class _UsageError(Exception):
@@ -50,7 +50,7 @@ def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentPars
         prog="fabkit",
         description="Design flat active sheets that morph into several shapes, and make them.",
     )
-    parser.add_argument("--version", action="version", version=f"fabkit {fabkit.__version__}")
+    parser.add_argument("--version", action="version", version=f"fabkit {__version__}")
     parser.add_argument(
         "--debug", action="store_true", help="print the traceback of an internal error"
     )

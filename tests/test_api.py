@@ -22,9 +22,9 @@ from tests.conftest import ROOT
 HEAVY = ("numpy", "scipy", "matplotlib", "shapely", "sympy", "trimesh", "ezdxf", "PIL")
 """Libraries a stage imports: ``import fabkit`` loads none of them."""
 
-LIGHT = {"fabkit", "fabkit.errors", "fabkit.verify"}
-"""The fabkit modules ``import fabkit`` loads: the package, its error type and the
-callable :mod:`fabkit.verify` package (a docstring)."""
+LIGHT = {"fabkit", "fabkit.errors", "fabkit.version", "fabkit.verify"}
+"""The fabkit modules ``import fabkit`` loads: the package, its error type, its version
+and the callable :mod:`fabkit.verify` package (a docstring)."""
 
 
 def docs_script() -> str:

@@ -23,9 +23,9 @@ from hypothesis import HealthCheck, assume, event, given, settings
 from hypothesis import strategies as st
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.read import GcodeError, commands_from_lines, read_grbl, read_marlin
 from fabkit.link.arcs import NEAR_FULL
 from fabkit.link.emulator.grbl import grbl_clean
-from fabkit.link.gcode import GcodeError, commands_from_lines, read_grbl, read_marlin
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from tests.test_link_support import quick, run_sim

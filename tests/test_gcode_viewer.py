@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from fabkit.errors import FabkitError
-from fabkit.link.gcode import commands_from_lines
+from fabkit.gcode.read import commands_from_lines
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from fabkit.toolpath import PRINT, Layer, Move, Toolpath

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from fabkit.errors import FabkitError
-from fabkit.link.gcode import (
+from fabkit.gcode.read import (
     MAX_JOB_BYTES,
     MAX_LINE_CHARS,
     code_of,

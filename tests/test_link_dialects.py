@@ -8,11 +8,11 @@ import time
 import pytest
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.read import frame_marlin
 from fabkit.link import dialects
 from fabkit.link.dialects import classify, identify
 from fabkit.link.emulator.dialects import DIALECTS
 from fabkit.link.emulator.port import Emulator, config_from_url
-from fabkit.link.gcode import frame_marlin
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
 from fabkit.machines import load_machine

@@ -6,9 +6,9 @@ import pytest
 import serial
 
 import fabkit.link  # noqa: F401  (registers sim://)
+from fabkit.gcode.read import frame_marlin
 from fabkit.link.emulator import protocol_sim
 from fabkit.link.emulator.port import Emulator, config_from_url
-from fabkit.link.gcode import frame_marlin
 
 
 def marlin(options: str = "", now: float = 0.0) -> Emulator:

@@ -9,8 +9,8 @@ import threading
 import pytest
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.read import Command, commands_from_lines
 from fabkit.link.emulator.firmware import Counters
-from fabkit.link.gcode import Command, commands_from_lines
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
 from fabkit.link.host.session import LinkControl, SendReport

@@ -12,9 +12,9 @@ import re
 import pytest
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.read import commands_from_lines
 from fabkit.link import dialects
 from fabkit.link.dialects import classify, identify
-from fabkit.link.gcode import commands_from_lines
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
 from fabkit.machines import load_machine

@@ -11,7 +11,7 @@ from dataclasses import replace
 import pytest
 
 from fabkit.errors import FabkitError
-from fabkit.link.gcode import Command, commands_from_lines
+from fabkit.gcode.read import Command, commands_from_lines
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
 from fabkit.link.host.session import LinkControl

@@ -27,7 +27,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from fabkit.errors import FabkitError
-from fabkit.link.gcode import commands_from_lines, marlin_checksum
+from fabkit.gcode.read import commands_from_lines, marlin_checksum
 from fabkit.link.host.send import stream_job
 from fabkit.link.host.session import LinkOptions
 from fabkit.machines import load_machine

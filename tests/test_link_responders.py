@@ -32,7 +32,7 @@ from collections import deque
 import pytest
 import serial
 
-from fabkit.link.gcode import Command, frame_marlin, marlin_checksum
+from fabkit.gcode.read import Command, frame_marlin, marlin_checksum
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
 from fabkit.link.host.session import LinkOptions

@@ -6,8 +6,8 @@ import random
 import re
 import time
 
+from fabkit.gcode.read import Command, commands_from_lines
 from fabkit.link.emulator.port import Emulator
-from fabkit.link.gcode import Command, commands_from_lines
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
 from fabkit.link.host.session import LinkOptions, SendReport

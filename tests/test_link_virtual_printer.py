@@ -23,7 +23,7 @@ import time
 
 import pytest
 
-from fabkit.link.gcode import commands_from_lines
+from fabkit.gcode.read import commands_from_lines
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
 from fabkit.machines import load_machine

@@ -14,7 +14,7 @@ import pytest
 import serial
 from octoprint.plugins.virtual_printer import virtual
 
-from fabkit.link.gcode import frame_marlin
+from fabkit.gcode.read import frame_marlin
 from tests.virtual_printer import DEFAULT_SETTINGS, VirtualPrinterPort, ping_pong_send
 
 QUIET = {"simulateReset": False, "sendWait": False}  # no boot banner, no idle "wait"

@@ -15,7 +15,7 @@ from PIL import Image
 
 from fabkit.errors import FabkitError
 from fabkit.field.flat import field_from_design
-from fabkit.link.gcode import read_job
+from fabkit.gcode.read import read_job
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from fabkit.process import Calibration, Encode, Process

@@ -60,7 +60,7 @@ from unittest import mock
 import serial
 from octoprint.plugins.virtual_printer import VirtualPrinterPlugin, virtual
 
-from fabkit.link.gcode import frame_marlin
+from fabkit.gcode.read import frame_marlin
 
 DEFAULT_SETTINGS: dict[str, Any] = VirtualPrinterPlugin().get_settings_defaults()
 """The virtual printer plugin's defaults, as OctoPrint starts it."""

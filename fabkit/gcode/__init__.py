@@ -1,1 +1,4 @@
-"""The G-code language once: the modal state every reader of a job shares."""
+"""The G-code language once: how each firmware reads a command (:mod:`~fabkit.gcode.read`),
+its distance modes (:mod:`~fabkit.gcode.modes`) and where its moves go
+(:mod:`~fabkit.gcode.position`); every reader of a job (the pre-flight check,
+``fabkit verify``, the duration estimate) goes through these."""

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from fabkit.link.gcode import GcodeError
+from fabkit.gcode.read import GcodeError
 
 NEAR_FULL = 1e-4
 """Sweeps closer than this (rad) to 0 or a full turn are checked as full circles."""

@@ -39,8 +39,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from fabkit.gcode.modes import DistanceModes
-from fabkit.link.gcode import Command, code_of, words
+from fabkit.gcode.position import MOTION, Position
+from fabkit.gcode.read import Block, Command, GcodeError, firmware_reader
 from fabkit.machines import MachineProfile
 from fabkit.progress import clock
 
@@ -48,8 +48,6 @@ STOPS = frozenset({"G4", "M400", "G28", "G29", "M109", "M190", "M0", "M1", "M600
 """Commands that wait until every planned move has ended (the planner empties)."""
 UNKNOWN_TIME = frozenset({"G28", "G29", "M109", "M190", "M0", "M1", "M600", "M226", "$H"})
 """Commands whose duration depends on the machine (homing, heating, the user)."""
-_MOVES = frozenset({"G0", "G1", "G2", "G3"})
-_AXES = "XYZE"
 MIN_JUNCTION_MM_S = 0.05  # Marlin's MINIMUM_PLANNER_SPEED
 
 
@@ -152,85 +150,78 @@ class _Block:
     entry: float = 0.0
 
 
+_AXIS_COMMANDS = frozenset({"G92", "G28", "G30", "G10", "G53", "G38.2", "G38.3", "G38.4", "G38.5"})
+"""GRBL commands that take a block's axis words themselves (gcode.c: ``axis_command``);
+without one, axis words move the machine in the modal motion mode."""
+
+
 class _Walker:
-    """Modal state while walking a job (logical mm; feed mm/s, or 1/s under G93)."""
+    """Modal state while walking a job: the position (logical mm,
+    :class:`~fabkit.gcode.position.Position`), the feed (mm/s, or 1/s under G93) and the
+    motion mode."""
 
     def __init__(self, kinematics: Kinematics, flavour: str) -> None:
         self.k = kinematics
-        self.pos: list[float | None] = [None, None, None, None]
-        self.modes = DistanceModes.assumed(flavour)
+        self.position = Position.start(flavour)
         self.feed: float | None = None
         self.inverse = False  # GRBL G93: F is 1/min, the block's own
         self.motion = "G1"
 
-    def step(self, code: str, values: dict[str, float]) -> list[float] | None:
-        """Apply one command; the move it makes as X, Y, Z, E deltas, or None."""
+    def step(self, block: Block) -> list[float] | None:
+        """Apply one command as its firmware read it; the move it makes as X, Y, Z, E
+        deltas, or None."""
         grbl = self.k.rapid_mm_s is not None
+        codes, values = block.codes, block.values
         given = values["F"] / 60.0 if values.get("F", 0.0) > 0 else None
-        if grbl and code in ("G93", "G94") and self.inverse != (code == "G93"):
-            self.inverse = code == "G93"
+        mode = next((c for c in codes if c in ("G93", "G94")), None)
+        if grbl and mode is not None and self.inverse != (mode == "G93"):
+            self.inverse = mode == "G93"
             self.feed = None  # a switch of feed mode does not carry the last F
         if self.inverse:
             self.feed = given  # zeroed before and after every block (gcode.c)
         elif given is not None:
             self.feed = given
-        if grbl and code in ("M2", "M30"):
+        if grbl and ("M2" in codes or "M30" in codes):
             self.inverse = False  # program end: G94
-        self.modes.apply(code)  # G90, G91, M82, M83
-        if code == "G92":
-            for i, axis in enumerate(_AXES):
-                if axis in values:
-                    self.pos[i] = values[axis]
-        elif code in ("G28", "$H"):
-            named = [axis for axis in "XYZ" if axis in values] or list("XYZ")
-            for axis in named:
-                self.pos[_AXES.index(axis)] = 0.0
-        if code in _MOVES:
-            self.motion = code
-            return self._move(values)
-        if code in ("X", "Y", "Z") and self.k.rapid_mm_s is not None:  # GRBL modal motion
-            return self._move(values)
-        return None
-
-    def _move(self, values: dict[str, float]) -> list[float] | None:
-        deltas = [0.0, 0.0, 0.0, 0.0]
-        moved = False
-        for i, axis in enumerate(_AXES):
-            if axis not in values:
-                continue
-            relative = self.modes.e_relative_or_marlin() if axis == "E" else not self.modes.absolute
-            absolute = not relative
-            start = self.pos[i]
-            end = values[axis] if absolute else None if start is None else start + values[axis]
-            if start is not None and end is not None:
-                deltas[i] = end - start
-            self.pos[i] = end
-            moved = True
-        return deltas if moved else None
+        for code in codes:
+            self.position.apply(code, values, block.flags)  # G90/G91/M82/M83, G92, G28
+        motion = next((c for c in codes if c in MOTION), None)
+        if motion is not None:
+            self.motion = motion
+        elif not (grbl and not set(codes) & _AXIS_COMMANDS):
+            return None  # GRBL's modal motion: axis words alone move in the last mode
+        move = self.position.move(values)
+        return None if move is None else list(move.deltas())
 
 
 def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
-    """Plan ``job`` on ``machine`` (see the module docstring)."""
+    """Plan ``job`` on ``machine`` (see the module docstring). Each command is read as the
+    machine's firmware reads it (:func:`~fabkit.gcode.read.firmware_reader`); one it
+    refuses moves nothing (the pre-flight check names it)."""
     kinematics = Kinematics.of(machine)
     walker = _Walker(kinematics, machine.flavour)
+    read = firmware_reader(machine)
     blocks: list[_Block] = []
     dwell_after: dict[int, float] = {}
     positions: list[tuple[float | None, ...]] = []
     waits: list[str] = []
     segments: list[list[_Block]] = [blocks]
     for index, command in enumerate(job):
-        code = code_of(command.text)
-        values = words(command.text)
-        deltas = walker.step(code, values)
-        positions.append(tuple(walker.pos))
+        try:
+            block = read(command.text)
+        except GcodeError:
+            block = Block(())
+        deltas = walker.step(block)
+        positions.append(tuple(walker.position.logical))
         if deltas is not None:
-            block = _block(deltas, walker.motion, values, walker, kinematics, index)
-            if block is not None:
-                segments[-1].append(block)
-        if code in STOPS:
-            if code in UNKNOWN_TIME:
-                waits.append(code)
-            if code == "G4":
+            planned = _block(deltas, walker.motion, block.values, walker, kinematics, index)
+            if planned is not None:
+                segments[-1].append(planned)
+        stops = [code for code in block.codes if code in STOPS]
+        if stops:
+            waits += [code for code in stops if code in UNKNOWN_TIME]
+            if "G4" in stops:
+                values = block.values
                 dwell_after[index] = values.get("P", 0.0) / 1000.0 + values.get("S", 0.0)
             segments.append([])
     finish = [0.0] * len(job)

@@ -1,10 +1,10 @@
 """Read a G-code file back as the machine runs it: where material goes, and how.
 
-Every command is read by the firmware's own reader (:mod:`fabkit.link.gcode`: GRBL, or
-Marlin and the Marlin-likes) and followed through the machine's modal state: absolute or
-relative positions (G90/G91) and E (M82/M83, and G91 as each firmware reads it:
-:class:`fabkit.gcode.modes.DistanceModes`),
-G92 position shifts, homing (G28: the homed axes at 0), the feed (F, mm/min), the
+Every command is read by the firmware's own reader (:mod:`fabkit.gcode.read`: GRBL, or
+Marlin and the Marlin-likes) and followed through the machine's modal state: the position
+(:class:`fabkit.gcode.position.Position`: absolute or relative positions (G90/G91) and E
+(M82/M83, and G91 as each firmware reads it), G92 position shifts, homing (G28: the homed
+axes at 0); E at 0 when the file starts, as a firmware powers up), the feed (F, mm/min), the
 material switches of the profile (``flow_on_gcode`` / ``flow_off_gcode`` for the first
 ink, ``ink2_on_gcode`` / ``ink2_off_gcode`` for the second: valves, a beam or tool
 changes), the dispense pressure (the profile's ``[pressure]`` command ``S<n>``), the
@@ -32,14 +32,13 @@ from pathlib import Path
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.gcode.modes import DistanceModes
-from fabkit.link.gcode import (
+from fabkit.gcode.position import Position
+from fabkit.gcode.read import (
     Block,
     GcodeError,
+    firmware_reader,
     is_extended,
-    read_grbl,
     read_job,
-    read_marlin,
 )
 from fabkit.machines import MachineProfile
 
@@ -99,7 +98,7 @@ class _Machine:
             raise FabkitError(f"machine {machine.name} takes no G-code (flavour none)")
         self.machine = machine
         self.grbl = machine.flavour == "grbl"
-        self.extra = "A" if self.grbl and machine.kind == "laser_writer" else ""
+        self.read = firmware_reader(machine)
         self.has_e = not machine.gcode.flow_on_gcode.strip()
         if not self.has_e:
             self.e_per_mm3 = 0.0
@@ -109,10 +108,7 @@ class _Machine:
             self.e_per_mm3 = e_per_mm3(machine)
         self.switches = self._switches()
         self.pressure_block = self.read(machine.pressure.command) if machine.pressure else None
-        self.modes = DistanceModes.assumed("grbl" if self.grbl else machine.flavour)
-        self.position = [math.nan] * 3  # logical, mm
-        self.shift = [0.0] * 3  # machine = logical + shift
-        self.e = 0.0
+        self.position = Position.start("grbl" if self.grbl else machine.flavour, e_mm=0.0)
         self.feed = math.nan
         self.on = {"first": False, "second": False}
         self.pressure = math.nan
@@ -122,11 +118,6 @@ class _Machine:
         self.depositing = False
         self.road = -1
         self.rows: list[tuple] = []
-
-    def read(self, text: str) -> Block:
-        if self.grbl:
-            return read_grbl(text, self.extra)
-        return read_marlin(text, upper=self.machine.flavour == "klipper")
 
     def _switches(self) -> dict[tuple, tuple[str, bool]]:
         """The profile's material switch lines, by their reading (a line that is both an
@@ -147,39 +138,14 @@ class _Machine:
             self.pressure = float(self.machine.pressure.kpa(block.values["S"]))
             return
         for code in block.codes:
+            if self.position.apply(code, block.values, block.flags):  # modes, G92, G28
+                self.depositing = self.depositing and code != "G28"
+                continue
             handler = getattr(self, "_" + code.replace(".", "_"), None)
             if handler is not None:
                 handler(block)
 
-    # -- modes and positions ----------------------------------------------------------
-
-    def _G90(self, block: Block) -> None:
-        self.modes.apply("G90")
-
-    def _G91(self, block: Block) -> None:
-        self.modes.apply("G91")
-
-    def _M82(self, block: Block) -> None:
-        self.modes.apply("M82")
-
-    def _M83(self, block: Block) -> None:
-        self.modes.apply("M83")
-
-    def _G92(self, block: Block) -> None:
-        for axis, letter in enumerate("XYZ"):
-            if letter in block.values:
-                machine = self.position[axis] + self.shift[axis]
-                self.position[axis] = block.values[letter]
-                self.shift[axis] = machine - block.values[letter]
-        if "E" in block.values:
-            self.e = block.values["E"]
-
-    def _G28(self, block: Block) -> None:
-        axes = [a for a, letter in enumerate("XYZ") if letter in block.flags | set(block.values)]
-        for axis in axes or range(3):
-            self.position[axis] = 0.0
-            self.shift[axis] = 0.0
-        self.depositing = False
+    # -- motion ---------------------------------------------------------------------
 
     def _G2(self, block: Block) -> None:
         raise GcodeError("verify does not follow arcs (G2/G3)")
@@ -214,17 +180,12 @@ class _Machine:
         values = block.values
         if "F" in values:
             self.feed = values["F"] / 60.0
-        old = [p + s for p, s in zip(self.position, self.shift, strict=True)]
-        for axis, letter in enumerate("XYZ"):
-            if letter in values:
-                step = values[letter]
-                self.position[axis] = step if self.modes.absolute else self.position[axis] + step
-        new = [p + s for p, s in zip(self.position, self.shift, strict=True)]
-        delta_e = 0.0
-        if "E" in values:
-            relative = self.modes.e_relative_or_marlin()
-            delta_e = values["E"] if relative else values["E"] - self.e
-            self.e = self.e + values["E"] if relative else values["E"]
+        move = self.position.move(values)
+        if move is None:
+            return
+        old = [math.nan if v is None else v for v in move.machine_start]
+        new = [math.nan if v is None else v for v in move.machine_end]
+        delta_e = move.deltas()[3]
         moved = _differ(old[0], new[0]) or _differ(old[1], new[1])
         flowing = delta_e > 0 if self.has_e else (self.on["first"] or self.on["second"])
         if not (flowing and moved):

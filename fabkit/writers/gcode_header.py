@@ -10,9 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-import fabkit
 from fabkit.machines import MachineProfile
 from fabkit.toolpath.model import Toolpath
+from fabkit.version import __version__
 from fabkit.writers.gcode_checks import Kinematics
 from fabkit.writers.gcode_rows import Paths, Rows, column_bounds
 from fabkit.writers.gcode_setup import Setup
@@ -82,7 +82,7 @@ def header_bytes(
     heights = sorted({layer.height_mm for layer in toolpath.layers})
     lines = [
         f";FLAVOR:{_FLAVOUR_NAMES.get(machine.flavour, machine.flavour)}",
-        f";Generated with fabkit {fabkit.__version__} for machine {machine.name}",
+        f";Generated with fabkit {__version__} for machine {machine.name}",
         f";TIME:{round(summary.duration_s)}",
     ]
     if setup.e_units == "filament":

@@ -178,7 +178,9 @@ def _unsupported(name: str, toolpath: Toolpath, machine: MachineProfile) -> str:
 
 
 def _profile_e_mode(machine: MachineProfile) -> str:
-    """The E mode the start G-code selects (the last M82/M83 in it), else relative."""
+    """The E mode the profile prefers: the last M82/M83 its start G-code names, else
+    relative (a preference, not a reading of the machine's state: the file then selects
+    its mode itself, M83 or M82 with G92 E0, after the start G-code)."""
     mode = "relative"
     for line in machine.render("start_gcode"):
         word = line.split(";")[0].split()

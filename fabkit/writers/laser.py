@@ -57,7 +57,6 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
-import fabkit
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile
 from fabkit.toolpath.exposure import (
@@ -68,6 +67,7 @@ from fabkit.toolpath.exposure import (
     LaserSettings,
     plan_exposures,
 )
+from fabkit.version import __version__
 from fabkit.writers.common import (
     IMAGE_FORMATS,
     check_inside,
@@ -313,7 +313,7 @@ def _manifest(
     half_bin = 90.0 / settings.bins
     return {
         "format": MANIFEST_FORMAT,
-        "generator": f"fabkit {fabkit.__version__}",
+        "generator": f"fabkit {__version__}",
         "machine": machine.name,
         "angle_convention": ANGLE_CONVENTION,
         "pixel_pitch_mm": grid.pixel_mm,
@@ -406,7 +406,7 @@ def _scan_text(
     prefix = np.tile([0, 1], n)
     body = render(prefix, ("G0", "G1"), values, np.isfinite(values), _SCAN_WORDS)
     head = [
-        f"; fabkit {fabkit.__version__} laser scan for {machine.name}",
+        f"; fabkit {__version__} laser scan for {machine.name}",
         f"; {ANGLE_CONVENTION}",
         "; A = half-wave-plate fast axis (deg), S = laser power (mW), F = mm/min; "
         "G0 moves with the beam off",

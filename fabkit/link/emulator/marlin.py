@@ -18,6 +18,7 @@ import re
 from collections import deque
 from dataclasses import dataclass, replace
 
+from fabkit.gcode.read import code_of, marlin_checksum, words
 from fabkit.link.emulator.dialects import DIALECTS, Dialect
 from fabkit.link.emulator.firmware import (
     INF,
@@ -26,7 +27,6 @@ from fabkit.link.emulator.firmware import (
     Heater,
     TraceEntry,
 )
-from fabkit.link.gcode import code_of, marlin_checksum, words
 
 MAX_CMD_SIZE = 96
 NOISE_LINES = (

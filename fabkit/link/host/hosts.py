@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from fabkit.errors import FabkitError
-from fabkit.link.gcode import line_ends
+from fabkit.gcode.read import line_ends
 from fabkit.link.host.job import DryRun, PreparedJob, keys, log_file, prepare_job
 from fabkit.link.host.moonraker import Moonraker
 from fabkit.link.host.octoprint import OctoPrint

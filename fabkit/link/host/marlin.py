@@ -109,9 +109,9 @@ import time
 from collections import deque
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.read import code_of, frame_marlin
 from fabkit.link import dialects
 from fabkit.link.dialects import Answer, classify
-from fabkit.link.gcode import code_of, frame_marlin
 from fabkit.link.host.one_by_one import OneByOne
 from fabkit.link.host.session import SendReport, Session
 

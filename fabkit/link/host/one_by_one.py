@@ -23,10 +23,10 @@ from collections.abc import Sequence
 from typing import Protocol
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.read import Command, code_of, frame_marlin
 from fabkit.link import dialects
 from fabkit.link.dialects import Answer, classify
 from fabkit.link.duration import STOPS, estimate
-from fabkit.link.gcode import Command, code_of, frame_marlin
 from fabkit.link.host.session import LinkControl, LinkOptions
 from fabkit.machines import MachineProfile
 

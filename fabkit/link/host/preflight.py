@@ -1,7 +1,7 @@
 """Check a job against a machine profile before a single byte is sent.
 
 :func:`check_job` reads every command as the machine's firmware will
-(:func:`~fabkit.link.gcode.read_grbl` for GRBL, :func:`~fabkit.link.gcode.read_marlin`
+(:func:`~fabkit.gcode.read.read_grbl` for GRBL, :func:`~fabkit.gcode.read.read_marlin`
 for Marlin, Klipper, RepRapFirmware and Hyrel), follows the firmware's modal state in
 machine coordinates (:mod:`~fabkit.link.host.preflight_grbl`,
 :mod:`~fabkit.link.host.preflight_marlin`, :mod:`~fabkit.link.host.tracker`) and refuses
@@ -20,14 +20,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from fabkit.errors import FabkitError
-from fabkit.link.gcode import (
+from fabkit.gcode.read import (
     Block,
     Command,
     GcodeError,
-    is_extended,
-    read_extended,
-    read_grbl,
-    read_marlin,
+    firmware_reader,
 )
 from fabkit.link.host.preflight_grbl import GrblDialect
 from fabkit.link.host.preflight_marlin import MarlinDialect
@@ -78,6 +75,7 @@ class _Checker:
         self.machine = machine
         self.grbl = machine.flavour == "grbl"
         self.extra_axes = "A" if self.grbl and machine.kind == "laser_writer" else ""
+        self.read = firmware_reader(machine)  # text -> Block, as the firmware reads it
         self.tracker = Tracker(machine)
         snippets = {key: self._snippet(key) for key in GCODE_KEYS}
         self.flow_on_codes = {code for line in snippets["flow_on_gcode"] for code in line.codes}
@@ -108,14 +106,6 @@ class _Checker:
         self.dialect.run(text, block)
         if not self.tracker.flow_on:  # the firmware stopped the flow (GRBL's M2, M30)
             self.inks_on = [False, False]
-
-    def read(self, text: str) -> Block:
-        """``text`` as the machine's firmware reads it."""
-        if self.grbl:
-            return read_grbl(text, self.extra_axes)
-        if self.machine.flavour == "klipper" and is_extended(text):
-            return read_extended(text)
-        return read_marlin(text, upper=self.machine.flavour == "klipper")
 
     def _check_text(self, text: str) -> None:
         limit = MAX_GRBL_CHARS if self.grbl else MAX_MARLIN_CHARS

@@ -23,8 +23,9 @@ Rules from gnea/grbl ``gcode.c`` (STEP 3, error checks; STEP 4, execution order)
 
 from __future__ import annotations
 
+from fabkit.gcode.modes import DistanceModes
+from fabkit.gcode.read import Block, GcodeError, grbl_reject
 from fabkit.link.arcs import Arc, centre_arc, radius_arc
-from fabkit.link.gcode import Block, GcodeError, grbl_reject
 from fabkit.link.host.tracker import AXES, ArcMove, Span, Speed, Tracker
 
 _MOTION = ("G0", "G1", "G2", "G3", "G38.2", "G38.3", "G38.4", "G38.5", "G80")
@@ -42,7 +43,7 @@ class GrblDialect:
         self.t = tracker
         self.extra = extra_axes
         self.units_mm: bool | None = None
-        self.absolute: bool | None = None
+        self.modes = DistanceModes("grbl")  # G90/G91 (GRBL has no E)
         self.inverse_time: bool | None = None
         self.motion: str | None = None
         self.plane: str | None = None
@@ -77,7 +78,8 @@ class GrblDialect:
         self.units_mm = p.units_mm
         self._tool_length(p)
         self.active = p.wcs
-        self.absolute = p.absolute
+        for code in p.g:
+            self.modes.apply(code)
         self._non_modal(p)
         self.inverse_time = p.inverse
         self.feed = p.feed
@@ -294,7 +296,8 @@ class GrblDialect:
 
     def _program_end(self) -> None:
         """M2/M30: the modes LinuxCNC resets (gcode.c [21. Program flow])."""
-        self.motion, self.plane, self.absolute, self.inverse_time = "G1", "G17", True, False
+        self.motion, self.plane, self.inverse_time = "G1", "G17", False
+        self.modes.apply("G90")
         self.active = 0
         self.t.flow_on = False
 
@@ -316,7 +319,7 @@ class _Parsed:
         self.axis_command = self._axis_command()
         self.motion = self.motion_word or dialect.motion
         self.plane = next((c for c in self.g if c in _PLANES), dialect.plane)
-        self.absolute = _mode(self.g, "G90", "G91", dialect.absolute)
+        self.absolute = _mode(self.g, "G90", "G91", dialect.modes.absolute)
         self.units_mm = True if "G21" in self.g else dialect.units_mm
         self.inverse = _mode(self.g, "G93", "G94", dialect.inverse_time)
         self.wcs = next((_WCS.index(c) for c in self.g if c in _WCS), dialect.active)

@@ -26,8 +26,8 @@ from __future__ import annotations
 from dataclasses import replace
 
 from fabkit.gcode.modes import DistanceModes
+from fabkit.gcode.read import Block, GcodeError, is_extended
 from fabkit.link.arcs import centre_arc, radius_arc
-from fabkit.link.gcode import Block, GcodeError, is_extended
 from fabkit.link.host.tracker import AXES, ArcMove, Span, Speed, Tracker
 
 _TAKES: dict[str, tuple[str, str]] = {

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, TextIO
 from serial import SerialException
 
 from fabkit.errors import FabkitError
-from fabkit.link.gcode import Command
+from fabkit.gcode.read import Command
 from fabkit.link.host.grbl import GrblProtocol
 from fabkit.link.host.job import DryRun, PreparedJob, keys, log_file, prepare_job
 from fabkit.link.host.marlin import MarlinProtocol

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 from typing import Any, Protocol, TextIO
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.read import Command
 from fabkit.link.duration import Estimate, estimate
-from fabkit.link.gcode import Command
 from fabkit.machines import MachineProfile
 from fabkit.progress import ProgressBar
 

@@ -6,7 +6,7 @@ an interval where the firmware decides (a G38 probe stops somewhere on its path)
 probing, a quick stop or a profile macro), with the reason kept for the message. The
 firmware dialects (:mod:`fabkit.link.host.preflight_grbl`, :mod:`fabkit.link.host.preflight_marlin`)
 turn each command into calls here; every refusal is a one-line
-:class:`~fabkit.link.gcode.GcodeError`.
+:class:`~fabkit.gcode.read.GcodeError`.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from fabkit.gcode.read import GcodeError
 from fabkit.link.arcs import Arc
-from fabkit.link.gcode import GcodeError
 from fabkit.machines import MachineProfile
 
 AXES = "XYZ"

@@ -19,6 +19,9 @@ module has one reader per family (rules from the firmware sources, cited at each
   outside it is refused, naming the problem.
 * :func:`read_extended`: a Klipper extended command, ``NAME KEY=VALUE ...``.
 
+:func:`firmware_reader` picks the reader of a machine profile's firmware: the pre-flight
+check, ``fabkit verify`` and the duration estimate read every command through it.
+
 Every refusal is a :class:`GcodeError` whose message lacks the file and line; the check
 adds them.
 """
@@ -27,11 +30,12 @@ from __future__ import annotations
 
 import re
 import stat
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from fabkit.errors import FabkitError
+from fabkit.machines import MachineProfile
 
 MAX_JOB_BYTES = 64 * 1024 * 1024
 """Largest G-code file ``fabkit send`` reads (bytes): a sheet's job is far smaller."""
@@ -448,3 +452,16 @@ def read_extended(text: str) -> Block:
             raise GcodeError(f"'{pair}' in '{text}' is not KEY=VALUE (letters, digits, _ . + -)")
         params[match.group(1).upper()] = match.group(2)
     return Block((name.upper(),), params=params)
+
+
+def firmware_reader(machine: MachineProfile) -> Callable[[str], Block]:
+    """The reader of ``machine``'s firmware: GRBL's (with grblHAL's ``A`` axis on a laser
+    writer), a Klipper extended command's or Marlin's (Klipper upper-cases)."""
+    if machine.flavour == "grbl":
+        extra = "A" if machine.kind == "laser_writer" else ""
+        return lambda text: read_grbl(text, extra)
+    if machine.flavour == "klipper":
+        return lambda text: (
+            read_extended(text) if is_extended(text) else read_marlin(text, upper=True)
+        )
+    return lambda text: read_marlin(text, upper=False)
