@@ -57,8 +57,8 @@ def solve(spec: Spec, progress: Callable[[int, int], None] | None = None) -> Des
     :class:`~fabkit.errors.FabkitError`); ``progress(done, total)`` is called per
     diagonal. Save the design with ``design.save(path)`` (.npz).
     """
-    from fabkit.design.report import check_grid_size
     from fabkit.design.solver import solve as solve_spec
+    from fabkit.design.summary import check_grid_size
 
     check_grid_size(spec)
     return solve_spec(spec, progress).design.knowing(spec)

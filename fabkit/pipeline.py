@@ -54,7 +54,7 @@ from fabkit.design.check import CheckReport, ResidualMaps
 from fabkit.design.design import MAX_LAYERS, Design
 from fabkit.design.layers import layered
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
-from fabkit.design.report import checked_points, solve_to_file
+from fabkit.design.summary import checked_points, solve_to_file
 from fabkit.errors import FabkitError
 from fabkit.field.flat import feature_names as design_features
 from fabkit.field.part import (
@@ -71,14 +71,14 @@ from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
 from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict, design_verdict
 from fabkit.plot import DESIGN_PICTURES, write_pictures
+from fabkit.plot.html import html_report
 from fabkit.plot.page import run_page
-from fabkit.plot.report import html_report
 from fabkit.plot.scene import scene
 from fabkit.problem.spec import Spec, load_spec
 from fabkit.process import Process
 from fabkit.toolpath.baromorph import BaromorphSettings, load_baromorph
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
-from fabkit.toolpath.process import load_process, resolve_channels
+from fabkit.toolpath.process_file import load_process, resolve_channels
 from fabkit.writers.dxf import layout_layers, write_dxf
 from fabkit.writers.export import ExportOptions, describe_dxf, write_machine_file
 

@@ -21,7 +21,7 @@ boundary does not fold over), and it is inverted cell by cell with Newton's meth
 
 This module is plain data and numbers, and :func:`parse_process`, which reads the
 ``[process]`` table of a machine profile (for :mod:`fabkit.machines`) or of a
-``--process`` file (for :mod:`fabkit.toolpath.process`) into it; the toolpath stage
+``--process`` file (for :mod:`fabkit.toolpath.process_file`) into it; the toolpath stage
 encodes with it, the writers emit the channels, and ``fabkit verify`` decodes with it.
 """
 

@@ -13,8 +13,8 @@ import pytest
 
 from fabkit.errors import FabkitError
 from fabkit.gcode.read import commands_from_lines
-from fabkit.link import dialects
-from fabkit.link.dialects import classify, identify
+from fabkit.link import answers
+from fabkit.link.answers import classify, identify
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
 from fabkit.machines import load_machine
@@ -25,21 +25,21 @@ from tests.test_link_support import HOUSEKEEPING, quick
 @pytest.mark.parametrize(
     ("line", "kind", "temperatures"),
     [
-        ("ok", dialects.OK, False),
-        ("ok B:0.0 /0.0 T0:0.0 /0.0", dialects.OK, True),  # M105 with heaters
-        ("ok B:21.4 /60.0 T0:180.2 /215.0", dialects.OK, True),
-        ("ok T:0", dialects.OK, True),  # M105 without heaters
-        ("ok FIRMWARE_NAME:Klipper FIRMWARE_VERSION:v0.13.0-730-g84104bbbd", dialects.OK, False),
-        ("B:20.1 /60.0 T0:25.0 /215.0", dialects.TEMPERATURES, False),  # M109/M190 waiting
-        ("X:0.000 Y:0.000 Z:0.000 E:0.000", dialects.POSITION, False),  # M114
-        ("!! Must home axis first: 10.000 10.000 0.000 [0.000]", dialects.FATAL, False),
-        ("!! Move out of range: 300.000 10.000 0.000 [0.000]", dialects.FATAL, False),
-        ("!! Shutdown due to M112 command", dialects.FATAL, False),
-        ("!! Printer is not ready", dialects.FATAL, False),
-        ("// Klipper state: Shutdown", dialects.FATAL, False),
-        ("// Klipper state: Disconnect", dialects.FATAL, False),
-        ("// Klipper state: Ready", dialects.INFO, False),
-        ("// Printer is shutdown", dialects.INFO, False),
+        ("ok", answers.OK, False),
+        ("ok B:0.0 /0.0 T0:0.0 /0.0", answers.OK, True),  # M105 with heaters
+        ("ok B:21.4 /60.0 T0:180.2 /215.0", answers.OK, True),
+        ("ok T:0", answers.OK, True),  # M105 without heaters
+        ("ok FIRMWARE_NAME:Klipper FIRMWARE_VERSION:v0.13.0-730-g84104bbbd", answers.OK, False),
+        ("B:20.1 /60.0 T0:25.0 /215.0", answers.TEMPERATURES, False),  # M109/M190 waiting
+        ("X:0.000 Y:0.000 Z:0.000 E:0.000", answers.POSITION, False),  # M114
+        ("!! Must home axis first: 10.000 10.000 0.000 [0.000]", answers.FATAL, False),
+        ("!! Move out of range: 300.000 10.000 0.000 [0.000]", answers.FATAL, False),
+        ("!! Shutdown due to M112 command", answers.FATAL, False),
+        ("!! Printer is not ready", answers.FATAL, False),
+        ("// Klipper state: Shutdown", answers.FATAL, False),
+        ("// Klipper state: Disconnect", answers.FATAL, False),
+        ("// Klipper state: Ready", answers.INFO, False),
+        ("// Printer is shutdown", answers.INFO, False),
     ],
 )
 def test_every_klipper_answer_form(line, kind, temperatures):
@@ -50,7 +50,7 @@ def test_every_klipper_answer_form(line, kind, temperatures):
 
 def test_klipper_unknown_command_names_the_command():
     answer = classify('// Unknown command:"FOO"')
-    assert (answer.kind, answer.text) == (dialects.UNKNOWN_COMMAND, "FOO")
+    assert (answer.kind, answer.text) == (answers.UNKNOWN_COMMAND, "FOO")
 
 
 def test_klipper_is_known_by_its_m115_and_never_asked_for_a_resend():

@@ -13,8 +13,8 @@ import pytest
 
 from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
-from fabkit.design.report import realised_areas
 from fabkit.design.solver import solve
+from fabkit.design.summary import realised_areas
 from fabkit.errors import FabkitError
 from fabkit.optimise.objective import (
     ACCEPTANCE,

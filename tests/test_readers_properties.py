@@ -33,7 +33,7 @@ from fabkit.tomlfile import Table, read_toml, scan_depth
 from fabkit.toolpath.baromorph import BaromorphSettings, load_baromorph
 from fabkit.toolpath.job import ToolpathJob, run_job
 from fabkit.toolpath.model import Toolpath, load_toolpath
-from fabkit.toolpath.process import Process, load_process
+from fabkit.toolpath.process_file import Process, load_process
 from fabkit.writers.export import load_geometry
 from tests import hostile as h
 from tests.conftest import EXAMPLES, ROOT, coarse_design

@@ -20,7 +20,7 @@ from fabkit.machines import MACHINES_DIR, load_machine
 from fabkit.problem.spec import load_spec
 from fabkit.swimmer.spec import load_swimmer
 from fabkit.toolpath.baromorph import load_baromorph
-from fabkit.toolpath.process import load_process
+from fabkit.toolpath.process_file import load_process
 from tests.conftest import ROOT
 
 EXAMPLES = ROOT / "examples"

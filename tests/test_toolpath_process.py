@@ -14,7 +14,7 @@ from fabkit.field.flat import field_from_expression, parse_shape
 from fabkit.process import Calibration, Encode
 from fabkit.toolpath.model import PRINT
 from fabkit.toolpath.plan import PlanSettings, plan_toolpath
-from fabkit.toolpath.process import load_process, machine_process
+from fabkit.toolpath.process_file import load_process, machine_process
 
 SPEED = Calibration("print_speed_mm_s", (0.0, 0.2, 0.5, 1.0), (20.0, 12.0, 6.0, 2.0))
 

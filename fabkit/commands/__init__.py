@@ -183,7 +183,7 @@ def chosen_process(args: argparse.Namespace) -> Process:
     (default marlin_diw_pneumatic), each file read once; a bad ``--machine`` is reported
     even with ``--process``."""
     from fabkit.machines import DEFAULT_MACHINE, load_machine
-    from fabkit.toolpath.process import load_process
+    from fabkit.toolpath.process_file import load_process
 
     machine = load_machine(args.machine or DEFAULT_MACHINE)
     return load_process(args.process_file) if args.process_file else machine.process
@@ -191,7 +191,7 @@ def chosen_process(args: argparse.Namespace) -> Process:
 
 def given_process(args: argparse.Namespace) -> Process | None:
     """The process of ``--process``, read once, or None (the machine's)."""
-    from fabkit.toolpath.process import load_process
+    from fabkit.toolpath.process_file import load_process
 
     return load_process(args.process_file) if args.process_file else None
 

@@ -54,7 +54,7 @@ def parse_quadrants(text: str) -> list[list[int]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fabkit.design.report import describe, solve_to_file
+    from fabkit.design.summary import describe, solve_to_file
     from fabkit.problem.spec import load_spec
 
     out = Path(args.out)

@@ -1,7 +1,7 @@
 """The machine link: the host (:mod:`~fabkit.link.host`: check G-code against a machine
 profile, stream it over serial or hand it to a printer host) and the emulated machine
 (:mod:`~fabkit.link.emulator`), sharing the G-code words and dialects
-(:mod:`~fabkit.gcode.read`, :mod:`~fabkit.link.dialects`, :mod:`~fabkit.link.arcs`,
+(:mod:`~fabkit.gcode.read`, :mod:`~fabkit.link.answers`, :mod:`~fabkit.link.arcs`,
 :mod:`~fabkit.link.duration`)."""
 
 import serial

@@ -32,7 +32,7 @@ import numpy as np
 
 from fabkit.atomic import atomic_path
 from fabkit.design.design import Design
-from fabkit.design.report import realised_areas
+from fabkit.design.summary import realised_areas
 from fabkit.errors import FabkitError
 from fabkit.figures import AREA_UNIT, cell_integral
 

@@ -27,8 +27,8 @@ from typing import Any
 from fabkit.atomic import atomic_path
 from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
-from fabkit.design.report import realised_areas
 from fabkit.design.solver import solve
+from fabkit.design.summary import realised_areas
 from fabkit.errors import FabkitError
 from fabkit.optimise.objective import Evaluation, Limits, Objective, evaluate_batch, score
 from fabkit.optimise.search import (

@@ -2,7 +2,7 @@
 
 :func:`run_page` turns ``fabkit run``'s key figures (``report.json``'s data) into a
 :class:`Page`: sections of sentences, label-value lists and flat tables, every label in
-words and every figure with its unit; :mod:`fabkit.plot.report` writes it as HTML. The
+words and every figure with its unit; :mod:`fabkit.plot.html` writes it as HTML. The
 order is what a reader asks: does the sheet form the targets (the verdict, the machine
 file, warnings), what shapes it takes (a picture per target), then the design, the part,
 the layers, the print lines, the machine file, its reading back and the send. Names a

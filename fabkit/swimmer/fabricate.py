@@ -20,7 +20,7 @@ from fabkit.tomlfile import Table
 from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.plan import PATTERNS, PlanSettings, plan_toolpath
 from fabkit.toolpath.preview import save_preview
-from fabkit.toolpath.process import machine_process
+from fabkit.toolpath.process_file import machine_process
 from fabkit.writers.export import export
 
 

@@ -50,7 +50,7 @@ from fabkit.toolpath.lines import LineSettings
 from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.mould import POLARITY, mould_mesh, save_mould
 from fabkit.toolpath.plan import Plan, PlanSettings, plan_toolpath
-from fabkit.toolpath.process import machine_process, resolve_channels
+from fabkit.toolpath.process_file import machine_process, resolve_channels
 
 
 @dataclass(frozen=True)

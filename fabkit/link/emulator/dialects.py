@@ -2,7 +2,7 @@
 
 Every fact below was read in the firmware's own source (the file is named on each
 field); the emulator (:mod:`fabkit.link.emulator.marlin`) uses them, the sender has its own
-reading of the same sources (:mod:`fabkit.link.dialects`). Line numbers and checksums
+reading of the same sources (:mod:`fabkit.link.answers`). Line numbers and checksums
 are the RepRap scheme everywhere: ``N<n> <command>*<xor of the bytes before *>``.
 
 =================  ======================================================================

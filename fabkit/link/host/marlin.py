@@ -9,7 +9,7 @@ Numbering
     to the end of the job: a job line is never renumbered and never replaced by
     anything; a probe (``M105``) takes the next number after every line already sent.
     No ``M110`` follows the handshake. The answers' wording differs between firmwares:
-    :mod:`fabkit.link.dialects` reads them all.
+    :mod:`fabkit.link.answers` reads them all.
 
 Why every line runs exactly once, in order
     A sequenced firmware accepts a numbered line only when its number is the last
@@ -110,8 +110,8 @@ from collections import deque
 
 from fabkit.errors import FabkitError
 from fabkit.gcode.read import code_of, frame_marlin
-from fabkit.link import dialects
-from fabkit.link.dialects import Answer, classify
+from fabkit.link import answers
+from fabkit.link.answers import Answer, classify
 from fabkit.link.host.one_by_one import OneByOne
 from fabkit.link.host.session import SendReport, Session
 
@@ -157,7 +157,7 @@ class MarlinProtocol(Session):
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
-        self.firmware = dialects.identify("", self.machine.flavour)
+        self.firmware = answers.identify("", self.machine.flavour)
         self.rx_usable = self.serial.rx_buffer_bytes - 1
         biggest_n = 10 ** len(str(2 * len(self.job) + 1000)) - 1
         longest = max((len(c.text) for c in self.job), default=0)
@@ -280,13 +280,13 @@ class MarlinProtocol(Session):
                 answer = classify(line)
                 if "FIRMWARE_NAME" in line:
                     report.append(line)
-                if answer.kind == dialects.RESEND:
+                if answer.kind == answers.RESEND:
                     break
-                if answer.kind == dialects.OK and (
+                if answer.kind == answers.OK and (
                     answer.temperatures or (answer.number or 0) >= last
                 ):
                     if answer.number is not None:  # acknowledged when queued: let them run
-                        report += self._read_until(dialects.TEMPERATURES, 1.0)
+                        report += self._read_until(answers.TEMPERATURES, 1.0)
                     self._configure(" ".join(report))
                     return
             self._settle()
@@ -297,7 +297,7 @@ class MarlinProtocol(Session):
 
     def _configure(self, report: str) -> None:
         """What the firmware said about itself decides the window (module docstring)."""
-        self.firmware = dialects.identify(report, self.machine.flavour)
+        self.firmware = answers.identify(report, self.machine.flavour)
         if self.firmware.drains:
             self.max_lines = min(self.max_lines, DRAINING_MAX_LINES)
         if not self.firmware.sequenced:
@@ -407,12 +407,12 @@ class MarlinProtocol(Session):
     def _on_line(self, line: str) -> None:
         answer = classify(line)
         kind = answer.kind
-        if kind == dialects.OK:
+        if kind == answers.OK:
             self._on_ok(answer)
-        elif kind == dialects.RESEND:
+        elif kind == answers.RESEND:
             self.pending_error = None  # the error before it was a line error
             self._on_refusal(answer.number)
-        elif kind == dialects.SKIP:
+        elif kind == answers.SKIP:
             self._on_refusal(None)
         else:
             self.on_other(answer, line)
@@ -420,37 +420,37 @@ class MarlinProtocol(Session):
     def on_other(self, answer: Answer, line: str) -> None:
         """Everything but acknowledgements and resend requests (both protocols' loops)."""
         kind = answer.kind
-        if kind == dialects.LINE_ERROR:
+        if kind == answers.LINE_ERROR:
             self.error_line = True
-            self.error_says = dialects.refused_line(line)
-        elif kind == dialects.ERROR:
+            self.error_says = answers.refused_line(line)
+        elif kind == answers.ERROR:
             self.pending_error = (line, time.monotonic() + ERROR_GRACE_S)
-        elif kind == dialects.FATAL:
+        elif kind == answers.FATAL:
             raise self._reported(line)
-        elif kind == dialects.OVERFLOW:
+        elif kind == answers.OVERFLOW:
             self._on_overflow(answer)
-        elif kind == dialects.START:
+        elif kind == answers.START:
             raise self.lost(self.done_lines, "the machine reset during the job")
-        elif kind == dialects.UNKNOWN_COMMAND:
+        elif kind == answers.UNKNOWN_COMMAND:
             self.unknown_echo = answer.text
-        elif kind == dialects.WAIT and self.inflight:
+        elif kind == answers.WAIT and self.inflight:
             self._want_probe()
-        elif kind == dialects.TEMPERATURES:
+        elif kind == answers.TEMPERATURES:
             heating = any(code_of(self.texts[t.n]) in ("M109", "M190") for t in self.inflight)
             if " W:" in line or heating:
                 self.heating_note = "heating " + line.strip().split(" W:")[0]
                 self.show(self.done_lines, self.heating_note)
-        elif kind == dialects.BUSY:  # its pace: a silence shorter than that is a busy command
+        elif kind == answers.BUSY:  # its pace: a silence shorter than that is a busy command
             now = time.monotonic()
             gap = now - self.last_busy_s
             if gap < 10.0:
                 self.busy_gap_s = gap if self.busy_gap_s is None else min(self.busy_gap_s, gap)
             self.last_busy_s = now
-        elif kind == dialects.POSITION and self.aborting and self.stop_point is None:
-            where = dialects.position(line)
+        elif kind == answers.POSITION and self.aborting and self.stop_point is None:
+            where = answers.position(line)
             if all(axis in where for axis in "XYZ"):
                 self.stop_point = (where["X"], where["Y"], where["Z"])
-        elif kind == dialects.OTHER and self.inflight:
+        elif kind == answers.OTHER and self.inflight:
             self._want_probe()  # perhaps a garbled answer: find out now
 
     def _reported(self, line: str) -> FabkitError:

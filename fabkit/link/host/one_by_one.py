@@ -24,8 +24,8 @@ from typing import Protocol
 
 from fabkit.errors import FabkitError
 from fabkit.gcode.read import Command, code_of, frame_marlin
-from fabkit.link import dialects
-from fabkit.link.dialects import Answer, classify
+from fabkit.link import answers
+from fabkit.link.answers import Answer, classify
 from fabkit.link.duration import STOPS, estimate
 from fabkit.link.host.session import LinkControl, LinkOptions
 from fabkit.machines import MachineProfile
@@ -144,14 +144,14 @@ class OneByOne:
     def _on_line(self, line: str) -> None:
         proto = self.proto
         answer = classify(line)
-        if answer.kind == dialects.OK:
+        if answer.kind == answers.OK:
             self._on_ok()
-        elif answer.kind == dialects.POSITION:
-            seen = dialects.position(line)
+        elif answer.kind == answers.POSITION:
+            seen = answers.position(line)
             if proto.aborting and not self.probes and all(axis in seen for axis in "XYZ"):
                 proto.stop_point = (seen["X"], seen["Y"], seen["Z"])
             self._on_position(seen)
-        elif answer.kind == dialects.RESEND and self.current is not None:
+        elif answer.kind == answers.RESEND and self.current is not None:
             proto.pending_error = None
             self._finish(ran=False)  # RepRapFirmware 2: "rs" instead of an ok
         else:

@@ -9,8 +9,8 @@ import pytest
 
 from fabkit.errors import FabkitError
 from fabkit.gcode.read import frame_marlin
-from fabkit.link import dialects
-from fabkit.link.dialects import classify, identify
+from fabkit.link import answers
+from fabkit.link.answers import classify, identify
 from fabkit.link.emulator.dialects import DIALECTS
 from fabkit.link.emulator.port import Emulator, config_from_url
 from fabkit.link.host.ports import open_port
@@ -95,38 +95,38 @@ def test_marlin_2_0_recovers_in_a_probe_not_in_seconds():
 @pytest.mark.parametrize(
     ("line", "kind", "number"),
     [
-        ("ok", dialects.OK, None),
-        ("ok N123 P15 B3", dialects.OK, 123),  # Marlin ADVANCED_OK
-        ("ok 123", dialects.OK, 123),  # Repetier ACK_WITH_LINENUMBER
-        ("Resend: 100", dialects.RESEND, 100),  # Marlin, Prusa
-        ("Resend:100", dialects.RESEND, 100),  # Repetier
-        ("rs N100", dialects.RESEND, 100),  # Smoothieware
-        ("rs Checksum error on line 100", dialects.RESEND, 100),  # RepRapFirmware 2
-        ("skip 101", dialects.SKIP, 101),  # Repetier
-        ("Error:Line Number is not Last Line Number+1, Last Line: 99", dialects.LINE_ERROR, None),
-        ("Error:checksum mismatch, Last Line: 99", dialects.LINE_ERROR, None),
-        ("Error:No Line Number with checksum, Last Line: 99", dialects.LINE_ERROR, None),
-        ("Error: expected line 100 got 101", dialects.LINE_ERROR, None),
-        ("Error:Wrong checksum", dialects.LINE_ERROR, None),
-        ("Error:Format error", dialects.LINE_ERROR, None),
-        ("Error:Printer halted. kill() called!", dialects.FATAL, None),
-        ("Error:MAXTEMP triggered, system stopped! Heater_ID: 0", dialects.FATAL, None),
-        ("!! Move out of range", dialects.FATAL, None),  # Klipper, Smoothieware
-        ("Error:Something new", dialects.ERROR, None),
-        ("Error:RX BUF overflow, increase RX_BUFFER_SIZE: 130", dialects.OVERFLOW, 130),
-        ("echo:busy: processing", dialects.BUSY, None),
-        ("busy:processing", dialects.BUSY, None),
-        ("busy: paused for user", dialects.BUSY, None),
-        ("wait", dialects.WAIT, None),
-        ('echo:Unknown command: "G12 X1"', dialects.UNKNOWN_COMMAND, None),
-        ("Unknown command:G12 X1", dialects.UNKNOWN_COMMAND, None),
-        ("Error: Bad command: 45", dialects.UNKNOWN_COMMAND, None),
-        (" T:210.00 /210.00 B:60.00 /60.00 @:0 B@:0 W:3", dialects.TEMPERATURES, None),
-        ("X:10.00 Y:20.00 Z:0.30 E:1.00 Count X:800 Y:1600 Z:120", dialects.POSITION, None),
-        ("start", dialects.START, None),
-        ("", dialects.EMPTY, None),
-        ("FIRMWARE_NAME:Marlin 2.1.2.1", dialects.INFO, None),
-        ("o\x0bk", dialects.OTHER, None),
+        ("ok", answers.OK, None),
+        ("ok N123 P15 B3", answers.OK, 123),  # Marlin ADVANCED_OK
+        ("ok 123", answers.OK, 123),  # Repetier ACK_WITH_LINENUMBER
+        ("Resend: 100", answers.RESEND, 100),  # Marlin, Prusa
+        ("Resend:100", answers.RESEND, 100),  # Repetier
+        ("rs N100", answers.RESEND, 100),  # Smoothieware
+        ("rs Checksum error on line 100", answers.RESEND, 100),  # RepRapFirmware 2
+        ("skip 101", answers.SKIP, 101),  # Repetier
+        ("Error:Line Number is not Last Line Number+1, Last Line: 99", answers.LINE_ERROR, None),
+        ("Error:checksum mismatch, Last Line: 99", answers.LINE_ERROR, None),
+        ("Error:No Line Number with checksum, Last Line: 99", answers.LINE_ERROR, None),
+        ("Error: expected line 100 got 101", answers.LINE_ERROR, None),
+        ("Error:Wrong checksum", answers.LINE_ERROR, None),
+        ("Error:Format error", answers.LINE_ERROR, None),
+        ("Error:Printer halted. kill() called!", answers.FATAL, None),
+        ("Error:MAXTEMP triggered, system stopped! Heater_ID: 0", answers.FATAL, None),
+        ("!! Move out of range", answers.FATAL, None),  # Klipper, Smoothieware
+        ("Error:Something new", answers.ERROR, None),
+        ("Error:RX BUF overflow, increase RX_BUFFER_SIZE: 130", answers.OVERFLOW, 130),
+        ("echo:busy: processing", answers.BUSY, None),
+        ("busy:processing", answers.BUSY, None),
+        ("busy: paused for user", answers.BUSY, None),
+        ("wait", answers.WAIT, None),
+        ('echo:Unknown command: "G12 X1"', answers.UNKNOWN_COMMAND, None),
+        ("Unknown command:G12 X1", answers.UNKNOWN_COMMAND, None),
+        ("Error: Bad command: 45", answers.UNKNOWN_COMMAND, None),
+        (" T:210.00 /210.00 B:60.00 /60.00 @:0 B@:0 W:3", answers.TEMPERATURES, None),
+        ("X:10.00 Y:20.00 Z:0.30 E:1.00 Count X:800 Y:1600 Z:120", answers.POSITION, None),
+        ("start", answers.START, None),
+        ("", answers.EMPTY, None),
+        ("FIRMWARE_NAME:Marlin 2.1.2.1", answers.INFO, None),
+        ("o\x0bk", answers.OTHER, None),
     ],
 )
 def test_every_wording_is_read(line, kind, number):
@@ -138,7 +138,7 @@ def test_ok_details():
     assert classify("ok T:21.0 /0.0 B:20.5 /0.0 @:0 B@:0").temperatures
     assert classify("ok - ignored").ignored  # Smoothieware: the answer to a non-command
     assert classify('echo:Unknown command: "G12 X1"').text == "G12 X1"
-    assert dialects.position("X:1.50 Y:-2.00 Z:0.30 E:4.00 Count X:1") == {
+    assert answers.position("X:1.50 Y:-2.00 Z:0.30 E:4.00 Count X:1") == {
         "X": 1.5,
         "Y": -2.0,
         "Z": 0.3,
