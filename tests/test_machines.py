@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from fabkit.calibration import CALIBRATION_PARAMETERS
 from fabkit.cli import main
 from fabkit.errors import FabkitError
 from fabkit.machines import (
@@ -15,7 +16,6 @@ from fabkit.machines import (
     list_machines,
     load_machine,
 )
-from fabkit.process import CALIBRATION_PARAMETERS
 
 SHIPPED = [
     "marlin_generic",

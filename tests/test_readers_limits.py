@@ -234,7 +234,7 @@ def test_a_mesh_never_opens_the_files_it_names(tmp_path, monkeypatch, capsys):
     import PIL.Image
     import trimesh
 
-    from fabkit.problem.surfaces.data import read_mesh
+    from fabkit.problem.surfaces.meshes import read_mesh
 
     h.png_bomb(tmp_path / "texture.png", 12_000)
     (tmp_path / "m.mtl").write_text("newmtl a\nmap_Kd texture.png\n")

@@ -26,7 +26,8 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile, load_machine
 from fabkit.npzfile import NUMBER_KINDS, read_npy, read_npz
-from fabkit.problem.surfaces.data import read_grid, read_mesh
+from fabkit.problem.surfaces.grids import read_grid
+from fabkit.problem.surfaces.meshes import read_mesh
 from fabkit.readfile import nesting_depth, parse_json
 from fabkit.swimmer.spec import SwimmerSpec, load_swimmer
 from fabkit.tomlfile import Table, read_toml, scan_depth

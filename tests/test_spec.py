@@ -7,7 +7,8 @@ import pytest
 
 from fabkit.errors import FabkitError
 from fabkit.problem.material import ACROSS, ALONG
-from fabkit.problem.spec import MAX_SOLVER_BYTES, build_spec, load_spec, solver_memory
+from fabkit.problem.solver_settings import MAX_SOLVER_BYTES, solver_memory
+from fabkit.problem.spec import build_spec, load_spec
 from tests.attack import run_bounded
 from tests.conftest import EXAMPLES
 

@@ -9,9 +9,10 @@ import dataclasses
 import numpy as np
 import pytest
 
+from fabkit.calibration import Calibration
 from fabkit.errors import FabkitError
 from fabkit.field.flat import field_from_expression, parse_shape
-from fabkit.process import Calibration, Encode
+from fabkit.process import Encode
 from fabkit.toolpath.model import PRINT
 from fabkit.toolpath.plan import PlanSettings, plan_toolpath
 from fabkit.toolpath.process_file import load_process, machine_process

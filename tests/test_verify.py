@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from fabkit.calibration import Calibration, JointCalibration
 from fabkit.errors import FabkitError
 from fabkit.field.flat import field_from_expression, parse_shape
 from fabkit.machines import load_machine
-from fabkit.process import Calibration, Encode, JointCalibration, Process
+from fabkit.process import Encode, Process
 from fabkit.toolpath.exposure import LaserSettings, sample_field
 from fabkit.toolpath.model import PRINT, Toolpath
 from fabkit.toolpath.plan import PlanSettings, plan_toolpath

@@ -13,12 +13,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from fabkit.calibration import Calibration
 from fabkit.errors import FabkitError
 from fabkit.field.flat import field_from_design
 from fabkit.gcode.read import read_job
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
-from fabkit.process import Calibration, Encode, Process
+from fabkit.process import Encode, Process
 from fabkit.toolpath.exposure import DirectorGrid, LaserSettings, bin_angles, sample_field
 from fabkit.writers.laser import write_laser
 from tests.test_writers_common import ROOT, baromorph, fig1_design_path, replay

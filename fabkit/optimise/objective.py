@@ -36,12 +36,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from fabkit.calibration import JointCalibration
 from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
 from fabkit.design.solver import solve_batch
 from fabkit.errors import FabkitError
 from fabkit.problem.spec import Spec, spec_from_json
-from fabkit.process import JointCalibration, Process
+from fabkit.process import Process
 
 SPECS_KEPT = 4
 """Specs a worker process keeps built (a search sends the same one with every batch)."""

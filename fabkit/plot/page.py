@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from fabkit.calibration import LABELS
 from fabkit.design.check import RESIDUAL_TITLES, RESIDUALS
-from fabkit.process import LABELS
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,9 @@
 See ``docs/spec.md`` for every key. Every problem a user can make in a spec is a
 :class:`FabkitError` with one line naming the file, the key path and what to fix, read
 with :class:`fabkit.tomlfile.Table` (whose module documents the wording).
+
+The ``[initial]`` table is read by :mod:`fabkit.problem.initial_data`, the ``[solver]``
+table by :mod:`fabkit.problem.solver_settings`.
 """
 
 from __future__ import annotations
@@ -18,22 +21,14 @@ import numpy as np
 
 from fabkit.atomic import check_name
 from fabkit.errors import FabkitError
-from fabkit.problem.expr import RESERVED, Expression, parse, shorten
+from fabkit.problem.expr import RESERVED, parse, shorten
+from fabkit.problem.initial_data import InitialData, check_curves, read_initial
 from fabkit.problem.material import ALONG, Material, check_unstretched
+from fabkit.problem.solver_settings import SolverSettings, read_solver
 from fabkit.problem.surfaces import Surface, build_surface
 from fabkit.problem.surfaces.base import UNBOUNDED
 from fabkit.shipped import user_or_example
 from fabkit.tomlfile import Table, read_toml, real
-
-ALL_QUADRANTS = ((1, 1), (-1, 1), (-1, -1), (1, -1))
-PERPENDICULAR_TOLERANCE = 1e-6
-"""Largest |cos| between the initial curves' tangents at t = 0 accepted as perpendicular."""
-MAX_SOLVER_BYTES = 4 * 2**30
-"""Largest memory the solver's grid may need (bytes, see :func:`solver_memory`)."""
-MIN_STEP = 1e-6
-"""Smallest grid step (design units): below, rounding dominates the cross derivatives."""
-MAX_REACH = 1e6
-"""Largest step x diagonals (design units): the grid's reach |u| + |v|."""
 
 
 @dataclass(frozen=True)
@@ -49,36 +44,6 @@ class Target:
     stimulus: tuple[float, ...]
     start: np.ndarray
     director: np.ndarray
-
-
-@dataclass(frozen=True)
-class InitialData:
-    """The Goursat data: curves on the flat sheet (parameter t) and eps with its slope.
-
-    ``eps[i]`` and ``slope[i]`` are functions of t along the u-curve for a feature acting
-    along the director (slope = q) and along the v-curve for one acting across (slope = p).
-    """
-
-    u_curve: tuple[Expression, Expression]
-    v_curve: tuple[Expression, Expression]
-    eps: tuple[Expression, ...]
-    slope: tuple[Expression, ...]
-
-
-@dataclass(frozen=True)
-class SolverSettings:
-    """Grid step (design units), diagonals per quadrant, quadrants (sign of u, sign of v).
-
-    ``tolerance``: largest accepted error estimate of a solved point (dimensionless, the
-    relative Richardson difference of its designed lengths; see docs/solver.md).
-    """
-
-    step: float = 0.05
-    diagonals: int = 200
-    quadrants: tuple[tuple[int, int], ...] = ALL_QUADRANTS
-    max_strain: float = 3.0
-    extrapolate: bool = True
-    tolerance: float = 1e-2
 
 
 OBJECTIVES = ("flat", "smallest")
@@ -139,7 +104,7 @@ class Spec:
             if value is not None:
                 solver_table[key] = [list(q) for q in value] if key == "quadrants" else value
                 labels[key] = f"--{key}"
-        solver, normalised = _solver(
+        solver, normalised = read_solver(
             Table(solver_table, "spec", "solver"), len(self.material.features), labels
         )
         return replace(self, solver=solver, normalised={**self.normalised, "solver": normalised})
@@ -162,7 +127,9 @@ class Spec:
                 target.surface, table.item("surfaces", index), optimise.values
             )
             targets.append(replace(target, start=start, director=director))
-        initial, _ = _initial(table.table("initial"), self.material, self.classes, optimise.values)
+        initial, _ = read_initial(
+            table.table("initial"), self.material, self.classes, optimise.values
+        )
         targets = _with_flat_start(tuple(targets), initial, table.at("initial"))
         _check_material_at_start(self.material, initial, targets, table.shown)
         normalised = {**self.normalised, "optimise": _optimise_table(optimise)}
@@ -200,10 +167,10 @@ def build_spec(table: Mapping[str, Any], base_dir: Path, shown: str = "spec") ->
     targets, surface_tables = _targets(top, material, base_dir, optimise.values)
     stimuli = np.array([t.stimulus for t in targets])
     classes = material.classify(stimuli[1:])
-    initial, initial_table = _initial(top.table("initial"), material, classes, optimise.values)
+    initial, initial_table = read_initial(top.table("initial"), material, classes, optimise.values)
     targets = _with_flat_start(targets, initial, top.at("initial"))
     _check_material_at_start(material, initial, targets, shown)
-    solver, solver_table = _solver(top.table("solver", default={}), len(material.features))
+    solver, solver_table = read_solver(top.table("solver", default={}), len(material.features))
     normalised = {
         "material": material_table,
         "surfaces": surface_tables,
@@ -220,7 +187,7 @@ def _with_flat_start(
 ) -> tuple[Target, ...]:
     """The targets with the flat sheet's start point and director from the initial curves
     (the ``[initial]`` table at ``where``)."""
-    u_start, director = _check_curves(initial, where)
+    u_start, director = check_curves(initial, where)
     flat = targets[0]
     return (Target(flat.name, flat.surface, flat.stimulus, u_start, director), *targets[1:])
 
@@ -410,57 +377,6 @@ def _absolute_files(geometry: dict[str, Any], base_dir: Path) -> dict[str, Any]:
     return geometry
 
 
-def _initial(
-    t: Table,
-    material: Material,
-    classes: tuple[str, ...],
-    parameters: Mapping[str, float],
-):
-    t.check_keys({"u_curve", "v_curve", "eps", "slope"})
-    count = len(material.features)
-    curves = []
-    for key in ("u_curve", "v_curve"):
-        what = 'two expressions in t, like ["t", "0"]'
-        value = t.array(key, what)
-        if len(value) != 2:
-            t.expected(key, what, value)
-        curves.append(tuple(parse(v, ("t",), t.at(key), parameters) for v in value))
-    series = []
-    for key in ("eps", "slope"):
-        what = f"{count} expression(s) in t, one per feature {list(material.features)}"
-        value = t.array(key, what)
-        if len(value) != count:
-            t.expected(key, what, value)
-        series.append(
-            tuple(parse(v, ("t",), t.at(f"{key}[{i}]"), parameters) for i, v in enumerate(value))
-        )
-    initial = InitialData(curves[0], curves[1], series[0], series[1])
-    normalised = {
-        "u_curve": [e.text for e in initial.u_curve],
-        "v_curve": [e.text for e in initial.v_curve],
-        "eps": [e.text for e in initial.eps],
-        "slope": [e.text for e in initial.slope],
-    }
-    _check_finite_initial(initial, classes, t)
-    return initial, normalised
-
-
-def _check_finite_initial(initial: InitialData, classes: tuple[str, ...], t: Table) -> None:
-    """eps, its derivative along its curve and the slope must be finite at t = 0."""
-    for i, kind in enumerate(classes):
-        carrier = "u_curve" if kind == ALONG else "v_curve"
-        checks = (("eps", initial.eps[i], 1), ("slope", initial.slope[i], 0))
-        for label, expression, order in checks:
-            value, grad, _ = expression.jets(0.0, wrt=("t",), order=order)
-            if not np.isfinite(value) or (order and not np.isfinite(grad[0])):
-                what = "it or its derivative is" if order else "it is"
-                t.fail(
-                    f"not finite at t = 0 on the {carrier} ({what} not finite: "
-                    f"'{shorten(expression.text)}')",
-                    f"{label}[{i}]",
-                )
-
-
 def _check_material_at_start(
     material: Material, initial: InitialData, targets: tuple[Target, ...], shown: str
 ) -> None:
@@ -487,145 +403,6 @@ def _check_material_at_start(
                 f"log-derivatives by eps are not, at {at} (the initial eps under the stimulus "
                 f"of surfaces[{index}] '{target.name}')"
             )
-
-
-def _check_curves(initial: InitialData, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """The common start point and the flat-sheet director (unit u-curve tangent) at t = 0;
-    ``where`` is the ``[initial]`` table (``FILE: initial``)."""
-    for key in ("u_curve", "v_curve"):
-        for expression in getattr(initial, key):
-            if not all(np.all(np.isfinite(p)) for p in expression.jets(0.0, wrt=("t",))):
-                raise FabkitError(
-                    f"{where}.{key}: not finite at t = 0: '{shorten(expression.text)}' or its "
-                    "first or second derivative (the curve, its tangent or its curvature)"
-                )
-    u_point = np.array([c(0.0) for c in initial.u_curve])
-    v_point = np.array([c(0.0) for c in initial.v_curve])
-    u_tangent = np.array([c.diff("t")(0.0) for c in initial.u_curve])
-    v_tangent = np.array([c.diff("t")(0.0) for c in initial.v_curve])
-    if np.linalg.norm(u_point - v_point) > 1e-9 * (1 + np.linalg.norm(u_point)):
-        raise FabkitError(
-            f"{where}: the u-curve starts at {u_point.tolist()} but the v-curve at "
-            f"{v_point.tolist()}; they must meet at t = 0"
-        )
-    u_speed, v_speed = np.linalg.norm(u_tangent), np.linalg.norm(v_tangent)
-    if not (u_speed > 0 and v_speed > 0):
-        raise FabkitError(f"{where}: the u- and v-curves need non-zero tangents at t = 0")
-    cosine = float(u_tangent @ v_tangent) / (u_speed * v_speed)
-    if abs(cosine) > PERPENDICULAR_TOLERANCE:
-        raise FabkitError(
-            f"{where}: the u- and v-curves must be perpendicular at t = 0 (cos = {cosine:.3g})"
-        )
-    cross = u_tangent[0] * v_tangent[1] - u_tangent[1] * v_tangent[0]
-    if cross < 0:
-        raise FabkitError(
-            f"{where}: the v-curve must leave the start point 90 degrees counter-clockwise from "
-            "the u-curve (reverse the v-curve's parameter)"
-        )
-    return u_point, u_tangent / u_speed
-
-
-def _solver(
-    t: Table, features: int, labels: Mapping[str, str] = MappingProxyType({})
-) -> tuple[SolverSettings, dict[str, Any]]:
-    """Solver settings for ``features`` designable features; ``labels`` name the
-    command-line options that gave some keys (``{"step": "--step"}``) in the grid's
-    bounds (:func:`_check_grid`)."""
-    t.check_keys({"step", "diagonals", "quadrants", "max_strain", "extrapolate", "tolerance"})
-    defaults = SolverSettings()
-    step = t.number("step", positive=True, default=defaults.step)
-    diagonals = t.integer("diagonals", default=defaults.diagonals)
-    quadrants = _quadrants(t)
-    max_strain = t.number("max_strain", positive=True, default=defaults.max_strain)
-    extrapolate = t.flag("extrapolate", default=defaults.extrapolate)
-    tolerance = t.number("tolerance", positive=True, default=defaults.tolerance)
-    settings = SolverSettings(step, diagonals, quadrants, max_strain, extrapolate, tolerance)
-    _check_grid(settings, features, {"step": t.at("step"), "diagonals": t.at("diagonals")} | labels)
-    normalised = {
-        "step": step,
-        "diagonals": diagonals,
-        "quadrants": [list(q) for q in quadrants],
-        "max_strain": max_strain,
-        "extrapolate": extrapolate,
-        "tolerance": tolerance,
-    }
-    return settings, normalised
-
-
-def solver_memory(settings: SolverSettings, features: int) -> int:
-    """Bytes the solver needs at most for ``settings`` and N = ``features`` (S = N + 2
-    surfaces), estimated before anything is allocated.
-
-    Every point of every diagonal marched is kept until the design is assembled: alpha,
-    beta, b, s, eps, p, q (N each), r and n (2 per surface), 12 + 7N floats, with its
-    valid flag and failure code (9 bytes). A march of M diagonals holds Q (M + 1)(M + 2) / 2
-    points over Q quadrants; the march at h (M = D) and the one at h/2 (M = 2D) always run
-    together (their difference is the error estimate). Three designs of (2D + 1)^2 nodes
-    (2 + N + 4S floats and a flag each) are budgeted at the end, and assembling a design
-    needs the stored r (2S floats per point) twice more. The total, plus 20 % for
-    temporaries, was 1.07 to 1.35 times the peak traced by tracemalloc for Fig. 1 and
-    Fig. 3 grids of 40 to 160 diagonals whose points are all solved (the worst case; the
-    march keeps only the design's variables at solved points, so this errs on the safe
-    side).
-    """
-    n, surfaces, d = features, features + 2, settings.diagonals
-    points = len(settings.quadrants) * sum((m + 1) * (m + 2) // 2 for m in (d, 2 * d))
-    nodes = (2 * d + 1) ** 2
-    stored = points * (8 * (12 + 7 * n) + 9)
-    designs = 3 * nodes * (8 * (2 + n + 4 * surfaces) + 1)
-    assembling = 8 * 2 * surfaces * (points + 2 * nodes)
-    return int(1.2 * (stored + designs + assembling))
-
-
-def _check_grid(settings: SolverSettings, features: int, labels: Mapping[str, str]) -> None:
-    """Refuse a grid the solver cannot march: too fine a step, too long a reach, or more
-    memory than :data:`MAX_SOLVER_BYTES` (estimated before anything is allocated)."""
-    if settings.step < MIN_STEP:
-        raise FabkitError(
-            f"{labels['step']} {settings.step:g}: below {MIN_STEP:g}, rounding error swamps "
-            "the cross derivatives; give a larger step (design units)"
-        )
-    if settings.step * settings.diagonals > MAX_REACH:
-        raise FabkitError(
-            f"{labels['step']} {settings.step:g} x {labels['diagonals']} {settings.diagonals}: "
-            f"the grid would reach {settings.step * settings.diagonals:.3g} design units, more "
-            f"than {MAX_REACH:g}; give a smaller step or fewer diagonals"
-        )
-    needed = solver_memory(settings, features)
-    if needed > MAX_SOLVER_BYTES:
-        most = settings.diagonals
-        while most > 1 and solver_memory(replace(settings, diagonals=most), features) > (
-            MAX_SOLVER_BYTES
-        ):
-            most = int(most * 0.95)
-        raise FabkitError(
-            f"{labels['diagonals']} {settings.diagonals}: the solver would need about "
-            f"{needed / 2**30:,.0f} GiB ({len(settings.quadrants)} quadrants, {features} "
-            f"feature(s), a second march at half the step), more than the "
-            f"{MAX_SOLVER_BYTES / 2**30:g} GiB limit; use at most about {most} diagonals "
-            "(and a larger step for the same reach)"
-        )
-
-
-def _quadrants(t: Table) -> tuple[tuple[int, int], ...]:
-    value = t.get("quadrants", "all")
-    if value == "all":
-        return ALL_QUADRANTS
-    what = '"all" or a list of distinct quadrants like [[1, 1], [-1, 1]]'
-    if not isinstance(value, list) or not value:
-        t.expected("quadrants", what, value)
-    quadrants = []
-    for item in value:
-        if (
-            not isinstance(item, list)
-            or len(item) != 2
-            or any(isinstance(s, bool) or s not in (1, -1) for s in item)
-        ):
-            t.expected("quadrants", what, value)
-        quadrants.append((int(item[0]), int(item[1])))
-    if len(set(quadrants)) != len(quadrants):
-        t.expected("quadrants", what, value)
-    return tuple(quadrants)
 
 
 def describe_spec(spec: Spec) -> str:

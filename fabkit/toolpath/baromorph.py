@@ -29,10 +29,10 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
+from fabkit.calibration import CHANNEL_WIDTH, Calibration
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField
 from fabkit.limits import MAGNITUDE
-from fabkit.process import CHANNEL_WIDTH, Calibration
 from fabkit.shipped import user_or_example
 from fabkit.tomlfile import Table, read_toml
 from fabkit.toolpath.lines import (

@@ -40,10 +40,10 @@ from typing import Any
 import numpy as np
 
 from fabkit.atomic import atomic_path
+from fabkit.calibration import PARAMETERS
 from fabkit.errors import FabkitError
 from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES, TOOLPATH_VERTICES
 from fabkit.npzfile import ArrayHeader, check_magnitude, read_npz
-from fabkit.process import PARAMETERS
 from fabkit.readfile import parse_json, read_json
 
 FORMAT = "fabkit-toolpath/2"
@@ -138,7 +138,7 @@ class Toolpath:
     """Layers of moves, the encoded channels, and JSON-able metadata; every move's vertices
     ``xyz`` (n, 3), widths (n,) in mm, speeds (n,) in mm/s (module docstring).
 
-    ``channels`` maps every encoded parameter (one of :data:`fabkit.process.PARAMETERS`)
+    ``channels`` maps every encoded parameter (one of :data:`fabkit.calibration.PARAMETERS`)
     to the feature(s) it encodes (``"eps1"``, or ``"eps1+eps2"`` for a joint table; ``""``
     when unknown, as in a format-1 file); every move carries exactly these channels.
     ``meta`` holds provenance (sources, process, scale, ignored features) as plain JSON.

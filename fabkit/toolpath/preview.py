@@ -23,7 +23,7 @@ from matplotlib.patches import Circle, Patch, PathPatch
 from matplotlib.path import Path as MplPath
 
 from fabkit.atomic import atomic_path
-from fabkit.process import LABELS
+from fabkit.calibration import LABELS
 from fabkit.toolpath.model import PRINT, Toolpath
 
 PANEL_INCHES = 6.0

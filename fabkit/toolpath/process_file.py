@@ -14,7 +14,7 @@ FILE, read by :func:`load_process` with the profile's parser
 
     [[process.encode]]             # one table per feature of the design
     feature = "eps1"               # a feature name of the spec, or its position (0 = first)
-    parameter = "print_speed_mm_s" # see fabkit.process.PARAMETERS
+    parameter = "print_speed_mm_s" # see fabkit.calibration.PARAMETERS
     eps = [0.0, 0.1, 0.2, 0.3]     # strictly increasing
     value = [16.0, 11.0, 7.0, 4.0] # strictly monotone
     clip = false                   # true: clip eps to the table (with a warning)

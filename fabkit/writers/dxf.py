@@ -42,9 +42,9 @@ import numpy as np
 import shapely
 
 from fabkit.atomic import atomic_path
+from fabkit.calibration import PRINT_PARAMETERS
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile
-from fabkit.process import PRINT_PARAMETERS
 from fabkit.toolpath.model import PRINT, Toolpath
 from fabkit.writers.common import check_inside, placement_offset
 
