@@ -71,7 +71,7 @@ from fabkit.machines import DEFAULT_MACHINE, MachineProfile, load_machine
 from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict, design_verdict
 from fabkit.plot import DESIGN_PICTURES, write_pictures
-from fabkit.plot.page import run_page
+from fabkit.plot.page_sections import run_page
 from fabkit.plot.report import html_report
 from fabkit.plot.scene import scene
 from fabkit.problem.spec import Spec, load_spec

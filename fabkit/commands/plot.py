@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from fabkit.design.design import Design
     from fabkit.design.patches import write_patch_meshes
     from fabkit.plot import render_design
-    from fabkit.plot.page import design_page
+    from fabkit.plot.page_sections import design_page
     from fabkit.plot.report import html_report
 
     design = Design.load(args.design)
