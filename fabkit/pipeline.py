@@ -56,7 +56,7 @@ from fabkit.design.layers import layered
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
 from fabkit.design.report import checked_points, solve_to_file
 from fabkit.errors import FabkitError
-from fabkit.field.flat import feature_names as design_features
+from fabkit.field.design_field import feature_names as design_features
 from fabkit.field.part import (
     MIN_WIDTH_PITCHES,
     MIN_WIDTH_ROADS,
