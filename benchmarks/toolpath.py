@@ -17,7 +17,9 @@ import time
 
 from common import timing_arguments
 
-from fabkit.field.flat import field_from_design, field_from_expression, parse_shape
+from fabkit.field.design_field import field_from_design
+from fabkit.field.flat import field_from_expression
+from fabkit.field.outlines import parse_shape
 from fabkit.toolpath.lines import (
     PIN_MARGIN,
     LineSettings,

@@ -56,7 +56,7 @@ from fabkit.design.layers import layered
 from fabkit.design.patches import MESH_TYPES, patch_paths, write_patch_meshes
 from fabkit.design.summary import checked_points, solve_to_file
 from fabkit.errors import FabkitError
-from fabkit.field.flat import feature_names as design_features
+from fabkit.field.design_field import feature_names as design_features
 from fabkit.field.part import (
     MIN_WIDTH_PITCHES,
     MIN_WIDTH_ROADS,
@@ -72,7 +72,7 @@ from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict, design_verdict
 from fabkit.plot import DESIGN_PICTURES, write_pictures
 from fabkit.plot.html import html_report
-from fabkit.plot.page import run_page
+from fabkit.plot.page_sections import run_page
 from fabkit.plot.scene import scene
 from fabkit.problem.spec import Spec, load_spec
 from fabkit.process import Process

@@ -10,14 +10,10 @@ import pytest
 import shapely
 
 from fabkit.errors import FabkitError
-from fabkit.field.flat import (
-    field_from_design,
-    field_from_expression,
-    field_from_grid,
-    load_director_file,
-    parse_shape,
-    planar_expression,
-)
+from fabkit.field.design_field import field_from_design
+from fabkit.field.director_file import load_director_file
+from fabkit.field.flat import field_from_expression, field_from_grid, planar_expression
+from fabkit.field.outlines import parse_shape
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "directors"
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from fabkit.errors import FabkitError
-from fabkit.field.flat import load_director_file
+from fabkit.field.director_file import load_director_file
 from fabkit.machines import MACHINES_DIR, load_machine
 from fabkit.problem.spec import load_spec
 from fabkit.swimmer.spec import load_swimmer

@@ -8,7 +8,8 @@ import pytest
 import trimesh
 
 from fabkit.errors import FabkitError
-from fabkit.field.flat import field_from_expression, parse_shape
+from fabkit.field.flat import field_from_expression
+from fabkit.field.outlines import parse_shape
 from fabkit.toolpath.baromorph import check_channels, layout_channels, load_baromorph
 from fabkit.toolpath.mould import mould_mesh, save_mould
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import shapely
 
-from fabkit.field.flat import field_from_expression, parse_shape
+from fabkit.field.flat import field_from_expression
+from fabkit.field.outlines import parse_shape
 from fabkit.toolpath.lines import print_lines, trim_lines
 from fabkit.toolpath.quality import measure_quality
 

@@ -11,7 +11,8 @@ import pytest
 
 from fabkit.calibration import Calibration
 from fabkit.errors import FabkitError
-from fabkit.field.flat import field_from_expression, parse_shape
+from fabkit.field.flat import field_from_expression
+from fabkit.field.outlines import parse_shape
 from fabkit.process import Encode
 from fabkit.toolpath.model import PRINT
 from fabkit.toolpath.plan import PlanSettings, plan_toolpath

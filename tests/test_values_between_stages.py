@@ -24,7 +24,7 @@ import fabkit.toolpath.model
 from fabkit.cli import main
 from fabkit.design.design import Design
 from fabkit.design.summary import solve_to_file
-from fabkit.field.flat import field_from_design
+from fabkit.field.design_field import field_from_design
 from fabkit.machines import load_machine
 from fabkit.problem.spec import load_spec
 from fabkit.toolpath.model import load_toolpath

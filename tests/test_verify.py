@@ -14,7 +14,8 @@ from scipy.spatial import cKDTree
 
 from fabkit.calibration import Calibration, JointCalibration
 from fabkit.errors import FabkitError
-from fabkit.field.flat import field_from_expression, parse_shape
+from fabkit.field.flat import field_from_expression
+from fabkit.field.outlines import parse_shape
 from fabkit.machines import load_machine
 from fabkit.process import Encode, Process
 from fabkit.toolpath.exposure import LaserSettings, sample_field

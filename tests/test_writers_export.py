@@ -11,7 +11,7 @@ import pytest
 import shapely
 import shapely.affinity
 
-from fabkit.field.flat import field_from_design
+from fabkit.field.design_field import field_from_design
 from fabkit.field.part import PartOptions
 from fabkit.machines import load_machine
 from fabkit.toolpath import load_toolpath, save_toolpath

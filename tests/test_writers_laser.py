@@ -15,7 +15,7 @@ from PIL import Image
 
 from fabkit.calibration import Calibration
 from fabkit.errors import FabkitError
-from fabkit.field.flat import field_from_design
+from fabkit.field.design_field import field_from_design
 from fabkit.gcode.read import read_job
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine

@@ -30,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     from fabkit.design.patches import write_patch_meshes
     from fabkit.plot import render_design
     from fabkit.plot.html import html_report
-    from fabkit.plot.page import design_page
+    from fabkit.plot.page_sections import design_page
 
     design = Design.load(args.design)
     out = Path(args.out)

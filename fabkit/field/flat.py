@@ -8,15 +8,14 @@ its spec; a director file's single ``eps`` is the feature ``eps``).
 
 It comes from one of three sources:
 
-* :func:`field_from_design` -- a solved ``design.npz``. The solved map ``r[0](u, v)`` sends
-  the material grid to the flat sheet; the outline is the union of the images of the valid
-  grid cells, and theta and eps are interpolated *along the grid*: a point is located in
-  the image of a grid triangle and interpolated barycentrically from its three corners
-  (never across the domain). Where the image overlaps itself, the preimage nearest to the
-  design origin (smallest ``|u| + |v|``) wins.
+* :func:`~fabkit.field.design_field.field_from_design` -- a solved ``design.npz``
+  (:mod:`fabkit.field.design_field`: theta and eps interpolated along the design's grid).
 * :func:`field_from_expression` -- ``theta(x, y)`` as a safe expression on a named shape
   (``disc:10``, ``square:20``, ...), for standard patterns without a solve.
 * :func:`field_from_grid` -- a theta grid and mask (and optional eps grid) in mm.
+
+A director file (``.toml``) gives either of the last two
+(:func:`~fabkit.field.director_file.load_director_file`).
 
 Director angles are interpolated as the tensor ``(cos 2 theta, sin 2 theta)`` so that the
 head-tail symmetry of the director is respected.
@@ -24,11 +23,9 @@ head-tail symmetry of the director is respected.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 import contourpy
 import numpy as np
@@ -38,14 +35,11 @@ import shapely.errors
 from scipy.interpolate import RegularGridInterpolator
 from scipy.spatial import cKDTree
 
-from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.field.outlines import parse_shape, polygonal
-from fabkit.field.part import Part, PartOptions, print_part, scale_for_size, solved_region
-from fabkit.npzfile import ArrayHeader, read_npz
+from fabkit.field.outlines import polygonal
+from fabkit.field.part import Part
 from fabkit.problem.expr import parse, shorten
-from fabkit.shipped import user_or_example
-from fabkit.tomlfile import Table, expected, read_toml, real
+from fabkit.tomlfile import real
 
 PlaneFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """A vectorised function of x and y (mm, broadcast arrays) returning an array of their shape."""
@@ -53,8 +47,6 @@ PlaneFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 EXPRESSION_NAMES = ("x", "y", "r", "phi")
 """Names allowed in director and eps expressions: x, y (mm), r = hypot(x, y) (mm) and
 phi = arctan2(y, x) (radians). ``arctan2(a, b)`` may also be called with two arguments."""
-
-DESIGN_KEYS = ("u", "v", "valid", "eps", "r", "n")
 
 
 @dataclass(frozen=True, eq=False)
@@ -355,332 +347,3 @@ def _mask_outline(values: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> shapely
         rings = [points[a:b] for a, b in zip(offset[:-1], offset[1:], strict=True)]
         shells.append(shapely.Polygon(rings[0], rings[1:]))
     return polygonal(shapely.union_all(shells))
-
-
-# --------------------------------------------------------------------------- designs
-
-
-def field_from_design(
-    source: Design | str | Path,
-    size_mm: float | None = None,
-    mm_per_unit: float | None = None,
-    part: Part | PartOptions | None = None,
-    name: str | None = None,
-) -> FlatField:
-    """The flat-sheet field of a solved design (or ``design.npz``) on its part, scaled to
-    millimetres; ``name`` is the field's source in messages (default: the file, or
-    "design" for a value).
-
-    ``part``: a :class:`~fabkit.field.part.Part` made already (its scale is the field's; then give
-    neither size nor scale), or the options to make one (default :class:`PartOptions`: the
-    smooth margin outline only). Otherwise give exactly one of ``size_mm`` (the longest
-    side of the solved region's bounding box, mm) and ``mm_per_unit`` (mm per design unit).
-    Every feature of the design is carried, named as in its spec.
-    """
-    design, path = _design_and_name(source, name)
-    if isinstance(part, Part):
-        if part.mm_per_unit is None:
-            raise FabkitError(f"{path}: the part has no scale in mm")
-        if size_mm is not None or mm_per_unit is not None:
-            raise FabkitError(f"{path}: the part sets the scale; give no --size or --scale")
-        scale = part.mm_per_unit
-    else:
-        if (size_mm is None) == (mm_per_unit is None):
-            raise FabkitError(
-                "design: give the size (--size MM, longest side) or --scale MM_PER_UNIT"
-            )
-        solved = solved_region(design, str(path))
-        if size_mm is not None:
-            mm_per_unit = scale_for_size(solved, real(size_mm, "--size", positive=True))
-        scale = real(mm_per_unit, "--scale", positive=True)
-        part = print_part(design, scale, part or PartOptions(), solved, str(path))
-    arrays = {key: getattr(design, key) for key in DESIGN_KEYS}
-    names = feature_names(design, str(path))
-    mesh = _DesignMesh.build(arrays, scale, str(path))
-    features = {name: mesh.feature_function(k) for k, name in enumerate(names)}
-    keys = {"theta": f"{path}: theta", **{name: f"{path}: {name}" for name in names}}
-    return FlatField(
-        part.outline_mm(), mesh.theta, features, f"{path}", keys, scale, mesh.everything, part
-    )
-
-
-def _design_and_name(source: Design | str | Path, name: str | None) -> tuple[Design, str]:
-    """The design, and the name its messages give (``name``, else the file, or "design")."""
-    if isinstance(source, Design):
-        return source, name or "design"
-    return Design.load(source), name or str(source)
-
-
-def feature_names(design: Design, where: str = "design") -> tuple[str, ...]:
-    """The names of a design's features, from the spec it carries (``material.features``)."""
-    try:
-        names = json.loads(design.spec)["material"]["features"]
-    except (ValueError, KeyError, TypeError):
-        names = None
-    count = design.eps.shape[0]
-    if not (
-        isinstance(names, list) and len(names) == count and all(isinstance(n, str) for n in names)
-    ):
-        raise FabkitError(
-            f"{where}: its spec does not name its {count} feature(s) (material.features)"
-        )
-    return tuple(names)
-
-
-@dataclass(frozen=True, eq=False)
-class _DesignMesh:
-    """The valid grid cells of a design, mapped to the flat sheet and split in triangles.
-
-    ``points`` (V, 2) flat-sheet positions of valid grid nodes; ``triangles`` (T, 3) node
-    indices, ordered by distance of the cell from the design origin (smallest |u|+|v| first);
-    ``cos2``, ``sin2`` (V,) and ``eps_values`` (N, V) per-node values.
-    """
-
-    points: np.ndarray
-    triangles: np.ndarray
-    cos2: np.ndarray
-    sin2: np.ndarray
-    eps_values: np.ndarray
-    where: str
-    locator: TriangleLocator
-    nodes: cKDTree
-
-    @classmethod
-    def build(cls, arrays: Mapping[str, np.ndarray], scale: float, where: str) -> _DesignMesh:
-        """The mesh of ``arrays`` (a design file's contents) with positions times ``scale``."""
-        valid = arrays["valid"].astype(bool)
-        r0, n0, eps = arrays["r"][0], arrays["n"][0], arrays["eps"]
-        valid &= np.isfinite(r0).all(axis=-1) & np.isfinite(n0).all(axis=-1)
-        valid &= np.isfinite(eps).all(axis=0)
-        cells = valid[:-1, :-1] & valid[1:, :-1] & valid[1:, 1:] & valid[:-1, 1:]
-        if not cells.any():
-            raise FabkitError(f"{where}: the design has no valid grid cell")
-        ci, cj = np.nonzero(cells)
-        order = np.argsort(
-            np.abs(arrays["u"][ci] + arrays["u"][ci + 1])
-            + np.abs(arrays["v"][cj] + arrays["v"][cj + 1]),
-            kind="stable",
-        )
-        ci, cj = ci[order], cj[order]
-        node = np.full(valid.shape, -1)
-        node[valid] = np.arange(valid.sum())
-        a, b, c, d = node[ci, cj], node[ci + 1, cj], node[ci + 1, cj + 1], node[ci, cj + 1]
-        triangles = np.stack([np.column_stack([a, b, c]), np.column_stack([a, c, d])], axis=1)
-        angle = np.arctan2(n0[valid][:, 1], n0[valid][:, 0])
-        points = r0[valid].astype(float) * scale
-        triangles = triangles.reshape(-1, 3)
-        return cls(
-            points=points,
-            triangles=triangles,
-            cos2=np.cos(2 * angle),
-            sin2=np.sin(2 * angle),
-            eps_values=eps[:, valid].astype(float),
-            where=where,
-            locator=TriangleLocator(points, triangles),
-            nodes=cKDTree(points),
-        )
-
-    def theta(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        cos2, sin2 = self._interpolate(x, y, self.cos2, self.sin2)
-        return 0.5 * np.arctan2(sin2, cos2)
-
-    def everything(self, x: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
-        """[theta, *features] at x, y (mm), each point located once."""
-        cos2, sin2, *values = self._interpolate(x, y, self.cos2, self.sin2, *self.eps_values)
-        return [0.5 * np.arctan2(sin2, cos2), *values]
-
-    def feature_function(self, index: int) -> PlaneFunction:
-        """Feature ``index`` as a function of x, y (mm)."""
-
-        def evaluate(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-            return self._interpolate(x, y, self.eps_values[index])[0]
-
-        return evaluate
-
-    def _interpolate(self, x: np.ndarray, y: np.ndarray, *values: np.ndarray) -> list[np.ndarray]:
-        """Barycentric interpolation in the containing image triangle; nearest node outside."""
-        x, y = np.broadcast_arrays(np.asarray(x, dtype=float), np.asarray(y, dtype=float))
-        points = np.column_stack([x.ravel(), y.ravel()])
-        triangle, weights = self.locator.locate(points)
-        found = triangle >= 0
-        corners = self.triangles[triangle[found]]
-        results = []
-        _, nearest = self.nodes.query(points[~found])
-        for v in values:
-            out = np.empty(len(points))
-            out[found] = (v[corners] * weights[found]).sum(axis=1)
-            out[~found] = v[nearest]
-            results.append(out.reshape(x.shape))
-        return results
-
-
-class TriangleLocator:
-    """Find the first triangle (lowest index) of a planar mesh containing each query point.
-
-    Triangles are binned into a uniform grid of buckets about the median triangle
-    size; a query tests only the triangles of its bucket, vectorised over all points.
-    """
-
-    def __init__(self, points: np.ndarray, triangles: np.ndarray):
-        self.points, self.triangles = points, triangles
-        corners = points[triangles]  # (T, 3, 2)
-        low, high = corners.min(axis=1), corners.max(axis=1)
-        size = float(np.median(np.max(high - low, axis=1))) or 1.0
-        self.origin, self.size = low.min(axis=0), size
-        self.shape = np.floor((high.max(axis=0) - self.origin) / size).astype(int) + 1
-        i0, j0 = self._bucket(low).T
-        i1, j1 = self._bucket(high).T
-        counts = (i1 - i0 + 1) * (j1 - j0 + 1)
-        owner = np.repeat(np.arange(len(triangles)), counts)
-        local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        width = (i1 - i0 + 1)[owner]
-        bucket = (i0[owner] + local % width) * self.shape[1] + j0[owner] + local // width
-        order = np.lexsort((owner, bucket))
-        self.members = owner[order]
-        self.starts = np.searchsorted(bucket[order], np.arange(self.shape.prod() + 1))
-
-    def _bucket(self, points: np.ndarray) -> np.ndarray:
-        cells = np.floor((points - self.origin) / self.size).astype(int)
-        return np.clip(cells, 0, self.shape - 1)
-
-    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(n,) triangle index (-1 if none) and (n, 3) barycentric weights."""
-        points = np.asarray(points, dtype=float)
-        cells = np.floor((points - self.origin) / self.size).astype(int)
-        inside = ((cells >= 0) & (cells < self.shape)).all(axis=1)
-        bucket = np.where(inside, cells[:, 0] * self.shape[1] + cells[:, 1], 0)
-        counts = np.where(inside, self.starts[bucket + 1] - self.starts[bucket], 0)
-        query = np.repeat(np.arange(len(points)), counts)
-        offset = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        candidate = self.members[self.starts[bucket[query]] + offset]
-        weights = _barycentric(points[query], self.points[self.triangles[candidate]])
-        hit = np.flatnonzero((weights >= -1e-9).all(axis=1))
-        # per query point, the containing triangle of lowest index (members are sorted)
-        first = hit[np.concatenate([[True], np.diff(query[hit]) != 0])] if len(hit) else hit
-        triangle = np.full(len(points), -1)
-        triangle[query[first]] = candidate[first]
-        result = np.zeros((len(points), 3))
-        result[query[first]] = weights[first]
-        return triangle, result
-
-
-def _barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """(n, 3) barycentric coordinates of (n, 2) points in (n, 3, 2) triangles."""
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    v0, v1, v2 = b - a, c - a, points - a
-    det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
-    det = np.where(np.abs(det) > 1e-300, det, np.nan)
-    l1 = (v2[:, 0] * v1[:, 1] - v2[:, 1] * v1[:, 0]) / det
-    l2 = (v0[:, 0] * v2[:, 1] - v0[:, 1] * v2[:, 0]) / det
-    weights = np.column_stack([1 - l1 - l2, l1, l2])
-    return np.where(np.isfinite(weights), weights, -1.0)
-
-
-# --------------------------------------------------------------------------- files
-
-
-def load_director_file(path: str | Path) -> FlatField:
-    """A director field from a TOML file (see ``docs/toolpath.md``)::
-
-    [director]
-    theta = "phi + pi/2"      # radians; names x, y, r, phi; arctan2(a, b) allowed
-    shape = "disc:10"         # or outline = [[x, y], ...] (mm)
-    eps = "0.3"               # optional: the feature eps; or { eps1 = "...", eps2 = "..." }
-    # or, instead of theta/eps: grid = "theta.npz" with theta, mask, pixel_mm (, eps)
-    """
-    path = user_or_example(path)
-    top = Table(read_toml(path, "director"), str(path))
-    top.check_keys({"director"})
-    director = top.table("director")
-    where = director.at()
-    director.check_keys({"theta", "shape", "outline", "eps", "grid"})
-    if "grid" in director:
-        return _grid_file(path.parent / str(director["grid"]), where)
-    director.require(("theta",), "an expression in x, y, r and phi (or grid, an .npz file)")
-    if ("shape" in director) == ("outline" in director):
-        given = [key for key in ("shape", "outline") if key in director]
-        director.expected(None, "exactly one of shape and outline", given)
-    if "shape" in director:
-        outline = parse_shape(director["shape"], director.at("shape"))
-    else:
-        outline = _outline_points(director["outline"], director.at("outline"))
-    field = field_from_expression(director["theta"], outline, director.get("eps"), where)
-    return replace(field, source=f"{path}")
-
-
-def _outline_points(value: Any, where: str) -> shapely.Polygon:
-    try:
-        points = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        points = np.zeros((0,))
-    if points.ndim != 2 or points.shape[1] != 2 or len(points) < 3 or not np.isfinite(points).all():
-        _refuse_points(value, where)
-    polygon = shapely.Polygon(points)
-    if not polygon.is_valid:
-        polygon = polygonal(shapely.make_valid(polygon))
-    return polygon
-
-
-def _refuse_points(value: Any, where: str) -> NoReturn:
-    """Refuse an outline that is not at least 3 [x, y] points, naming the first bad item."""
-    if isinstance(value, list) and len(value) >= 3:
-        for i, point in enumerate(value):
-            if not isinstance(point, list) or len(point) != 2:
-                expected(f"{where}[{i}]", "an [x, y] point (mm)", point)
-            for j, coordinate in enumerate(point):
-                try:
-                    finite = bool(np.isfinite(float(coordinate)))
-                except (TypeError, ValueError):
-                    finite = False
-                if not finite:
-                    expected(f"{where}[{i}][{j}]", "a finite number", coordinate)
-    expected(where, "a list of at least 3 [x, y] points (mm)", value)
-
-
-GRID_ARRAYS = {"theta": 2, "mask": 2, "pixel_mm": 0, "eps": 2, "origin": 1}
-"""Arrays of a director grid file (.npz) by name, with their number of dimensions."""
-MAX_GRID_NODES = 25_000_000
-"""Most nodes of a director grid file's theta (5000 x 5000)."""
-
-
-def _grid_file(path: Path, where: str) -> FlatField:
-    """A director grid file: theta (nx, ny) rad, mask (nx, ny), pixel_mm, optional eps
-    (nx, ny) and origin (2,) mm; every array is checked before it is used."""
-    if not path.is_file():
-        raise FabkitError(f"{where}.grid: file '{path}' does not exist")
-    label = f"{where}.grid: '{path}'"
-    arrays = read_npz(
-        path,
-        f"{where}.grid: cannot read '{path}'",
-        check=lambda headers: _check_grid_headers(headers, label),
-    )
-    missing = [k for k in ("theta", "mask", "pixel_mm") if k not in arrays]
-    if missing:
-        raise FabkitError(f"{label} has no '{missing[0]}' array")
-    origin = np.asarray(arrays.get("origin", np.zeros(2)), dtype=float)
-    if origin.shape != (2,) or not np.all(np.isfinite(origin)):
-        raise FabkitError(f"{label}: origin must be 2 finite numbers (mm)")
-    return field_from_grid(
-        arrays["theta"],
-        arrays["mask"],
-        float(arrays["pixel_mm"]),
-        (float(origin[0]), float(origin[1])),
-        arrays.get("eps"),
-        str(path),
-    )
-
-
-def _check_grid_headers(headers: Mapping[str, ArrayHeader], where: str) -> None:
-    """Refuse a director grid file from its headers: known arrays only, each real or
-    boolean, of the expected dimensions, and at most MAX_GRID_NODES nodes."""
-    for key, header in headers.items():
-        if key not in GRID_ARRAYS:
-            raise FabkitError(f"{where}: unknown array '{key}' (expected {', '.join(GRID_ARRAYS)})")
-        if len(header.shape) != GRID_ARRAYS[key] or header.dtype.kind not in "biuf":
-            raise FabkitError(
-                f"{where}: '{key}' must be a {GRID_ARRAYS[key]}-D array of real numbers, got "
-                f"shape {header.shape} of {header.dtype}"
-            )
-        nodes = int(np.prod(header.shape))
-        if nodes > MAX_GRID_NODES:
-            raise FabkitError(f"{where}: '{key}' has {nodes} nodes, more than {MAX_GRID_NODES}")

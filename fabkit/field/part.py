@@ -5,8 +5,8 @@ has a saw-tooth edge, lone cells and slivers along the initial curves, and arms 
 too narrow for the sheet's thickness to take their shape (``docs/mechanics.md``).
 :func:`make_part` cuts the part out of it once, in design units (the flat sheet r[0]),
 and every later stage takes that :class:`Part`: the toolpath, channels and laser patterns
-(through :func:`fabkit.field.flat.field_from_design`), the simulations (the mesh's cells whose
-centre lies in the part), ``fabkit verify`` and the pictures. The steps, each recorded
+(through :func:`fabkit.field.design_field.field_from_design`), the simulations (the mesh's
+cells whose centre lies in the part), ``fabkit verify`` and the pictures. The steps, each recorded
 with the area it removed:
 
 1. **margin** -- a smooth outline at sub-grid resolution, inside the solved cells. Every

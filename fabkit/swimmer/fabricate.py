@@ -13,7 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from fabkit.field.flat import field_from_expression, parse_shape
+from fabkit.field.flat import field_from_expression
+from fabkit.field.outlines import parse_shape
 from fabkit.machines import DEFAULT_MACHINE
 from fabkit.swimmer.spec import SwimmerSpec
 from fabkit.tomlfile import Table

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.field.flat import PlaneFunction, check_finite_on_sheet, parse_shape, planar_expression
+from fabkit.field.flat import PlaneFunction, check_finite_on_sheet, planar_expression
+from fabkit.field.outlines import parse_shape
 from fabkit.limits import MAGNITUDE, SWIMMER_MESH_RINGS, SWIMMER_SHAPES, WORK_BYTES
 from fabkit.problem.expr import Expression, parse, shorten
 from fabkit.readfile import size_text

@@ -35,13 +35,8 @@ import shapely
 from scipy.spatial import cKDTree
 
 from fabkit.field.flat import FlatField
-from fabkit.toolpath.stripes import (
-    Spacing,
-    StripePattern,
-    StripeSettings,
-    solve_stripes,
-    stripe_lines,
-)
+from fabkit.toolpath.stripe_lines import stripe_lines
+from fabkit.toolpath.stripes import Spacing, StripePattern, StripeSettings, solve_stripes
 
 PIN_MARGIN = 0.05
 """Lines along the outline are pinned this much (in w) further in than line ends are clipped,

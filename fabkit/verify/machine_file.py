@@ -33,7 +33,8 @@ from scipy import ndimage
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.field.flat import FlatField, feature_names, field_from_design
+from fabkit.field.design_field import feature_names, field_from_design
+from fabkit.field.flat import FlatField
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile
 from fabkit.mechanics.compare import FormedShape, compare, formed_shape

@@ -4,7 +4,7 @@
 and returns an :class:`Exported`; :func:`export` reads the input file first. Inputs,
 recognised by content: a toolpath (``.npz``/``.json`` written by
 :func:`fabkit.toolpath.save_toolpath`), a design (``design.npz`` from ``fabkit solve``) or a
-director file (``.toml``, see :func:`fabkit.field.flat.load_director_file`).
+director file (``.toml``, see :func:`fabkit.field.director_file.load_director_file`).
 
 ======== ============================================ ===================================
 format   from a toolpath                              from a design / director file
@@ -30,7 +30,9 @@ from shapely.errors import ShapelyError
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
-from fabkit.field.flat import FlatField, field_from_design, load_director_file
+from fabkit.field.design_field import field_from_design
+from fabkit.field.director_file import load_director_file
+from fabkit.field.flat import FlatField
 from fabkit.field.outlines import read_outline
 from fabkit.field.part import Part, PartRequest
 from fabkit.machines import MachineProfile, load_machine
