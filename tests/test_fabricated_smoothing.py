@@ -9,13 +9,8 @@ import pytest
 
 from fabkit.mechanics.simulate import default_thickness
 from fabkit.process import Resolution
-from fabkit.verify.machine_file import (
-    VerifyOptions,
-    _sheet_fields,
-    _simulation_figures,
-    _simulation_note,
-    _smoothing_mm,
-)
+from fabkit.verify.as_fabricated import sheet_fields, simulation_figures, simulation_note
+from fabkit.verify.machine_file import VerifyOptions, _smoothing_mm
 from fabkit.verify.raster import Readback
 from tests.conftest import coarse_design
 
@@ -32,7 +27,7 @@ def _noisy() -> Readback:
 
 
 def _theta(smoothing_mm: float) -> np.ndarray:
-    fields = _sheet_fields(_noisy(), Resolution((), (), ()), None, 1.0, (), smoothing_mm)
+    fields = sheet_fields(_noisy(), Resolution((), (), ()), None, 1.0, (), smoothing_mm)
     points = np.random.default_rng(1).uniform(2.0, 10.0, (200, 2))  # mm = design units
     return fields.theta(points)
 
@@ -58,8 +53,8 @@ def test_the_default_length_is_the_road_width_or_the_thickness(design, scale):
 
 
 def test_the_report_says_what_the_simulation_used(design):
-    figures = _simulation_figures(0.6, _noisy(), default_thickness(design) * 25.0)
+    figures = simulation_figures(0.6, _noisy(), default_thickness(design) * 25.0)
     assert figures["smoothing_mm"] == 0.6 and figures["seed"] == "dome"
     assert figures["thickness_mm"] == pytest.approx(default_thickness(design) * 25.0)
-    note = _simulation_note(figures)
+    note = simulation_note(figures)
     assert "Gaussian of 0.6 mm" in note and "dome seed" in note and "ramp steps" in note

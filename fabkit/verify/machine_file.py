@@ -16,11 +16,15 @@ Then the sheet *as fabricated* (the read-back director and features, on the prin
 outline) is simulated under the stimulus of every target and its distance to the
 target reported as ``fabkit simulate`` does (RMS and max after rigid alignment, % of the
 patch diameter); ``reference`` adds the sheet as designed on the same mesh.
+
+This module holds the options, the result (:class:`Verification` and its table),
+:func:`verify` and the reading of the file onto grids of the sheet, one per printed
+layer; the comparison with the design is :mod:`fabkit.verify.compare_fields`, the
+simulation of the sheet as fabricated and its verdict :mod:`fabkit.verify.as_fabricated`.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -28,8 +32,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import shapely
-from scipy import ndimage
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
@@ -37,13 +39,27 @@ from fabkit.field.design_field import feature_names, field_from_design
 from fabkit.field.flat import FlatField
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile
-from fabkit.mechanics.compare import FormedShape, compare, formed_shape
-from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
-from fabkit.mechanics.simulate import Settings
-from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict
+from fabkit.mechanics.compare import FormedShape
+from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict
 from fabkit.process import Encode, Process, Resolution
 from fabkit.tomlfile import real
 from fabkit.toolpath.baromorph import BaromorphSettings
+from fabkit.verify.as_fabricated import (
+    TargetDistance,
+    fabricated_verdict,
+    sheet_fields,
+    simulate_targets,
+    simulation_figures,
+    simulation_note,
+)
+from fabkit.verify.compare_fields import (
+    ComparedSheet,
+    FeatureError,
+    LayerReading,
+    feature_errors,
+    layer_fields,
+    layer_readings,
+)
 from fabkit.verify.raster import Readback, Roads, rasterise
 from fabkit.verify.read_dxf import read_channels, read_dxf
 from fabkit.verify.read_gcode import Placement, Printed, read_gcode
@@ -52,8 +68,6 @@ from fabkit.writers.which_machine import choose_machine
 
 CELL_PER_WIDTH = 4
 """Grid cells per road width (roads are read on cells of w / 4)."""
-TARGET_TRIANGLES = 800
-"""The simulation mesh is the design's grid coarsened to about this many triangles."""
 
 
 @dataclass(frozen=True)
@@ -66,7 +80,8 @@ class VerifyOptions:
     ``mm_per_unit`` the sheet's scale and ``offset_mm`` its placement (default: the file's records);
     ``cell_mm`` the grid (default w / 4, or the laser pixel); ``simulate`` runs the
     forward simulations, ``reference`` adds the sheet as designed; ``stride`` coarsens
-    the design's grid for them (default: about :data:`TARGET_TRIANGLES` triangles);
+    the design's grid for them (default: about
+    :data:`fabkit.verify.as_fabricated.TARGET_TRIANGLES` triangles);
     ``smoothing_mm`` the Gaussian the read-back fields are averaged over before them
     (default: the larger of the road width and the simulated thickness; 0: none);
     ``baromorph`` the channel settings of a baromorph drawing (its channels are read
@@ -95,51 +110,6 @@ class VerifyOptions:
     part: Part | None = None
     part_request: PartRequest = PartRequest()
     form_tolerance: float = FORM_TOLERANCE
-
-
-@dataclass(frozen=True)
-class FeatureError:
-    """One feature read back: its channel, RMS and 95th-percentile error as % of its
-    designed range, the range, and the cells compared."""
-
-    feature: str
-    channel: str
-    rms_pct: float
-    p95_pct: float
-    design_range: float
-    cells: int
-
-
-@dataclass(frozen=True)
-class TargetDistance:
-    """The sheet as fabricated against one target: RMS and max distance, % of the patch
-    diameter; the sheet as designed on the same mesh when asked (else None)."""
-
-    target: str
-    surface: int
-    rms_pct: float
-    max_pct: float
-    mirrored: bool
-    converged: bool
-    triangles: int
-    seconds: float
-    designed_rms_pct: float | None = None
-    designed_max_pct: float | None = None
-    designed_converged: bool | None = None
-
-
-@dataclass(frozen=True)
-class LayerReading:
-    """One printed layer (1 = bottom) read back against the design's layer it makes:
-    coverage, director error (degrees) and every feature's error."""
-
-    layer: int
-    designed_layer: int
-    empty_fraction: float
-    mean_overlap: float
-    director_mean_deg: float
-    director_p95_deg: float
-    features: tuple[FeatureError, ...]
 
 
 @dataclass(frozen=True)
@@ -260,10 +230,10 @@ def verify(
     cut = _part_options(options, process, layers)
     flat = _flat_field(design, str(design_path), options, placement, cut)
     scale = float(flat.mm_per_unit)
-    designed = _layer_fields(design, flat, str(design_path), layers)
-    sheets = [_Sheet.of(r, f) for r, f in zip(readbacks, designed, strict=True)]
+    designed = layer_fields(design, flat, str(design_path), layers)
+    sheets = [ComparedSheet.of(r, f) for r, f in zip(readbacks, designed, strict=True)]
     readings = [
-        _features(r, resolution, sheet, design, names)
+        feature_errors(r, resolution, sheet, design, names)
         for r, sheet in zip(readbacks, sheets, strict=True)
     ]
     features, sheet = readings[0], sheets[0]
@@ -282,14 +252,22 @@ def verify(
     else:
         smoothing = _smoothing_mm(options, readbacks[0], thickness_mm)
         fields = [
-            _sheet_fields(r, resolution, sheet, scale, names, smoothing)
+            sheet_fields(r, resolution, sheet, scale, names, smoothing)
             for r, sheet in zip(readbacks, sheets, strict=True)
         ]
-        targets, shapes = _simulate(
-            design, fields, options, flat.part, thickness_mm, scale, progress
+        targets, shapes = simulate_targets(
+            design,
+            fields,
+            flat.part,
+            thickness_mm,
+            scale,
+            stride=options.stride,
+            max_iterations=options.max_iterations,
+            with_reference=options.reference,
+            progress=progress,
         )
-        simulation = _simulation_figures(smoothing, readbacks[0], thickness_mm, layers)
-        notes.append(_simulation_note(simulation))
+        simulation = simulation_figures(smoothing, readbacks[0], thickness_mm, layers)
+        notes.append(simulation_note(simulation))
     return Verification(
         file=str(machine_file),
         kind=kind,
@@ -308,74 +286,8 @@ def verify(
         seconds=time.perf_counter() - started,
         extra={"part": _part_figures(flat.part)} if flat.part is not None else {},
         simulation=simulation,
-        layers=_layer_readings(sheets, readings, design.layers) if layers > 1 else (),
-        verdict=_verdict(targets, shapes, layers, thickness_mm, options.form_tolerance),
-    )
-
-
-def _verdict(
-    targets: tuple[TargetDistance, ...],
-    shapes: tuple[FormedShape, ...],
-    layers: int,
-    thickness_mm: float,
-    tolerance: float,
-) -> Verdict | None:
-    """The verdict on the sheet as fabricated, with the shape it takes under each target's
-    stimulus (None when it was not simulated)."""
-    if not targets:
-        return None
-    return Verdict(
-        "as fabricated",
-        tuple(
-            Shape(
-                t.target,
-                t.rms_pct / 100,
-                t.max_pct / 100,
-                t.mirrored,
-                t.converged,
-                tolerance,
-                t.seconds,
-                shape.diameter_mm,
-                shape,
-            )
-            for t, shape in zip(targets, shapes, strict=True)
-        ),
-        layers,
-        thickness_mm,
-    )
-
-
-def _layer_fields(design: Design, flat: FlatField, name: str, layers: int) -> list[FlatField]:
-    """The designed field of every printed layer (bottom first): a layered design's own
-    layers (the file must print as many), else the design's field on every layer."""
-    if design.layering is None:
-        return [flat] * layers
-    if layers != design.layers:
-        raise FabkitError(
-            f"{name}: a design of {design.layers} layers, but the machine file prints "
-            f"{layers}: it was not made from this design"
-        )
-    return [
-        field_from_design(design.layer(k), part=flat.part, name=f"{name} layer {k + 1}")
-        for k in range(layers)
-    ]
-
-
-def _layer_readings(
-    sheets: list[_Sheet], readings: list[list[FeatureError]], designed: int
-) -> tuple[LayerReading, ...]:
-    """Every printed layer's coverage, director and features against its designed layer."""
-    return tuple(
-        LayerReading(
-            layer=k + 1,
-            designed_layer=k + 1 if designed > 1 else 1,
-            empty_fraction=sheet.empty,
-            mean_overlap=sheet.overlap,
-            director_mean_deg=sheet.director_mean,
-            director_p95_deg=sheet.director_p95,
-            features=tuple(reading),
-        )
-        for k, (sheet, reading) in enumerate(zip(sheets, readings, strict=True))
+        layers=layer_readings(sheets, readings, design.layers) if layers > 1 else (),
+        verdict=fabricated_verdict(targets, shapes, layers, thickness_mm, options.form_tolerance),
     )
 
 
@@ -572,281 +484,9 @@ def _gcode_roads(
     return Roads(start, end, width, printed.road[first], values, ink)
 
 
-@dataclass(frozen=True, eq=False)
-class _Sheet:
-    """The read-back grid against the design: cells inside the outline, covered (their
-    centres ``points``, mm, and the designed features there), and the coverage and
-    director figures."""
-
-    inside: np.ndarray
-    covered: np.ndarray
-    points: np.ndarray
-    designed: dict[str, np.ndarray]
-    empty: float
-    overlap: float
-    director_mean: float
-    director_p95: float
-
-    @classmethod
-    def of(cls, readback: Readback, flat: FlatField) -> _Sheet:
-        x, y = readback.centres()
-        inside = shapely.contains_xy(flat.outline, x, y)
-        if readback.region is not None:
-            inside &= readback.region
-        if not inside.any():
-            raise FabkitError(
-                "no cell of the machine file lies on the design's flat sheet: wrong "
-                "--offset or --size?"
-            )
-        covered = inside & (readback.hits > 0)
-        points = np.column_stack([x[covered], y[covered]])
-        designed, features = flat.sample(points)
-        error = np.abs(_wrap(readback.theta[covered] - designed))
-        degrees = np.degrees(error) if len(error) else np.array([np.nan])
-        hits = readback.hits[covered]
-        return cls(
-            inside=inside,
-            covered=covered,
-            points=points,
-            designed=features,
-            empty=float(1.0 - covered.sum() / inside.sum()),
-            overlap=float(np.mean(hits - 1)) if len(hits) else 0.0,
-            director_mean=float(np.mean(degrees)),
-            director_p95=float(np.percentile(degrees, 95)),
-        )
-
-
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """An angle mod pi in [-pi/2, pi/2)."""
-    return np.mod(angle + np.pi / 2, np.pi) - np.pi / 2
-
-
-def _decoded(readback: Readback, resolution: Resolution) -> dict[str, np.ndarray]:
-    """Every encoded feature read back on the grid (NaN where its values are unknown)."""
-    out = {}
-    for channel in resolution.channels:
-        shape = readback.shape
-        values = {p: readback.values.get(p, np.full(shape, np.nan)) for p in channel.parameters}
-        out.update(channel.decode(values))
-    return out
-
-
-def _features(
-    readback: Readback,
-    resolution: Resolution,
-    sheet: _Sheet,
-    design: Design,
-    names: tuple[str, ...],
-) -> list[FeatureError]:
-    """Each encoded feature's error over the covered cells inside the outline."""
-    decoded = _decoded(readback, resolution)
-    out = []
-    for channel in resolution.channels:
-        for name in channel.features:
-            span = float(np.ptp(design.eps[names.index(name)][design.valid])) or 1.0
-            read = decoded[name][sheet.covered]
-            known = np.isfinite(read)
-            designed = sheet.designed[name][known]
-            error = np.abs(read[known] - designed) / span * 100.0
-            out.append(
-                FeatureError(
-                    feature=name,
-                    channel=", ".join(channel.parameters),
-                    rms_pct=float(np.sqrt(np.mean(error**2))) if len(error) else math.nan,
-                    p95_pct=float(np.percentile(error, 95)) if len(error) else math.nan,
-                    design_range=span,
-                    cells=int(known.sum()),
-                )
-            )
-    return out
-
-
 def _smoothing_mm(options: VerifyOptions, readback: Readback, thickness_mm: float) -> float:
     """The length (mm) the read-back fields are averaged over: ``options.smoothing_mm``,
     else the larger of the road width (or pixel) and the simulated sheet's thickness."""
     if options.smoothing_mm is not None:
         return options.smoothing_mm
     return max(readback.width_mm, thickness_mm)
-
-
-def _simulation_figures(
-    smoothing: float, readback: Readback, thickness_mm: float, layers: int = 1
-) -> dict[str, Any]:
-    """What the simulations of the sheet as fabricated used (report.json's ``simulation``)."""
-    settings = Settings()
-    return {
-        "smoothing_mm": smoothing,
-        "road_width_mm": readback.width_mm,
-        "thickness_mm": thickness_mm,
-        "layers": layers,
-        "seed": settings.seed,
-        "path": f"flat sheet as made -> each target's stimulus, {settings.steps} ramp steps",
-        "solver": "damped Newton (exact Hessian, Levenberg-Marquardt)",
-    }
-
-
-def _simulation_note(figures: dict[str, Any]) -> str:
-    return (
-        f"simulated with the read-back fields averaged over a Gaussian of "
-        f"{figures['smoothing_mm']:.3g} mm (road width {figures['road_width_mm']:.3g} mm, "
-        f"sheet thickness {figures['thickness_mm']:.3g} mm: {figures['layers']} printed "
-        f"layer{'s' if figures['layers'] > 1 else ''}), {figures['seed']} seed, "
-        f"path {figures['path']}"
-    )
-
-
-def _sheet_fields(
-    readback: Readback,
-    resolution: Resolution,
-    sheet: _Sheet,
-    scale: float,
-    names: tuple[str, ...],
-    smoothing_mm: float,
-) -> SheetFields:
-    """The read-back director and features as functions of flat-sheet points in design
-    units, made where the printed region (covered cells, gaps narrower than a road
-    closed) is.
-
-    Each uncovered cell takes its nearest covered cell's values; the director (as the
-    tensor (cos 2 theta, sin 2 theta)) and the features are then averaged over a Gaussian
-    of standard deviation ``smoothing_mm`` and sampled bilinearly. The average is the
-    physics, not a cosmetic: a road's director and features are one per road, so cell
-    to cell differences below a road width are the reading's, not the sheet's; and a
-    sheet of thickness h cannot resolve a reference metric that varies on scales below h
-    (plate theory's metric is the average over a few h). Sampled raw at the mesh's
-    vertices, that noise frustrates the metric: on Fig. 1 (60 mm) it triples the bump's
-    residual energy and leaves several equilibria of equal energy 3.2 to 4.3 % from the
-    target, where the fields averaged over the thickness (0.6 mm) give one, 2.6 %.
-    """
-    decoded = _decoded(readback, resolution)
-    covered = readback.hits > 0
-    made = ndimage.binary_closing(covered, _disc(readback.width_mm / readback.cell_mm))
-    made |= covered
-    nearest = ndimage.distance_transform_edt(~covered, return_distances=False, return_indices=True)
-    grids = [np.cos(2 * readback.theta), np.sin(2 * readback.theta)]
-    grids += [decoded[name] for name in names]
-    sigma = smoothing_mm / readback.cell_mm
-    filled = [ndimage.gaussian_filter(g[tuple(nearest)], sigma, mode="nearest") for g in grids]
-
-    def cells(points: np.ndarray) -> np.ndarray:
-        """(2, n) fractional cell coordinates of design-unit points."""
-        mm = np.asarray(points, dtype=float) * scale
-        return ((mm - np.asarray(readback.origin)) / readback.cell_mm - 0.5).T
-
-    def sample(points: np.ndarray) -> list[np.ndarray]:
-        where = cells(points)
-        return [ndimage.map_coordinates(g, where, order=1, mode="nearest") for g in filled]
-
-    def theta(points: np.ndarray) -> np.ndarray:
-        cos2, sin2, *_ = sample(points)
-        return 0.5 * np.arctan2(sin2, cos2)
-
-    def features(points: np.ndarray) -> np.ndarray:
-        return np.array(sample(points)[2:])
-
-    def is_made(points: np.ndarray) -> np.ndarray:
-        index = np.rint(cells(points)).astype(int)
-        inside = (index >= 0).all(axis=0) & (index[0] < made.shape[0]) & (index[1] < made.shape[1])
-        out = np.zeros(index.shape[1], dtype=bool)
-        out[inside] = made[index[0, inside], index[1, inside]]
-        return out
-
-    return SheetFields(theta, features, is_made)
-
-
-def _disc(radius: float) -> np.ndarray:
-    reach = max(1, int(math.ceil(radius)))
-    offsets = np.arange(-reach, reach + 1)
-    return offsets[:, None] ** 2 + offsets[None, :] ** 2 <= max(radius, 1.0) ** 2
-
-
-def _simulate(
-    design: Design,
-    fields: list[SheetFields],
-    options: VerifyOptions,
-    part: Part | None,
-    thickness_mm: float,
-    mm_per_unit: float,
-    progress: Callable[[int, int], None] | None = None,
-) -> tuple[tuple[TargetDistance, ...], tuple[FormedShape, ...]]:
-    """The sheet of ``fields`` (one per layer, bottom first) on the cells of ``part``,
-    ``thickness_mm`` thick in all, under every target's stimulus (and, if asked, the sheet
-    as designed on the same mesh), at ``mm_per_unit`` mm per design unit; ``progress``
-    over all their ramp steps. Returns the distance to every target and the shape the
-    sheet takes there (mm)."""
-    thickness = thickness_mm / mm_per_unit
-    stride = options.stride or _stride(design)
-    settings = Settings(max_iterations=options.max_iterations)
-    spec = design.problem
-    reference = None
-    if options.reference:
-        if design.layering is None:
-            own = [design_fields(design)] * len(fields)
-        else:
-            own = [design_fields(design.layer(k)) for k in range(design.layers)]
-        reference = [SheetFields(o.theta, o.features, fields[0].made) for o in own]
-    out, shapes = [], []
-    surfaces = [
-        s
-        for s in range(1, len(spec.targets))
-        if spec.targets[s].surface.embed(np.zeros((1, 2))) is not None  # else intrinsic
-    ]
-    runs = len(surfaces) * (2 if reference is not None else 1)
-
-    def share(k: int) -> Callable[[int, int], None] | None:
-        """The progress of the k-th simulation as a share of them all."""
-        if progress is None:
-            return None
-        return lambda done, total: progress(k * total + done, runs * total)
-
-    for surface in surfaces:
-        started = time.perf_counter()
-        coarse, simulation = simulate_sheet(
-            design,
-            fields,
-            surface,
-            thickness,
-            settings=settings,
-            part=part,
-            stride=stride,
-            progress=share(len(out) * (runs // len(surfaces))),
-        )
-        made = compare(coarse, simulation)
-        seconds = time.perf_counter() - started
-        shapes.append(formed_shape(coarse, simulation, mm_per_unit))
-        designed = None
-        if reference is not None:
-            coarse, simulation = simulate_sheet(
-                design,
-                reference,
-                surface,
-                thickness,
-                settings=settings,
-                part=part,
-                stride=stride,
-                progress=share(2 * len(out) + 1),
-            )
-            designed = compare(coarse, simulation)
-        out.append(
-            TargetDistance(
-                target=made.name,
-                surface=surface,
-                rms_pct=100 * made.rms,
-                max_pct=100 * made.max,
-                mirrored=made.mirrored,
-                converged=made.converged,
-                triangles=made.triangles,
-                seconds=seconds,
-                designed_rms_pct=100 * designed.rms if designed else None,
-                designed_max_pct=100 * designed.max if designed else None,
-                designed_converged=designed.converged if designed else None,
-            )
-        )
-    return tuple(out), tuple(shapes)
-
-
-def _stride(design: Design) -> int:
-    """The grid coarsening that leaves about TARGET_TRIANGLES triangles."""
-    valid = design.valid
-    cells = int((valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:] & valid[1:, 1:]).sum())
-    return max(1, round(math.sqrt(2 * cells / TARGET_TRIANGLES)))

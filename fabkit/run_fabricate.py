@@ -1,0 +1,301 @@
+"""``fabkit run``'s stages after the solve: the machine files, verify, the shapes, send.
+
+:func:`fabricate` writes the machine files of the run's route (print lines and their
+G-code or DXF, laser patterns on a laser writer, or baromorph channels and their DXF),
+reads the first back and checks it (:mod:`fabkit.verify`, unless ``--no-verify``),
+writes the shape the sheet takes under every target's stimulus (``as_fabricated/``,
+else ``as_designed/``) and sends the G-code (``--send``). The pictures are handed to the
+run's worker (:class:`Drawings`) and written at the report. Called by
+:func:`fabkit.pipeline.run_pipeline`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from functools import partial
+from multiprocessing.pool import AsyncResult
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from fabkit.atomic import atomic_path, inside, record
+from fabkit.background import Worker
+from fabkit.machines import MachineProfile
+from fabkit.mechanics.mesh import save_mesh
+from fabkit.mechanics.verdict import Verdict
+from fabkit.run_inputs import FORMAT_FILES, LASER_WRITER, RunInputs, RunOptions
+from fabkit.run_solve import Solved
+from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
+from fabkit.writers.dxf import layout_layers, write_dxf
+from fabkit.writers.export import ExportOptions, describe_dxf, write_machine_file
+
+if TYPE_CHECKING:
+    from fabkit.link.host.hosts import HostReport
+    from fabkit.link.host.session import SendReport
+    from fabkit.verify.machine_file import Verification
+
+
+class Drawings:
+    """Pictures the worker draws while the run goes on, and how each is written: all are
+    written together, when the run reaches its report or when a later stage fails."""
+
+    def __init__(self, background: Worker) -> None:
+        self._background = background
+        self._pending: list[tuple[AsyncResult, Callable[[Any], Any]]] = []
+
+    def draw(self, function: str, args: tuple[Any, ...], write: Callable[[Any], Any]) -> None:
+        """Have ``function`` (``"module:name"``) draw from ``args``; ``write`` its result."""
+        self._pending.append((self._background.start(function, *args), write))
+
+    def write(self) -> None:
+        """Wait for every drawing and write it."""
+        while self._pending:
+            result, write = self._pending.pop(0)
+            write(result.get())
+
+
+def _write_images(stem: Path, images: dict[str, bytes]) -> None:
+    """Write each image (format -> bytes) as ``stem`` with the format's suffix."""
+    for fmt, data in images.items():
+        with atomic_path(stem.with_suffix(f".{fmt}")) as tmp:
+            tmp.write_bytes(data)
+
+
+@dataclass(frozen=True)
+class Run:
+    """What every stage after the solve takes: the run's ``options``, the ``inputs`` read
+    once, the ``solved`` design, the worker's ``drawings`` and ``say`` for its lines."""
+
+    options: RunOptions
+    inputs: RunInputs
+    solved: Solved
+    drawings: Drawings
+    say: Callable[[str], None]
+
+    @property
+    def out(self) -> Path:
+        """The output folder."""
+        return Path(self.options.out)
+
+
+@dataclass(frozen=True)
+class Made:
+    """What the stages after the solve made: the ``fabricated`` figures and preview, the
+    first ``machine_file``'s figures, its ``verification`` (None with --no-verify), the
+    ``final`` verdict (as fabricated when the machine file was simulated, else as
+    designed), the ``shapes`` it found (report.json's ``shapes``) and the ``sent``
+    figures (None without --send)."""
+
+    fabricated: _Fabricated
+    machine_file: dict[str, Any]
+    verification: Verification | None
+    final: Verdict
+    shapes: dict[str, Any]
+    sent: dict[str, Any] | None
+
+
+def fabricate(run: Run) -> Made:
+    """The machine files, their verification, the shapes the sheet takes and the send."""
+    options = run.options
+    if options.baromorph:
+        fabricated = _channels(run)
+    elif run.inputs.machine.kind == LASER_WRITER:
+        fabricated = _laser_patterns(run)
+    else:
+        fabricated = _print_lines(run)
+
+    verification = _verify(run)
+    final = run.solved.verdict
+    if verification is not None and verification.verdict is not None:
+        final = verification.verdict
+    shapes = _shapes(run, final)
+
+    sent = None
+    if options.send:
+        run.say(f"[6/7] sending sheet.gcode to {options.send}")
+        sent = _send(run.out / "sheet.gcode", options, run.inputs.machine).figures()
+    else:
+        run.say("[6/7] not sending (no --send)")
+    return Made(fabricated, fabricated.machine_file, verification, final, shapes, sent)
+
+
+def _shapes(run: Run, verdict: Verdict) -> dict[str, Any]:
+    """The shape the sheet takes under every target's stimulus (``verdict``'s meshes): a
+    mesh per target written now (PLY, mm, with each vertex's distance to the target), a
+    picture per target drawn by the worker; both in ``as_fabricated/`` (``as_designed/``
+    when the machine file was not simulated). Returns report.json's ``shapes``."""
+    folder = verdict.what.replace(" ", "_")
+    shown = tuple(shape for shape in verdict.shapes if shape.mesh is not None)
+    targets = []
+    for shape in shown:
+        mesh = shape.mesh
+        path = inside(run.out / folder, f"{shape.target}.ply")
+        save_mesh(path, mesh.vertices_mm, mesh.triangles, {"distance_mm": mesh.distance_mm})
+        targets.append(
+            {
+                "target": shape.target,
+                "mesh": f"{folder}/{shape.target}.ply",
+                "picture": f"{folder}/{shape.target}.png",
+            }
+        )
+    run.drawings.draw(
+        "fabkit.plot.shapes:shape_pictures",
+        (verdict.what, shown),
+        partial(_write_files, [run.out / t["picture"] for t in targets]),
+    )
+    return {"what": verdict.what, "folder": folder, "targets": targets}
+
+
+def _write_files(paths: list[Path], contents: tuple[bytes, ...]) -> None:
+    """Write each of ``contents`` at its path (atomically)."""
+    for path, data in zip(paths, contents, strict=True):
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(data)
+
+
+def _verify(run: Run) -> Verification | None:
+    """Read the first machine file back and check it (None with --no-verify)."""
+    options, out, say = run.options, run.out, run.say
+    if not options.verify:
+        say("[5/7] not verifying (--no-verify)")
+        return None
+    from fabkit.verify.machine_file import VerifyOptions, verify
+
+    target = out / ("channels.dxf" if options.baromorph else FORMAT_FILES[options.formats[0]])
+    say(f"[5/7] verifying {target.name}: reading it back, simulating the sheet as fabricated")
+    result = verify(
+        out / "design.npz",
+        target,
+        VerifyOptions(
+            machine=run.inputs.machine,
+            process=run.inputs.process,
+            ignore_features=options.ignore_features,
+            baromorph=run.inputs.baromorph,
+            part=run.solved.part,
+            form_tolerance=options.form_tolerance,
+        ),
+        design=run.solved.design,
+    )
+    for line in result.table().splitlines()[1:-1]:
+        say(f"      {line.strip()}")
+    return result
+
+
+def _send(path: Path, options: RunOptions, machine: MachineProfile) -> SendReport | HostReport:
+    """Send the machine file to ``options.send``, a port or a printer host, for ``machine``."""
+    from fabkit.link.host.send import send_file
+    from fabkit.link.host.web import is_host_url
+
+    host = options.send if is_host_url(options.send) else None
+    return send_file(
+        path,
+        None if host else options.send,
+        host=host,
+        machine=machine,
+        api_key=options.api_key,
+        api_key_file=options.api_key_file,
+    )
+
+
+@dataclass(frozen=True)
+class _Fabricated:
+    """Key figures of the fabrication stages, their preview (caption, PNG) and the first
+    machine file's figures (``file`` in the output folder, ``format``, and the writer's
+    :attr:`~fabkit.writers.export.Exported.figures`)."""
+
+    figures: dict[str, Any]
+    picture: tuple[str, Path]
+    machine_file: dict[str, Any]
+
+
+def _print_lines(run: Run) -> _Fabricated:
+    """Print lines along the director, then the machine files (from the toolpath in
+    memory; toolpath.npz is a side output, its preview drawn by the worker)."""
+    options, out, say, solved = run.options, run.out, run.say, run.solved
+    say(f"[3/7] planning print lines for {options.machine} at {options.size_mm:g} mm")
+    job = run_job(
+        ToolpathJob(
+            inputs=(str(out / "design.npz"),),
+            process=run.inputs.process,
+            size_mm=options.size_mm,
+            ignore_features=options.ignore_features,
+            out=str(out / "toolpath"),
+            part=solved.part,
+            design=solved.design,
+            preview=False,
+        )
+    )
+    run.drawings.draw(
+        "fabkit.toolpath.preview:preview_images",
+        (job.plan.toolpath, list(job.outlines)),
+        partial(_write_images, out / "toolpath" / "preview"),
+    )
+    say(f"[4/7] writing {', '.join(options.formats)}")
+    machine = run.inputs.machine
+    written = {
+        fmt: write_machine_file(job.plan.toolpath, machine, fmt, out / FORMAT_FILES[fmt])
+        for fmt in options.formats
+    }
+    figures = {
+        "channels": dict(job.plan.toolpath.channels),
+        "toolpath quality": [q.to_dict() for q in job.plan.quality],
+        "toolpath warnings": list(job.plan.warnings),
+        "exports": {fmt: exported.summary for fmt, exported in written.items()},
+    }
+    first = options.formats[0]
+    machine_file = {"file": FORMAT_FILES[first], "format": first, **written[first].figures}
+    caption = "Print lines coloured by the encoded parameter (travels thin)"
+    return _Fabricated(figures, (caption, out / "toolpath" / "preview.png"), machine_file)
+
+
+def _laser_patterns(run: Run) -> _Fabricated:
+    """Photoalignment patterns straight from the design (no print lines)."""
+    options, inputs, out, say = run.options, run.inputs, run.out, run.say
+    say("[3/7] no print lines: a laser writer exposes the director field directly")
+    say("[4/7] writing laser/")
+    written = write_machine_file(
+        run.solved.design,
+        inputs.machine,
+        "laser",
+        out / "laser",
+        ExportOptions(
+            process=inputs.process, ignore_features=options.ignore_features, part=run.solved.part
+        ),
+    )
+    record(out / "laser")  # the laser writer renames a whole folder into place
+    caption = "Photoalignment pattern: binned director angle and the dose of each exposure (mm)"
+    return _Fabricated(
+        {"exports": {"laser": written.summary}},
+        (caption, out / "laser" / "preview.png"),
+        {"file": f"{FORMAT_FILES['laser']}/", "format": "laser", **written.figures},
+    )
+
+
+def _channels(run: Run) -> _Fabricated:
+    """Baromorph channels whose width encodes eps, their mould, and a DXF for a cutter."""
+    options, out, say = run.options, run.out, run.say
+    say(f"[3/7] laying out baromorph channels at {options.size_mm:g} mm")
+    fields = ToolpathJob(
+        inputs=(str(out / "design.npz"),), part=run.solved.part, design=run.solved.design
+    )
+    result = run_channel_job(
+        ChannelJob(fields=fields, baromorph=run.inputs.baromorph, out=str(out / "channels"))
+    )
+    say("[4/7] writing channels.dxf")
+    drawing = write_dxf(
+        out / "channels.dxf",
+        machine=run.inputs.machine,
+        mm_per_unit=result.mm_per_unit,
+        **layout_layers(result.layout),
+    )
+    figures = {
+        "channels": asdict(result.report),
+        "mould": str(out / "channels" / "mould.stl"),
+        "exports": {"dxf": describe_dxf(out / "channels.dxf", drawing, options.machine)},
+    }
+    caption = (
+        "Baromorph channels coloured by their local width (mm), manifold dark grey, sheet "
+        "(walls) light grey, inlet red"
+    )
+    machine_file = {"file": "channels.dxf", "format": "dxf", "entities": dict(drawing.entities)}
+    return _Fabricated(figures, (caption, out / "channels" / "channels.png"), machine_file)

@@ -1,0 +1,195 @@
+"""``fabkit run``'s options, and the inputs it checks and reads before any work.
+
+:class:`RunOptions` is what the run is asked to do; :func:`with_defaults` fills in the
+machine and the formats that suit the route (print lines, laser patterns or baromorph
+channels); :func:`check_inputs` refuses bad input before anything is written (formats,
+sizes, the output folder, the send, the spec, the process and its channels) and reads
+what every stage takes once (:class:`RunInputs`). Called by
+:func:`fabkit.pipeline.run_pipeline`; ``fabkit run``'s command line builds the options.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from fabkit.atomic import check_folder
+from fabkit.design.design import MAX_LAYERS
+from fabkit.design.patches import MESH_TYPES, patch_paths
+from fabkit.errors import FabkitError
+from fabkit.field.part import (
+    PartRequest,
+)
+from fabkit.machines import DEFAULT_MACHINE, MachineProfile
+from fabkit.mechanics.verdict import FORM_TOLERANCE
+from fabkit.problem.spec import Spec, load_spec
+from fabkit.process import Process
+from fabkit.toolpath.baromorph import BaromorphSettings, load_baromorph
+from fabkit.toolpath.process_file import load_process, resolve_channels
+
+FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
+BAROMORPH_MACHINE = "laser_cutter"
+LASER_WRITER = "laser_writer"
+DEFAULT_SIZE_MM = 60.0
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """What ``fabkit run`` is asked to do; ``size_mm`` is the sheet's longest side in mm.
+
+    ``step`` and ``diagonals`` replace the spec's solver settings when given;
+    ``mesh_format`` is the patch meshes' file type (ply, stl, glb or obj).
+
+    ``formats`` None: DXF for baromorph channels, laser patterns on a laser writer, else
+    G-code. ``machine`` None: laser_cutter for baromorph channels, else a pneumatic DIW.
+    ``ignore_features`` are left out of the machine file on purpose; ``verify`` reads the
+    machine file back and checks it (:mod:`fabkit.verify`). ``overwrite`` replaces the
+    files an earlier run wrote into ``out`` (else such a folder is refused).
+    ``part_request`` cuts the part (:class:`fabkit.field.part.PartRequest`). ``layers``
+    (>= 2) prints the sheet in that many layers programmed with each target's curvature
+    (:mod:`fabkit.design.layers`); every target is then simulated from flat, as designed
+    and as fabricated, and held to ``form_tolerance`` (RMS, a share of the patch
+    diameter); ``strict`` makes a target not formed an error (the run's exit code).
+    ``send`` is a port, a pyserial URL or a printer host's URL
+    (:mod:`fabkit.link.host.web`), whose API key is ``api_key``, else the first line of
+    ``api_key_file``, else the environment's FABKIT_API_KEY; the key is never shown nor
+    written.
+    """
+
+    spec: str
+    out: str
+    machine: str | None = None
+    formats: tuple[str, ...] | None = None
+    size_mm: float = DEFAULT_SIZE_MM
+    send: str | None = None
+    api_key: str | None = field(default=None, repr=False)
+    api_key_file: str | None = None
+    process_file: str | None = None
+    baromorph: str | None = None
+    step: float | None = None
+    diagonals: int | None = None
+    mesh_format: str = "ply"
+    ignore_features: tuple[str, ...] = ()
+    verify: bool = True
+    overwrite: bool = False
+    part_request: PartRequest = PartRequest()
+    layers: int = 1
+    strict: bool = False
+    form_tolerance: float = FORM_TOLERANCE
+
+
+@dataclass(frozen=True)
+class RunInputs:
+    """What the checks read once and every stage takes: the spec (the solver options
+    applied), the machine profile, the process (None on a baromorph run) and the
+    baromorph's channel settings (None on a print run)."""
+
+    spec: Spec
+    machine: MachineProfile
+    process: Process | None
+    baromorph: BaromorphSettings | None
+
+
+def _check_send(options: RunOptions) -> None:
+    """Refuse a bad printer host URL or API key before any work (a port is opened only at
+    the send: it may be plugged in meanwhile)."""
+    from fabkit.link.host.web import is_host_url, parse_host_url, resolve_api_key
+
+    if options.send and is_host_url(options.send):
+        parse_host_url(options.send)
+        resolve_api_key(options.api_key, options.api_key_file)
+    elif options.api_key is not None or options.api_key_file is not None:
+        raise FabkitError("--api-key and --api-key-file are for --send to a printer host")
+
+
+def check_inputs(options: RunOptions, machine: MachineProfile) -> RunInputs:
+    """Refuse bad input before any work; returns the spec (the solver options applied),
+    ``machine`` and the process."""
+    for fmt in options.formats:
+        if fmt not in FORMAT_FILES:
+            raise FabkitError(f"--format {fmt}: expected one of {', '.join(FORMAT_FILES)}")
+    if options.mesh_format not in MESH_TYPES:
+        raise FabkitError(
+            f"--mesh-format {options.mesh_format}: expected one of " + ", ".join(MESH_TYPES)
+        )
+    if options.send and "gcode" not in options.formats:
+        raise FabkitError("--send needs --format gcode")
+    _check_send(options)
+    if not (math.isfinite(options.size_mm) and options.size_mm > 0):
+        raise FabkitError(f"--size {options.size_mm:g}: expected a positive finite number")
+    if not 1 <= options.layers <= MAX_LAYERS:
+        raise FabkitError(f"--layers {options.layers}: expected 1 to {MAX_LAYERS} layers")
+    if not (math.isfinite(options.form_tolerance) and 0 < options.form_tolerance < 1):
+        raise FabkitError(
+            f"--form-tolerance {100 * options.form_tolerance:g}: expected a percentage "
+            "between 0 and 100"
+        )
+    check_folder(options.out, f"--out {options.out}")
+    options.part_request.check()
+    spec = load_spec(options.spec)
+    patch_paths(spec.targets, Path(options.out) / "patches", options.mesh_format)
+    if options.step is not None or options.diagonals is not None:
+        spec = spec.with_solver(step=options.step, diagonals=options.diagonals)
+    baromorph = None
+    if options.baromorph:
+        if options.formats != ("dxf",):
+            raise FabkitError("a baromorph run writes DXF only: use --format dxf (or no --format)")
+        baromorph = load_baromorph(options.baromorph)
+    elif machine.kind == LASER_WRITER and options.formats != ("laser",):
+        raise FabkitError(
+            f"{options.machine} is a laser writer: use --format laser (or no --format)"
+        )
+    if options.layers > 1 and (options.baromorph or machine.kind == LASER_WRITER):
+        what = "a baromorph's channels" if options.baromorph else f"laser writer {machine.name}"
+        raise FabkitError(
+            f"--layers {options.layers}: {what} make one layer; print a layered sheet on a "
+            "printer (fabkit machines lists them)"
+        )
+
+    process = None
+    if not options.baromorph:
+        process = load_process(options.process_file) if options.process_file else machine.process
+        resolve_channels(process, spec.material.features, options.ignore_features)
+    elif options.ignore_features:
+        raise FabkitError("--ignore-feature: a baromorph run encodes one feature as the width")
+    spans = [hi - lo for lo, hi in (machine.envelope.x_mm, machine.envelope.y_mm)]
+    if options.size_mm > max(spans):
+        raise FabkitError(
+            f"--size {options.size_mm:g}: the sheet does not fit the envelope of "
+            f"{options.machine} ({spans[0]:g} x {spans[1]:g} mm); give a smaller --size"
+        )
+    return RunInputs(spec, machine, process, baromorph)
+
+
+def ignored_notice(options: RunOptions) -> str:
+    """The report's first line when features are left out on purpose ("" if none)."""
+    if not options.ignore_features:
+        return ""
+    names = ", ".join(options.ignore_features)
+    plural = "s" if len(options.ignore_features) > 1 else ""
+    return (
+        f"NOT ENCODED: feature{plural} {names} left out on purpose (--ignore-feature): the "
+        "machine file does not carry "
+        + ("them" if plural else "it")
+        + ", so the sheet it makes cannot take every designed shape"
+    )
+
+
+def machine_name(options: RunOptions) -> str:
+    """The machine of a run: --machine, else the laser cutter for baromorph channels, else
+    the default printer."""
+    return options.machine or (BAROMORPH_MACHINE if options.baromorph else DEFAULT_MACHINE)
+
+
+def with_defaults(options: RunOptions, machine: MachineProfile) -> RunOptions:
+    """Fill in the machine and the formats that suit the route (see :class:`RunOptions`)."""
+    formats = options.formats
+    if not formats:
+        if options.baromorph:
+            formats = ("dxf",)
+        elif machine.kind == LASER_WRITER:
+            formats = ("laser",)
+        else:
+            formats = ("gcode",)
+    return replace(options, machine=machine_name(options), formats=tuple(formats))

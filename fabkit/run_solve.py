@@ -1,0 +1,167 @@
+"""``fabkit run``'s solve stage: the spec solved and checked, the part cut, the layers.
+
+:func:`solve_stage` solves and checks the spec into design.npz, cuts the part of the
+flat sheet that is made (:func:`design_part`, or a baromorph's), programs the layers of
+a layered sheet (:func:`layer_design`, also ``fabkit solve --layers``) and gives the
+verdict on the sheet as designed (:class:`Solved`). Called by
+:func:`fabkit.pipeline.run_pipeline`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fabkit.design.check import CheckReport, ResidualMaps
+from fabkit.design.design import Design
+from fabkit.design.layers import layered
+from fabkit.design.summary import checked_points, solve_to_file
+from fabkit.field.design_field import feature_names as design_features
+from fabkit.field.part import (
+    MIN_WIDTH_PITCHES,
+    MIN_WIDTH_ROADS,
+    Part,
+    PartRequest,
+    print_part,
+    scale_for_size,
+    solved_region,
+)
+from fabkit.figures import AREA_UNIT
+from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict, design_verdict
+from fabkit.process import Process
+from fabkit.run_inputs import RunInputs, RunOptions
+
+
+@dataclass(frozen=True)
+class Solved:
+    """The solve stage's results: the ``design`` (layered when asked), its check
+    (``check``, the residual ``maps``), the solver's ``summary``, the ``part`` that is
+    made, how well the layers program the curvature (``layering``, None for one layer)
+    and the ``verdict`` on the sheet as designed."""
+
+    design: Design
+    check: CheckReport
+    maps: tuple[ResidualMaps, ...]
+    summary: dict[str, Any]
+    part: Part
+    layering: dict[str, Any] | None
+    verdict: Verdict
+
+
+def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) -> Solved:
+    """Solve and check the spec into design.npz; cut the part that is made."""
+    say(f"[1/7] solving {options.spec}")
+    result = solve_to_file(inputs.spec, Path(options.out) / "design.npz", "      solving")
+    check, solved = result.check, result.summary
+    say(
+        f"      {solved['valid_points']} valid points in {solved['solve_seconds']:.2f} s; "
+        f"check {'passed' if check.passed else 'FAILED'}"
+    )
+    say(f"      {checked_points(solved['check'])}")
+    say(
+        f"      area over the solved cells ({AREA_UNIT}): "
+        + ", ".join(f"{k} {v:.4g}" for k, v in solved["area_design_units2"].items())
+    )
+    design = result.solution.design
+    part = _part(options, inputs, design)
+    say(f"      {part.summary()}")
+    thickness_mm = options.layers * inputs.process.layer_height_mm if inputs.process else None
+    layering = None
+    if options.layers > 1:
+        request = LayerRequest(
+            options.layers, inputs.process, part, options.ignore_features, options.form_tolerance
+        )
+        design, layering = layer_design(design, request, say)
+        design.save(Path(options.out) / "design.npz")
+    verdict = design_verdict(
+        design,
+        None if thickness_mm is None else thickness_mm / part.mm_per_unit,
+        tolerance=options.form_tolerance,
+        part=part,
+        mm_per_unit=part.mm_per_unit,
+    )
+    say(f"      {verdict.headline()}:")
+    for line in verdict.lines():
+        say(f"        {line}")
+    return Solved(design, check, result.maps, solved, part, layering, verdict)
+
+
+@dataclass(frozen=True)
+class LayerRequest:
+    """A layered sheet asked for: ``layers`` of the ``process``'s layer height on the
+    ``part`` (its scale sets the thickness in design units), features within the ranges
+    their channels encode (``ignore_features`` left out), targets held to ``tolerance``."""
+
+    layers: int
+    process: Process
+    part: Part
+    ignore_features: tuple[str, ...] = ()
+    tolerance: float = FORM_TOLERANCE
+
+
+def layer_design(
+    design: Design, request: LayerRequest, say: Callable[[str], None] = print
+) -> tuple[Design, dict[str, Any]]:
+    """The design made of ``request.layers`` layers, programmed with the curvature of the
+    targets the sheet misses when programmed by its metric alone (simulated at the
+    layers' thickness: a target it forms asks for nothing, and is bent to no other
+    side), and the figures of how well (``fabkit run --layers``, ``fabkit solve
+    --layers``)."""
+    process, part = request.process, request.part
+    thickness = request.layers * process.layer_height_mm / part.mm_per_unit
+    names = design_features(design)
+    bounds = process.resolve(names, request.ignore_features).bounds(names)
+    alone = design_verdict(
+        design, thickness, tolerance=request.tolerance, part=part, mm_per_unit=part.mm_per_unit
+    )
+    say(f"      {alone.headline().replace('as designed', 'programmed by its metric alone')}")
+    needed = {shape.target: not shape.formed for shape in alone.shapes}
+    weights = np.array([float(needed.get(t.name, False)) for t in design.problem.targets])
+    design, report = layered(design, request.layers, thickness, bounds, weights)
+    say(
+        f"      {request.layers} layers of {process.layer_height_mm:g} mm, programmed with "
+        "the curvature of the targets the metric misses:"
+    )
+    for line in report.lines():
+        say(f"        {line}")
+    return design, {"metric alone": alone.to_dict(), **report.to_dict()}
+
+
+def design_part(
+    design: Design,
+    size_mm: float,
+    process: Process,
+    layers: int = 1,
+    request: PartRequest | None = None,
+) -> Part:
+    """The part of a printed sheet (``fabkit run``): at ``size_mm`` (its longest side), for
+    the process's road width and a sheet of ``layers`` of its layer height."""
+    solved = solved_region(design)
+    options = (request or PartRequest()).for_process(
+        process.road_width_mm, layers * process.layer_height_mm, MIN_WIDTH_ROADS
+    )
+    return print_part(design, scale_for_size(solved, size_mm), options, solved)
+
+
+def _part(options: RunOptions, inputs: RunInputs, design: Design) -> Part:
+    """The part of the flat sheet that is made, at the run's size, for its process: the
+    road width (a baromorph's: two channel pitches) and the sheet's thickness (its layers'
+    heights; a baromorph's part thickness) set the default minimum width and the trim."""
+    if not options.baromorph:
+        return design_part(
+            design, options.size_mm, inputs.process, options.layers, options.part_request
+        )
+    settings = inputs.baromorph
+    solved = solved_region(design)
+    return print_part(
+        design,
+        scale_for_size(solved, options.size_mm),
+        options.part_request.for_process(
+            settings.pitch_mm, settings.part_thickness_mm, MIN_WIDTH_PITCHES
+        ),
+        solved,
+    )
