@@ -72,6 +72,7 @@ def test_the_layers_program_the_wavy_sheet_and_keep_the_metric(fig3):
     side = dict(zip(report.names, report.right_side, strict=True))
     assert matched["wavy"] > 0.6 and side["wavy"] > 0.95  # its II_vv is reachable (eps2)
     assert report.metric_error < 0.01  # second order in the thickness
+    assert 0 <= report.metric_error_p99 <= report.metric_error
     assert design.layers == 2 and np.isnan(design.layering.turn[~design.valid]).all()
     bottom, top = design.layer(0), design.layer(1)
     assert np.allclose(0.5 * (bottom.eps + top.eps)[:, fig3.valid], fig3.eps[:, fig3.valid])

@@ -17,7 +17,7 @@ import pytest
 from fabkit.design.design import Design
 from fabkit.machines import load_machine
 from fabkit.verify.read_gcode import read_gcode
-from tests.conftest import EXAMPLES
+from tests.conftest import EXAMPLES, validate_report
 
 THREE = EXAMPLES / "three_shapes.toml"
 
@@ -47,6 +47,9 @@ def test_two_layers_form_every_fig3_target_as_fabricated(layered_run):
         assert all(f["rms_pct"] <= 2.0 for f in layer["features"])
     assert figures["layers"]["weights"] == {"sphere": 0.0, "face": 0.0, "wavy": 1.0}
     assert figures["layers"]["metric alone"]["formed"] is False  # wavy: its mirror image
+    # the layers keep the design's mean metric at nearly every point (second order)
+    assert figures["layers"]["metric_error_p99"] < 0.01
+    validate_report(figures)
 
 
 @pytest.mark.slow
