@@ -365,6 +365,8 @@ def test_an_ignored_feature_is_the_reports_first_line(run_cli, tmp_path):
     )  # fmt: skip
     assert code == 0, err
     assert text.splitlines()[0].strip().startswith("NOT ENCODED: feature eps2 left out")
+    # and the last line, before the verdict on the sheet as designed
+    assert text.splitlines()[-1].startswith("done: NOT ENCODED in the machine file (")
     figures = json.loads((out / "report.json").read_text())
     assert next(iter(figures)) == "notice" and "eps2" in figures["notice"]
     assert figures["channels"] == {"print_speed_mm_s": "eps1"}

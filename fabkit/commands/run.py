@@ -106,6 +106,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"      the sheet {verdict['what']}:")
     for line in verdict["lines"]:
         print(f"        {line}")
-    print(f"done: {verdict['headline']}; {check}; see {args.out}/report.html")
+    left_out = ""
+    if args.ignore_features:  # the machine file cannot make the designed sheet: say so first
+        names = ", ".join(args.ignore_features)
+        left_out = f"NOT ENCODED in the machine file (--ignore-feature): {names}; "
+    print(f"done: {left_out}{verdict['headline']}; {check}; see {args.out}/report.html")
     missed = not all(v["formed"] for v in figures["verdicts"])
     return 1 if args.strict and (missed or not figures["check"]["passed"]) else 0
