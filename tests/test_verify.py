@@ -411,3 +411,20 @@ def test_verify_notices_a_sabotaged_file(fig1_run, run_cli, tmp_path):
     assert code == 0, err
     (feature,) = json.loads(text)["features"]
     assert feature["rms_pct"] > 5.0  # 20 % slower roads read as a different eps
+
+
+@pytest.mark.slow
+def test_verify_reads_with_the_machine_the_file_names(fig1_run, run_cli, tmp_path):
+    """One rule (fabkit/writers/which_machine.py): --machine, else the file's header, else
+    the default; a --machine the header contradicts is read as asked, and said."""
+    design, gcode = fig1_run / "design.npz", fig1_run / "sheet.gcode"
+    code, text, err = run_cli("verify", design, gcode, "--no-simulate")
+    assert code == 0, err
+    assert "machine marlin_diw_pneumatic" in text.splitlines()[0] and "file names" not in text
+    renamed = tmp_path / "renamed.gcode"  # the same moves, its header naming another machine
+    text = gcode.read_text().replace("for machine marlin_diw_pneumatic", "for machine grbl_diw", 1)
+    renamed.write_text(text)
+    machine = ("--machine", "marlin_diw_pneumatic")
+    code, text, err = run_cli("verify", design, renamed, "--no-simulate", *machine)
+    assert code == 0, err
+    assert "read as machine marlin_diw_pneumatic reads it, but the file names grbl_diw" in text

@@ -64,7 +64,7 @@ from fabkit.verify.raster import Readback, Roads, rasterise
 from fabkit.verify.read_dxf import read_channels, read_dxf
 from fabkit.verify.read_gcode import Placement, Printed, read_gcode
 from fabkit.verify.read_laser import read_laser
-from fabkit.writers.which_machine import choose_machine
+from fabkit.writers.which_machine import choose_machine, named_machine
 
 CELL_PER_WIDTH = 4
 """Grid cells per road width (roads are read on cells of w / 4)."""
@@ -241,6 +241,9 @@ def verify(
     missing = sorted({f.feature for reading in readings for f in reading if f.cells == 0})
     if missing:
         notes.append(f"not read back (the file carries no value for it): {', '.join(missing)}")
+    named = named_machine(machine_file)
+    if named is not None and named != machine.name:
+        notes.append(f"read as machine {machine.name} reads it, but the file names {named}")
     targets: tuple[TargetDistance, ...] = ()
     shapes: tuple[FormedShape, ...] = ()
     simulation: dict[str, Any] = {}

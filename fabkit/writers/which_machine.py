@@ -10,7 +10,7 @@ so its machine is its ``--machine`` or its default.
 A ``--machine`` the file's header contradicts is refused unless ``force`` (``fabkit send
 --force``: streaming a file to a machine it was not written for moves that machine in
 ways nobody checked); ``fabkit verify`` reads a file as the machine asked for reads it,
-and says so.
+and says so in its notes.
 """
 
 from __future__ import annotations
