@@ -7,6 +7,7 @@ import sys
 
 from fabkit import commands
 from fabkit.field.part import PartRequest
+from fabkit.process import Process
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.toolpath.plan import PATTERNS
 
@@ -106,9 +107,9 @@ def part_request(args: argparse.Namespace) -> PartRequest:
     return commands.call_with(PartRequest, args)
 
 
-def _job(args: argparse.Namespace) -> ToolpathJob:
-    """The job the options ask for (``channels``: its field options alone)."""
-    process = commands.chosen_process(args) if hasattr(args, "process_file") else None
+def _job(args: argparse.Namespace, process: Process | None = None) -> ToolpathJob:
+    """The job the options ask for, printed with ``process`` (``channels``: its field
+    options alone)."""
     return commands.call_with(ToolpathJob, args, part_request=part_request(args), process=process)
 
 
@@ -126,7 +127,7 @@ def run_channels(args: argparse.Namespace) -> int:
 
 @commands.in_out_folder
 def run(args: argparse.Namespace) -> int:
-    result = run_job(_job(args))
+    result = run_job(_job(args, commands.chosen_process(args)))
     for warning in result.plan.warnings:
         print(f"fabkit: warning: {warning}", file=sys.stderr)
     for part in result.parts:

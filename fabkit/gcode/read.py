@@ -454,11 +454,17 @@ def read_extended(text: str) -> Block:
     return Block((name.upper(),), params=params)
 
 
+def extra_axes(machine: MachineProfile) -> str:
+    """The axis letters ``machine`` has besides X, Y, Z: grblHAL's ``A`` on a GRBL laser
+    writer (its scan axis), else none."""
+    return "A" if machine.flavour == "grbl" and machine.kind == "laser_writer" else ""
+
+
 def firmware_reader(machine: MachineProfile) -> Callable[[str], Block]:
-    """The reader of ``machine``'s firmware: GRBL's (with grblHAL's ``A`` axis on a laser
-    writer), a Klipper extended command's or Marlin's (Klipper upper-cases)."""
+    """The reader of ``machine``'s firmware: GRBL's (with :func:`extra_axes`), a Klipper
+    extended command's or Marlin's (Klipper upper-cases)."""
     if machine.flavour == "grbl":
-        extra = "A" if machine.kind == "laser_writer" else ""
+        extra = extra_axes(machine)
         return lambda text: read_grbl(text, extra)
     if machine.flavour == "klipper":
         return lambda text: (

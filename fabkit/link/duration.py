@@ -188,8 +188,8 @@ class _Walker:
         motion = next((c for c in codes if c in MOTION), None)
         if motion is not None:
             self.motion = motion
-        elif not (grbl and not set(codes) & _AXIS_COMMANDS):
-            return None  # GRBL's modal motion: axis words alone move in the last mode
+        elif not grbl or set(codes) & _AXIS_COMMANDS:
+            return None  # only GRBL moves on axis words alone (its modal motion)
         move = self.position.move(values)
         return None if move is None else list(move.deltas())
 

@@ -64,7 +64,7 @@ from fabkit.verify.raster import Readback, Roads, rasterise
 from fabkit.verify.read_dxf import read_channels, read_dxf
 from fabkit.verify.read_gcode import Placement, Printed, read_gcode
 from fabkit.verify.read_laser import read_laser
-from fabkit.writers.which_machine import choose_machine, named_machine
+from fabkit.writers.which_machine import MachineChoice, choose_machine
 
 CELL_PER_WIDTH = 4
 """Grid cells per road width (roads are read on cells of w / 4)."""
@@ -222,7 +222,8 @@ def verify(
     if not machine_file.exists():
         raise FabkitError(f"machine file '{machine_file}' does not exist")
     kind = "channels" if options.baromorph else _kind(machine_file)
-    machine = _machine(options, machine_file, kind)
+    choice = _machine(options, machine_file, kind)
+    machine = choice.profile
     process = _process(options, machine)
     resolution = process.resolve(names, options.ignore_features)
     readbacks, placement = _read(machine_file, kind, machine, process, resolution, options)
@@ -241,9 +242,8 @@ def verify(
     missing = sorted({f.feature for reading in readings for f in reading if f.cells == 0})
     if missing:
         notes.append(f"not read back (the file carries no value for it): {', '.join(missing)}")
-    named = named_machine(machine_file)
-    if named is not None and named != machine.name:
-        notes.append(f"read as machine {machine.name} reads it, but the file names {named}")
+    if choice.against_the_file:
+        notes.append(f"read as machine {machine.name} reads it, but the file names {choice.named}")
     targets: tuple[TargetDistance, ...] = ()
     shapes: tuple[FormedShape, ...] = ()
     simulation: dict[str, Any] = {}
@@ -343,14 +343,12 @@ def _kind(path: Path) -> str:
     return "dxf" if path.suffix.lower() == ".dxf" else "gcode"
 
 
-def _machine(options: VerifyOptions, path: Path, kind: str) -> MachineProfile:
+def _machine(options: VerifyOptions, path: Path, kind: str) -> MachineChoice:
     """The profile asked for, else the one the file names, else the default (the laser
     cutter for baromorph channels; a laser pattern folder must name its own)."""
-    if isinstance(options.machine, MachineProfile):
-        return options.machine
     defaults = {"channels": "laser_cutter", "laser": None}
     default = defaults.get(kind, DEFAULT_MACHINE)
-    return choose_machine(path, options.machine, default, force=True)[0]
+    return choose_machine(path, options.machine, default, force=True)
 
 
 def _process(options: VerifyOptions, machine: MachineProfile) -> Process:

@@ -139,7 +139,8 @@ class _Machine:
             return
         for code in block.codes:
             if self.position.apply(code, block.values, block.flags):  # modes, G92, G28
-                self.depositing = self.depositing and code != "G28"
+                if code == "G28":
+                    self.depositing = False  # homing ends the road
                 continue
             handler = getattr(self, "_" + code.replace(".", "_"), None)
             if handler is not None:

@@ -16,6 +16,7 @@ and says so in its notes.
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 from fabkit.errors import FabkitError
@@ -49,33 +50,51 @@ def named_machine(path: str | Path) -> str | None:
     return None
 
 
+@dataclass(frozen=True)
+class MachineChoice:
+    """The ``profile`` chosen for a machine file, one line saying which and why
+    (``note``), and the machine the file ``named`` (None: none)."""
+
+    profile: MachineProfile
+    note: str
+    named: str | None
+
+    @property
+    def against_the_file(self) -> bool:
+        """The file names another machine than the one chosen (``--force``)."""
+        return self.named is not None and self.named != self.profile.name
+
+
 def choose_machine(
     path: str | Path,
     requested: str | MachineProfile | None,
     default: str | None,
     *,
     force: bool = False,
-) -> tuple[MachineProfile, str]:
-    """The profile for the machine file ``path`` and one line saying which and why
-    (module docstring). ``requested``: ``--machine`` (a name, a .toml path or a profile
-    loaded already); ``default``: the command's, None when there is none (a FabkitError
-    asks for ``--machine``); ``force``: take a ``requested`` machine the header
-    contradicts (else a FabkitError)."""
+) -> MachineChoice:
+    """The profile for the machine file ``path`` (module docstring). ``requested``:
+    ``--machine`` (a name, a .toml path or a profile loaded already); ``default``: the
+    command's, None when there is none (a FabkitError asks for ``--machine``); ``force``:
+    take a ``requested`` machine the header contradicts (else a FabkitError)."""
     named = named_machine(path)
     if requested is None:
         if named is not None:
             where = "its manifest" if Path(path).is_dir() else "the header"
-            return load_machine(named), f"machine {named} (named in {where} of {path})"
+            note = f"machine {named} (named in {where} of {path})"
+            return MachineChoice(load_machine(named), note, named)
         if default is None:
             raise FabkitError(f"{path}: names no machine; give --machine")
         note = f"machine {default} (the default: {path} names no machine in its header)"
-        return load_machine(default), note
+        return MachineChoice(load_machine(default), note, None)
     profile = requested if isinstance(requested, MachineProfile) else load_machine(requested)
-    if named is None or named == profile.name:
-        return profile, f"machine {profile.name} (--machine)"
+    choice = MachineChoice(profile, f"machine {profile.name} (--machine)", named)
+    if not choice.against_the_file:
+        return choice
     if not force:
         raise FabkitError(
             f"{path} was written for machine {named} (its header), not {profile.name}: "
             f"send it with --machine {named}, or add --force"
         )
-    return profile, f"machine {profile.name} (--force: the header names {named})"
+    return MachineChoice(
+        profile, f"machine {profile.name} (--force: the header names {named})", named
+    )

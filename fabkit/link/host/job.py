@@ -68,7 +68,8 @@ def prepare_job(
     check the job against the machine and plan its duration; FabkitError at the first
     problem."""
     data, job = read_job_bytes(path)
-    profile, note = choose_machine(path, requested, default, force=force)
+    choice = choose_machine(path, requested, default, force=force)
+    profile, note = choice.profile, choice.note
     if profile.serial is None:
         raise FabkitError(f"machine {profile.name} has flavour none and takes no G-code")
     if link_takes is not None:

@@ -24,6 +24,7 @@ from fabkit.gcode.read import (
     Block,
     Command,
     GcodeError,
+    extra_axes,
     firmware_reader,
 )
 from fabkit.link.host.preflight_grbl import GrblDialect
@@ -74,7 +75,6 @@ class _Checker:
             raise FabkitError(f"machine {machine.name} has flavour none and takes no G-code")
         self.machine = machine
         self.grbl = machine.flavour == "grbl"
-        self.extra_axes = "A" if self.grbl and machine.kind == "laser_writer" else ""
         self.read = firmware_reader(machine)  # text -> Block, as the firmware reads it
         self.tracker = Tracker(machine)
         snippets = {key: self._snippet(key) for key in GCODE_KEYS}
@@ -84,7 +84,9 @@ class _Checker:
         self.ink2_off = [line for line in snippets["ink2_off_gcode"] if line.codes]
         self.inks_on = [False, False]  # the first ink (flow on/off), the second (ink2 on/off)
         if self.grbl:
-            self.dialect: GrblDialect | MarlinDialect = GrblDialect(self.tracker, self.extra_axes)
+            self.dialect: GrblDialect | MarlinDialect = GrblDialect(
+                self.tracker, extra_axes(machine)
+            )
         else:
             writes = [b for blocks in snippets.values() for b in blocks if b.codes == ("M42",)]
             trusted = {_normal(line) for key in GCODE_KEYS for line in machine.render(key)}
