@@ -107,6 +107,7 @@ from __future__ import annotations
 
 import time
 from collections import deque
+from collections.abc import Callable
 
 from fabkit.errors import FabkitError
 from fabkit.gcode.read import code_of, frame_marlin
@@ -236,22 +237,38 @@ class MarlinProtocol(Session):
 
     def _stream(self) -> bool:
         """Send ahead within the window; False if an abort's safe stop was not confirmed."""
+        return self.pump(self._done, self._send_ahead, self._on_line, self._on_silence)
+
+    def _send_ahead(self) -> None:
+        if b"\n" not in self.rx and self.pending_error is None:
+            self._fill()  # answer everything received before sending more
+
+    def pump(
+        self,
+        done: Callable[[], bool],
+        send: Callable[[], None],
+        on_line: Callable[[str], None],
+        on_silence: Callable[[], None],
+    ) -> bool:
+        """Until ``done()``: ``send()`` what may be sent, then answer the next line the
+        firmware wrote (``on_line``) or its silence (``on_silence``). Ctrl-C begins the
+        safe stop, which then has ``options.finish_s`` to be confirmed; returns whether the
+        stream ended ``done`` (False: the safe stop was not confirmed in time)."""
         deadline = None
-        while not self._done():
+        while not done():
             if self.control.aborted and not self.aborting:
                 self.begin_abort()
                 deadline = time.monotonic() + self.options.finish_s
             if deadline is not None and time.monotonic() > deadline:
                 break
             self.check_pending_error()
-            if b"\n" not in self.rx and self.pending_error is None:
-                self._fill()  # answer everything received before sending more
+            send()
             line = self.read_line()
             if line is None:
-                self._on_silence()
+                on_silence()
             else:
-                self._on_line(line)
-        return self._done()
+                on_line(line)
+        return done()
 
     def _done(self) -> bool:
         """The M105 after the last job (or safe-stop) line is answered."""

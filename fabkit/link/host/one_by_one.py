@@ -19,7 +19,7 @@ taken for a later line's.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Protocol
 
 from fabkit.errors import FabkitError
@@ -64,14 +64,18 @@ class NumberedLink(Protocol):
     stop_point: tuple[float, float, float] | None
     heating_note: str
 
+    def pump(
+        self,
+        done: Callable[[], bool],
+        send: Callable[[], None],
+        on_line: Callable[[str], None],
+        on_silence: Callable[[], None],
+    ) -> bool: ...
     @property
     def done_lines(self) -> int: ...
     def write(self, data: bytes) -> None: ...
-    def read_line(self) -> str | None: ...
     def show(self, done: int, note: str = "", *, force: bool = False) -> None: ...
     def lost(self, done: int, reason: str, sent: int | None = None) -> FabkitError: ...
-    def begin_abort(self) -> None: ...
-    def check_pending_error(self) -> None: ...
     def on_other(self, answer: Answer, line: str) -> None: ...
 
 
@@ -90,23 +94,14 @@ class OneByOne:
 
     def run(self) -> bool:
         """Stream the job; False if an abort's safe stop was not confirmed in time."""
-        proto = self.proto
-        deadline = None
-        while not self._done():
-            if proto.control.aborted and not proto.aborting:
-                proto.begin_abort()
-                deadline = time.monotonic() + proto.options.finish_s
-            if deadline is not None and time.monotonic() > deadline:
-                break
-            proto.check_pending_error()
-            if self.current is None and not self.probes and proto.pending_error is None:
-                self._send_next()
-            line = proto.read_line()
-            if line is None:
-                self._on_silence()
-            else:
-                self._on_line(line)
-        return self._done()
+        return self.proto.pump(
+            self._done, self._send_when_answered, self._on_line, self._on_silence
+        )
+
+    def _send_when_answered(self) -> None:
+        """The next line, once the last one and every probe are answered."""
+        if self.current is None and not self.probes and self.proto.pending_error is None:
+            self._send_next()
 
     # -- sending ---------------------------------------------------------------------------
 
