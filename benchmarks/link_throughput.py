@@ -6,7 +6,9 @@ G-code first (``fabkit run examples/two_shapes.toml``) and prints
 
 1. on the built-in emulator at 115200 baud with real byte timing (10 bits per byte): the
    send-ahead's line rate as a share of the byte-limited rate (baud / 10 / mean bytes per
-   framed line), Marlin and GRBL, and, over a pseudo-terminal, its ratio to a naive
+   framed line), Marlin and GRBL; GRBL's character counting against one line per ``ok``
+   (the same sender, ``window_lines=1``), with and without a 1 ms latency, none of its
+   bytes lost; and, over a pseudo-terminal, the Marlin send-ahead's ratio to a naive
    one-line-per-``ok`` sender on the same emulator;
 2. on pty responders that are not fabkit's emulator (tests/test_link_responders.py, each
    in its own process): the ratio of the send-ahead's line rate to the naive sender's,
@@ -123,6 +125,7 @@ def byte_limited(ok: bool, n: int) -> bool:
                 f"  {protocol:6s} latency {latency_ms:g} ms: byte limit {limit:6.1f} lines/s, "
                 f"send-ahead {report.lines_per_s:6.1f} ({100 * share:5.1f} %)"
             )
+    ok = grbl_counting(ok, grbl_job(n))
     job = marlin_job(n)
     config = config_from_url(f"sim://marlin?time_scale=0&baud={BAUD}", BAUD)
     with PtyEmulator(config) as pty:
@@ -134,6 +137,30 @@ def byte_limited(ok: bool, n: int) -> bool:
         f"  marlin over a pty: naive one line per ok {naive:6.1f} lines/s, send-ahead "
         f"{ahead:6.1f}: ratio {ahead / naive:.2f}"
     )
+    return ok
+
+
+def grbl_counting(ok: bool, job: list[Command]) -> bool:
+    """GRBL's character counting (every line's bytes counted until its own answer, a
+    ``$G`` barrier after a quiet spell) against one line per ``ok``, the same sender
+    with ``window_lines=1``, on the emulator with real byte timing; with a USB-like
+    latency too. Required: counting at least as fast."""
+    machine = load_machine("grbl_diw")
+    for latency_ms in (0.0, 1.0):
+        url = f"sim://grbl?time_scale=0&latency_ms={latency_ms:g}"
+        rates = {}
+        for name, window in (("one line per ok", 1), ("character counting", None)):
+            port = open_port(url, BAUD)
+            report = stream_job(port, job, machine, options=LinkOptions(window_lines=window))
+            stats = port.emulator.stats()
+            ok &= stats.overflow_bytes == 0 and stats.max_rx_bytes <= 127
+            rates[name] = report.lines_per_s
+        ratio = rates["character counting"] / rates["one line per ok"]
+        ok &= ratio >= 1.0
+        print(
+            f"  grbl   latency {latency_ms:g} ms: one line per ok {rates['one line per ok']:6.1f} "
+            f"lines/s, character counting {rates['character counting']:6.1f}: ratio {ratio:.2f}"
+        )
     return ok
 
 

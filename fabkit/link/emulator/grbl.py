@@ -2,13 +2,38 @@
 
 GRBL has no line numbers and no checksums. Each line (``\\n`` or ``\\r`` ends it, so
 ``\\r\\n`` is a line plus an empty line) gets exactly one ``ok`` or ``error:N`` once it
-has been parsed and, for a move, put into the planner (the parser waits while the
-planner is full, and the receive ring fills meanwhile). ``?``, ``!``, ``~`` and Ctrl-X
+has been parsed and, for a move, put into the planner. ``?``, ``!``, ``~`` and Ctrl-X
 are picked off the wire on arrival: status report, feed hold, resume, soft reset.
+
+It fails where GRBL 1.1h fails (gnea/grbl, read from its source):
+
+* **The receive ring drops what does not fit.** The serial interrupt (``serial.c``,
+  ``ISR(SERIAL_RX)``) writes a byte into the ring only ``if (next_head !=
+  serial_rx_buffer_tail)``: a byte arriving at a full ring is lost, and the halves of
+  two lines merge into one. The main loop (``protocol.c``, ``protocol_main_loop``) empties
+  the ring only between lines; while a line executes (the parser waits for planner room
+  in ``mc_line``, a dwell or a buffer sync waits for the moves to end) bytes pile up.
+  The emulated ring holds ``rx - 1`` bytes (127 by default, one fewer than 1.1h's 128:
+  stricter than the firmware).
+* **Status before parse.** ``?`` only sets a flag; it is answered at the next
+  ``protocol_execute_realtime`` call: during every wait, and at the end of a line
+  *before* that line is parsed (``protocol_main_loop``: the check point right after the
+  EOL). A report can thus say ``Idle`` while lines wait in the ring unanswered.
+* **Idle during a dwell.** ``G4`` (``mc_dwell``) first waits for the planned moves to
+  end (``protocol_buffer_synchronize``: the state is ``Run``), then sleeps in
+  ``delay_sec`` in steps of 50 ms (``DWELL_TIME_STEP``), answering status reports as
+  ``Idle``, and only then answers ``ok``; the lines behind it wait in the ring.
+* **Merged lines are read as one.** ``gc_execute_line`` (``gcode.c``, step 2) refuses a
+  second motion or non-modal axis command (``error:24``), a second command of one modal
+  group (``error:21``), a repeated value word (``error:25``), a negative ``F``/``N``/
+  ``P``/``S``/``T`` (``error:4``); step 3 refuses words the block does not use
+  (``error:36``): ``P`` without ``G4``/``G10``, ``L`` without ``G10``, ``I J K R``
+  without an arc. A merge that passes these runs as a move nobody asked for.
 """
 
 from __future__ import annotations
 
+import math
 import re
 from collections import deque
 from dataclasses import dataclass
@@ -22,15 +47,24 @@ from fabkit.link.emulator.firmware import (
 REALTIME = b"?!~\x18"
 BANNER = b"\r\nGrbl 1.1h ['$' for help]\r\n"
 LINE_BUFFER_SIZE = 80
+DWELL_STEP_S = 0.05  # nuts_bolts.c delay_sec: a dwell sleeps in whole 50 ms steps
 NOISE_LINES = ("[MSG:fabkit emulator noise]", "[echo:]", "\x00\x7f")
 
 _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
-_G_SUPPORTED = {
-    0, 1, 2, 3, 4, 10, 17, 18, 19, 20, 21, 28, 28.1, 30, 30.1, 38.2, 38.3, 38.4, 38.5,
-    40, 43.1, 49, 53, 54, 55, 56, 57, 58, 59, 61, 80, 90, 91, 91.1, 92, 92.1, 93, 94,
+_G_GROUPS = {
+    **dict.fromkeys((4, 10, 28, 30, 53, 92, 28.1, 30.1, 92.1), 0),
+    **dict.fromkeys((0, 1, 2, 3, 38.2, 38.3, 38.4, 38.5, 80), 1),
+    17: 2, 18: 2, 19: 2, 90: 3, 91: 3, 91.1: 4, 93: 5, 94: 5, 20: 6, 21: 6, 40: 7,
+    43.1: 8, 49: 8, **dict.fromkeys((54, 55, 56, 57, 58, 59), 12), 61: 13,
 }  # fmt: skip
-_M_SUPPORTED = {0, 1, 2, 30, 3, 4, 5, 7, 8, 9, 56}
+"""Modal group of each G command GRBL 1.1h knows (gcode.c, step 2; gcode.h MODAL_GROUP_G*)."""
+_G_INTEGER = {0, 1, 2, 3, 4, 10, 17, 18, 19, 20, 21, 40, 53, 54, 55, 56, 57, 58, 59, 80, 93, 94}
+"""Commands GRBL reads by their integer part: a fraction of them is error:23."""
+_AXIS_COMMANDS = {0, 1, 2, 3, 38.2, 38.3, 38.4, 38.5, 10, 28, 30, 92, 43.1, 49}
+"""Commands that use the axis words: two in a block is error:24."""
+_M_GROUPS = {0: 4, 1: 4, 2: 4, 30: 4, 3: 7, 4: 7, 5: 7, 7: 8, 8: 8, 9: 8, 56: 9}
 _LETTERS = set("FGIJKLMNPRSTXYZ")
+_NOT_NEGATIVE = set("FNPST")
 _SYNC_M = {0, 1, 2, 30, 3, 4, 5, 7, 8, 9}
 _MOTION_G = {0, 1, 2, 3, 38.2, 38.3, 38.4, 38.5, 80}
 
@@ -54,7 +88,8 @@ def grbl_clean(raw: bytes) -> tuple[str, bool]:
 
 @dataclass
 class _Parsed:
-    """One parsed block waiting to complete (s, mm)."""
+    """One parsed block waiting to complete (s, mm). ``dwell_ends`` is set once the
+    moves before a dwell have ended: the emulator time at which its sleep ends."""
 
     text: str
     g: list[float]
@@ -62,6 +97,7 @@ class _Parsed:
     values: dict[str, float]
     motion: float | None
     dwell_s: float
+    dwell_ends: float | None = None
 
 
 class GrblFirmware(Firmware):
@@ -98,7 +134,7 @@ class GrblFirmware(Firmware):
             return "Alarm"
         if self.motion.held_since is not None:
             return "Hold:0"
-        return "Run" if self.head is not None or self.motion.busy(t) else "Idle"
+        return "Run" if self.motion.busy(t) else "Idle"  # Idle in a dwell's sleep
 
     # -- real-time bytes -------------------------------------------------------------------
 
@@ -187,33 +223,19 @@ class GrblFirmware(Firmware):
             self.wake = t
 
     def _parse(self, line: str, text: str) -> tuple[_Parsed | None, int]:
-        pos = 0
-        g: list[float] = []
-        m: list[int] = []
-        values: dict[str, float] = {}
-        for match in _WORD.finditer(line):
-            if match.start() != pos:
-                return None, 1 if not line[pos].isalpha() else 2
-            letter, number = match.group(1), float(match.group(2))
-            if letter not in _LETTERS:
-                return None, 20
-            if letter == "G":
-                g.append(number)
-            elif letter == "M":
-                m.append(int(number))
-            elif letter in values:
-                return None, 25
-            else:
-                values[letter] = number
-            pos = match.end()
-        if pos != len(line):
-            return None, 1 if not line[pos].isalpha() else 2
-        if any(code not in _G_SUPPORTED for code in g) or any(c not in _M_SUPPORTED for c in m):
-            return None, 20
+        """The block of ``line`` (cleaned), or the ``error:N`` GRBL answers it with."""
+        words = _read_words(line)
+        if isinstance(words, int):
+            return None, words
+        g, m, values = words
         motion = self._motion_of(g, values)
+        if 4 in g and "P" not in values:
+            return None, 28  # G4 without P: value word missing
         needs_feed = motion in (1, 2, 3) and "F" not in values and not self.motion.feed_mm_s
         if needs_feed:
             return None, 22
+        if _unused_words(g, values, motion):
+            return None, 36
         dwell_s = values.get("P", 0.0) if 4 in g else 0.0
         return _Parsed(text, g, m, values, motion, dwell_s), 0
 
@@ -228,14 +250,22 @@ class GrblFirmware(Firmware):
         return None
 
     def _wake_time(self, block: _Parsed, t: float) -> float:
+        """When ``block`` can complete: a move once the planner has room, a synced command
+        once the moves before it have ended, a dwell then its sleep later."""
         motion = self.motion
         moving = block.motion in (0, 1, 2, 3) and any(axis in block.values for axis in "XYZ")
         if moving and motion.full(t):
             return motion.free_time()
         synced = block.dwell_s > 0 or any(code in (28, 30) for code in block.g)
-        if synced or any(code in _SYNC_M for code in block.m):
-            return motion.idle_time(t) + block.dwell_s * self.config.time_scale
-        return t
+        if not (synced or any(code in _SYNC_M for code in block.m)):
+            return t
+        if block.dwell_ends is None:
+            idle = motion.idle_time(t)
+            if idle > t:
+                return idle
+            steps = math.ceil(block.dwell_s / DWELL_STEP_S - 1e-9)
+            block.dwell_ends = t + steps * DWELL_STEP_S * self.config.time_scale
+        return block.dwell_ends
 
     def _complete(self, block: _Parsed, t: float) -> None:
         motion, values = self.motion, block.values
@@ -298,3 +328,63 @@ class GrblFirmware(Firmware):
             self.on_disconnect(t)
         elif faults.reset_after is not None and executed == faults.reset_after:
             self._soft_reset(t)
+
+
+def _read_words(line: str) -> tuple[list[float], list[int], dict[str, float]] | int:
+    """The G and M commands and value words of a cleaned line, checked as
+    ``gc_execute_line`` does in its step 2; or the number of its ``error:N``."""
+    pos = 0
+    g: list[float] = []
+    m: list[int] = []
+    values: dict[str, float] = {}
+    groups: set[str] = set()
+    axis_command = False
+    for match in _WORD.finditer(line):
+        if match.start() != pos:
+            return 1 if not line[pos].isalpha() else 2
+        letter, number = match.group(1), float(match.group(2))
+        pos = match.end()
+        if letter not in _LETTERS:
+            return 20
+        if letter == "G":
+            code = round(number, 2)
+            if code not in _G_GROUPS:
+                return 23 if int(number) in _G_INTEGER else 20
+            if code in _AXIS_COMMANDS:
+                if axis_command:
+                    return 24
+                axis_command = True
+            group = f"G{_G_GROUPS[code]}"
+            g.append(int(code) if code == int(code) else code)
+        elif letter == "M":
+            if number != int(number):
+                return 23
+            if int(number) not in _M_GROUPS:
+                return 20
+            group = f"M{_M_GROUPS[int(number)]}"
+            m.append(int(number))
+        else:
+            if letter in values:
+                return 25
+            if letter in _NOT_NEGATIVE and number < 0:
+                return 4
+            values[letter] = number
+            continue
+        if group in groups:
+            return 21
+        groups.add(group)
+    if pos != len(line):
+        return 1 if not line[pos].isalpha() else 2
+    return g, m, values
+
+
+def _unused_words(g: list[float], values: dict[str, float], motion: float | None) -> bool:
+    """Whether a value word is left that no command of the block uses (``error:36``,
+    ``gc_execute_line`` step 3): ``P`` without ``G4``/``G10``, ``L`` without ``G10``,
+    ``I J K R`` without an arc."""
+    used = set("FNSTXYZ")
+    if 4 in g or 10 in g:
+        used |= {"P", "L"} if 10 in g else {"P"}
+    if motion in (2, 3):
+        used |= set("IJKR")
+    return any(letter not in used for letter in values)

@@ -1,10 +1,11 @@
 """The GRBL 1.1 protocol: character counting, ``ok`` / ``error:N``, real-time bytes.
 
 GRBL answers every line with exactly one ``ok`` or ``error:N``, in order, and keeps the
-lines it has not parsed in a receive buffer (128 bytes, 127 usable). The sender counts
-the bytes of the unanswered lines and sends a line only if it fits (character
-counting). Real-time bytes skip the buffer: ``?`` asks for a status report, ``!`` holds
-the feed, ``~`` resumes, Ctrl-X resets.
+lines it has not parsed in a receive ring (``RX_BUFFER_SIZE``, 128 bytes in 1.1h; the
+profile's ``rx_buffer_bytes``, of which one byte is left spare). The sender counts the
+bytes of the unanswered lines and sends a line only if it fits (character counting).
+Real-time bytes skip the buffer: ``?`` asks for a status report, ``!`` holds the feed,
+``~`` resumes, Ctrl-X resets.
 
 Before the job, ``$I`` asks the machine for its buffers: its build info ends in
 ``[OPT:<options>,<planner blocks>,<rx bytes>]`` (grbl/report.c ``report_build_info``);
@@ -14,9 +15,21 @@ empty). A machine whose buffer is smaller than the profile's ``rx_buffer_bytes``
 refused (streaming would overflow it and GRBL would run truncated lines); a larger one
 is used.
 
-A lost ``ok`` leaves a phantom line in the count; when the machine has been quiet for a
-while with lines in flight, ``?`` is sent, and an ``Idle`` report then proves that
-every line sent has been executed.
+**Character counting, right by construction** (docs/link.md, "GRBL"): the bytes of a
+line stay counted until *its own* answer, ``ok`` or ``error:``, has arrived (answers
+come in order, one per line). Nothing else frees space: GRBL answers ``?`` before it
+parses the lines waiting in its ring (``protocol.c``, ``protocol_main_loop``: the
+real-time check point right after a line's end) and reports ``Idle`` while it sleeps in
+a dwell (``mc_dwell``), so a status report says nothing about the ring.
+
+An answer lost on the wire would keep its line counted for ever. So after a quiet spell
+with lines in flight a *barrier* is sent, the system command ``$G`` (4 bytes, counted
+like a line; space for it is kept free): GRBL runs the lines of its ring in order, and
+its ``[GC:...]`` report proves that every line sent before it was parsed and answered.
+The lines still unanswered then had their answer lost: they are retired, named in the
+report as unconfirmed (an ``ok`` or an ``error:`` was lost: they may not have run), and
+counted as recoveries. A report that could belong to an earlier barrier is taken for
+the oldest one in flight, which never retires a line too early.
 
 ``error:N`` means that line did not run and the job cannot continue as written; the
 lines behind it are already in GRBL's buffer and run regardless. So nothing more is
@@ -33,6 +46,7 @@ from __future__ import annotations
 import re
 import time
 from collections import deque
+from dataclasses import dataclass, replace
 
 from fabkit.errors import FabkitError
 from fabkit.link.host.session import SendReport, Session
@@ -60,6 +74,19 @@ ALARMS = {
 }
 
 
+BARRIER = b"$G\n"  # answered [GC:...] then ok, in turn with the lines before it
+
+
+@dataclass(slots=True)
+class _Sent:
+    """A line written and not yet answered: its bytes and its job index (-1: a barrier;
+    ``reported``: its ``[GC:`` has arrived)."""
+
+    size: int
+    index: int
+    reported: bool = False
+
+
 class GrblProtocol(Session):
     """Streams a job to GRBL (see the module docstring)."""
 
@@ -70,22 +97,21 @@ class GrblProtocol(Session):
         self.rx_usable = self.serial.rx_buffer_bytes - 1
         self.max_lines = self.options.window_lines or self.serial.planner_depth
         longest = max((len(c.text) + 1 for c in self.job), default=0)
-        if longest > self.rx_usable:
+        if longest > self.rx_usable - len(BARRIER):
             raise FabkitError(
                 f"a {longest - 1}-character command does not fit in the "
                 f"{self.serial.rx_buffer_bytes}-byte receive buffer of {self.machine.name}"
             )
-        self.inflight: deque[int] = deque()  # bytes of each unanswered line
+        self.inflight: deque[_Sent] = deque()  # oldest first
         self.inflight_bytes = 0
         self.sent = 0
-        self.acked = 0
+        self.acked = 0  # job lines answered (or proven parsed by a barrier), in order
         self.rejected: list[tuple[int, str]] = []  # job index, error line
+        self.unanswered: list[int] = []  # job indices whose answer was lost
         self.last_query_s = 0.0
-        self.quiet_query = False
-        self.last_idle = False
+        self.last_answer_s = time.monotonic()
         self.held = False
         self.ok_gap_s = 0.05
-        self.last_ok_s = time.monotonic()
         self.last_status = ""
 
     def run(self) -> SendReport:
@@ -103,10 +129,21 @@ class GrblProtocol(Session):
                 self._on_silence()
             else:
                 self._on_line(line)
-            if self.rejected and not self.inflight:
+            if self.rejected and not self._job_in_flight():
                 self._after_error()
+        self._settle_barriers()
         self.show(self.acked, force=True)
         return self.report()
+
+    def report(self) -> SendReport:
+        return replace(
+            super().report(),
+            unconfirmed=tuple(self._unconfirmed_line(index) for index in self.unanswered),
+        )
+
+    def _unconfirmed_line(self, index: int) -> str:
+        command = self.job[index]
+        return f"file line {command.file_line} ('{command.text}'): its answer was lost"
 
     # -- handshake and sending -------------------------------------------------------------
 
@@ -166,19 +203,26 @@ class GrblProtocol(Session):
 
     def _fill(self) -> None:
         frames = []
+        room = self.rx_usable - len(BARRIER)  # a barrier always fits beside the job lines
         while self.sent < len(self.job) and not self.held:
             frame = self.job[self.sent].text.encode("ascii") + b"\n"
-            full = self.inflight_bytes + len(frame) > self.rx_usable
-            if full or len(self.inflight) >= self.max_lines:
+            full = self.inflight_bytes + len(frame) > room
+            if full or self._job_in_flight() >= self.max_lines:
                 break
-            self.inflight.append(len(frame))
-            self.inflight_bytes += len(frame)
+            self._push(_Sent(len(frame), self.sent))
             self.sent += 1
             self.transmissions += 1
             frames.append(frame)
         if frames:
-            self.quiet_query = False
             self.write(b"".join(frames))
+
+    def _push(self, sent: _Sent) -> None:
+        self.inflight.append(sent)
+        self.inflight_bytes += sent.size
+
+    def _job_in_flight(self) -> int:
+        """Job lines written and not yet answered."""
+        return self.sent - self.acked
 
     def _hold(self, paused: bool) -> None:
         if paused != self.held:
@@ -189,32 +233,47 @@ class GrblProtocol(Session):
     # -- answers ---------------------------------------------------------------------------
 
     def _on_line(self, line: str) -> None:
-        if line == "ok":
+        if line == "ok" or line.startswith("error:"):
             now = time.monotonic()
-            gap = now - max(self.last_ok_s, self.last_tx_s)  # the machine's pace, not our waits
+            gap = now - max(self.last_answer_s, self.last_tx_s)  # the machine's pace
             self.ok_gap_s = 0.8 * self.ok_gap_s + 0.2 * gap
-            self.last_ok_s = now
-            self._retire(1)
+            self.last_answer_s = now
+            answered = self._pop()
+            if line != "ok" and answered is not None and answered.index >= 0:
+                self.rejected.append((answered.index, line))
             self.show(self.acked)
-        elif line.startswith("error:"):
-            if self.acked < len(self.job):
-                self.rejected.append((self.acked, line))
-            self._retire(1)
+        elif line.startswith("[GC:"):
+            self._on_barrier()
         elif line.startswith("ALARM:"):
             self._abort(f"{self.port_name} raised {line} {ALARMS.get(_code(line), '')}".rstrip())
         elif line.startswith("<"):
             self.last_status = line
-            self.last_idle = line.startswith("<Idle")
-            if self.last_idle and self.quiet_query and self.inflight:
-                self.recoveries += 1  # idle and quiet: every line sent was executed
-                self._retire(len(self.inflight))
         elif line.startswith("Grbl"):
-            raise self.lost(self.acked, "the machine reset during the job")
+            raise self._reset_error()
 
-    def _retire(self, count: int) -> None:
-        for _ in range(min(count, len(self.inflight))):
-            self.inflight_bytes -= self.inflight.popleft()
+    def _pop(self) -> _Sent | None:
+        """Retire the oldest line in flight (None if there is none)."""
+        if not self.inflight:
+            return None
+        sent = self.inflight.popleft()
+        self.inflight_bytes -= sent.size
+        if sent.index >= 0:
             self.acked += 1
+        return sent
+
+    def _on_barrier(self) -> None:
+        """A ``[GC:`` report: every line sent before the oldest barrier in flight has been
+        parsed; those still unanswered lost their answer (module docstring)."""
+        self.last_answer_s = time.monotonic()
+        barrier = next((s for s in self.inflight if s.index < 0 and not s.reported), None)
+        if barrier is None:
+            return
+        while self.inflight[0] is not barrier:
+            lost = self._pop()
+            if lost is not None and lost.index >= 0:
+                self.unanswered.append(lost.index)
+                self.recoveries += 1
+        barrier.reported = True
 
     def _on_silence(self) -> None:
         if not self.inflight:
@@ -225,18 +284,36 @@ class GrblProtocol(Session):
         options = self.options
         probe_after = min(max(8 * self.ok_gap_s, options.probe_min_s), options.probe_max_s)
         quiet = now - max(self.last_rx_s, self.last_tx_s)
-        spacing = probe_after if self.last_idle else max(probe_after, STATUS_MIN_S)
-        if quiet >= probe_after and now - self.last_query_s >= spacing:
+        if quiet >= probe_after and now - self.last_query_s >= max(probe_after, STATUS_MIN_S):
             self.last_query_s = now
             self.probes += 1
-            self.quiet_query = not self.held
-            self.write(STATUS)
+            self.write(STATUS)  # keeps the link alive and the state known; frees nothing
+        if now - self.last_answer_s >= probe_after and self._barrier_wanted():
+            self._push(_Sent(len(BARRIER), -1))
+            self.write(BARRIER)
+
+    def _barrier_wanted(self) -> bool:
+        """A barrier fits and none is waiting for its report behind unanswered lines."""
+        if self.inflight_bytes + len(BARRIER) > self.rx_usable:
+            return False
+        waiting = next((s for s in self.inflight if s.index < 0 and not s.reported), None)
+        return waiting is None or waiting is self.inflight[0]
+
+    def _settle_barriers(self, limit_s: float = 1.0) -> None:
+        """Read the answers of the barriers still in flight once every job line is
+        answered (they come right after), so that none is left for the next command."""
+        deadline = time.monotonic() + limit_s
+        while self.inflight and time.monotonic() < deadline:
+            line = self.read_line()
+            if line is not None:
+                self._on_line(line)
 
     # -- stopping --------------------------------------------------------------------------
 
     def _after_error(self) -> None:
-        """Every line sent is answered after a rejected one: let the machine finish what
-        it holds, stop safely, and name the line to resume from (module docstring)."""
+        """Every job line sent is answered after a rejected one: let the machine finish
+        what it holds, stop safely, and name the line to resume from (module docstring)."""
+        self._settle_barriers()
         self._wait_for(("<Idle", "<Alarm"), STATUS, self.options.finish_s)
         self._safe_stop()
         index, error = self.rejected[0]
@@ -252,11 +329,37 @@ class GrblProtocol(Session):
         lines = f"file line {later[0].file_line}"
         if len(later) > 1:
             lines = f"file lines {later[0].file_line}-{later[-1].file_line}"
-        text += f"; {lines} behind it, already in its buffer, ran; safe-stop sent"
+        text += f"; {lines} behind it, already in its buffer, {self._fate(index)}; safe-stop sent"
         if self.sent < len(self.job):
             resume = self.job[self.sent].file_line
             text += f"; continue with --resume-from {resume} (no line runs twice)"
         raise FabkitError(text)
+
+    def _fate(self, index: int) -> str:
+        """What became of the job lines sent after job line ``index``: ran (answered
+        ``ok``), or how many were refused too or lost their answer."""
+        refused = len(self.rejected) - 1
+        lost = sum(1 for i in self.unanswered if i > index)
+        if not refused and not lost:
+            return "ran"
+        parts = [f"{refused} refused too"] if refused else []
+        parts += [f"{lost} unconfirmed (answer lost)"] if lost else []
+        return "ran but " + " and ".join(parts)
+
+    def _reset_error(self) -> FabkitError:
+        """The machine reset in the middle of the job: it dropped its planned moves and
+        its receive ring, so the acknowledged lines still planned may not have run."""
+        reason = "the machine reset during the job"
+        first = max(0, self.acked - self.serial.planner_depth)
+        if first >= self.sent:
+            return self.lost(self.acked, reason)
+        start, end = self.job[first].file_line, self.job[self.sent - 1].file_line
+        return FabkitError(
+            f"lost the connection to {self.port_name} ({reason}); a reset drops GRBL's "
+            f"planned moves and its receive buffer, so file lines {start}-{end} (acknowledged "
+            f"or sent last) may or may not have run, and continuing from {start} may run "
+            f"some of them twice; look at the part, then continue with --resume-from {start}"
+        )
 
     def _abort(self, detail: str) -> None:
         """Hold, read where the tool stopped, reset, send the safe-stop snippet; raise

@@ -143,6 +143,8 @@ class SendReport:
     probes: int
     recoveries: int
     warnings: tuple[str, ...]
+    unconfirmed: tuple[str, ...] = ()
+    """Job lines that may not have run, each named with its file line, its text and why."""
 
     @property
     def lines_per_s(self) -> float:
@@ -160,17 +162,25 @@ class SendReport:
             "resent_lines": self.resends,
             "status_queries_between_lines": self.probes,
             "recoveries_from_lost_answers": self.recoveries,
+            "lines_that_may_not_have_run": list(self.unconfirmed),
             "warnings": list(self.warnings),
         }
 
     def summary(self) -> str:
+        """Lines for the user: the lines that may not have run first (if any), then what
+        was sent, then the warnings."""
+        first = []
+        if self.unconfirmed:
+            count = len(self.unconfirmed)
+            lines = f"{count} line{'s' if count > 1 else ''}"
+            first = [f"{lines} may not have run: " + "; ".join(self.unconfirmed)]
         text = (
             f"sent {self.job_lines} lines (file lines {self.first_file_line}-"
             f"{self.last_file_line}) to {self.port} in {self.elapsed_s:.1f} s "
             f"({self.lines_per_s:.0f} lines/s, {self.protocol}); "
             f"{self.resends} resends, {self.probes} probes, {self.recoveries} recoveries"
         )
-        return "\n".join([text, *(f"warning: {w}" for w in self.warnings)])
+        return "\n".join([*first, text, *(f"warning: {w}" for w in self.warnings)])
 
 
 class Session:
