@@ -23,6 +23,8 @@ from fabkit.writers.export import export
 from tests.attack import assert_refused, case, edited, write_texts
 from tests.conftest import EXAMPLES, coarse_design
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 TWO = EXAMPLES / "two_shapes.toml"
 SWIMMER = EXAMPLES / "swimmer.toml"
 SIM = "sim://marlin?baud=0&time_scale=0"
