@@ -55,7 +55,7 @@ CASES = [
     case(
         f"send {{diw}} --port {SIM}&accel=-5",
         "cannot open port",
-        "accel='-5': must not be negative",
+        "accel='-5': must be a finite number >= 0",
         outputs=(),
         id="link-sim-negative-acceleration",
     ),
