@@ -92,15 +92,21 @@ class RunInputs:
 
 
 def _check_send(options: RunOptions) -> None:
-    """Refuse a bad printer host URL or API key before any work (a port is opened only at
-    the send: it may be plugged in meanwhile)."""
+    """Refuse a bad printer host URL or API key, a bad port URL and a device that does not
+    exist or may not be opened, before any work. The port is not opened until the send:
+    opening resets many boards, and held open while the design solves it would be busy
+    for everyone else."""
+    from fabkit.link.host.ports import check_port
     from fabkit.link.host.web import is_host_url, parse_host_url, resolve_api_key
 
     if options.send and is_host_url(options.send):
         parse_host_url(options.send)
         resolve_api_key(options.api_key, options.api_key_file)
-    elif options.api_key is not None or options.api_key_file is not None:
+        return
+    if options.api_key is not None or options.api_key_file is not None:
         raise FabkitError("--api-key and --api-key-file are for --send to a printer host")
+    if options.send:
+        check_port(options.send)
 
 
 def check_inputs(options: RunOptions, machine: MachineProfile) -> RunInputs:

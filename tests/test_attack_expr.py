@@ -16,6 +16,8 @@ import pytest
 from tests.attack import assert_refused, case, edited, write_texts
 from tests.conftest import EXAMPLES
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 TWO = EXAMPLES / "two_shapes.toml"
 SWIMMER = EXAMPLES / "swimmer.toml"
 NESTED = "exp(" * 150 + "x" + ")" * 150
@@ -423,7 +425,6 @@ CASES = [
 ]
 
 
-@pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
 @pytest.mark.parametrize("bad", CASES)
 def test_hostile_expressions_and_fields_are_refused(bad, places, run_cli, tmp_path):
     assert_refused(bad, places, tmp_path, run_cli)

@@ -19,6 +19,8 @@ from fabkit.writers.export import export
 from tests.attack import assert_refused, case, edited, write_texts
 from tests.conftest import ROOT, coarse_design
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 SETTINGS = (
     "[process]\nroad_width_mm = 0.4\nlayer_height_mm = 0.3\nprint_speed_mm_s = 8\n"
     "travel_speed_mm_s = 30\n"

@@ -20,6 +20,8 @@ from tests import hostile as h
 from tests.attack import assert_refused, case
 from tests.conftest import EXAMPLES, ROOT, coarse_design
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 TWO = EXAMPLES / "two_shapes.toml"
 SECRET = "root:secret-first-line-of-another-file"
 DIW = "marlin_diw_pneumatic"

@@ -12,6 +12,8 @@ import pytest
 
 from tests.attack import assert_refused, case, write_texts
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 GRBL_SIM = "sim://grbl?baud=0&time_scale=0"
 MARLIN_SIM = "sim://marlin?baud=0&time_scale=0"
 GRBL = ["G21", "G90", "G94", "G17"]

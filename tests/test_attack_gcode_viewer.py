@@ -13,6 +13,8 @@ from fabkit.toolpath import PRINT, Layer, Move, Toolpath
 from fabkit.toolpath.model import save_toolpath
 from tests.attack import assert_refused, case
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 EXPORT = "export {toolpath} --format gcode -o {out} --nominal-e --machine"
 
 CASES = [

@@ -8,6 +8,8 @@ import pytest
 from tests.attack import assert_refused, case
 from tests.test_link_support import grbl_job
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 SIM = "sim://marlin?baud=0&time_scale=0"
 GRBL = "sim://grbl?baud=0&time_scale=0"
 DIW_HEADER = ";Generated with fabkit 0.1.0 for machine marlin_diw_pneumatic"
@@ -53,7 +55,7 @@ CASES = [
     case(
         f"send {{diw}} --port {SIM}&accel=-5",
         "cannot open port",
-        "accel='-5': must not be negative",
+        "accel='-5': must be a finite number >= 0",
         outputs=(),
         id="link-sim-negative-acceleration",
     ),

@@ -13,6 +13,8 @@ from fabkit.optimise.tomlout import dumps
 from tests.attack import assert_refused, case, write_texts
 from tests.conftest import example_table
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 OPT = "optimise {fig1} --out {out}/best.toml"
 VARY = "--vary initial.eps[0]=0.2:0.7"
 

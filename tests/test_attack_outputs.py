@@ -17,6 +17,8 @@ from fabkit.atomic import MANIFEST
 from tests.attack import assert_refused, case
 from tests.conftest import EXAMPLES, coarse_design
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 COARSE = "--step 0.1 --diagonals 30 --size 20"
 TWO = EXAMPLES / "two_shapes.toml"
 DISC = "--director arctan2(y,x) --shape disc:5"

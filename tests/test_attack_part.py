@@ -16,6 +16,8 @@ import pytest
 from tests.attack import assert_refused, case
 from tests.conftest import coarse_design
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 TOOLPATH = "toolpath {design} --size 20 --machine marlin_diw_pneumatic --out {out}"
 
 CASES = [

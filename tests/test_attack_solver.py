@@ -9,6 +9,8 @@ import pytest
 from tests.attack import assert_refused, case, edited, write_texts
 from tests.conftest import EXAMPLES, coarse_design
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 FIG1 = (EXAMPLES / "two_shapes.toml").read_text()
 COARSE = "[solver]\nstep = 0.1\ndiagonals = 10\n"
 

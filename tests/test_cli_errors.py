@@ -23,6 +23,8 @@ from fabkit.writers.export import export
 from tests.attack import assert_refused, case, edited, write_texts
 from tests.conftest import EXAMPLES, coarse_design
 
+pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second line on stderr
+
 TWO = EXAMPLES / "two_shapes.toml"
 SWIMMER = EXAMPLES / "swimmer.toml"
 SIM = "sim://marlin?baud=0&time_scale=0"
@@ -557,8 +559,8 @@ CASES = [
     ),
     case(
         f"send {{gcode}} --port sim://marlin --machine {DIW} --baud -5",
-        "cannot open port",
-        "baudrate",
+        "expected a positive baud rate",
+        "--baud -5",
         outputs=(),
         id="send-baud-negative",
     ),
@@ -860,13 +862,39 @@ CASES = [
         outputs=(),
         id="run-out-under-file",
     ),
-    # The port is opened last: the run's files are complete, report.json is not written.
+    # Before the solve: the device does not exist (the port itself is opened only at the end)
     case(
-        "run {spec} --out {out} --step 0.1 --diagonals 30 --size 20 "
-        "--send /dev/fabkit-no-such-port",
+        "run {spec} --out {out} --send /dev/fabkit-no-such-port",
         "cannot open port",
-        outputs=("{out}/report.json", "{out}/report.html"),
+        "/dev/fabkit-no-such-port: no such device",
         id="run-send-no-such-device",
+    ),
+    case(
+        "run {spec} --out {out} --send {blocker}",
+        "cannot open port",
+        "blocker: not a serial device",
+        id="run-send-not-a-device",
+    ),
+    case(
+        "run {spec} --out {out} --send sim://marlin?dialect=teacup",
+        "cannot open port",
+        "dialect='teacup'",
+        id="run-send-bad-sim-option",
+    ),
+    case(
+        "run {spec} --out {out} --send nosuchscheme://x",
+        "cannot open port",
+        "nosuchscheme://x: bad URL",
+        id="run-send-bad-url",
+    ),
+    # A device that fails only when opened, at the end: the run's files are complete,
+    # report.json is not written.
+    case(
+        "run {spec} --out {out} --step 0.1 --diagonals 30 --size 20 --send /dev/null",
+        "cannot open port",
+        "/dev/null: not a serial device",
+        outputs=("{out}/report.json", "{out}/report.html"),
+        id="run-send-not-a-serial-device-at-the-end",
         seconds=40.0,  # a whole (coarse) run before the port: about 6 s alone
         slow=True,
     ),

@@ -3,16 +3,24 @@ line with exit code 2."""
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import signal
+import subprocess
+import sys
 import threading
+import time
 from pathlib import Path
 
 import pytest
+import serial.serialposix
 
 import fabkit.link.host.send as send_module
 from fabkit.cli import main
+from fabkit.errors import FabkitError
+from fabkit.link.host.ports import open_port
+from tests.conftest import ROOT
 from tests.test_link_support import grbl_job, marlin_job
 
 SIM = "sim://marlin?time_scale=0&baud=0"
@@ -53,27 +61,99 @@ def test_dry_run_checks_and_sends_nothing(tmp_path, capsys):
     assert error_line(capsys).endswith("job.gcode:4: unknown command M82 for flavour grbl")
 
 
-def test_a_job_outside_the_envelope_is_refused_before_the_port_is_opened(tmp_path, capsys):
-    path = write(tmp_path, ["G21", "G90", "G1 X10 F600", "G1 X300 Y5"])
-    assert main(["send", path, "--port", "/dev/does-not-exist"]) == 2
-    assert error_line(capsys) == (
-        f"fabkit: error: {path}:4: X=300.000 mm is outside the envelope x_mm = [0, 220] "
-        "of machine marlin_generic"
+def test_a_port_that_does_not_exist_is_refused_before_the_long_check_of_the_file(tmp_path):
+    # 200k moves: checking them takes seconds, opening a port a millisecond
+    moves = (f"G1 X{10 + k % 50} Y{10 + k % 7} F1200" for k in range(200_000))
+    path = write(tmp_path, ["G21", "G90", *moves])
+    start = time.perf_counter()
+    process = subprocess.run(
+        [sys.executable, "-m", "fabkit", "send", path, "--port", "/dev/fabkit-no-such-port"],
+        capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )  # fmt: skip
+    elapsed_s = time.perf_counter() - start
+    assert process.returncode == 2
+    assert (
+        process.stderr
+        == "fabkit: error: cannot open port /dev/fabkit-no-such-port: no such device\n"
     )
+    assert process.stdout == ""  # no machine note, no estimate: they come after the check
+    assert elapsed_s < 1.0, f"refused after {elapsed_s:.2f} s, from the process's start"
+
+
+def test_a_refused_file_closes_the_port_opened_before_it_and_sends_nothing(
+    tmp_path, capsys, monkeypatch
+):
+    opened = []
+
+    def recording(port: str, baud: int):
+        opened.append(open_port(port, baud))
+        return opened[-1]
+
+    monkeypatch.setattr(send_module, "open_port", recording)
+    path = write(tmp_path, ["G21", "G90", "G1 X10 F600", "G1 X300 Y5"])
+    assert main(["send", path, "--port", SIM]) == 2
+    captured = capsys.readouterr()
+    assert captured.err == (
+        f"fabkit: error: {path}:4: X=300.000 mm is outside the envelope x_mm = [0, 220] "
+        "of machine marlin_generic\n"
+    )
+    assert captured.out == ""
+    [port] = opened
+    assert not port.is_open
+    assert port.emulator.counters.max_rx_bytes == 0  # not a byte reached the machine
+    assert main(["send", marlin_file(tmp_path, 5), "--port", SIM, "--resume-from", "99"]) == 2
+    assert "--resume-from 99 is outside" in error_line(capsys)
+    assert len(opened) == 2 and not opened[1].is_open
+
+
+def test_a_dry_run_opens_no_port(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(send_module, "open_port", None)  # calling it would fail
+    path = marlin_file(tmp_path, 5)
+    assert main(["send", path, "--port", "/dev/fabkit-no-such-port", "--dry-run"]) == 0
+    assert "fit machine marlin_generic" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
-    ("port", "expected"),
+    ("port", "reason"),
     [
-        ("/dev/does-not-exist", "cannot open port /dev/does-not-exist: "),
-        ("sim://marlin?speed=9", "cannot open port sim://marlin?speed=9: unknown sim option"),
+        ("/dev/does-not-exist", "no such device"),
+        ("/dev/null", "not a serial device"),
+        ("sim://marlin?speed=9", "unknown sim option 'speed'"),
         ("sim://printer", "'sim://printer' is not sim://marlin or sim://grbl"),
-        ("nosuchscheme://x", "cannot open port nosuchscheme://x: invalid URL"),
+        ("nosuchscheme://x", "bad URL (a device path, or a URL pyserial or fabkit knows: "),
+        ("loop://?speed=9", "bad URL"),  # pyserial's loop:// raises a KeyError
     ],
 )
-def test_bad_ports_are_one_line(tmp_path, capsys, port, expected):
+def test_bad_ports_are_one_line_of_fabkit_s_own(tmp_path, capsys, port, reason):
     assert main(["send", marlin_file(tmp_path, 5), "--port", port]) == 2
-    assert expected in error_line(capsys)
+    err = capsys.readouterr().err
+    assert err.startswith(f"fabkit: error: cannot open port {port}: {reason}")
+    assert err.count("\n") == 1 and "Errno" not in err and "could not" not in err
+
+
+def test_a_folder_is_not_a_serial_device(tmp_path):
+    with pytest.raises(FabkitError, match=r": not a serial device$"):
+        open_port(str(tmp_path), 115200)
+
+
+@pytest.mark.parametrize(
+    ("number", "reason"),
+    [
+        (errno.EACCES, "permission denied (add your user to the dialout group: sudo usermod"),
+        (errno.EBUSY, "busy (another program has it open)"),
+        (errno.EIO, "input/output error (unplug the device and plug it in again)"),
+        (errno.EPROTO, "protocol error"),  # any other: the system's words, once
+    ],
+)
+def test_why_a_device_does_not_open_says_it_once(monkeypatch, number, reason):
+    def refuse(path: str, flags: int, *args: object) -> int:
+        raise OSError(number, os.strerror(number), path)
+
+    monkeypatch.setattr(serial.serialposix.os, "open", refuse)  # the open pyserial calls
+    with pytest.raises(FabkitError) as refused:
+        open_port("/dev/ttyUSB0", 115200)
+    assert str(refused.value).startswith(f"cannot open port /dev/ttyUSB0: {reason}")
+    assert "Errno" not in str(refused.value)
 
 
 def test_missing_port_and_a_mismatched_emulator(tmp_path, capsys):

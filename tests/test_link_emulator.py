@@ -46,7 +46,9 @@ def test_sim_urls_open_the_emulator_through_pyserial():
         ("sim://reprap", "not sim://marlin or sim://grbl"),
         ("sim://marlin?colour=red", "unknown sim option 'colour'"),
         ("sim://marlin?corrupt=2", "corrupt='2': must be between 0 and 1"),
-        ("sim://grbl?time_scale=-1", "must not be negative"),
+        ("sim://grbl?time_scale=-1", "time_scale='-1': must be a finite number >= 0"),
+        ("sim://marlin?latency_ms=nan", "latency_ms='nan': must be a finite number >= 0"),
+        ("sim://marlin?baud=inf", "baud='inf': must be a finite number >= 0"),  # not int(inf)
     ],
 )
 def test_bad_urls_say_what_is_wrong(url, message):

@@ -34,7 +34,7 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.part import Part
 from fabkit.mechanics.mesh import DesignMesh, counter_clockwise, design_mesh
-from fabkit.mechanics.metric import metric_from_director, metric_from_lengths
+from fabkit.mechanics.metric import metric_from_lengths
 from fabkit.mechanics.simulate import (
     DesignSimulation,
     Settings,
@@ -148,17 +148,58 @@ def sheet_metrics(
 def _edge_lengths(
     design: Design, mesh: DesignMesh, surface: int, theta: np.ndarray, eps: np.ndarray
 ) -> np.ndarray:
-    """Reference lengths (F, 3) of every face's edges (module docstring)."""
-    spec = design.problem
-    response = spec.material.response(eps, design.stimuli[surface : surface + 1])
-    director = np.column_stack([np.cos(theta), np.sin(theta)])
-    flat = metric_from_director(director, response.lambda1[0], response.lambda2[0])
-    jacobian = _flat_jacobian(design, mesh)
-    pulled = np.einsum("vki,vkl,vlj->vij", jacobian, flat, jacobian)
+    """Reference lengths (F, 3) of every face's edges, design units (module docstring).
+
+    An edge step s in (u, v) has the length |diag(lambda1, lambda2) R(theta)^T J s| at a
+    vertex, the square root of s^T A s taken as the norm of a vector: summing the two
+    squares never cancels, where s^T A s itself comes out below zero by rounding when
+    one stretch is negligible beside the other (NaN lengths, a warning)."""
+    lambda1, lambda2 = _stretches(design, surface, eps)
+    along = np.column_stack([np.cos(theta), np.sin(theta)])
+    across = np.column_stack([-along[:, 1], along[:, 0]])
+    scaled = np.stack([lambda1[:, None] * along, lambda2[:, None] * across], axis=1)
+    to_flat = scaled @ _flat_jacobian(design, mesh)  # (V, 2, 2): (u, v) step -> stretched
     start, end = mesh.triangles[:, [1, 2, 0]], mesh.triangles[:, [2, 0, 1]]
     steps = design.step / mesh.refine * (mesh.grid[end] - mesh.grid[start])  # (F, 3, 2)
-    speed = [np.sqrt(np.einsum("fei,feij,fej->fe", steps, pulled[k], steps)) for k in (start, end)]
+    speed = [
+        np.linalg.norm(np.einsum("feij,fej->fei", to_flat[k], steps), axis=-1) for k in (start, end)
+    ]
     return 0.5 * (speed[0] + speed[1])
+
+
+MIN_STRETCH_RATIO = float(np.sqrt(np.finfo(float).eps))
+"""Smallest ratio of the smaller stretch to the larger that still makes a metric in double
+precision (1.5e-8): below it the squared length across the director is lost in the
+rounding of the one along it, and the sheet would collapse to its director's lines."""
+
+
+def _stretches(design: Design, surface: int, eps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The material's stretches lambda1, lambda2 (V,) at the features ``eps`` (N, V) under
+    surface ``surface``'s stimulus; a one-line error where they make no metric: not
+    finite, not positive, or one below :data:`MIN_STRETCH_RATIO` of the other (features
+    outside the material law's range: a design file edited by hand, a material law that
+    vanishes)."""
+    spec = design.problem
+    response = spec.material.response(eps, design.stimuli[surface : surface + 1])
+    lambda1, lambda2 = response.lambda1[0], response.lambda2[0]
+    larger = np.maximum(np.abs(lambda1), np.abs(lambda2))
+    usable = (
+        np.isfinite(larger)
+        & (lambda1 > MIN_STRETCH_RATIO * larger)
+        & (lambda2 > MIN_STRETCH_RATIO * larger)
+    )
+    if usable.all():
+        return lambda1, lambda2
+    first = int(np.argmin(usable))
+    features = zip(spec.material.features, eps[:, first], strict=True)
+    at = ", ".join(f"{name} = {value:.6g}" for name, value in features)
+    raise FabkitError(
+        f"the material makes no metric at {np.count_nonzero(~usable)} of {len(usable)} "
+        f"points of the sheet under the stimulus of '{spec.targets[surface].name}': "
+        f"lambda1 = {lambda1[first]:.3g}, lambda2 = {lambda2[first]:.3g} at {at} (a stretch "
+        f"must be positive, finite and at least {MIN_STRETCH_RATIO:.1e} of the other): the "
+        "features are outside the material law's range"
+    )
 
 
 def _metric_faces(

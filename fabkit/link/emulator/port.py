@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import array
 import fcntl
+import math
 import os
 import random
 import select
@@ -74,8 +75,8 @@ def _fraction(text: str) -> float:
 
 def _non_negative(text: str) -> float:
     value = float(text)
-    if value < 0:
-        raise ValueError("must not be negative")
+    if not 0 <= value < math.inf:
+        raise ValueError("must be a finite number >= 0")
     return value
 
 

@@ -26,7 +26,7 @@ from typing import Any, NoReturn
 
 from fabkit.errors import FabkitError
 from fabkit.gcode.read import line_ends
-from fabkit.link.host.job import DryRun, PreparedJob, keys, log_file, prepare_job
+from fabkit.link.host.job import DryRun, PreparedJob, job_machine, keys, log_file, prepare_job
 from fabkit.link.host.moonraker import Moonraker
 from fabkit.link.host.octoprint import OctoPrint
 from fabkit.link.host.session import LinkControl, SendInterrupted, send_eta
@@ -110,9 +110,10 @@ def send_to_host(
     web = WebClient(url, key, options)
     with contextlib.closing(web):
         printer = HOSTS[url.kind or ask_kind(web)](web)
-        prepared = prepare_job(
+        choice = job_machine(
             path, machine, printer.default_machine, force=force, link_takes=printer.takes
         )
+        prepared = prepare_job(path, choice)
         if dry_run:
             return prepared.dry_run()
         if say is not None:

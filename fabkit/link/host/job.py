@@ -1,9 +1,11 @@
 """What every way of sending a job shares, over a serial line or through a printer host.
 
-:func:`prepare_job` reads the file once, chooses the machine (``--machine``, else the one
-the file's header names, else the link's default) and checks the job against it and
-estimates its duration, before a single byte leaves; :func:`keys` turns Ctrl-C into an
-abort and Ctrl-Z into pause / resume; :func:`log_file` opens the traffic log.
+:func:`job_machine` chooses the machine (``--machine``, else the one the file's header
+names, else the link's default) from the header alone, at once, so that a port can be
+opened before the long part; :func:`prepare_job` then reads the file once, checks the job
+against the machine and estimates its duration, before a single byte leaves; :func:`keys`
+turns Ctrl-C into an abort and Ctrl-Z into pause / resume; :func:`log_file` opens the
+traffic log.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from fabkit.link.duration import Estimate, estimate
 from fabkit.link.host.preflight import JobCheck, check_job
 from fabkit.link.host.session import LinkControl
 from fabkit.machines import MachineProfile
-from fabkit.writers.which_machine import choose_machine
+from fabkit.writers.which_machine import MachineChoice, choose_machine
 
 
 @dataclass(frozen=True)
@@ -55,27 +57,33 @@ class DryRun:
         return f"{self.machine_note}\n{self.check.summary()}\n{self.estimate.summary()}"
 
 
-def prepare_job(
+def job_machine(
     path: str | Path,
     requested: str | MachineProfile | None,
     default: str,
     *,
     force: bool = False,
     link_takes: Callable[[MachineProfile], None] | None = None,
-) -> PreparedJob:
-    """Read ``path``, choose its machine (see :func:`choose_machine`; ``default`` is the
-    link's), let ``link_takes`` refuse a machine the link cannot drive (a FabkitError),
-    check the job against the machine and plan its duration; FabkitError at the first
-    problem."""
-    data, job = read_job_bytes(path)
+) -> MachineChoice:
+    """The machine for the file at ``path`` (see :func:`choose_machine`, which reads only
+    its header; ``default`` is the link's); FabkitError for a machine that takes no G-code
+    or that ``link_takes`` refuses (a machine the link cannot drive)."""
     choice = choose_machine(path, requested, default, force=force)
-    profile, note = choice.profile, choice.note
-    if profile.serial is None:
-        raise FabkitError(f"machine {profile.name} has flavour none and takes no G-code")
+    if choice.profile.serial is None:
+        raise FabkitError(f"machine {choice.profile.name} has flavour none and takes no G-code")
     if link_takes is not None:
-        link_takes(profile)
-    checked = check_job(job, profile, source=str(path))
-    return PreparedJob(str(path), data, job, profile, note, checked, estimate(job, profile))
+        link_takes(choice.profile)
+    return choice
+
+
+def prepare_job(path: str | Path, choice: MachineChoice) -> PreparedJob:
+    """Read ``path``, check the job against the machine ``choice`` (:func:`job_machine`)
+    and plan its duration; FabkitError at the first problem."""
+    data, job = read_job_bytes(path)
+    checked = check_job(job, choice.profile, source=str(path))
+    return PreparedJob(
+        str(path), data, job, choice.profile, choice.note, checked, estimate(job, choice.profile)
+    )
 
 
 @contextlib.contextmanager

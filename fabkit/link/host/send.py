@@ -1,8 +1,10 @@
-"""Send a G-code file to a machine: choose the machine, check the file, stream it, report.
+"""Send a G-code file to a machine: choose the machine, open the port, check the file,
+stream it, report.
 
 :func:`stream_job` drives an already-open port (tests inject emulators and pty ports);
 :func:`send_file` is what ``fabkit send`` calls: it adds the machine (``--machine``, else
-the one the file's header names, else the port's default), the pre-flight check, the
+the one the file's header names, else the port's default), the port (opened before the
+long pre-flight check, so that a wrong one is refused at once), the pre-flight check, the
 duration estimate, ``--resume-from``, ``--dry-run``, the log file, the progress bar and
 the keys (Ctrl-C stops with the profile's safe-stop snippet and raises
 :class:`~fabkit.link.host.session.SendInterrupted`; Ctrl-Z pauses and resumes). Given a
@@ -12,6 +14,7 @@ printer host's URL instead of a port, it hands the file to
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -22,7 +25,14 @@ from serial import SerialException
 from fabkit.errors import FabkitError
 from fabkit.gcode.read import Command
 from fabkit.link.host.grbl import GrblProtocol
-from fabkit.link.host.job import DryRun, PreparedJob, keys, log_file, prepare_job
+from fabkit.link.host.job import (
+    DryRun,
+    PreparedJob,
+    job_machine,
+    keys,
+    log_file,
+    prepare_job,
+)
 from fabkit.link.host.marlin import MarlinProtocol
 from fabkit.link.host.ports import (
     SIM_DEFAULT_MACHINES,
@@ -41,6 +51,7 @@ from fabkit.link.host.session import (
 )
 from fabkit.machines import MachineProfile
 from fabkit.progress import ProgressBar
+from fabkit.writers.which_machine import MachineChoice
 
 if TYPE_CHECKING:
     from fabkit.link.host.hosts import HostReport
@@ -113,7 +124,8 @@ def send_file(
     show_progress: bool = True,
     say: Callable[[str], None] | None = None,
 ) -> SendReport | HostReport | DryRun:
-    """Check ``path`` against the machine, then (unless ``dry_run``) stream it to ``port``,
+    """Choose the machine, open ``port`` (unless ``dry_run``: a port that cannot be opened is
+    refused before the file is read), check ``path`` against the machine, then stream it,
     or hand it to the printer host ``host`` (:func:`~fabkit.link.host.hosts.send_to_host`,
     with ``api_key``, ``api_key_file``, ``no_start`` and ``host_options``).
 
@@ -154,31 +166,43 @@ def send_file(
             "--port is required (or --host for OctoPrint or Moonraker, or --dry-run to only "
             "check the file)"
         )
-    prepared = prepare_job(
+    if baud is not None and baud <= 0:
+        raise FabkitError(f"--baud {baud}: expected a positive baud rate (bit/s)")
+    choice = job_machine(
         path, machine, default_machine(port or ""), force=force, link_takes=_emulates(port)
     )
-    first = 0 if resume_from is None else _resume(prepared.job, resume_from, path)
     if dry_run or port is None:
-        return prepared.dry_run()
-    if say is not None:
-        say(prepared.machine_note)
-        say(prepared.plan.summary())
-    return _stream_file(prepared, first, port, baud, log_path, options, show_progress)
+        return _checked(path, choice, resume_from)[0].dry_run()
+    # the port first: a wrong one is refused at once, not after the long check of the file
+    with contextlib.closing(open_port(port, baud or choice.profile.serial.baud)) as handle:
+        prepared, first = _checked(path, choice, resume_from)
+        if say is not None:
+            say(prepared.machine_note)
+            say(prepared.plan.summary())
+        return _stream_file(handle, prepared, first, port, log_path, options, show_progress)
+
+
+def _checked(
+    path: str | Path, choice: MachineChoice, resume_from: int | None
+) -> tuple[PreparedJob, int]:
+    """The file checked against the chosen machine, and the index of the command that
+    ``resume_from`` (a 1-based file line, None: the first) starts at."""
+    prepared = prepare_job(path, choice)
+    return prepared, 0 if resume_from is None else _resume(prepared.job, resume_from, path)
 
 
 def _stream_file(
+    handle: SerialLike,
     prepared: PreparedJob,
     first: int,
     port: str,
-    baud: int | None,
     log_path: str | Path | None,
     options: LinkOptions | None,
     show_progress: bool,
 ) -> SendReport:
-    """Open ``port`` and stream the prepared job from its command ``first`` on, with the
-    log, the progress bar and the keys."""
+    """Stream the prepared job over the open ``handle`` (the port named ``port``) from its
+    command ``first`` on, with the log, the progress bar and the keys."""
     job, profile = prepared.job[first:], prepared.machine
-    handle = open_port(port, baud or profile.serial.baud)
     control = LinkControl()
     progress = None
     if show_progress:
@@ -200,8 +224,6 @@ def _stream_file(
         if control.interrupted:
             raise SendInterrupted(str(exc).removeprefix("aborted: ")) from None
         raise
-    finally:
-        handle.close()
 
 
 def _no_serial_options(
