@@ -73,6 +73,18 @@ def test_default_settings_3000_lines_lose_only_the_line_virtualprinter_swallows(
     assert report.resends >= 4  # 100, 105, 110, 115 each asked for a line again
 
 
+def test_ok_before_the_output_3000_lines_with_the_recoverable_errors_run_once():
+    # okBeforeCommandOutput: "ok", then the output on lines of its own (M105: "T:..."),
+    # as Repetier answers a line it queues before running it (gcode.cpp
+    # checkAndPushCommand): the handshake and the M105 anchors read that form too
+    job = short_moves(2995)
+    with VirtualPrinterPort(simulated_errors=RECOVERABLE, okBeforeCommandOutput=True) as port:
+        report = stream_job(port, job, MARLIN, port_name="virtual")
+        executed = ran(port.executed)
+    assert len(job) == 3000 and executed == [c.text for c in job]
+    assert report.resends >= 3
+
+
 @pytest.mark.parametrize(
     "settings",
     [
@@ -83,6 +95,7 @@ def test_default_settings_3000_lines_lose_only_the_line_virtualprinter_swallows(
         {"rxBuffer": 16},
         {"brokenResend": True},
         {"commandBuffer": 1, "sendBusy": True},
+        {"okBeforeCommandOutput": True},
     ],
     ids=[
         "defaults",
@@ -92,6 +105,7 @@ def test_default_settings_3000_lines_lose_only_the_line_virtualprinter_swallows(
         "rxBuffer-16",
         "brokenResend",
         "busy-1-slot",
+        "okBeforeCommandOutput",
     ],  # fmt: skip
 )
 def test_each_setting_runs_the_whole_file_once_in_order(settings):
