@@ -108,6 +108,20 @@ Silence
     with other wording is fatal unless a resend request follows within
     ``ERROR_GRACE_S``; Klipper's ``!!`` errors and ``// Klipper state: Shutdown`` are fatal.
 
+Lines a firmware may not have run
+    A firmware that asks for line X has no line from X on, so of each such line it can
+    take only the copies in flight then and those sent after. An error line that names
+    the refused line N and the expected one, after it (VirtualPrinter and Repetier:
+    ``expected line 106 got 105``), says the firmware has N. When that refused copy was
+    the last of those it could have taken, it took none, and N may not have run: it is
+    reported (:attr:`SendReport.may_not_have_run`), and sending goes on (no sender can
+    make the firmware take it). VirtualPrinter's ``105:resend_with_timeout`` does this:
+    ``Resend:105``, then it swallows the next line and counts 105 as received. Lines
+    acknowledged already are never reset (a request for one is garbled), and a refusal
+    that does not name its line is never counted: an answer counted against the wrong
+    transmission cannot report a line that ran. Where the swallowed line is the copy
+    itself nothing is refused: that looks exactly like a lost ``ok``, and is not reported.
+
 RepRapFirmware checks no line numbers: one line at a time there
 (:class:`~fabkit.link.host.one_by_one.OneByOne`).
 
@@ -195,6 +209,7 @@ class MarlinProtocol(Session):
         self.acked = self.highest_sent  # lines up to this one are known accepted
         self.certain = self.highest_sent  # ... proven so by an answer naming its line
         self.backward = 0  # requests in a row for a line proven accepted
+        self.takers: dict[int, int] = {}  # line asked for -> copies it may have taken since
         self.inflight: deque[Transmission] = deque()
         self.inflight_bytes = 0
         self.inflight_lines = 0  # of them, predicted accepted
@@ -387,6 +402,8 @@ class MarlinProtocol(Session):
             self.transmissions += 1
             self.highest_sent = max(self.highest_sent, n)
             self.cursor = n + 1
+            if n in self.takers:
+                self.takers[n] += 1
             self.write(frame)
 
     def _following(self) -> tuple[str, int] | None:
@@ -655,12 +672,41 @@ class MarlinProtocol(Session):
             return  # garbled: the firmware cannot expect a line never sent
         if self._asks_backward(x):
             return
+        if expects == x:
+            self._claimed(sent, refused, x)
         if sent is not None and not sent.accepted and x == sent.expect:
             return  # as predicted: one more answer from a discarded window
         self.resends += 1
         if sent is not None and sent.accepted:
             self._suspect_overflow(sent)
+        self._asked(x)
         self._predict(x)
+
+    def _asked(self, x: int) -> None:
+        """The firmware asks for line ``x``: it has no line from ``x`` on, so of each it can
+        take only the copies still in flight and those sent from now on (module docstring:
+        Lines a firmware may not have run). A line known accepted is left alone: a request
+        for it would be a garbled one."""
+        first = max(x, self.acked + 1)
+        for n in range(first, self.highest_sent + 1):
+            self.takers[n] = 0
+        for sent in self.inflight:
+            if sent.n >= first:
+                self.takers[sent.n] += 1
+
+    def _claimed(self, sent: Transmission | None, refused: int | None, x: int) -> None:
+        """The error line named the refused line ``refused`` and the firmware asks for a
+        later line ``x``: it refused a copy of a line it says it has. When that copy was
+        the last it could have taken since it asked for the line, it never took one, and
+        the line may not have run."""
+        if refused is None or refused >= x or sent is None or sent.n != refused:
+            return
+        left = self.takers.get(refused)
+        if left is None:
+            return
+        self.takers[refused] = left - 1
+        if left == 1 and self.origin[refused] >= 0:
+            self.unrun.append(self.origin[refused])
 
     def _asks_backward(self, x: int) -> bool:
         """A request for a line an answer naming it proved accepted: a garbled number,

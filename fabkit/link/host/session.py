@@ -129,7 +129,9 @@ def _visible(line: str) -> str:
 
 @dataclass(frozen=True)
 class SendReport:
-    """What a finished job did (s, bytes, lines)."""
+    """What a finished job did (s, bytes, lines). ``may_not_have_run``: the job lines
+    (file line, text) the machine refused as lines it had without ever taking a copy
+    (:mod:`fabkit.link.host.marlin`: Lines a firmware may not have run)."""
 
     port: str
     protocol: str
@@ -143,6 +145,7 @@ class SendReport:
     probes: int
     recoveries: int
     warnings: tuple[str, ...]
+    may_not_have_run: tuple[tuple[int, str], ...] = ()
 
     @property
     def lines_per_s(self) -> float:
@@ -161,16 +164,31 @@ class SendReport:
             "status_queries_between_lines": self.probes,
             "recoveries_from_lost_answers": self.recoveries,
             "warnings": list(self.warnings),
+            "lines_that_may_not_have_run": [
+                {"file_line": line, "text": text} for line, text in self.may_not_have_run
+            ],
         }
 
     def summary(self) -> str:
+        """The lines for the user: first the job lines that may not have run, if any."""
         text = (
             f"sent {self.job_lines} lines (file lines {self.first_file_line}-"
             f"{self.last_file_line}) to {self.port} in {self.elapsed_s:.1f} s "
             f"({self.lines_per_s:.0f} lines/s, {self.protocol}); "
             f"{self.resends} resends, {self.probes} probes, {self.recoveries} recoveries"
         )
-        return "\n".join([text, *(f"warning: {w}" for w in self.warnings)])
+        return "\n".join([*self._unrun_line(), text, *(f"warning: {w}" for w in self.warnings)])
+
+    def _unrun_line(self) -> list[str]:
+        if not self.may_not_have_run:
+            return []
+        lines = ", ".join(f"{line} ({text})" for line, text in self.may_not_have_run)
+        many = len(self.may_not_have_run) > 1
+        return [
+            f"WARNING: file line{'s' if many else ''} {lines} may not have run: the machine "
+            f"asked for {'them' if many else 'it'} again, then refused the copy as a line it "
+            "had, without ever acknowledging one"
+        ]
 
 
 class Session:
@@ -209,6 +227,7 @@ class Session:
         self.probes = 0
         self.recoveries = 0
         self.warnings: list[str] = []
+        self.unrun: list[int] = []  # job lines the machine may not have run (index)
         self.aborting = False
         port.timeout = options.poll_s
 
@@ -331,6 +350,9 @@ class Session:
             probes=self.probes,
             recoveries=self.recoveries,
             warnings=tuple(self.warnings),
+            may_not_have_run=tuple(
+                (self.job[i].file_line, self.job[i].text) for i in sorted(set(self.unrun))
+            ),
         )
 
     def show(self, done: int, note: str = "", *, force: bool = False) -> None:
