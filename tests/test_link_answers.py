@@ -172,6 +172,35 @@ def test_the_firmware_is_known_by_its_m115(report, flavour, expected):
     assert firmware.sequenced == (firmware.name != "RepRapFirmware")
 
 
+@pytest.mark.parametrize(
+    ("lines", "form"),
+    [
+        (["ok", "FIRMWARE_NAME:Marlin 2.1.2.1", "ok", "ok T:21.0 /0.0 B:20.0 /0.0"], "on_ok_line"),
+        (["ok", "ok FIRMWARE_NAME:Klipper", "ok B:0.0 /0.0 T0:0.0 /0.0"], "on_ok_line"),
+        (["ok", "ok 1", "ok 2"], "named_ok"),
+        (["ok", "ok", "FIRMWARE_NAME:Virtual Marlin 1.0", "ok", "T:21.30/ 0.00"], "after_ok"),
+        (["ok", "FIRMWARE_NAME:Test 0.1", "ok", "T:21.0 /0.0", "ok"], "before_ok"),
+        (["ok", "ok", "ok"], None),  # one ok may pair with a refusal: no proof M105 ran
+        (["ok", "ok", "T:21.0 /0.0"], None),  # the M105's ok is still to come
+    ],
+    ids=["marlin", "klipper", "repetier", "ok-first", "report-first", "3-oks", "2-oks"],
+)
+def test_the_handshake_reads_the_m105_answer_in_each_form(lines, form):
+    assert answers.m105_answer(lines, 2) == form
+
+
+@pytest.mark.parametrize("form", ["ok_line", "after_ok", "before_ok"])
+def test_a_job_runs_on_either_side_of_the_ok_of_the_m105_report(form):
+    class Machine(LatencyResponder):
+        m105 = form
+
+    job = marlin_job(300)
+    with Machine(0.001) as machine:
+        report = stream_job(open_port(machine.path, 115200), job, load_machine("marlin_generic"))
+    assert machine.job_lines() == [c.text for c in job]
+    assert report.recoveries == 0
+
+
 def test_each_dialect_words_a_bad_line_as_its_source_does():
     def answers(dialect: str) -> list[str]:
         url = f"sim://marlin?time_scale=0&baud=0&dialect={dialect}"

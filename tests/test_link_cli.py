@@ -22,6 +22,8 @@ from fabkit.errors import FabkitError
 from fabkit.link.host.ports import open_port
 from tests.conftest import ROOT
 from tests.test_link_support import grbl_job, marlin_job
+from tests.test_link_virtual_printer import sent_as
+from tests.virtual_printer import VirtualPrinterPty
 
 SIM = "sim://marlin?time_scale=0&baud=0"
 
@@ -298,3 +300,22 @@ def test_ctrl_c_during_run_send_names_the_resume_line_too(tmp_path, capsys, monk
     assert code == 130
     err = capsys.readouterr().err
     assert err == ("fabkit: interrupted: safe-stop sent; continue later with --resume-from 42\n")
+
+
+@pytest.mark.parametrize("strict", [False, True], ids=["plain", "strict"])
+def test_a_line_the_machine_may_not_have_run_comes_first_and_fails_strict(tmp_path, capsys, strict):
+    # VirtualPrinter (default settings) on its pseudo-terminal, N105 read late: after
+    # Resend:105 it swallows the next line, takes 105 as received and refuses the copy
+    moves = [f"G1 X{50 + 0.2 * i:.2f} Y50 E{0.001 * (i + 1):.4f} F3000" for i in range(195)]
+    texts = ["G21", "G90", "M82", "G92 E0", "G1 Z0.3 F300", *moves]  # short: quick there
+    path = write(tmp_path, texts)
+    log = tmp_path / "send.log"
+    with VirtualPrinterPty(late=b"N105 ") as printer:
+        args = ["send", path, "--port", printer.path, "--log", str(log)]
+        code = main(args + (["--strict"] if strict else []))
+    assert code == (1 if strict else 0)
+    (text,) = sent_as(log.read_text(), 105)
+    line = 1 + texts.index(text)
+    summary = capsys.readouterr().out.splitlines()[2:]
+    assert summary[0].startswith(f"WARNING: 1 line may not have run: file line {line} ({text}): ")
+    assert summary[1].startswith("sent 200 lines (file lines 1-200)")

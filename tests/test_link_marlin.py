@@ -23,6 +23,7 @@ from tests.test_link_support import (
     numbers_are_contiguous,
     quick,
     run_sim,
+    runs_the_file,
 )
 
 FAST = "sim://marlin?time_scale=0&baud=0"
@@ -57,6 +58,24 @@ def test_every_marlin_variant_and_noisy_answers(variant):
     assert executed(emulator) == [c.text for c in job]
     assert numbers_are_contiguous(emulator)
     assert report.recoveries <= (2 if variant == "resend_ok=0" else 0)
+    assert report.may_not_have_run == ()  # every refusal here is of a line not yet taken
+
+
+@pytest.mark.parametrize(
+    "variant",
+    ["ack_on_queue=1", "dialect=repetier&ack_numbered=0"],
+    ids=["marlin-ok-when-queued", "repetier-without-line-numbers"],
+)
+def test_with_the_ok_before_the_output_the_m105_report_finds_lost_oks(variant):
+    # ok when a line is queued, M105's T:... on a line of its own when it runs: the
+    # handshake learns that form, and each report then names its M105, so lost oks are
+    # found at the next report, not by silence (without it: 11 recoveries, 23 s)
+    job = marlin_job(1500, seed=2)
+    url = f"{FAST}&corrupt=0.01&drop_ok=0.01&seed=7&{variant}"
+    report, emulator = run_sim(url, job, "marlin_generic", options=quick())
+    assert runs_the_file(emulator, job)
+    assert emulator.stats().dropped_oks > 10
+    assert report.recoveries == 0 and report.may_not_have_run == ()
 
 
 def test_real_byte_timing_never_overflows_the_receive_buffer():

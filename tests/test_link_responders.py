@@ -2,8 +2,9 @@
 
 Each responder serves the master side of a pseudo-terminal from a thread and answers a
 Marlin-style line protocol (``N<n> ...*<xor>``, ``ok``, ``Error:`` + ``Resend:`` + ``ok``
-for a bad line, ``ok T:`` for M105, a ``FIRMWARE_NAME`` for M115 that names no known
-firmware) with its own model of time and buffers, written here independently of
+for a bad line, ``ok T:`` for M105 (or, with ``m105``, the report on a line of its own
+after or before the ``ok``), a ``FIRMWARE_NAME`` for M115 that names no known firmware)
+with its own model of time and buffers, written here independently of
 :mod:`fabkit.link.emulator.port`:
 
 * :class:`LatencyResponder` acks every line after a fixed latency, whatever came before
@@ -49,7 +50,10 @@ class Responder:
     the sender and slow it down, or the sender it). After the ``with`` block,
     ``executed`` lists the accepted commands in order, ``max_unanswered`` is the most
     lines that had arrived and not yet been answered and ``lost_bytes`` counts bytes
-    that did not fit a receive buffer."""
+    that did not fit a receive buffer. ``m105``: where the M105 report goes, ``"ok_line"``
+    (``ok T:...``), ``"after_ok"`` or ``"before_ok"`` (a line of its own)."""
+
+    m105 = "ok_line"
 
     def __init__(self) -> None:
         self.master, self.slave = os.openpty()
@@ -118,13 +122,19 @@ class Responder:
         self.last_n = n
         self.executed.append(text)
         if text == "M105":
-            self.say("ok T:21.0 /0.0 B:20.5 /0.0 @:0 B@:0", at)
+            self._report(at)
         elif text == "M115":
             self.say("FIRMWARE_NAME:TestResponder 0.1 PROTOCOL_VERSION:1.0", at)
             self.say("ok", at)
         else:
             self.say("ok", at)
         return None
+
+    def _report(self, at: float) -> None:
+        report = "T:21.0 /0.0 B:20.5 /0.0 @:0 B@:0"
+        lines = {"ok_line": [f"ok {report}"], "after_ok": ["ok", report]}
+        for line in lines.get(self.m105, [report, "ok"]):
+            self.say(line, at)
 
     def _reject(self, reason: str, at: float) -> None:
         self.say(f"Error:{reason}, Last Line: {self.last_n}", at)

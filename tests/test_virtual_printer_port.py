@@ -233,3 +233,19 @@ def test_after_a_resend_a_checksum_error_asks_for_the_wrong_line():
         assert answers(port) == ["Error: Missing checksum", "Resend:7", "ok"]
         assert port.accepted == [1, 2, 3, 4, 5, 6]
         assert texts[5] not in port.executed
+
+
+def test_a_line_read_late_reaches_it_with_the_next_one_and_that_one_is_swallowed():
+    # late=b"N105 ": N105 waits in the port until N106 comes, then goes first; after
+    # its Resend:105 VirtualPrinter swallows N106, and the copy of 105 is a repeat to it
+    with VirtualPrinterPort(**QUIET, late=b"N105 ") as port:
+        port.write(frame_marlin(104, "M110 N104"))
+        assert answers(port) == ["ok"]
+        port.write(frame_marlin(105, "G1 X1 F6000"))
+        assert quiet(port, 0.3) == []  # held back
+        port.write(frame_marlin(106, "G1 X2 F6000"))
+        assert answers(port) == ["Error: Missing checksum", "Resend:105", "ok"]
+        assert quiet(port, 0.3) == []  # 106 swallowed
+        port.write(frame_marlin(105, "G1 X1 F6000"))
+        assert answers(port) == ["Error: expected line 106 got 105", "Resend:106", "ok"]
+        assert port.accepted == [105] and port.executed == []

@@ -190,7 +190,7 @@ def _lines(data: bytes) -> Iterator[bytes]:
 class VirtualPrinterPort:
     """A VirtualPrinter that looks like an open pyserial port; a context manager.
 
-    Keyword arguments other than the three below override VirtualPrinter's settings
+    Keyword arguments other than the four below override VirtualPrinter's settings
     (:data:`DEFAULT_SETTINGS`; nested dicts such as ``errors`` are merged, an unknown
     name is a ``TypeError``): ``simulated_errors=[]`` turns the simulated line errors
     off, ``rxBuffer=16`` shrinks its receive queue (bytes), ``commandBuffer`` is its
@@ -199,7 +199,9 @@ class VirtualPrinterPort:
     ``folder``: where VirtualPrinter keeps its SD card and EEPROM (default: a temporary
     folder, removed on close). ``timeout``: the read timeout (s; ``None`` waits
     forever, as in pyserial). ``write_timeout``: how long ``write`` waits for room in
-    the receive queue before ``serial.SerialTimeoutException``.
+    the receive queue before ``serial.SerialTimeoutException``. ``late``: the first line
+    written that starts with these bytes reaches VirtualPrinter only together with the
+    next line, right before it (a firmware busy when the line arrives reads both later).
 
     The boot banner (``start`` ...) is waiting to be read when the constructor returns.
     """
@@ -210,6 +212,7 @@ class VirtualPrinterPort:
         folder: str | os.PathLike[str] | None = None,
         timeout: float | None = 1.0,
         write_timeout: float | None = 10.0,
+        late: bytes | None = None,
         **settings_overrides: Any,
     ) -> None:
         unknown = sorted(set(settings_overrides) - set(DEFAULT_SETTINGS))
@@ -226,6 +229,8 @@ class VirtualPrinterPort:
         self._pump_error: BaseException | None = None
         self._stop = threading.Event()
         self._closed = False
+        self._late = late
+        self._held: bytes | None = None
 
         try:
             with _CONSTRUCTION, mock.patch.object(virtual, "plugin_manager", _NoPlugins):
@@ -320,7 +325,7 @@ class VirtualPrinterPort:
         with self._write_lock:
             self._check_open()
             deadline = None if self.write_timeout is None else time.monotonic() + self.write_timeout
-            for line in _lines(data):
+            for line in self._in_order(data):
                 done = 0
                 while done < len(line):
                     room = self._wait_for_room(deadline)
@@ -329,6 +334,19 @@ class VirtualPrinterPort:
                         raise serial.PortNotOpenError()
                     done += written
         return len(data)
+
+    def _in_order(self, data: bytes) -> Iterator[bytes]:
+        """The lines of ``data`` as VirtualPrinter gets them (``late``: held back once)."""
+        for line in _lines(data):
+            if self._late is not None and line.startswith(self._late):
+                self._late, self._held = None, b""
+            if self._held is not None and not self._held.endswith(b"\n"):
+                self._held += line  # until the held line is complete
+                continue
+            if self._held is not None:
+                yield self._held
+                self._held = None
+            yield line
 
     def reset_input_buffer(self) -> None:
         """Drops the bytes received and not yet read."""

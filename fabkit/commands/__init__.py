@@ -167,6 +167,12 @@ def add_api_key(parser: argparse._ActionsContainer) -> None:
     )
 
 
+def add_strict(parser: argparse._ActionsContainer, help: str) -> None:
+    """``--strict``: exit 1 (not 0) when the command did its work but the result falls
+    short (``help`` says of what); errors still exit 2."""
+    parser.add_argument("--strict", action="store_true", help=help)
+
+
 def add_machine(parser: argparse._ActionsContainer, help: str) -> None:
     """``--machine NAME|FILE``: a shipped profile's name or a profile's .toml path."""
     parser.add_argument("--machine", metavar="NAME|FILE", help=help)

@@ -6,7 +6,7 @@ import argparse
 import json
 import math
 
-from fabkit.commands import add_command, call_with
+from fabkit.commands import add_command, add_strict, call_with
 from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
@@ -43,7 +43,7 @@ def verdict_arguments(group: argparse._ActionsContainer, strict_help: str) -> No
         help="a target is formed when the simulated sheet ends within this RMS distance, "
         "%% of the patch diameter (default %(default)g)",
     )
-    group.add_argument("--strict", action="store_true", help=strict_help)
+    add_strict(group, strict_help)
 
 
 TOLERANCE_HELP = {

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from fabkit.commands import add_api_key, add_command, call_with
+from fabkit.commands import add_api_key, add_command, add_strict, call_with
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -45,11 +45,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="check the file against the machine and estimate its duration, send nothing",
     )
+    add_strict(
+        parser,
+        "exit 1 when the machine may not have run a line it was sent (the summary's first "
+        "line names it: the machine asked for the line again, then refused the copy as a "
+        "line it had); without it such a send exits 0 with that warning",
+    )
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from fabkit.link.host.send import send_file
+    from fabkit.link.host.session import SendReport
 
     def say(text: str) -> None:
         print(text, flush=True)
@@ -57,4 +64,5 @@ def run(args: argparse.Namespace) -> int:
     # Ctrl-C: a SendInterrupted, which fabkit.cli prints with where the job stopped (exit 130)
     result = call_with(send_file, args, say=say)
     print(result.summary())
-    return 0
+    unrun = isinstance(result, SendReport) and result.may_not_have_run
+    return 1 if args.strict and unrun else 0

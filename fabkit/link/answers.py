@@ -173,6 +173,47 @@ def _error(line: str, lowered: str) -> Answer:
     return Answer(ERROR, line)
 
 
+# How a firmware answers M105, as the handshake finds out (:func:`m105_answer`): the
+# report on the ok line; an ``ok <n>`` naming the line (the report follows on a line of
+# its own); the report on a line of its own after the plain ``ok``, or before it.
+ON_OK_LINE, NAMED_OK, AFTER_OK, BEFORE_OK = "on_ok_line", "named_ok", "after_ok", "before_ok"
+
+
+def m105_answer(lines: list[str], last: int) -> str | None:
+    """How ``lines`` (read since ``N0 M110 N0``, ``N1 M115``, ``N2 M105`` were sent, with
+    no resend request among them) answer that M105, ``last`` being its line number; None
+    while they do not yet.
+
+    Marlin prints ``ok`` and the report on one line and sends no other ``ok`` for M105
+    (Marlin/src/gcode/temp/M105.cpp ``GcodeSuite::M105``; gcode.cpp
+    ``process_parsed_command``: ``case 105: M105(); return;`` skips ``ok_to_send``), as do
+    Prusa-Firmware (Marlin_main.cpp ``process_commands``, ``case 105``), Smoothieware
+    (GcodeDispatch.cpp ``ok %s`` with ``txt_after_ok``), RepRapFirmware in Marlin mode
+    (GCodes.cpp ``HandleReplyPreserveResult``) and Klipper: :data:`ON_OK_LINE`.
+    Repetier acknowledges a line when it queues it (gcode.cpp ``checkAndPushCommand``:
+    ``ok 2`` with ``ACK_WITH_LINENUMBER``, the default, else ``ok``) and prints ``T:...``
+    when it runs it (Commands.cpp ``printTemperatures``): :data:`NAMED_OK`, or without
+    line numbers three ``ok`` then the report, :data:`AFTER_OK` (OctoPrint's
+    VirtualPrinter with ``okBeforeCommandOutput`` answers so too). Three ``ok`` are no
+    proof alone (one may pair with a refusal whose ``Resend`` was lost): the report says
+    the M105 ran. A report before the third ``ok`` is :data:`BEFORE_OK`."""
+    oks = 0
+    reported_at = None  # oks before the first report on a line of its own
+    for line in lines:
+        answer = classify(line)
+        if answer.kind == OK:
+            if answer.temperatures:
+                return ON_OK_LINE
+            if (answer.number or 0) >= last:
+                return NAMED_OK
+            oks += 1
+        elif answer.kind == TEMPERATURES and reported_at is None:
+            reported_at = oks
+    if oks < last + 1 or reported_at is None:
+        return None
+    return AFTER_OK if reported_at > last else BEFORE_OK
+
+
 _LAST_LINE = re.compile(r"Last Line:\s*(\d+)", re.IGNORECASE)
 _EXPECTED_GOT = re.compile(r"expected line\s+(\d+)\s+got\s+(\d+)", re.IGNORECASE)
 

@@ -275,13 +275,15 @@ class EmulatorConfig:
 
     ``baud`` sets the byte timing (10 bits per byte; 0 = instantaneous). ``time_scale``
     multiplies move, dwell and heating times (0 = instantaneous). ``dialect`` names the
-    Marlin-protocol firmware (:data:`fabkit.link.emulator.dialects.DIALECTS`); ``resend_ok``
-    and ``drain``, when not None, override whether it sends ``ok`` after a resend
-    request and empties its receive buffer on a line error. ``accel_mm_s2`` (X, Y),
-    ``z_accel_mm_s2``, ``e_accel_mm_s2`` and ``junction_deviation_mm`` give the planner
-    its accelerations (0: none, every move at its feed from end to end; a Z or E value
-    of 0 takes the X/Y one). ``grbl_bf``: GRBL's status reports carry ``Bf:`` (``$10``
-    bit 1); ``grbl_opt``: its ``$I`` build info names the planner and buffer sizes.
+    Marlin-protocol firmware (:data:`fabkit.link.emulator.dialects.DIALECTS`); ``resend_ok``,
+    ``drain``, ``ack_on_queue`` and ``ack_numbered``, when not None, override whether it
+    sends ``ok`` after a resend request, empties its receive buffer on a line error,
+    acknowledges a line when it queues it (before its output) and names it in the
+    ``ok``. ``accel_mm_s2`` (X, Y), ``z_accel_mm_s2``, ``e_accel_mm_s2`` and
+    ``junction_deviation_mm`` give the planner its accelerations (0: none, every move
+    at its feed from end to end; a Z or E value of 0 takes the X/Y one). ``grbl_bf``:
+    GRBL's status reports carry ``Bf:`` (``$10`` bit 1); ``grbl_opt``: its ``$I`` build
+    info names the planner and buffer sizes.
     """
 
     personality: str = "marlin"
@@ -294,6 +296,8 @@ class EmulatorConfig:
     dialect: str = "marlin-2.1"
     resend_ok: bool | None = None
     drain: bool | None = None
+    ack_on_queue: bool | None = None
+    ack_numbered: bool | None = None
     keepalive_s: float = 2.0
     heater_tau_s: float = 20.0
     rapid_mm_s: float = 50.0

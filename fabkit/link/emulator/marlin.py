@@ -111,12 +111,13 @@ class MarlinFirmware(Firmware):
 
     @staticmethod
     def dialect_of(config: EmulatorConfig) -> Dialect:
-        """The config's dialect with its ``resend_ok`` / ``drain`` overrides applied."""
+        """The config's dialect with its overrides (``resend_ok``, ``drain``,
+        ``ack_on_queue``, ``ack_numbered``) applied."""
         dialect = DIALECTS[config.dialect]
         changes = {
-            key: value
-            for key, value in (("resend_ok", config.resend_ok), ("drain", config.drain))
-            if value is not None
+            key: getattr(config, key)
+            for key in ("resend_ok", "drain", "ack_on_queue", "ack_numbered")
+            if getattr(config, key) is not None
         }
         return replace(dialect, **changes) if changes else dialect
 

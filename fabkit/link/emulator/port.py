@@ -19,6 +19,11 @@ dialect            Marlin-protocol firmware: marlin-2.1 (default), marlin-2.0,
                    marlin-1.1, prusa, repetier, smoothieware, reprapfirmware
                    (:mod:`fabkit.link.emulator.dialects`)
 resend_ok, drain   override the dialect: ok after a resend request, drain on error (0/1)
+ack_on_queue,      override the dialect: ok when a line is queued, before its output
+ack_numbered       (M105: ok, then T:... when it runs), ok <n> naming the line (0/1);
+                   dialect=repetier&ack_numbered=0 is Repetier built without
+                   ACK_WITH_LINENUMBER, ack_on_queue=1 answers as OctoPrint's
+                   VirtualPrinter with okBeforeCommandOutput
 keepalive_s        Marlin busy: interval (default 2); heat_tau_s heater constant (20)
 corrupt            probability that a host line gets one bit flipped on the way
 drop_ok            probability that an ``ok`` is lost
@@ -109,6 +114,8 @@ _OPTIONS = {
     "dialect": ("dialect", _dialect),
     "resend_ok": ("resend_ok", _flag),
     "drain": ("drain", _flag),
+    "ack_on_queue": ("ack_on_queue", _flag),
+    "ack_numbered": ("ack_numbered", _flag),
     "keepalive_s": ("keepalive_s", _non_negative),
     "heat_tau_s": ("heater_tau_s", _non_negative),
     "accel": ("accel_mm_s2", _non_negative),

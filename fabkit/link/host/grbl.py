@@ -23,13 +23,15 @@ real-time check point right after a line's end) and reports ``Idle`` while it sl
 a dwell (``mc_dwell``), so a status report says nothing about the ring.
 
 An answer lost on the wire would keep its line counted for ever. So after a quiet spell
-with lines in flight a *barrier* is sent, the system command ``$G`` (4 bytes, counted
-like a line; space for it is kept free): GRBL runs the lines of its ring in order, and
+with lines in flight a *barrier* is sent, the system command ``$G`` (3 bytes, counted
+like a line; room for two is kept free): GRBL runs the lines of its ring in order, and
 its ``[GC:...]`` report proves that every line sent before it was parsed and answered.
 The lines still unanswered then had their answer lost: they are retired, named in the
-report as unconfirmed (an ``ok`` or an ``error:`` was lost: they may not have run), and
-counted as recoveries. A report that could belong to an earlier barrier is taken for
-the oldest one in flight, which never retires a line too early.
+report as lines that may not have run (an ``ok`` or an ``error:`` was lost), and
+counted as recoveries. A report is taken for the oldest barrier in flight whose report
+has not come, which never retires a line too early (a report can only come from that
+barrier or a later one); when a report itself is lost, the next quiet spell sends the
+second barrier, whose report settles the lines before the first.
 
 ``error:N`` means that line did not run and the job cannot continue as written; the
 lines behind it are already in GRBL's buffer and run regardless. So nothing more is
@@ -46,23 +48,35 @@ from __future__ import annotations
 import re
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from fabkit.errors import FabkitError
-from fabkit.link.host.session import SendReport, Session
+from fabkit.link.host.session import ANSWER_LOST, SendReport, Session, UnrunLine
 
 HOLD, RESUME, STATUS, RESET = b"!", b"~", b"?", b"\x18"
 STATUS_MIN_S = 0.2  # at most 5 status queries a second while the machine moves
 ERRORS = {
     1: "expected a command letter",
     2: "bad number format",
+    3: "invalid $ statement",
+    4: "negative value",
     9: "G-code locked out during alarm",
     11: "line too long",
     20: "unsupported command",
+    21: "two commands of one modal group",
     22: "feed rate not set",
+    23: "command value not an integer",
+    24: "two commands that both use the axis words",
     25: "repeated word",
+    26: "no axis words",
+    28: "value word missing",
+    32: "no axis words in the arc's plane",
     33: "invalid motion target",
+    34: "arc radius error",
+    36: "unused words",
 }
+"""The texts of GRBL 1.1's error codes a job line can get (report.h STATUS_*, the wiki)."""
 ALARMS = {
     1: "hard limit",
     2: "soft limit",
@@ -75,6 +89,9 @@ ALARMS = {
 
 
 BARRIER = b"$G\n"  # answered [GC:...] then ok, in turn with the lines before it
+BARRIERS = 2
+"""Barriers in flight at most: with room for two kept free, one whose report was lost
+never blocks the next (module docstring)."""
 
 
 @dataclass(slots=True)
@@ -97,7 +114,7 @@ class GrblProtocol(Session):
         self.rx_usable = self.serial.rx_buffer_bytes - 1
         self.max_lines = self.options.window_lines or self.serial.planner_depth
         longest = max((len(c.text) + 1 for c in self.job), default=0)
-        if longest > self.rx_usable - len(BARRIER):
+        if longest > self.rx_usable - BARRIERS * len(BARRIER):
             raise FabkitError(
                 f"a {longest - 1}-character command does not fit in the "
                 f"{self.serial.rx_buffer_bytes}-byte receive buffer of {self.machine.name}"
@@ -109,10 +126,11 @@ class GrblProtocol(Session):
         self.rejected: list[tuple[int, str]] = []  # job index, error line
         self.unanswered: list[int] = []  # job indices whose answer was lost
         self.last_query_s = 0.0
-        self.last_answer_s = time.monotonic()
+        self.last_answer_s = self.last_barrier_s = time.monotonic()
         self.held = False
         self.ok_gap_s = 0.05
         self.last_status = ""
+        self.planner_free = 0  # free planner blocks of an empty planner ($I, else Bf: seen)
 
     def run(self) -> SendReport:
         """Handshake, stream the whole job, return the report (FabkitError on failure)."""
@@ -136,14 +154,9 @@ class GrblProtocol(Session):
         return self.report()
 
     def report(self) -> SendReport:
-        return replace(
-            super().report(),
-            unconfirmed=tuple(self._unconfirmed_line(index) for index in self.unanswered),
-        )
-
-    def _unconfirmed_line(self, index: int) -> str:
-        command = self.job[index]
-        return f"file line {command.file_line} ('{command.text}'): its answer was lost"
+        lost = (self.job[i] for i in self.unanswered)
+        unrun = tuple(UnrunLine(c.file_line, c.text, ANSWER_LOST) for c in lost)
+        return replace(super().report(), may_not_have_run=unrun)
 
     # -- handshake and sending -------------------------------------------------------------
 
@@ -198,12 +211,13 @@ class GrblProtocol(Session):
                 f"{self.serial.rx_buffer_bytes}: set it to {rx} in {self.machine.path}"
             )
         self.rx_usable = rx - 1
+        self.planner_free = blocks
         if not self.options.window_lines:
             self.max_lines = max(self.max_lines, blocks)
 
     def _fill(self) -> None:
         frames = []
-        room = self.rx_usable - len(BARRIER)  # a barrier always fits beside the job lines
+        room = self.rx_usable - BARRIERS * len(BARRIER)  # barriers always fit beside them
         while self.sent < len(self.job) and not self.held:
             frame = self.job[self.sent].text.encode("ascii") + b"\n"
             full = self.inflight_bytes + len(frame) > room
@@ -279,25 +293,30 @@ class GrblProtocol(Session):
         if not self.inflight:
             return
         now = time.monotonic()
-        if now - self.last_rx_s > self.options.dead_s:
-            raise self.lost(self.acked, f"no answer for {self.options.dead_s:g} s", self.sent)
         options = self.options
+        if now - self.last_rx_s > options.dead_s:
+            raise self.lost(self.acked, f"no answer for {options.dead_s:g} s", self.sent)
+        if now - self.last_answer_s > options.wait_dead_s:  # status reports, but no ok
+            reason = f"no ok nor error: for {options.wait_dead_s:g} s"
+            raise self.lost(self.acked, reason, self.sent)
         probe_after = min(max(8 * self.ok_gap_s, options.probe_min_s), options.probe_max_s)
         quiet = now - max(self.last_rx_s, self.last_tx_s)
         if quiet >= probe_after and now - self.last_query_s >= max(probe_after, STATUS_MIN_S):
             self.last_query_s = now
             self.probes += 1
             self.write(STATUS)  # keeps the link alive and the state known; frees nothing
-        if now - self.last_answer_s >= probe_after and self._barrier_wanted():
+        if self._barrier_wanted(now, probe_after):
+            self.last_barrier_s = now
             self._push(_Sent(len(BARRIER), -1))
             self.write(BARRIER)
 
-    def _barrier_wanted(self) -> bool:
-        """A barrier fits and none is waiting for its report behind unanswered lines."""
-        if self.inflight_bytes + len(BARRIER) > self.rx_usable:
+    def _barrier_wanted(self, now: float, quiet_s: float) -> bool:
+        """No answer nor barrier for ``quiet_s``, fewer than :data:`BARRIERS` barriers in
+        flight (their room is kept free), and a job line waiting for its answer."""
+        if now - max(self.last_answer_s, self.last_barrier_s) < quiet_s:
             return False
-        waiting = next((s for s in self.inflight if s.index < 0 and not s.reported), None)
-        return waiting is None or waiting is self.inflight[0]
+        barriers = sum(1 for sent in self.inflight if sent.index < 0)
+        return barriers < BARRIERS and self._job_in_flight() > 0
 
     def _settle_barriers(self, limit_s: float = 1.0) -> None:
         """Read the answers of the barriers still in flight once every job line is
@@ -314,7 +333,7 @@ class GrblProtocol(Session):
         """Every job line sent is answered after a rejected one: let the machine finish
         what it holds, stop safely, and name the line to resume from (module docstring)."""
         self._settle_barriers()
-        self._wait_for(("<Idle", "<Alarm"), STATUS, self.options.finish_s)
+        self._wait_until(self._drained, STATUS, self.options.finish_s)
         self._safe_stop()
         index, error = self.rejected[0]
         failed = self.job[index]
@@ -381,9 +400,30 @@ class GrblProtocol(Session):
             self.write(text.encode("ascii") + b"\n")
             self._wait_for(("ok", "error:"), b"", 5.0)
 
+    def _drained(self, line: str) -> bool:
+        """``line`` is a status report of a machine that has run every planned move: in
+        ALARM, or Idle with an empty planner. An Idle report alone is not enough: GRBL
+        reports Idle with blocks planned until its auto cycle start (``protocol.c``,
+        ``protocol_auto_cycle_start``) begins them (a real GRBL 1.1h answered
+        ``<Idle|...|Bf:2,128|...>`` with 13 moves waiting)."""
+        if line.startswith("<Alarm"):
+            return True
+        if not line.startswith("<Idle"):
+            return False
+        free = re.search(r"Bf:(\d+),", line)
+        if free is None:
+            return True
+        self.planner_free = max(self.planner_free, int(free.group(1)))
+        return int(free.group(1)) >= self.planner_free
+
     def _wait_for(self, prefixes: tuple[str, ...], query: bytes, timeout_s: float) -> list[str]:
         """The lines read until one starts with one of ``prefixes`` or ``timeout_s`` passed,
         sending ``query`` every 0.1 s if given."""
+        return self._wait_until(lambda line: line.startswith(prefixes), query, timeout_s)
+
+    def _wait_until(self, done: Callable[[str], bool], query: bytes, timeout_s: float) -> list[str]:
+        """The lines read until ``done`` holds for one or ``timeout_s`` passed, sending
+        ``query`` every 0.1 s if given."""
         seen: list[str] = []
         deadline = time.monotonic() + timeout_s
         next_query = 0.0
@@ -395,7 +435,7 @@ class GrblProtocol(Session):
             if line is None:
                 continue
             seen.append(line)
-            if line.startswith(prefixes):
+            if done(line):
                 break
         return seen
 

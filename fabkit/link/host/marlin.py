@@ -2,12 +2,14 @@
 
 Numbering
     ``N0 M110 N0`` resets the firmware's line counter, ``N1 M115`` asks who it is and
-    ``N2 M105`` confirms (its answer names it: a temperature report on the ``ok`` line,
-    ``ok T:...`` or Klipper's ``ok B:... T0:...``, or ``ok 2`` where oks name their line;
-    the third ``ok`` may be the pair of a refusal, so counting them would not do). Every
-    later line goes out as ``N<n> <command>*<xor>``. A number, once sent, keeps its text
-    to the end of the job: a job line is never renumbered and never replaced by
-    anything; a probe (``M105``) takes the next number after every line already sent.
+    ``N2 M105`` confirms. Its answer names it: a temperature report on the ``ok`` line
+    (``ok T:...``, Klipper's ``ok B:... T0:...``), ``ok 2`` where oks name their line, or,
+    where the firmware acknowledges a line before running it, three ``ok`` and a report
+    on a line of its own (:func:`~fabkit.link.answers.m105_answer` has the sources; the
+    third ``ok`` alone may be the pair of a refusal). Every later line goes out as
+    ``N<n> <command>*<xor>``. A number, once sent, keeps its text to the end of the job:
+    a job line is never renumbered and never replaced by anything; a probe (``M105``)
+    takes the next number after every line already sent.
     No ``M110`` follows the handshake. The answers' wording differs between firmwares:
     :mod:`fabkit.link.answers` reads them all.
 
@@ -71,6 +73,17 @@ Anchors
     when the M105 sent after its last line is answered: the firmware accepts in order,
     so every line before it has run.
 
+    A firmware that answered the handshake's M105 with the report on a line of its own
+    (Repetier without ``ACK_WITH_LINENUMBER``, VirtualPrinter's ``okBeforeCommandOutput``)
+    reports each M105 once, in the order of their numbers: a report names the oldest
+    M105 not yet reported, and, if a copy is in flight predicted accepted, the window is
+    emptied up to it (through it where its ``ok`` came before the report, as there; up
+    to it where the ``ok`` comes after). Reports that no M105 asked for (heat-ups print
+    them every second, Marlin/src/module/temperature.cpp ``wait_for_hotend``; ``M155``
+    turns on ``AutoReportTemp``) would name the wrong M105, so from the first line of
+    ``REPORTING_CODES`` in the job, or a report with no M105 waiting, reports are no
+    anchors; the oks are counted as ever.
+
 Window
     Unanswered lines predicted accepted stay within the planner depth, unanswered
     bytes within the receive buffer (``rx_buffer_bytes - 1``, lowered when a refusal
@@ -94,6 +107,20 @@ Silence
     ``wait`` (an idle firmware whose ``ok`` may be lost) triggers a probe. An ``Error:``
     with other wording is fatal unless a resend request follows within
     ``ERROR_GRACE_S``; Klipper's ``!!`` errors and ``// Klipper state: Shutdown`` are fatal.
+
+Lines a firmware may not have run
+    A firmware that asks for line X has no line from X on, so of each such line it can
+    take only the copies in flight then and those sent after. An error line that names
+    the refused line N and the expected one, after it (VirtualPrinter and Repetier:
+    ``expected line 106 got 105``), says the firmware has N. When that refused copy was
+    the last of those it could have taken, it took none, and N may not have run: it is
+    reported (:attr:`SendReport.may_not_have_run`), and sending goes on (no sender can
+    make the firmware take it). VirtualPrinter's ``105:resend_with_timeout`` does this:
+    ``Resend:105``, then it swallows the next line and counts 105 as received. Lines
+    acknowledged already are never reset (a request for one is garbled), and a refusal
+    that does not name its line is never counted: an answer counted against the wrong
+    transmission cannot report a line that ran. Where the swallowed line is the copy
+    itself nothing is refused: that looks exactly like a lost ``ok``, and is not reported.
 
 RepRapFirmware checks no line numbers: one line at a time there
 (:class:`~fabkit.link.host.one_by_one.OneByOne`).
@@ -119,6 +146,7 @@ from fabkit.link.host.session import SendReport, Session
 WAIT_CODES = frozenset(
     {"M109", "M190", "G28", "G29", "G4", "M400", "M0", "M1", "M600", "M226", "M303"}
 )
+REPORTING_CODES = frozenset({"M109", "M190", "M191", "M116", "M155", "M303"})  # report unasked
 WAIT_PROBE_S = 2.5  # longer than Marlin's default busy: interval
 ERROR_GRACE_S = 0.5  # an unknown Error: is fatal unless a resend request follows by then
 PROBE = "M105"
@@ -181,6 +209,7 @@ class MarlinProtocol(Session):
         self.acked = self.highest_sent  # lines up to this one are known accepted
         self.certain = self.highest_sent  # ... proven so by an answer naming its line
         self.backward = 0  # requests in a row for a line proven accepted
+        self.takers: dict[int, int] = {}  # line asked for -> copies it may have taken since
         self.inflight: deque[Transmission] = deque()
         self.inflight_bytes = 0
         self.inflight_lines = 0  # of them, predicted accepted
@@ -192,6 +221,8 @@ class MarlinProtocol(Session):
         self.pending_error: tuple[str, float] | None = None
         self.probe_wanted = False
         self.final_probe: int | None = None  # the M105 after the last line
+        self.unreported: deque[int] | None = None  # M105s not yet reported (Anchors)
+        self.report_after_ok = False  # ... a report comes after the M105's ok, not before
         self.job_next = 0
         self.since_probe = 0
         self.sync_every = SYNC_EVERY
@@ -277,34 +308,31 @@ class MarlinProtocol(Session):
     # -- handshake -------------------------------------------------------------------------
 
     def _handshake(self) -> None:
-        """``N0 M110 N0``, ``N1 M115``, ``N2 M105`` until the M105 is answered (a board that
-        resets when the port opens loses the first try). A try is repeated only once the
-        line has fallen quiet: two tries in flight at once would let the later one's
-        ``M110`` reset the count under the job's first lines."""
+        """``N0 M110 N0``, ``N1 M115``, ``N2 M105`` until the M105 is answered, in any of
+        the forms :func:`~fabkit.link.answers.m105_answer` reads (a board that resets when
+        the port opens loses the first try). A try is repeated only once the line has
+        fallen quiet: two tries in flight at once would let the later one's ``M110``
+        reset the count under the job's first lines."""
         deadline = time.monotonic() + self.options.handshake_s
         self.discard_input()
         frames = [frame_marlin(n, text) for n, text in enumerate(HANDSHAKE)]
-        last = len(HANDSHAKE) - 1
         while time.monotonic() < deadline:
             for frame in frames:
                 self.write(frame)
-            report: list[str] = []
+            lines: list[str] = []
             retry_at = min(time.monotonic() + 2.0, deadline)
             while time.monotonic() < retry_at:
                 line = self.read_line()
                 if line is None:
                     continue
-                answer = classify(line)
-                if "FIRMWARE_NAME" in line:
-                    report.append(line)
-                if answer.kind == answers.RESEND:
+                if classify(line).kind == answers.RESEND:
                     break
-                if answer.kind == answers.OK and (
-                    answer.temperatures or (answer.number or 0) >= last
-                ):
-                    if answer.number is not None:  # acknowledged when queued: let them run
-                        report += self._read_until(answers.TEMPERATURES, 1.0)
-                    self._configure(" ".join(report))
+                lines.append(line)
+                form = answers.m105_answer(lines, len(HANDSHAKE) - 1)
+                if form is not None:
+                    if form == answers.NAMED_OK:  # acknowledged when queued: let them run
+                        lines += self._read_until(answers.TEMPERATURES, 1.0)
+                    self._configure(lines, form)
                     return
             self._settle()
         raise FabkitError(
@@ -312,27 +340,32 @@ class MarlinProtocol(Session):
             "Marlin-protocol machine and the baud rate right?"
         )
 
-    def _configure(self, report: str) -> None:
-        """What the firmware said about itself decides the window (module docstring)."""
+    def _configure(self, lines: list[str], form: str) -> None:
+        """What the firmware said about itself (its ``FIRMWARE_NAME`` lines) decides the
+        window; how it answered M105 (``form``) decides which reports are anchors (module
+        docstring)."""
+        report = " ".join(line for line in lines if "FIRMWARE_NAME" in line)
         self.firmware = answers.identify(report, self.machine.flavour)
         if self.firmware.drains:
             self.max_lines = min(self.max_lines, DRAINING_MAX_LINES)
         if not self.firmware.sequenced:
             self.max_lines = 1
+        if form in (answers.AFTER_OK, answers.BEFORE_OK):
+            self.unreported = deque()
+            self.report_after_ok = form == answers.AFTER_OK
 
     def _read_until(self, kind: str, limit_s: float) -> list[str]:
-        """The ``FIRMWARE_NAME`` lines read until an answer of ``kind`` (or ``limit_s``)."""
+        """The lines read until an answer of ``kind`` (or ``limit_s``)."""
         stop = time.monotonic() + limit_s
-        report = []
+        lines = []
         while time.monotonic() < stop:
             line = self.read_line()
             if line is None:
                 continue
-            if "FIRMWARE_NAME" in line:
-                report.append(line)
+            lines.append(line)
             if classify(line).kind == kind:
                 break
-        return report
+        return lines
 
     def _settle(self, quiet_s: float = 0.3, limit_s: float = 3.0) -> None:
         """Read and drop lines until none came for ``quiet_s`` (at most ``limit_s``)."""
@@ -369,6 +402,8 @@ class MarlinProtocol(Session):
             self.transmissions += 1
             self.highest_sent = max(self.highest_sent, n)
             self.cursor = n + 1
+            if n in self.takers:
+                self.takers[n] += 1
             self.write(frame)
 
     def _following(self) -> tuple[str, int] | None:
@@ -399,6 +434,11 @@ class MarlinProtocol(Session):
         else:
             self.job_next += 1
             self.since_probe += 1
+        if self.unreported is not None:
+            if code_of(text) in REPORTING_CODES:
+                self.unreported = None  # its reports would pass for an M105's
+            elif code_of(text) == PROBE:
+                self.unreported.append(len(self.texts))
         self.texts.append(text)
         self.origin.append(origin)
 
@@ -432,6 +472,8 @@ class MarlinProtocol(Session):
         elif kind == answers.SKIP:
             self._on_refusal(None)
         else:
+            if kind == answers.TEMPERATURES and self.unreported is not None:
+                self._on_report()
             self.on_other(answer, line)
 
     def on_other(self, answer: Answer, line: str) -> None:
@@ -561,16 +603,42 @@ class MarlinProtocol(Session):
             self._retire()  # drained, or its refusal was lost: an ok is never its
         return self._retire() if self.inflight else None
 
+    def _on_report(self) -> None:
+        """A temperature report on a line of its own from a firmware that answers M105 so:
+        the report of the oldest M105 not yet reported, whose transmission, if still in
+        flight, is an anchor; the firmware's ``ok`` for it came before the report, or comes
+        after it (module docstring: Anchors). A report that no M105 asked for means the
+        firmware reports unasked: reports are no anchors from then on."""
+        if not self.unreported:
+            self.unreported = None
+            return
+        n = self.unreported.popleft()
+        probe = self._oldest(lambda t: t.n == n)
+        if probe is None:  # its ok retired it, as counted: no answer was lost
+            self._rebase(0)
+            return
+        self._rebase(self._retire_before(probe))
+        if self.report_after_ok:
+            self._retire()
+        self.acked = max(self.acked, n)
+        self.certain = max(self.certain, n)
+        self._progress()
+
     def _oldest(self, match) -> Transmission | None:
         return next((t for t in self.inflight if t.accepted and match(t)), None)
 
     def _retire_through(self, sent: Transmission) -> Transmission:
+        self._rebase(self._retire_before(sent))
+        return self._retire()
+
+    def _retire_before(self, sent: Transmission) -> int:
+        """Take the transmissions before ``sent`` out of the window; how many of them were
+        predicted accepted (their answers were lost)."""
         lost = 0
         while self.inflight[0] is not sent:
             lost += self.inflight[0].accepted
             self._retire()
-        self._rebase(lost)
-        return self._retire()
+        return lost
 
     def _retire(self) -> Transmission:
         sent = self.inflight.popleft()
@@ -604,12 +672,41 @@ class MarlinProtocol(Session):
             return  # garbled: the firmware cannot expect a line never sent
         if self._asks_backward(x):
             return
+        if expects == x:
+            self._claimed(sent, refused, x)
         if sent is not None and not sent.accepted and x == sent.expect:
             return  # as predicted: one more answer from a discarded window
         self.resends += 1
         if sent is not None and sent.accepted:
             self._suspect_overflow(sent)
+        self._asked(x)
         self._predict(x)
+
+    def _asked(self, x: int) -> None:
+        """The firmware asks for line ``x``: it has no line from ``x`` on, so of each it can
+        take only the copies still in flight and those sent from now on (module docstring:
+        Lines a firmware may not have run). A line known accepted is left alone: a request
+        for it would be a garbled one."""
+        first = max(x, self.acked + 1)
+        for n in range(first, self.highest_sent + 1):
+            self.takers[n] = 0
+        for sent in self.inflight:
+            if sent.n >= first:
+                self.takers[sent.n] += 1
+
+    def _claimed(self, sent: Transmission | None, refused: int | None, x: int) -> None:
+        """The error line named the refused line ``refused`` and the firmware asks for a
+        later line ``x``: it refused a copy of a line it says it has. When that copy was
+        the last it could have taken since it asked for the line, it never took one, and
+        the line may not have run."""
+        if refused is None or refused >= x or sent is None or sent.n != refused:
+            return
+        left = self.takers.get(refused)
+        if left is None:
+            return
+        self.takers[refused] = left - 1
+        if left == 1 and self.origin[refused] >= 0:
+            self.unrun.append(self.origin[refused])
 
     def _asks_backward(self, x: int) -> bool:
         """A request for a line an answer naming it proved accepted: a garbled number,

@@ -127,9 +127,32 @@ def _visible(line: str) -> str:
     return repr(line) if any(ord(c) < 32 or ord(c) > 126 for c in line) else line
 
 
+REFUSED_COPY = "the machine asked for it again, then refused the copy as a line it had"
+ANSWER_LOST = "its answer (ok or error:) was lost; the machine read it"
+
+
+@dataclass(frozen=True)
+class UnrunLine:
+    """A job line that may not have run: its file line (1-based), its text and why
+    (:data:`REFUSED_COPY`, :data:`ANSWER_LOST`)."""
+
+    file_line: int
+    text: str
+    why: str
+
+    def sentence(self) -> str:
+        return f"file line {self.file_line} ({self.text}): {self.why}"
+
+    def figures(self) -> dict[str, Any]:
+        return {"file_line": self.file_line, "text": self.text, "why": self.why}
+
+
 @dataclass(frozen=True)
 class SendReport:
-    """What a finished job did (s, bytes, lines)."""
+    """What a finished job did (s, bytes, lines). ``may_not_have_run``: the job lines the
+    machine may not have run, and why (:mod:`fabkit.link.host.marlin`: a line refused as
+    one it had without ever taking a copy; :mod:`fabkit.link.host.grbl`: a line whose
+    answer was lost)."""
 
     port: str
     protocol: str
@@ -143,8 +166,7 @@ class SendReport:
     probes: int
     recoveries: int
     warnings: tuple[str, ...]
-    unconfirmed: tuple[str, ...] = ()
-    """Job lines that may not have run, each named with its file line, its text and why."""
+    may_not_have_run: tuple[UnrunLine, ...] = ()
 
     @property
     def lines_per_s(self) -> float:
@@ -162,25 +184,26 @@ class SendReport:
             "resent_lines": self.resends,
             "status_queries_between_lines": self.probes,
             "recoveries_from_lost_answers": self.recoveries,
-            "lines_that_may_not_have_run": list(self.unconfirmed),
             "warnings": list(self.warnings),
+            "lines_that_may_not_have_run": [line.figures() for line in self.may_not_have_run],
         }
 
     def summary(self) -> str:
-        """Lines for the user: the lines that may not have run first (if any), then what
-        was sent, then the warnings."""
-        first = []
-        if self.unconfirmed:
-            count = len(self.unconfirmed)
-            lines = f"{count} line{'s' if count > 1 else ''}"
-            first = [f"{lines} may not have run: " + "; ".join(self.unconfirmed)]
+        """The lines for the user: first the job lines that may not have run, if any."""
         text = (
             f"sent {self.job_lines} lines (file lines {self.first_file_line}-"
             f"{self.last_file_line}) to {self.port} in {self.elapsed_s:.1f} s "
             f"({self.lines_per_s:.0f} lines/s, {self.protocol}); "
             f"{self.resends} resends, {self.probes} probes, {self.recoveries} recoveries"
         )
-        return "\n".join([*first, text, *(f"warning: {w}" for w in self.warnings)])
+        return "\n".join([*self._unrun_line(), text, *(f"warning: {w}" for w in self.warnings)])
+
+    def _unrun_line(self) -> list[str]:
+        if not self.may_not_have_run:
+            return []
+        count = len(self.may_not_have_run)
+        lines = "; ".join(line.sentence() for line in self.may_not_have_run)
+        return [f"WARNING: {count} line{'s' if count > 1 else ''} may not have run: {lines}"]
 
 
 class Session:
@@ -219,6 +242,7 @@ class Session:
         self.probes = 0
         self.recoveries = 0
         self.warnings: list[str] = []
+        self.unrun: list[int] = []  # job lines the machine may not have run (index)
         self.aborting = False
         port.timeout = options.poll_s
 
@@ -341,6 +365,10 @@ class Session:
             probes=self.probes,
             recoveries=self.recoveries,
             warnings=tuple(self.warnings),
+            may_not_have_run=tuple(
+                UnrunLine(self.job[i].file_line, self.job[i].text, REFUSED_COPY)
+                for i in sorted(set(self.unrun))
+            ),
         )
 
     def show(self, done: int, note: str = "", *, force: bool = False) -> None:
