@@ -44,11 +44,14 @@ class TraceEntry:
 
 @dataclass
 class Counters:
-    """Live counts of what happened inside the emulator (mutated as it runs)."""
+    """Live counts of what happened inside the emulator (mutated as it runs).
+    ``dropped_ok_lines``: the numbers of the lines whose own ``ok`` was dropped, in order
+    (``dropped_oks`` also counts those that pair with a refusal or answer no line)."""
 
     executed: int = 0
     corrupted_lines: int = 0
     dropped_oks: int = 0
+    dropped_ok_lines: list[int] = field(default_factory=list)
     garbled_lines: int = 0
     spurious_lines: int = 0
     rejected_lines: int = 0
@@ -195,14 +198,17 @@ class Output:
     items: deque[tuple[float, bytes]] = field(default_factory=deque, init=False)
     free_at: float = field(default=-INF, init=False)
 
-    def line(self, text: str, t: float) -> None:
-        """Send one line at ``t``, subject to the injected faults."""
+    def line(self, text: str, t: float, answers: int | None = None) -> None:
+        """Send one line at ``t``, subject to the injected faults; ``answers``: the number
+        of the line this ``ok`` acknowledges, if it is one."""
         faults, rng = self.faults, self.rng
         if faults.noise and rng.random() < faults.noise:
             self.counters.spurious_lines += 1
             self.raw(rng.choice(self.noise_lines).encode("latin-1") + self.eol, t)
         if faults.drop_ok and text.startswith("ok") and rng.random() < faults.drop_ok:
             self.counters.dropped_oks += 1
+            if answers is not None:
+                self.counters.dropped_ok_lines.append(answers)
             return
         data = text.encode("latin-1")
         if faults.garble and data and rng.random() < faults.garble:

@@ -252,7 +252,8 @@ class MarlinFirmware(Firmware):
     def _queue(self, n: int | None, command: str, t: float) -> bool:
         self.queue.append((n, command))
         if self.dialect.ack_on_queue:
-            self.out.line(f"ok {n}" if n is not None and self.dialect.ack_numbered else "ok", t)
+            ok = f"ok {n}" if n is not None and self.dialect.ack_numbered else "ok"
+            self.out.line(ok, t, n)
             self.acked += 1
             self._faults(t)
         return True
@@ -382,7 +383,7 @@ class MarlinFirmware(Firmware):
     ) -> None:
         motion = self.motion
         if code not in KNOWN:
-            self._unknown(text, t)
+            self._unknown(n, text, t)
             return
         if code in _MOVES:
             arc = int(code[1]) if code in ("G2", "G3") else 0
@@ -403,24 +404,26 @@ class MarlinFirmware(Firmware):
         elif code == "M110" and n is None and "N" in values:
             self.last_n = int(values["N"])
         self._record(n, command, text, t)
-        self._respond(code, t)
+        self._respond(n, code, t)
 
-    def _unknown(self, text: str, t: float) -> None:
-        """A command the firmware does not know, in the dialect's words (nothing runs)."""
+    def _unknown(self, n: int | None, text: str, t: float) -> None:
+        """A command the firmware does not know (line ``n``), in the dialect's words
+        (nothing runs)."""
         self.counters.unknown_commands += 1
         style = self.dialect.line_error
         if style == "repetier":
             self.out.line(f"Unknown command:{text}", t)
         elif style == "silent":
             self.out.line(f"Error: Bad command: {text}", t)
-            self.out.line("ok", t)
+            self.out.line("ok", t, n)
         elif style == "smoothie":
-            self.out.line("ok", t)
+            self.out.line("ok", t, n)
         else:
             self.out.line(f'echo:Unknown command: "{text}"', t)
-            self.out.line("ok", t)
+            self.out.line("ok", t, n)
 
-    def _respond(self, code: str, t: float) -> None:
+    def _respond(self, n: int | None, code: str, t: float) -> None:
+        """The answer to line ``n``, which ran ``code``."""
         out = self.out
         if code == "M112":
             out.line("Error:Printer halted. kill() called!", t)
@@ -428,7 +431,7 @@ class MarlinFirmware(Firmware):
             return
         temperatures = self._temperatures(t) if code in ("M105", "M109", "M190") else ""
         if code == "M105" and not self.dialect.ack_on_queue:
-            out.line("ok " + temperatures, t)
+            out.line("ok " + temperatures, t, n)
             self._faults(t)
             return
         if code == "M105":
@@ -444,7 +447,7 @@ class MarlinFirmware(Firmware):
         elif code in ("M109", "M190"):
             out.line(" " + temperatures + " W:0", t)
         if not self.dialect.ack_on_queue:
-            out.line("ok", t)
+            out.line("ok", t, n)
         self._faults(t)
 
     def _record(self, n: int | None, command: str, text: str, t: float) -> None:

@@ -262,7 +262,7 @@ class Emulator:
 
     def stats(self) -> Counters:
         """A copy of the counters."""
-        return replace(self.counters)
+        return replace(self.counters, dropped_ok_lines=list(self.counters.dropped_ok_lines))
 
 
 class PtyEmulator:
