@@ -20,6 +20,7 @@ from tests.test_link_responders import LatencyResponder
 from tests.test_link_support import (
     executed,
     marlin_job,
+    names_the_lost_oks,
     quick,
     resumed_once,
     run_sim,
@@ -39,6 +40,7 @@ def test_corruption_and_lost_oks_in_every_dialect(dialect):
     stats = emulator.stats()
     assert stats.corrupted_lines > 5 and stats.dropped_oks > 0
     assert report.resends > 0 and report.recoveries == 0  # no long silences
+    assert names_the_lost_oks(report, emulator, job) or one_by_one_proved(report, dialect)
 
 
 @pytest.mark.slow
@@ -51,8 +53,15 @@ def test_noisy_answers_and_a_busy_machine_in_every_dialect(dialect):
         "sim://marlin?time_scale=0.002&baud=1000000&corrupt=0.01&drop_ok=0.002&garble=0.005"
         f"&noise=0.005&seed=7&dialect={dialect}"
     )
-    _, emulator = run_sim(url, job, "marlin_generic", options=quick())
+    report, emulator = run_sim(url, job, "marlin_generic", options=quick())
     assert runs_the_file(emulator, job)
+    assert names_the_lost_oks(report, emulator, job) or one_by_one_proved(report, dialect)
+
+
+def one_by_one_proved(report, dialect: str) -> bool:
+    """RepRapFirmware gets one line at a time, and a line whose ok was lost is placed by
+    the position an M114 then reports (fabkit.link.host.one_by_one): none is named."""
+    return dialect == "reprapfirmware" and report.may_not_have_run == ()
 
 
 @pytest.mark.parametrize("dialect", list(DIALECTS))

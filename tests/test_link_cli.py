@@ -304,13 +304,14 @@ def test_ctrl_c_during_run_send_names_the_resume_line_too(tmp_path, capsys, monk
 
 @pytest.mark.parametrize("strict", [False, True], ids=["plain", "strict"])
 def test_a_line_the_machine_may_not_have_run_comes_first_and_fails_strict(tmp_path, capsys, strict):
-    # VirtualPrinter (default settings) on its pseudo-terminal, N105 read late: after
-    # Resend:105 it swallows the next line, takes 105 as received and refuses the copy
+    # VirtualPrinter (default settings) on its pseudo-terminal: after Resend:105 it
+    # swallows the next line and takes 105 as received, so 105 never runs (its copy is
+    # refused, or is the line swallowed and never answered)
     moves = [f"G1 X{50 + 0.2 * i:.2f} Y50 E{0.001 * (i + 1):.4f} F3000" for i in range(195)]
     texts = ["G21", "G90", "M82", "G92 E0", "G1 Z0.3 F300", *moves]  # short: quick there
     path = write(tmp_path, texts)
     log = tmp_path / "send.log"
-    with VirtualPrinterPty(late=b"N105 ") as printer:
+    with VirtualPrinterPty() as printer:
         args = ["send", path, "--port", printer.path, "--log", str(log)]
         code = main(args + (["--strict"] if strict else []))
     assert code == (1 if strict else 0)

@@ -14,12 +14,19 @@ from fabkit.errors import FabkitError
 from fabkit.gcode.read import Command, commands_from_lines
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
-from fabkit.link.host.session import LinkControl
+from fabkit.link.host.session import (
+    OK_LOST,
+    LinkControl,
+    SendReport,
+    UnrunLine,
+    oks_lost,
+)
 from fabkit.machines import load_machine
 from fabkit.progress import ProgressBar
 from tests.test_link_support import (
     executed,
     marlin_job,
+    names_the_lost_oks,
     numbers_are_contiguous,
     quick,
     run_sim,
@@ -40,6 +47,7 @@ def test_100k_lines_with_1_percent_corruption_and_lost_oks_run_exactly_once_in_o
     stats = emulator.stats()
     assert stats.corrupted_lines > 750 and stats.dropped_oks > 50
     assert report.resends >= 750 and report.recoveries == 0
+    assert names_the_lost_oks(report, emulator, job)
 
 
 @pytest.mark.parametrize(
@@ -58,7 +66,7 @@ def test_every_marlin_variant_and_noisy_answers(variant):
     assert executed(emulator) == [c.text for c in job]
     assert numbers_are_contiguous(emulator)
     assert report.recoveries <= (2 if variant == "resend_ok=0" else 0)
-    assert report.may_not_have_run == ()  # every refusal here is of a line not yet taken
+    assert emulator.stats().dropped_ok_lines and names_the_lost_oks(report, emulator, job)
 
 
 @pytest.mark.parametrize(
@@ -75,7 +83,22 @@ def test_with_the_ok_before_the_output_the_m105_report_finds_lost_oks(variant):
     report, emulator = run_sim(url, job, "marlin_generic", options=quick())
     assert runs_the_file(emulator, job)
     assert emulator.stats().dropped_oks > 10
-    assert report.recoveries == 0 and report.may_not_have_run == ()
+    assert report.recoveries == 0 and names_the_lost_oks(report, emulator, job)
+
+
+def test_the_summary_names_a_line_alone_and_a_run_once_and_the_json_each_line():
+    why = oks_lost(1, 20, 22)
+    unrun = (
+        UnrunLine(7, "G1 X1", OK_LOST),
+        *(UnrunLine(n, f"G1 X{n}", why, shared=True) for n in (20, 21, 22)),
+    )
+    report = SendReport("p", "marlin", 30, 1, 30, 1.0, 0, 31, 0, 0, 0, (), unrun)
+    first = report.summary().splitlines()[0]
+    assert first == f"WARNING: 4 lines may not have run: file line 7 (G1 X1): {OK_LOST}; {why}"
+    assert why.startswith("1 of file lines 20-22 ") and "lost its ok" in why
+    items = report.figures()["lines_that_may_not_have_run"]
+    assert [item["file_line"] for item in items] == [7, 20, 21, 22]
+    assert items[2] == {"file_line": 21, "text": "G1 X21", "why": why}
 
 
 def test_real_byte_timing_never_overflows_the_receive_buffer():
@@ -83,9 +106,10 @@ def test_real_byte_timing_never_overflows_the_receive_buffer():
     job = commands_from_lines(["G1 F3000"] + [f"G1 X{10 + i % 90}" for i in range(400)])
     url = f"sim://marlin?time_scale=0.01&baud=1000000&{FAULTS}&seed=9"
     machine = load_machine("marlin_generic")
-    _, emulator = run_sim(url, job, "marlin_generic", options=quick())
+    report, emulator = run_sim(url, job, "marlin_generic", options=quick())
     assert executed(emulator) == [c.text for c in job]
     assert emulator.stats().overflow_bytes == 0 and emulator.stats().max_rx_bytes <= 127
+    assert names_the_lost_oks(report, emulator, job)
     # control: a sender that believes in a 1 KiB buffer (and, the firmware not draining
     # its buffer on errors, keeps up to 200 lines in flight) overruns the 128-byte ring
     serial = replace(machine.serial, rx_buffer_bytes=1024)
@@ -133,6 +157,7 @@ def test_other_resend_spellings(spelling):
     rewriting = Rewriting(port, lambda data: data.replace(b"Resend: ", spelling))
     report = stream_job(rewriting, job, load_machine("marlin_generic"), options=quick())
     assert executed(port.emulator) == [c.text for c in job] and report.resends > 10
+    assert report.may_not_have_run == ()  # no ok lost
 
 
 @pytest.mark.slow
@@ -141,6 +166,7 @@ def test_lost_oks_are_detected_by_probing_and_recovered():
     report, emulator = run_sim(f"{FAST}&drop_ok=0.01&seed=2", job, "marlin_generic")
     assert emulator.stats().dropped_oks > 10 and report.probes > 0
     assert executed(emulator) == [c.text for c in job]
+    assert names_the_lost_oks(report, emulator, job)
 
 
 @pytest.mark.slow
@@ -277,6 +303,7 @@ def test_heavy_ok_loss_still_finishes_at_the_last_job_line(seed):
     url = f"{FAST}&drop_ok=0.01&seed={seed}"
     report, emulator = run_sim(url, job, "marlin_generic", options=quick())
     assert executed(emulator) == [c.text for c in job] and report.probes > 0
+    assert names_the_lost_oks(report, emulator, job)
 
 
 @pytest.mark.parametrize("seed", [5, 22, 33])
@@ -289,3 +316,4 @@ def test_a_line_cut_by_marlins_drain_never_runs(seed):
     report, emulator = run_sim(url, job, "marlin_generic", options=quick())
     assert all(entry.n is not None for entry in emulator.trace)
     assert executed(emulator) == [c.text for c in job] and report.recoveries == 0
+    assert names_the_lost_oks(report, emulator, job)

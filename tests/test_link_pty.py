@@ -12,7 +12,14 @@ from fabkit.link.emulator.port import PtyEmulator, config_from_url
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
 from fabkit.machines import load_machine
-from tests.test_link_support import executed, grbl_job, marlin_job, numbers_are_contiguous, quick
+from tests.test_link_support import (
+    executed,
+    grbl_job,
+    marlin_job,
+    names_the_lost_oks,
+    numbers_are_contiguous,
+    quick,
+)
 
 
 @pytest.mark.slow
@@ -27,6 +34,7 @@ def test_marlin_over_a_pty_with_faults_arrives_exactly_once_in_order():
         port.close()
     assert executed(pty.emulator) == [c.text for c in job]
     assert numbers_are_contiguous(pty.emulator) and report.resends > 10
+    assert pty.emulator.stats().dropped_ok_lines and names_the_lost_oks(report, pty.emulator, job)
 
 
 def test_grbl_over_a_pty():

@@ -14,7 +14,8 @@ error line lost, its resend number garbled. After the drawn steps the firmware i
 faultless, so a correct sender must finish; it must run every job line exactly once,
 in order, and nothing else (an unnumbered fragment would run unchecked), and it must
 send each job line under one number only (a line is never renumbered, and no other
-line ever takes its number).
+line ever takes its number). Its report must name every line whose ``ok`` was lost as
+one that may not have run, and no line when no ``ok`` was lost.
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ class ModelFirmware:
     rx: deque[bytes] = field(default_factory=deque)
     out: bytearray = field(default_factory=bytearray)
     ran: list[tuple[int | None, str]] = field(default_factory=list)
+    lost_oks: list[int | None] = field(default_factory=list)  # whose (None: no line's)
     texts: dict[int, set[str]] = field(default_factory=dict)  # number -> texts it came with
     partial: bytes = b""
     writes: int = 0
@@ -137,7 +139,7 @@ class ModelFirmware:
             self.last_n = 0  # a reset that printed nothing (its banner lost)
         if text == "M115":
             self._answer(FIRMWARES[self.kind], "none")
-        self._answer("ok T:20.0 /0.0 B:20.0 /0.0 @:0" if text == "M105" else "ok", fault)
+        self._answer("ok T:20.0 /0.0 B:20.0 /0.0 @:0" if text == "M105" else "ok", fault, number)
 
     def _refuse(self, reason: str, number: int | None, fault: str) -> None:
         expected = self.last_n + 1
@@ -161,9 +163,13 @@ class ModelFirmware:
             if self.kind != "marlin-2.0":
                 self._answer("ok", fault)
 
-    def _answer(self, text: str, fault: str) -> None:
+    def _answer(self, text: str, fault: str, number: int | None = None) -> None:
+        """Send ``text`` unless ``fault`` loses it (an ``ok`` lost is recorded with the
+        number of the line it answers)."""
         if fault != "lose_answer":
             self.out += text.encode() + b"\n"
+        elif text.startswith("ok"):
+            self.lost_oks.append(number)
 
 
 steps = st.lists(
@@ -202,7 +208,11 @@ def test_every_line_runs_once_in_order_whatever_the_faults(kind, schedule, lines
     assert [text for _, text in ran] == [c.text for c in job]
     assert all(len(texts) == 1 for texts in firmware.texts.values()), "a number changed text"
     assert report.job_lines == len(job)
-    assert report.may_not_have_run == ()  # each line ran: none may be reported lost
+    # every line whose ok was lost is named (alone or in a run); none if no ok was lost
+    named = {line.file_line for line in report.may_not_have_run}
+    file_line = dict(zip((n for n, _ in ran), (c.file_line for c in job), strict=True))
+    assert {file_line[n] for n in firmware.lost_oks if n in file_line} <= named
+    assert named == set() or firmware.lost_oks
 
 
 @pytest.mark.parametrize("kind", sorted(FIRMWARES))

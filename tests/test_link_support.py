@@ -79,6 +79,20 @@ def numbers_are_contiguous(emulator: Emulator) -> bool:
     return numbers == list(range(len(numbers)))
 
 
+def names_the_lost_oks(report: SendReport, emulator: Emulator, job: list[Command]) -> bool:
+    """The report names every job line whose ``ok`` the emulator dropped (alone, or among
+    the lines of which some lost theirs), and no line when no answer was lost (none
+    dropped, none garbled). The emulator ran the job in order (checked apart)."""
+    stats = emulator.stats()
+    named = {line.file_line for line in report.may_not_have_run}
+    if stats.dropped_oks + stats.garbled_lines == 0:
+        return not named
+    ran = [e.n for e in emulator.trace if e.command not in HOUSEKEEPING]
+    file_line = dict(zip(ran, (c.file_line for c in job), strict=True))
+    dropped = {file_line[n] for n in stats.dropped_ok_lines if n in file_line}
+    return dropped <= named
+
+
 def run_sim(url: str, job: list[Command], machine: str, **options) -> tuple[SendReport, Emulator]:
     """Stream ``job`` to a ``sim://`` URL; the report and the emulator, which has then run
     what it acknowledged (Repetier acknowledges a line when it queues it)."""

@@ -119,11 +119,35 @@ Lines a firmware may not have run
     ``Resend:105``, then it swallows the next line and counts 105 as received. Lines
     acknowledged already are never reset (a request for one is garbled), and a refusal
     that does not name its line is never counted: an answer counted against the wrong
-    transmission cannot report a line that ran. Where the swallowed line is the copy
-    itself nothing is refused: that looks exactly like a lost ``ok``, and is not reported.
+    transmission cannot report a line that ran.
+
+    Every line a firmware accepts is answered by one ``ok`` (Marlin/src/gcode/queue.cpp
+    ``RingBuffer::ok_to_send``, called once per command processed; a refusal's own
+    ``ok`` aside), in order. So when an anchor (or the job's end) shows the firmware
+    past line n, the lines after the last point where the count was complete
+    (``tallied``) up to n owe one ``ok`` each, and the oks counted since (``oks``) pay
+    for them; each missing one is a line received and never answered: its ``ok`` lost on
+    the wire (it ran) or the line dropped (VirtualPrinter's ``105:resend_with_timeout``
+    swallowing the copy it asked for): it may not have run, and is reported. Oks are not
+    tagged: when the missing ones are as many as those lines, each is named
+    (:data:`~fabkit.link.host.session.OK_LOST`); else each of them is named as one of a
+    run of which some lost their ``ok`` (:func:`~fabkit.link.host.session.oks_lost`).
+    The count is complete, and starts afresh, wherever it pays for every line sent, or
+    for the lines before a resend request for the line predicted (the firmware has them;
+    their oks may still be on their way, so a shortfall there names nothing). The line
+    an anchor names got its ``ok``; a line the firmware claimed as a refused copy
+    (above) owes none. Whatever takes lines out of the window (an anchor, silence, a
+    ``wait`` and its probe) leaves their count to this rule. Errors lean one way: more
+    oks than lines (a fragment's, an anchor credited to an older M105 whose answer was
+    lost) cannot be placed and keep the count open until it balances, so they can hide
+    or move a loss but name no line when every ok came; an ``ok`` taken as a refusal's
+    pair counts as a line's too until the firmware has sent one that no line in flight
+    can have sent (whatever it says of itself, it may not pair its refusals:
+    VirtualPrinter's ``brokenResend``), and then the earlier ones are taken back.
 
 RepRapFirmware checks no line numbers: one line at a time there
-(:class:`~fabkit.link.host.one_by_one.OneByOne`).
+(:class:`~fabkit.link.host.one_by_one.OneByOne`); a line whose ``ok`` is lost is placed by
+the position an M114 then reports (sent again if it did not run), so none is named.
 
 This module is over 600 lines: one class, :class:`MarlinProtocol`, whose methods
 (handshake, sending, answers, silence) all read and change the one window's state, and
@@ -141,7 +165,7 @@ from fabkit.gcode.read import code_of, frame_marlin
 from fabkit.link import answers
 from fabkit.link.answers import Answer, classify
 from fabkit.link.host.one_by_one import OneByOne
-from fabkit.link.host.session import SendReport, Session
+from fabkit.link.host.session import OK_LOST, REFUSED_COPY, SendReport, Session, oks_lost
 
 WAIT_CODES = frozenset(
     {"M109", "M190", "G28", "G29", "G4", "M400", "M0", "M1", "M600", "M226", "M303"}
@@ -210,11 +234,15 @@ class MarlinProtocol(Session):
         self.certain = self.highest_sent  # ... proven so by an answer naming its line
         self.backward = 0  # requests in a row for a line proven accepted
         self.takers: dict[int, int] = {}  # line asked for -> copies it may have taken since
+        self.tallied = self.highest_sent  # every ok up to this line is counted or named lost
+        self.oks = 0  # oks counted since (module docstring: Lines a firmware may not have run)
+        self.maybe_pairs = 0  # ... of them, taken as refusals' pairs too
         self.inflight: deque[Transmission] = deque()
         self.inflight_bytes = 0
         self.inflight_lines = 0  # of them, predicted accepted
         self.pair_ok = False  # the next ok pairs with a refusal
         self.pair_unsure = False  # ... perhaps (the firmware did not say): probe
+        self.pairs_seen = False  # the firmware sent an ok that could only be a refusal's
         self.error_line = False  # an Error: line whose Resend has not come yet
         self.error_says: tuple[int | None, int | None] = (None, None)  # expects, refused
         self.unknown_echo: str | None = None
@@ -267,8 +295,12 @@ class MarlinProtocol(Session):
         return 0
 
     def _stream(self) -> bool:
-        """Send ahead within the window; False if an abort's safe stop was not confirmed."""
-        return self.pump(self._done, self._send_ahead, self._on_line, self._on_silence)
+        """Send ahead within the window; False if an abort's safe stop was not confirmed.
+        At the end every ok is due: those that never came are named."""
+        finished = self.pump(self._done, self._send_ahead, self._on_line, self._on_silence)
+        if finished and not self.aborting and self.final_probe is not None:
+            self._went_past(self.final_probe)
+        return finished
 
     def _send_ahead(self) -> None:
         if b"\n" not in self.rx and self.pending_error is None:
@@ -554,10 +586,12 @@ class MarlinProtocol(Session):
                 self._want_probe()
             if self.pair_unsure:  # perhaps no ok after a resend request (Marlin 2.0.x)
                 self._want_probe()
+            self._paired()
             self.pair_ok = self.pair_unsure = self.error_line = False
             return
         self.pair_ok = self.pair_unsure = False  # a named answer: the pair did not come
         sent = self._answered(answer)
+        self._went_past(self.highest_sent, due=False)  # every line sent has its ok
         if sent is None:
             return
         if sent.n > self.acked:
@@ -568,6 +602,23 @@ class MarlinProtocol(Session):
         self._grow()
         self._progress()
         self.show(self.done_lines, self.heating_note)
+
+    def _paired(self) -> None:
+        """An ``ok`` taken as a refusal's pair. With no line in flight predicted accepted,
+        no line can have sent it: the firmware pairs its refusals (whatever it says of
+        itself, VirtualPrinter with ``brokenResend`` does not), and the oks taken for pairs
+        before were pairs. Until one such is seen it may be a line's ``ok``, and is counted
+        as one that may be a pair; a firmware that sends none (Marlin 2.0.x) has only
+        lines' oks (module docstring: Lines a firmware may not have run)."""
+        if self.firmware.resend_ok is False:
+            self.oks += 1
+        elif self.inflight_lines == 0:
+            self.pairs_seen = True
+            self.oks -= self.maybe_pairs
+            self.maybe_pairs = 0
+        elif not self.pairs_seen:
+            self.oks += 1
+            self.maybe_pairs += 1
 
     def _echoed(self, echo: str) -> bool:
         """Whether the ``ok`` after an unknown-command ``echo`` answers a line in flight: an
@@ -587,17 +638,18 @@ class MarlinProtocol(Session):
 
     def _answered(self, answer: Answer) -> Transmission | None:
         """The transmission an acceptance answers, taken out of the window with every one
-        before it (module docstring: Which answer, Anchors)."""
+        before it (module docstring: Which answer, Anchors); the ``ok`` is counted."""
+        self.oks += 1
         if answer.number is not None:
             named = self._oldest(lambda t: t.n == answer.number)
             if named is not None:
                 if named is self._oldest(lambda t: True):  # as counted: not a garbled number
-                    self.certain = max(self.certain, named.n)
+                    self._anchor(named.n)
                 return self._retire_through(named)
         if answer.temperatures:
             probe = self._oldest(lambda t: self.texts[t.n] == PROBE)
             if probe is not None:
-                self.certain = max(self.certain, probe.n)
+                self._anchor(probe.n)
                 return self._retire_through(probe)
         while self.inflight and not self.inflight[0].accepted:
             self._retire()  # drained, or its refusal was lost: an ok is never its
@@ -613,6 +665,7 @@ class MarlinProtocol(Session):
             self.unreported = None
             return
         n = self.unreported.popleft()
+        self._went_past(n if self.report_after_ok else n - 1)  # its ok came, or comes next
         probe = self._oldest(lambda t: t.n == n)
         if probe is None:  # its ok retired it, as counted: no answer was lost
             self._rebase(0)
@@ -623,6 +676,43 @@ class MarlinProtocol(Session):
         self.acked = max(self.acked, n)
         self.certain = max(self.certain, n)
         self._progress()
+
+    def _anchor(self, n: int) -> None:
+        """The ``ok`` just counted names line ``n`` (module docstring: Anchors)."""
+        self.certain = max(self.certain, n)
+        self._went_past(n, answered=n)
+
+    def _went_past(self, last: int, answered: int | None = None, *, due: bool = True) -> None:
+        """The firmware accepted every line up to ``last`` (``answered``: a line among them
+        whose own ``ok`` said so). Every accepted line gets one ``ok``, so the lines after
+        ``tallied`` are owed ``last - tallied`` of them; those that did not come lost
+        their ``ok`` (``due``: all have been sent by now; else, as after a resend request,
+        some may still come, and the count starts afresh only if none is missing). More
+        oks than lines (a fragment's, a stray one) cannot be placed: the count goes on
+        until it balances (module docstring: Lines a firmware may not have run)."""
+        missing = last - self.tallied - self.oks
+        balanced = missing == 0 and not self.maybe_pairs
+        if last <= self.tallied or not (balanced or missing > 0 and due):
+            return
+        if missing:
+            self._name_lost(missing, last, answered)
+        self.tallied, self.oks, self.maybe_pairs = last, 0, 0
+
+    def _name_lost(self, missing: int, last: int, answered: int | None) -> None:
+        """``missing`` oks of the lines after ``tallied`` up to ``last`` never came: each
+        of those lines if they are as many, else all of them as ones of which some did."""
+        numbers = [n for n in range(self.tallied + 1, last + 1) if n != answered]
+        lines = [self.origin[n] for n in numbers if self.origin[n] >= 0]
+        if not lines:
+            return  # probes' oks
+        if missing == len(numbers):
+            for index in lines:
+                self.name_unrun(index, OK_LOST)
+            return
+        first, final = self.job[lines[0]].file_line, self.job[lines[-1]].file_line
+        why = oks_lost(missing, first, final)
+        for index in lines:
+            self.name_unrun(index, why, shared=True)
 
     def _oldest(self, match) -> Transmission | None:
         return next((t for t in self.inflight if t.accepted and match(t)), None)
@@ -674,6 +764,8 @@ class MarlinProtocol(Session):
             return
         if expects == x:
             self._claimed(sent, refused, x)
+        if sent is not None and x == sent.expect:  # as predicted: the firmware has x - 1
+            self._went_past(x - 1, due=False)
         if sent is not None and not sent.accepted and x == sent.expect:
             return  # as predicted: one more answer from a discarded window
         self.resends += 1
@@ -705,8 +797,10 @@ class MarlinProtocol(Session):
         if left is None:
             return
         self.takers[refused] = left - 1
-        if left == 1 and self.origin[refused] >= 0:
-            self.unrun.append(self.origin[refused])
+        if left == 1:
+            self.oks += 1  # it took the line without an ok, which is not owed any more
+            if self.origin[refused] >= 0:
+                self.name_unrun(self.origin[refused], REFUSED_COPY)
 
     def _asks_backward(self, x: int) -> bool:
         """A request for a line an answer naming it proved accepted: a garbled number,

@@ -129,16 +129,33 @@ def _visible(line: str) -> str:
 
 REFUSED_COPY = "the machine asked for it again, then refused the copy as a line it had"
 ANSWER_LOST = "its answer (ok or error:) was lost; the machine read it"
+OK_LOST = (
+    "its ok never came, though the machine went on past it (the ok lost on the wire, "
+    "or the line dropped)"
+)
+
+
+def oks_lost(lost: int, first: int, last: int) -> str:
+    """Why each of file lines ``first``-``last`` may not have run: ``lost`` oks of theirs
+    (or of a status query sent among them) never came, and the answers do not say whose."""
+    whose = "its ok" if lost == 1 else "their oks"
+    return (
+        f"{lost} of file lines {first}-{last} (or a status query among them) lost {whose}, "
+        "though the machine went on past them (oks lost on the wire, or lines dropped)"
+    )
 
 
 @dataclass(frozen=True)
 class UnrunLine:
     """A job line that may not have run: its file line (1-based), its text and why
-    (:data:`REFUSED_COPY`, :data:`ANSWER_LOST`)."""
+    (:data:`REFUSED_COPY`, :data:`ANSWER_LOST`, :data:`OK_LOST`, :func:`oks_lost`).
+    ``shared``: the reason is one that each of a run of lines has (:func:`oks_lost`),
+    said once for all of them in the summary."""
 
     file_line: int
     text: str
     why: str
+    shared: bool = False
 
     def sentence(self) -> str:
         return f"file line {self.file_line} ({self.text}): {self.why}"
@@ -151,8 +168,9 @@ class UnrunLine:
 class SendReport:
     """What a finished job did (s, bytes, lines). ``may_not_have_run``: the job lines the
     machine may not have run, and why (:mod:`fabkit.link.host.marlin`: a line refused as
-    one it had without ever taking a copy; :mod:`fabkit.link.host.grbl`: a line whose
-    answer was lost)."""
+    one it had without ever taking a copy, or one whose ``ok`` never came though the
+    machine went on past it; :mod:`fabkit.link.host.grbl`: a line whose answer was
+    lost)."""
 
     port: str
     protocol: str
@@ -199,10 +217,17 @@ class SendReport:
         return "\n".join([*self._unrun_line(), text, *(f"warning: {w}" for w in self.warnings)])
 
     def _unrun_line(self) -> list[str]:
+        """The warning line: one sentence per line named, one for a run of lines that
+        share a reason."""
         if not self.may_not_have_run:
             return []
         count = len(self.may_not_have_run)
-        lines = "; ".join(line.sentence() for line in self.may_not_have_run)
+        said: list[str] = []
+        for i, line in enumerate(self.may_not_have_run):
+            previous = self.may_not_have_run[i - 1] if i else None
+            if not (line.shared and previous is not None and previous.why == line.why):
+                said.append(line.why if line.shared else line.sentence())
+        lines = "; ".join(said)
         return [f"WARNING: {count} line{'s' if count > 1 else ''} may not have run: {lines}"]
 
 
@@ -242,7 +267,7 @@ class Session:
         self.probes = 0
         self.recoveries = 0
         self.warnings: list[str] = []
-        self.unrun: list[int] = []  # job lines the machine may not have run (index)
+        self.unrun: dict[int, UnrunLine] = {}  # by job index: lines that may not have run
         self.aborting = False
         port.timeout = options.poll_s
 
@@ -365,11 +390,14 @@ class Session:
             probes=self.probes,
             recoveries=self.recoveries,
             warnings=tuple(self.warnings),
-            may_not_have_run=tuple(
-                UnrunLine(self.job[i].file_line, self.job[i].text, REFUSED_COPY)
-                for i in sorted(set(self.unrun))
-            ),
+            may_not_have_run=tuple(self.unrun[i] for i in sorted(self.unrun)),
         )
+
+    def name_unrun(self, index: int, why: str, *, shared: bool = False) -> None:
+        """Job line ``index`` may not have run, because ``why`` (the first reason found
+        for a line is the one kept)."""
+        command = self.job[index]
+        self.unrun.setdefault(index, UnrunLine(command.file_line, command.text, why, shared))
 
     def show(self, done: int, note: str = "", *, force: bool = False) -> None:
         if self.progress is not None:
