@@ -31,13 +31,14 @@ G-code first (``fabkit run examples/two_shapes.toml``) and prints
    whose moves VirtualPrinter does not time (zero length: the link is the bound) and,
    for information, 3,000 0.2 mm moves (its planner thread sleeps a tenth of each move:
    the bound for both); then its default simulated errors on: the time of a 3,000-line
-   file and whether the trace is the file but the line its ``105:resend_with_timeout``
-   swallows (tests/test_link_virtual_printer.py says why no host can run it).
+   file, whether the trace is the file but the line its ``105:resend_with_timeout``
+   swallows (tests/test_link_virtual_printer.py says why no host can run it), and what
+   the summary names as lines that may not have run (that line alone).
 
 The exit code is 1 if a requirement is not met: share >= 95 % at 115200 baud without
 latency, every ratio of 1 and 2 (but the informational one) >= 1.0, every trace exact,
 2.0 within 2x of 2.1, the estimate within 5 %, VirtualPrinter's link-bound ratio >= 1.2
-and its 3,000 lines with errors on in under 10 s.
+and its 3,000 lines with errors on in under 10 s, with the swallowed line named alone.
 """
 
 from __future__ import annotations
@@ -287,12 +288,15 @@ def virtual_printer(ok: bool, repeats: int) -> bool:
         ran = [text for text in port.executed if text not in HOUSEKEEPING]
     swallowed = set(re.findall(r">> N105 (.*)\*\d+$", log.getvalue(), flags=re.MULTILINE))
     exact = len(swallowed) == 1 and ran == [c.text for c in job if c.text not in swallowed]
-    ok &= exact and elapsed < 10.0
+    named = [line.text for line in report.may_not_have_run]
+    ok &= exact and elapsed < 10.0 and named == sorted(swallowed)
     print(
         f"  its default errors on (100, 105, 110, 115): {len(job)} lines in {elapsed:.1f} s, "
         f"{report.resends} resends; trace {'equals' if exact else 'DIFFERS FROM'} the file "
         "but the line it swallows at 105"
     )
+    first = report.summary().splitlines()[0]
+    print(f"  the summary: {first if named else 'no line named'}")
     return ok
 
 
