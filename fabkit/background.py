@@ -1,4 +1,8 @@
-"""One worker process beside a command, for work on plain data that returns plain data.
+"""Worker processes beside a command, for work on plain data that returns plain data.
+
+:func:`worker` is one worker for a block of the caller's; :func:`parallel_map` spreads
+independent calls (a verdict's simulations from several starts) over the cores, in a
+pool of workers kept for the life of the process.
 
 ``fabkit run`` draws its pictures there (the design's and the toolpath preview, about
 2.5 s) while it plans, writes, verifies and sends; drawing is Python-bound, so a thread
@@ -21,11 +25,15 @@ matplotlib at all). The worker is
 
 from __future__ import annotations
 
+import atexit
 import importlib
 import multiprocessing
+import os
 import signal
+import sys
 import threading
-from collections.abc import Iterator
+import types
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from multiprocessing.pool import AsyncResult, Pool
 from typing import Any
@@ -49,10 +57,24 @@ def worker(warm: tuple[str, ...] = ()) -> Iterator[Worker]:
     """A spawned worker process that imports ``warm`` (module names) first. It is
     terminated when the block ends."""
     context = multiprocessing.get_context("spawn")
-    with _sigint_ignored():
+    with _sigint_ignored(), _main_hidden():
         pool = context.Pool(1, initializer=_start, initargs=(warm,))
     with pool:
         yield Worker(pool)
+
+
+@contextmanager
+def _main_hidden() -> Iterator[None]:
+    """Start workers without the caller's ``__main__``: a spawned worker would run the
+    caller's script again to rebuild it (and a script that calls fabkit at its top level,
+    without ``if __name__ == "__main__":``, would start workers from there). The work is
+    named by module, so the workers need nothing of it."""
+    main = sys.modules["__main__"]
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        sys.modules["__main__"] = main
 
 
 @contextmanager
@@ -67,6 +89,60 @@ def _sigint_ignored() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+_POOL: Pool | None = None
+WORKERS_ENV = "FABKIT_WORKERS"
+"""Environment variable: how many worker processes :func:`parallel_map` may use (default:
+the cores this process may run on; 1: none, every call in the caller)."""
+
+
+def parallel_map(
+    function: str,
+    calls: list[tuple[Any, ...]],
+    warm: tuple[str, ...] = (),
+    progress: Callable[[int, int], None] | None = None,
+) -> list:
+    """``function`` (``"module:name"``) called on each of ``calls`` (argument tuples), in
+    order; in a pool of spawned workers (importing ``warm`` first) when there are two
+    calls or more and two cores, else in the caller. ``progress(done, total)`` follows
+    the calls as they end. The pool is started at the first such call and kept until the
+    process ends; its workers ignore Ctrl-C (the caller answers it), and an exception in
+    a call is raised here."""
+    workers = _workers()
+    if workers < 2 or len(calls) < 2:
+        results = (_call(function, args) for args in calls)
+    else:
+        results = _pool(workers, warm).imap(_star_call, [(function, args) for args in calls])
+    out = []
+    for result in results:
+        out.append(result)
+        if progress is not None:
+            progress(len(out), len(calls))
+    return out
+
+
+def _pool(workers: int, warm: tuple[str, ...]) -> Pool:
+    """The pool of :func:`parallel_map`, started at its first use."""
+    global _POOL
+    if _POOL is None:
+        context = multiprocessing.get_context("spawn")
+        with _sigint_ignored(), _main_hidden():
+            _POOL = context.Pool(workers, initializer=_start, initargs=(warm,))
+        atexit.register(_POOL.terminate)
+    return _POOL
+
+
+def _star_call(item: tuple[str, tuple[Any, ...]]) -> Any:
+    return _call(*item)
+
+
+def _workers() -> int:
+    """The worker processes :func:`parallel_map` may use (:data:`WORKERS_ENV`)."""
+    given = os.environ.get(WORKERS_ENV, "")
+    if given.isdigit() and int(given) >= 1:
+        return int(given)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def _call(function: str, args: tuple[Any, ...]) -> Any:

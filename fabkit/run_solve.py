@@ -10,7 +10,7 @@ verdict on the sheet as designed (:class:`Solved`). Called by
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +31,7 @@ from fabkit.field.part import (
     solved_region,
 )
 from fabkit.figures import AREA_UNIT
-from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict, design_verdict
+from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict, design_verdict
 from fabkit.process import Process
 from fabkit.run_inputs import RunInputs, RunOptions
 
@@ -70,14 +70,17 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
     part = _part(options, inputs, design)
     say(f"      {part.summary()}")
     thickness_mm = options.layers * inputs.process.layer_height_mm if inputs.process else None
-    layering = None
+    layering, verdict = None, None
     if options.layers > 1:
         request = LayerRequest(
             options.layers, inputs.process, part, options.ignore_features, options.form_tolerance
         )
-        design, layering = layer_design(design, request, say)
+        made = layer_design(design, request, say)
+        design, layering = made.design, made.figures
         design.save(Path(options.out) / "design.npz")
-    verdict = design_verdict(
+        if not any(layering["weights"].values()):  # equal layers: the sheet just judged
+            verdict = replace(made.metric_alone, what="as designed")
+    verdict = verdict or design_verdict(
         design,
         None if thickness_mm is None else thickness_mm / part.mm_per_unit,
         tolerance=options.form_tolerance,
@@ -103,9 +106,19 @@ class LayerRequest:
     tolerance: float = FORM_TOLERANCE
 
 
+@dataclass(frozen=True)
+class Layered:
+    """A layered design, the figures of its layering (report.json's ``layers``) and the
+    verdict on the sheet programmed by its metric alone (equal layers)."""
+
+    design: Design
+    figures: dict[str, Any]
+    metric_alone: Verdict
+
+
 def layer_design(
     design: Design, request: LayerRequest, say: Callable[[str], None] = print
-) -> tuple[Design, dict[str, Any]]:
+) -> Layered:
     """The design made of ``request.layers`` layers, programmed with the curvature of the
     targets the sheet misses when programmed by its metric alone (simulated at the
     layers' thickness: a target it forms asks for nothing, and is bent to no other
@@ -119,16 +132,35 @@ def layer_design(
         design, thickness, tolerance=request.tolerance, part=part, mm_per_unit=part.mm_per_unit
     )
     say(f"      {alone.headline().replace('as designed', 'programmed by its metric alone')}")
-    needed = {shape.target: not shape.formed for shape in alone.shapes}
+    needed = {shape.target: misses_shape(shape) for shape in alone.shapes}
     weights = np.array([float(needed.get(t.name, False)) for t in design.problem.targets])
     design, report = layered(design, request.layers, thickness, bounds, weights)
     say(
         f"      {request.layers} layers of {process.layer_height_mm:g} mm, programmed with "
         "the curvature of the targets the metric misses:"
     )
+    sides = [name for name, shape in zip(needed, alone.shapes, strict=True) if not needed[name]]
+    sides = [name for name in sides if not _formed(alone, name)]
+    if sides:
+        say(
+            f"      not programmed: the side of {', '.join(sides)} (the metric alone reaches "
+            "the shape or its mirror image, and the layering programs no side alone: the "
+            "sheet's start decides it; docs/layers.md)"
+        )
     for line in report.lines():
         say(f"        {line}")
-    return design, {"metric alone": alone.to_dict(), **report.to_dict()}
+    return Layered(design, {"metric alone": alone.to_dict(), **report.to_dict()}, alone)
+
+
+def misses_shape(shape: Shape) -> bool:
+    """The sheet misses the target's shape from some start, not only its side: it ends
+    farther than the limit even from the better of the target and its mirror image, or
+    does not converge. Such a target is programmed with its curvature by the layers."""
+    return any(end.rms > shape.tolerance or not end.converged for end in shape.starts)
+
+
+def _formed(verdict: Verdict, name: str) -> bool:
+    return next(shape.formed for shape in verdict.shapes if shape.target == name)
 
 
 def design_part(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import os
+import tempfile
 import tomllib
 from pathlib import Path
 
@@ -20,6 +21,15 @@ from fabkit.problem.spec import build_spec
 settings.register_profile("ci", derandomize=True, print_blob=True)
 if os.environ.get("FABKIT_CI"):
     settings.load_profile("ci")
+
+# The test files run in parallel already (pytest-xdist, a worker per core): a verdict's
+# simulations run in the test's own process, not in a pool of their own on the same cores
+# (tests/test_background.py tests the pool).
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("FABKIT_WORKERS", "1")
+# Simulations are kept by everything they depend on (fabkit.mechanics.cache): the tests
+# share one cache of their own, not the user's (tests/test_mechanics_cache.py tests it).
+os.environ.setdefault("FABKIT_CACHE", str(Path(tempfile.gettempdir()) / "fabkit-test-cache"))
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"

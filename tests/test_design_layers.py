@@ -10,7 +10,6 @@ from fabkit.design.design import Design
 from fabkit.design.layers import layered, second_forms
 from fabkit.errors import FabkitError
 from fabkit.mechanics.simulate import simulate
-from fabkit.mechanics.verdict import design_verdict
 from tests.conftest import coarse_design
 from tests.test_mechanics_simulate import fit_circle
 
@@ -88,16 +87,6 @@ def test_bounds_hold_every_layer_within_the_process_range(fig3):
         layer = design.layer(k).eps[:, fig3.valid]
         assert (layer >= bounds[:, :1] - 1e-12).all() and (layer <= bounds[:, 1:] + 1e-12).all()
     assert (report.limited > 0).any()  # the extreme points had no room
-
-
-@pytest.mark.slow
-def test_two_layers_form_all_three_fig3_targets_where_one_misses_the_wavy_sheet(fig3):
-    one = design_verdict(fig3, thickness=THICKNESS)
-    assert [s.target for s in one.shapes if not s.formed] == ["wavy"]
-    assert one.shapes[2].mirrored  # the metric alone picks the mirror image
-    two = design_verdict(layered(fig3, 2, THICKNESS)[0])
-    assert two.formed, two.lines()
-    assert two.shapes[2].rms < 0.015
 
 
 def test_a_layered_design_file_round_trips_and_says_so(fig3, tmp_path):

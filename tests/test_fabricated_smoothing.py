@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fabkit.mechanics.simulate import default_thickness
+from fabkit.mechanics.simulate import STARTS, default_thickness
 from fabkit.process import Resolution
 from fabkit.verify.as_fabricated import sheet_fields, simulation_figures, simulation_note
 from fabkit.verify.machine_file import VerifyOptions, _smoothing_mm
@@ -54,7 +54,8 @@ def test_the_default_length_is_the_road_width_or_the_thickness(design, scale):
 
 def test_the_report_says_what_the_simulation_used(design):
     figures = simulation_figures(0.6, _noisy(), default_thickness(design) * 25.0)
-    assert figures["smoothing_mm"] == 0.6 and figures["seed"] == "dome"
+    assert figures["smoothing_mm"] == 0.6 and figures["seed"] == ", ".join(STARTS)
     assert figures["thickness_mm"] == pytest.approx(default_thickness(design) * 25.0)
     note = simulation_note(figures)
-    assert "Gaussian of 0.6 mm" in note and "dome seed" in note and "ramp steps" in note
+    assert "Gaussian of 0.6 mm" in note and "ramp steps" in note
+    assert "from each start (dome, dome-down, saddle, saddle-down, random-1, random-2)" in note

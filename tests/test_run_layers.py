@@ -1,15 +1,18 @@
-"""fabkit run --layers: the sheet as fabricated forms every target; the verdict says so.
+"""fabkit run --layers: the layers form the target the metric misses; the verdict says which.
 
 The paper's Fig. 3 sheet, programmed by its metric alone, buckles into the wavy sheet's
-mirror image; two layers programmed with its curvature form all three targets, as
-designed and as fabricated (read back layer by layer from the G-code and simulated at
-the printed thickness). The run's last line is that verdict; --strict makes a missed
-target an exit code.
+mirror image or an isometric neighbour of it; two layers programmed with its curvature
+form it from every start, as designed and as fabricated (read back layer by layer from
+the G-code and simulated at the printed thickness). The sphere's and the face's shapes
+the metric alone reaches, but not their side: from some starts they end as their mirror
+images, and the verdict says so (issue 35 is to program those sides). The run's last
+line is that verdict; --strict makes a missed target an exit code.
 """
 
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -34,21 +37,31 @@ def layered_run(folder, request):
 
 
 @pytest.mark.slow
-def test_two_layers_form_every_fig3_target_as_fabricated(layered_run):
+def test_two_layers_form_the_wavy_sheet_as_fabricated_from_every_start(layered_run):
     figures = json.loads((layered_run / "report.json").read_text())
     verify = figures["verify"]
-    for target in verify["targets"]:
-        assert target["converged"] and not target["mirrored"], target
-        assert target["rms_pct"] < 3.0, target
-    assert verify["verdict"]["formed"] and figures["verdict"]["formed"]
+    wavy = next(t for t in verify["verdict"]["targets"] if t["target"] == "wavy")
+    assert wavy["formed"] and wavy["formed_starts"] == 6 and wavy["rms_pct"] < 3.0, wavy
     assert verify["simulation"]["thickness_mm"] == pytest.approx(0.6)  # 2 x 0.3 mm, printed
     for layer in verify["layers"]:  # issue 16's limits, every layer
         assert layer["director_mean_deg"] <= 3.0
         assert all(f["rms_pct"] <= 2.0 for f in layer["features"])
     assert figures["layers"]["weights"] == {"sphere": 0.0, "face": 0.0, "wavy": 1.0}
-    assert figures["layers"]["metric alone"]["formed"] is False  # wavy: its mirror image
+    # its metric alone: from some start the wavy sheet's mirror image, from every start
+    # farther than the limit; the layers: as designed, formed from all six, near it
+    alone = next(t for t in figures["layers"]["metric alone"]["targets"] if t["target"] == "wavy")
+    assert any(s["mirror_image"] for s in alone["starts"])
+    assert all(s["rms_pct"] > alone["limit_pct"] for s in alone["starts"])
+    designed = next(t for t in figures["as designed"]["targets"] if t["target"] == "wavy")
+    assert designed["formed"] and designed["formed_starts"] == 6 and designed["rms_pct"] < 1.5
     # the layers keep the design's mean metric at nearly every point (second order)
     assert figures["layers"]["metric_error_p99"] < 0.01
+    # a target is formed only when every start formed it, and its figures are the worst's
+    for target in verify["verdict"]["targets"]:
+        starts = target["starts"]
+        assert len(starts) == 6 and target["formed"] == all(s["formed"] for s in starts)
+        assert target["rms_pct"] == max(s["rms_pct"] for s in starts) or not target["formed"]
+    assert verify["verdict"]["formed"] == figures["verdict"]["formed"]
     validate_report(figures)
 
 
@@ -72,9 +85,8 @@ def test_one_layer_names_the_wavy_sheet_and_strict_fails(tmp_path, capsys):
     code = main(["run", str(THREE), "--out", str(out), "--no-verify", "--strict"])
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert code == 1
-    assert (
-        last.startswith("done: the sheet as designed does NOT form wavy") and "mirror image" in last
-    )
+    assert last.startswith("done: the sheet as designed does NOT form ")
+    assert re.search(r"wavy \(5\.\d\d % RMS, mirror image from \d of 6 starts\)", last), last
     assert last.endswith(f"; the design's check passed; see {out}/report.html")
 
 
@@ -84,8 +96,9 @@ def test_solve_layers_writes_a_layered_design_that_check_judges(tmp_path, run_cl
     assert code == 0 and "programmed with the curvature of the targets the metric misses" in text
     assert Design.load(out).layers == 2
     code, text, _ = run_cli("check", out, "--strict")
-    assert "(2 layers, " in text and "wavy: formed" in text
-    assert code == 0, text
+    assert "(2 layers, " in text and "wavy: formed from all 6 starts" in text, text
+    formed = "NOT formed" not in text  # the sphere's and the face's sides: not programmed
+    assert code == (0 if formed else 1), text
 
 
 @pytest.mark.slow

@@ -40,7 +40,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="Newton iterations per ramp step (default %(default)s)",
     )
     parser.add_argument(
-        "--seed", choices=SEEDS, default=defaults.seed, help="initial out-of-plane perturbation"
+        "--seed",
+        choices=SEEDS,
+        default=defaults.seed,
+        help="the start: the flat sheet lifted 5 %% of its radius by this shape (a verdict "
+        "uses all of them)",
     )
     parser.add_argument(
         "--trim",

@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
         design = solved.solution.design
         part = design_part(design, args.size_mm, process, args.layers)
-        design, _ = layer_design(design, LayerRequest(args.layers, process, part))
+        design = layer_design(design, LayerRequest(args.layers, process, part)).design
         design.save(out)
     print(f"wrote {out} and {out.with_suffix('.json')}")
     return 0

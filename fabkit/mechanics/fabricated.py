@@ -38,8 +38,9 @@ from fabkit.mechanics.metric import metric_from_lengths
 from fabkit.mechanics.simulate import (
     DesignSimulation,
     Settings,
+    Simulation,
     default_thickness,
-    simulate_from_made,
+    simulate,
 )
 
 PointFunction = Callable[[np.ndarray], np.ndarray]
@@ -235,26 +236,62 @@ def _v_side(design: Design) -> float:
     return 1.0 if np.median(cross) >= 0 else -1.0
 
 
-def simulate_sheet(
+@dataclass(frozen=True)
+class SheetProblem:
+    """A sheet to simulate under one target's stimulus, as plain data: the ``coarse``
+    design it is compared against, its ``mesh`` (where it was made), the per-layer
+    reference metrics as made (``start_metrics``) and under the stimulus (``metrics``),
+    each (F, 2, 2) or (L, F, 2, 2) bottom first, and its ``thickness`` (design units)."""
+
+    surface: int
+    name: str
+    coarse: Design
+    mesh: DesignMesh
+    start_metrics: np.ndarray
+    metrics: np.ndarray
+    thickness: float
+    poisson: float
+
+    def simulation(self, result: Simulation) -> DesignSimulation:
+        """``result`` of simulating this problem, as a design simulation whose
+        ``metrics`` are the layers' mean."""
+        metrics = self.metrics
+        mean = metrics if metrics.ndim == 3 else metrics.mean(axis=0)
+        return DesignSimulation(self.surface, self.name, self.mesh, mean, self.thickness, result)
+
+    def run(
+        self, settings: Settings, progress: Callable[[int, int], None] | None = None
+    ) -> Simulation:
+        """Simulate from the flat sheet as made (seeded as ``settings`` says)."""
+        mesh = self.mesh
+        return simulate(
+            mesh.points,
+            mesh.triangles,
+            self.metrics,
+            self.thickness,
+            self.poisson,
+            settings,
+            start_metrics=self.start_metrics,
+            progress=progress,
+        )
+
+
+def sheet_problem(
     design: Design,
     fields: SheetFields | Sequence[SheetFields],
     surface: int,
     thickness: float | None = None,
     poisson: float = 0.5,
-    settings: Settings | None = None,
     part: Part | None = None,
     stride: int = 1,
-    progress: Callable[[int, int], None] | None = None,
-) -> tuple[Design, DesignSimulation]:
-    """Simulate the sheet of ``fields`` (one, or one per equal layer, bottom first) under
-    surface ``surface``'s stimulus.
+) -> SheetProblem:
+    """The sheet of ``fields`` (one, or one per equal layer, bottom first) under surface
+    ``surface``'s stimulus, ready to simulate.
 
     The mesh is the design's grid coarsened by ``stride`` (its cells in ``part``, as in
     :func:`~fabkit.mechanics.mesh.design_mesh`), restricted to where the first layer was
     made. ``thickness`` (the whole sheet's, design units) defaults to 1 % of the diameter
-    of the design's whole solved flat domain (as ``fabkit simulate``). Returns the
-    coarsened design (compare against it) and the simulation, whose ``metrics`` are the
-    layers' mean. ``progress(done, total)`` is called after each ramp step.
+    of the design's whole solved flat domain (as ``fabkit simulate``).
     """
     layers = [fields] if isinstance(fields, SheetFields) else list(fields)
     coarse = coarsened(design, stride)
@@ -280,9 +317,28 @@ def simulate_sheet(
         stacked = np.stack([sheet_metrics(coarse, mesh, s, t, e) for t, e in sampled])
         return stacked[0] if len(stacked) == 1 else stacked
 
-    metrics, result = simulate_from_made(
-        mesh, metrics_at, surface, thickness, poisson, settings or Settings(), progress
-    )
     name = design.problem.targets[surface].name
-    mean = metrics if metrics.ndim == 3 else metrics.mean(axis=0)
-    return coarse, DesignSimulation(surface, name, mesh, mean, thickness, result)
+    return SheetProblem(
+        surface, name, coarse, mesh, metrics_at(0), metrics_at(surface), thickness, poisson
+    )
+
+
+def simulate_sheet(
+    design: Design,
+    fields: SheetFields | Sequence[SheetFields],
+    surface: int,
+    thickness: float | None = None,
+    poisson: float = 0.5,
+    settings: Settings | None = None,
+    part: Part | None = None,
+    stride: int = 1,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[Design, DesignSimulation]:
+    """Simulate the sheet of ``fields`` under surface ``surface``'s stimulus from one
+    start (:func:`sheet_problem`; ``settings.seed``). Returns the coarsened design
+    (compare against it) and the simulation, whose ``metrics`` are the layers' mean.
+    ``progress(done, total)`` is called after each ramp step.
+    """
+    problem = sheet_problem(design, fields, surface, thickness, poisson, part, stride)
+    result = problem.run(settings or Settings(), progress)
+    return problem.coarse, problem.simulation(result)

@@ -39,7 +39,14 @@ from fabkit.mechanics.mesh import DesignMesh, design_mesh
 from fabkit.mechanics.metric import grid_edge_lengths, metric_from_lengths
 from fabkit.mechanics.shell import Sheet, Shell, build_shell
 
-SEEDS = ("dome", "saddle")
+STARTS = ("dome", "dome-down", "saddle", "saddle-down", "random-1", "random-2")
+"""The shapes a simulation can start from (:func:`seeded`): the flat sheet lifted out of
+plane by a dome bulging up or down, a saddle of either sign, or a smooth random bump of
+two fixed seeds. A verdict starts from every one of them."""
+MIRRORED = {"dome-down": "dome", "saddle-down": "saddle"}
+"""Starts that are the mirror image (z -> -z) of another: a sheet without natural
+curvature ends, from one, in the mirror image of where it ends from the other."""
+SEEDS = STARTS
 ARMIJO = 1e-4
 """Sufficient-decrease constant of the line search."""
 SHIFT = 1e-10
@@ -74,7 +81,7 @@ class Settings:
     ``steps``: ramp steps from the flat metric to the target; ``tolerance``: converged
     when a full Newton step moves no vertex more than this times the mean edge length;
     ``ramp_tolerance``: the same for the intermediate ramp steps; ``max_iterations``:
-    Newton iterations per ramp step; ``seed``: "dome" or "saddle" initial perturbation,
+    Newton iterations per ramp step; ``seed``: the start, one of :data:`STARTS`;
     ``seed_height``: its height relative to the sheet's radius.
     """
 
@@ -150,15 +157,40 @@ def simulate(
 
 
 def seeded(points: np.ndarray, settings: Settings) -> np.ndarray:
-    """The flat sheet (V, 3) lifted by a small dome or saddle about its centroid."""
+    """The flat sheet (V, 3) lifted out of plane by the start ``settings.seed``
+    (:data:`STARTS`), its largest height ``settings.seed_height`` times the sheet's
+    radius about its centroid."""
     offset = points - points.mean(0)
     radius = np.max(np.linalg.norm(offset, axis=1))
-    rho2 = (offset**2).sum(1) / radius**2
-    if settings.seed == "dome":
-        height = -rho2
+    x, y = offset[:, 0] / radius, offset[:, 1] / radius
+    shapes = {
+        "dome": -(x**2 + y**2),
+        "dome-down": x**2 + y**2,
+        "saddle": x**2 - y**2,
+        "saddle-down": y**2 - x**2,
+    }
+    if settings.seed in shapes:
+        height = shapes[settings.seed]
     else:
-        height = (offset[:, 0] ** 2 - offset[:, 1] ** 2) / radius**2
+        height = _random_bump(x, y, int(settings.seed.rsplit("-", 1)[1]))
+    height = height / max(float(np.max(np.abs(height))), np.finfo(float).tiny)
     return np.concatenate([points, (settings.seed_height * radius * height)[:, None]], 1)
+
+
+def mirrored(result: Simulation) -> Simulation:
+    """``result`` reflected in the flat sheet's plane (z -> -z): where a sheet without
+    natural curvature (one layer, or layers with equal metrics: its energy does not change
+    under the reflection) ends from the mirror image of ``result``'s start."""
+    positions = result.positions * np.array([1.0, 1.0, -1.0])
+    return Simulation(positions, result.energy, result.iterations, result.converged, 0.0)
+
+
+def _random_bump(x: np.ndarray, y: np.ndarray, seed: int) -> np.ndarray:
+    """A smooth bump of random shape (fixed by ``seed``) at the points (x, y) of the unit
+    disc: quadratic and cubic terms and one oblique wave."""
+    c = np.random.default_rng(seed).normal(size=7)
+    height = c[0] * x * x + c[1] * x * y + c[2] * y * y + c[3] * x**3 + c[4] * x * y * y
+    return height + c[5] * np.sin(3 * x + c[6] * y)
 
 
 def minimise(

@@ -1,28 +1,40 @@
-"""Which shape the sheet takes: every target simulated from flat, and a verdict on each.
+"""Which shape the sheet takes: every target simulated from several starts, and a verdict.
 
 The sheet (a design as designed, or a sheet as fabricated) is ramped from its flat state
 to every embedded target's stimulus (:func:`~fabkit.mechanics.fabricated.simulate_sheet`)
-and compared with that target (:func:`~fabkit.mechanics.compare.compare`). A target is
-**formed** when the simulation converged, the sheet is not its mirror image and it ends
-within ``tolerance`` RMS of the target (a share of the patch's diameter). Otherwise the
-sheet forms something else, and the verdict says how far that is and whether it is the
-mirror image.
+and compared with that target (:func:`~fabkit.mechanics.compare.compare`). The flat
+sheet is a symmetric state that a simulation must leave by some perturbation, and a real
+sheet picks its side by its own noise; so every target is simulated from each of the
+:data:`~fabkit.mechanics.simulate.STARTS` (a dome up and down, a saddle and the same
+turned, two random bumps). A target is **formed** when *every* start converged, none
+ended as the mirror image and each ended within ``tolerance`` RMS of the target (a share
+of the patch's diameter). Otherwise the verdict says which starts went where ("its side
+is not programmed: 3 of 6 starts end as its mirror image"); its figures are those of
+the worst start, with the spread of the RMS over all of them.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from fabkit.background import parallel_map
 from fabkit.design.design import Design
 from fabkit.field.part import Part
+from fabkit.mechanics import cache
 from fabkit.mechanics.compare import FormedShape, compare, formed_shape
-from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
-from fabkit.mechanics.simulate import Settings, default_thickness
+from fabkit.mechanics.fabricated import SheetFields, SheetProblem, design_fields, sheet_problem
+from fabkit.mechanics.simulate import (
+    MIRRORED,
+    STARTS,
+    Settings,
+    Simulation,
+    default_thickness,
+    mirrored,
+)
 
 FORM_TOLERANCE = 0.03
 """Largest RMS distance to a target, as a share of its patch's diameter, of a sheet that
@@ -32,13 +44,40 @@ TARGET_TRIANGLES = 800
 
 
 @dataclass(frozen=True)
+class StartEnd:
+    """Where the simulation from one start (:data:`~fabkit.mechanics.simulate.STARTS`)
+    ended: its RMS and max distance to the target (shares of the patch diameter),
+    whether that is the mirror image and whether it converged."""
+
+    start: str
+    rms: float
+    max: float
+    mirrored: bool
+    converged: bool
+
+    def formed(self, tolerance: float) -> bool:
+        return self.converged and not self.mirrored and self.rms <= tolerance
+
+    def to_dict(self, tolerance: float) -> dict:
+        return {
+            "start": self.start,
+            "formed": self.formed(tolerance),
+            "rms_pct": 100 * self.rms,
+            "max_pct": 100 * self.max,
+            "mirror_image": self.mirrored,
+            "converged": self.converged,
+        }
+
+
+@dataclass(frozen=True)
 class Shape:
     """What the sheet does under one target's stimulus: its RMS and max distance to the
     target (shares of the patch diameter), whether that is the mirror image, whether the
-    simulation converged, the ``tolerance`` it is held to, and the wall time (s).
-    ``diameter_mm`` is the patch diameter in mm and ``mesh`` the sheet beside its target
-    (:class:`~fabkit.mechanics.compare.FormedShape`), both None where the sheet's scale is
-    unknown."""
+    simulation converged (all those of the worst start, :func:`worst`), the
+    ``tolerance`` it is held to, and the wall time (s). ``starts`` holds where every
+    start ended. ``diameter_mm`` is the patch diameter in mm and ``mesh`` the sheet from
+    the worst start beside its target (:class:`~fabkit.mechanics.compare.FormedShape`),
+    both None where the sheet's scale is unknown."""
 
     target: str
     rms: float
@@ -49,24 +88,55 @@ class Shape:
     seconds: float = 0.0
     diameter_mm: float | None = None
     mesh: FormedShape | None = field(default=None, repr=False, compare=False)
+    starts: tuple[StartEnd, ...] = ()
 
     @property
     def formed(self) -> bool:
+        """Formed from every start (the worst start's figures are the shape's)."""
         return self.converged and not self.mirrored and self.rms <= self.tolerance
 
     def line(self) -> str:
-        """One line with every figure of the verdict on this target, e.g. ``sphere: formed,
-        0.79 % RMS (0.41 mm), max 2.87 % (1.49 mm) of the patch diameter (52 mm); limit
-        3 % RMS (1.56 mm); converged; not a mirror image`` (no mm where the scale is
-        unknown)."""
-        status = "formed" if self.formed else "NOT formed"
+        """One line with every figure of the verdict on this target, e.g. ``sphere: formed
+        from all 6 starts, 0.79 % RMS (0.41 mm), max 2.87 % (1.49 mm) of the patch diameter
+        (52 mm) at worst (RMS 0.77-0.79 % over the starts); limit 3 % RMS (1.56 mm);
+        converged; not a mirror image`` (no mm where the scale is unknown). Not formed,
+        it says first which starts went where."""
         diameter = f" ({self.diameter_mm:.3g} mm)" if self.diameter_mm is not None else ""
         mirror = "the target's mirror image" if self.mirrored else "not a mirror image"
+        figures = f"{self._pct(self.rms)} RMS, max {self._pct(self.max)} of the patch diameter"
+        figures += diameter
+        if len(self.starts) > 1:
+            rms = [end.rms for end in self.starts]
+            spread = f"RMS {100 * min(rms):.2f}-{100 * max(rms):.2f} % over the starts"
+            if self.formed:
+                status = f"formed from all {len(self.starts)} starts, {figures} at worst ({spread})"
+            else:
+                start = worst(self.starts, self.tolerance).start
+                status = f"NOT formed: {self.why()}; worst: {figures}, from the {start} start"
+                status += f" ({spread})"
+        else:
+            status = f"{'formed' if self.formed else 'NOT formed'}, {figures}"
         return (
-            f"{self.target}: {status}, {self._pct(self.rms)} RMS, max {self._pct(self.max)} of "
-            f"the patch diameter{diameter}; limit {self._pct(self.tolerance, '.3g')} RMS; "
+            f"{self.target}: {status}; limit {self._pct(self.tolerance, '.3g')} RMS; "
             f"{'converged' if self.converged else 'NOT converged'}; {mirror}"
         )
+
+    def why(self) -> str:
+        """Which starts went where, for a target not formed: ``its side is not programmed:
+        3 of 6 starts end as its mirror image (dome-down, saddle, random-2)``; starts that
+        did not converge, or ended farther than the limit, likewise."""
+        count = len(self.starts)
+        parts = []
+        groups = (
+            ("its side is not programmed: {} of {} starts end as its mirror image", _mirror),
+            ("{} of {} starts do not converge", _unconverged),
+            ("{} of {} starts end farther than the limit", _far(self.tolerance)),
+        )
+        for text, holds in groups:
+            ends = [end.start for end in self.starts if holds(end)]
+            if ends:
+                parts.append(text.format(len(ends), count) + f" ({', '.join(ends)})")
+        return "; ".join(parts)
 
     def _pct(self, share: float, spec: str = ".2f") -> str:
         """A share of the patch diameter as a percentage, and in mm when known."""
@@ -74,12 +144,21 @@ class Shape:
         return text if self.diameter_mm is None else f"{text} ({share * self.diameter_mm:.3g} mm)"
 
     def miss(self) -> str:
-        """A missed target in a few words: ``wavy (5.36 % RMS, mirror image)``."""
+        """A missed target in a few words: ``wavy (5.36 % RMS, mirror image from 3 of 6
+        starts)``."""
         return f"{self.target} ({', '.join([f'{100 * self.rms:.2f} % RMS', *self._reasons()])})"
 
     def _reasons(self) -> list[str]:
-        reasons = [("mirror image", self.mirrored), ("not converged", not self.converged)]
-        return [reason for reason, holds in reasons if holds]
+        if len(self.starts) < 2:
+            reasons = [("mirror image", self.mirrored), ("not converged", not self.converged)]
+            return [reason for reason, holds in reasons if holds]
+        count = len(self.starts)
+        out = []
+        for text, holds in (("mirror image", _mirror), ("not converged", _unconverged)):
+            ends = sum(1 for end in self.starts if holds(end))
+            if ends:
+                out.append(f"{text} from {ends} of {count} starts")
+        return out
 
     def to_dict(self) -> dict:
         """The figures; the ``_mm`` ones None where the scale is unknown."""
@@ -87,6 +166,7 @@ class Shape:
         def mm(share: float) -> float | None:
             return None if self.diameter_mm is None else share * self.diameter_mm
 
+        rms = [end.rms for end in self.starts] or [self.rms]
         return {
             "target": self.target,
             "formed": self.formed,
@@ -100,8 +180,29 @@ class Shape:
             "rms_mm": mm(self.rms),
             "max_mm": mm(self.max),
             "limit_mm": mm(self.tolerance),
+            "formed_starts": sum(end.formed(self.tolerance) for end in self.starts),
+            "rms_pct_over_starts": [100 * min(rms), 100 * max(rms)],
+            "starts": [end.to_dict(self.tolerance) for end in self.starts],
             "line": self.line(),
         }
+
+
+def _mirror(end: StartEnd) -> bool:
+    return end.mirrored
+
+
+def _unconverged(end: StartEnd) -> bool:
+    return not end.converged and not end.mirrored
+
+
+def _far(tolerance: float) -> Callable[[StartEnd], bool]:
+    return lambda end: end.converged and not end.mirrored and end.rms > tolerance
+
+
+def worst(ends: Sequence[StartEnd], tolerance: float) -> StartEnd:
+    """The start whose end is worst: one that did not form the target, if any, then the
+    largest RMS."""
+    return max(ends, key=lambda end: (not end.formed(tolerance), end.rms))
 
 
 @dataclass(frozen=True)
@@ -161,44 +262,153 @@ def sheet_verdict(
     stride: int | None = None,
     settings: Settings | None = None,
     mm_per_unit: float | None = None,
+    starts: Sequence[str] = STARTS,
     progress: Callable[[int, int], None] | None = None,
 ) -> Verdict:
     """Simulate the sheet of ``layers`` (bottom first), ``thickness`` thick (design
-    units), from flat to every embedded target's stimulus; the verdict on each."""
-    stride = stride or grid_stride(design)
-    surfaces = embedded_targets(design)
-    shapes = []
-    for k, surface in enumerate(surfaces):
-        started = time.perf_counter()
-        coarse, simulation = simulate_sheet(
-            design,
-            list(layers),
-            surface,
-            thickness,
-            settings=settings,
-            part=part,
-            stride=stride,
-            progress=_share(progress, k, len(surfaces)),
-        )
-        found = compare(coarse, simulation)
-        shapes.append(
-            Shape(
-                found.name,
-                found.rms,
-                found.max,
-                found.mirrored,
-                found.converged,
-                tolerance,
-                time.perf_counter() - started,
-                None if mm_per_unit is None else found.size * mm_per_unit,
-                None if mm_per_unit is None else formed_shape(coarse, simulation, mm_per_unit),
-            )
-        )
+    units), from every one of ``starts`` to every embedded target's stimulus; the verdict
+    on each (module docstring)."""
+    shapes = target_shapes(
+        design,
+        layers,
+        embedded_targets(design),
+        thickness,
+        tolerance=tolerance,
+        part=part,
+        stride=stride,
+        settings=settings,
+        mm_per_unit=mm_per_unit,
+        starts=starts,
+        progress=progress,
+    )
     thickness_mm = thickness * mm_per_unit if mm_per_unit is not None else None
     return Verdict(what, tuple(shapes), len(layers), thickness_mm)
 
 
-def _share(
+def target_shapes(
+    design: Design,
+    layers: Sequence[SheetFields],
+    surfaces: Sequence[int],
+    thickness: float,
+    *,
+    tolerance: float = FORM_TOLERANCE,
+    part: Part | None = None,
+    stride: int | None = None,
+    settings: Settings | None = None,
+    mm_per_unit: float | None = None,
+    starts: Sequence[str] = STARTS,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[Shape]:
+    """The sheet of ``layers`` under each of the ``surfaces``' stimuli from every one of
+    ``starts``: per surface a :class:`Shape` with the worst start's figures and mesh
+    (``mm_per_unit`` given) and where every start ended. The simulations are spread over
+    the cores (:func:`fabkit.background.parallel_map`); ``progress(done, total)`` counts
+    them as they finish."""
+    stride = stride or grid_stride(design)
+    settings = settings or Settings()
+    problems = [
+        sheet_problem(design, list(layers), surface, thickness, part=part, stride=stride)
+        for surface in surfaces
+    ]
+    calls = [
+        (p.mesh.points, p.mesh.triangles, p.metrics, p.thickness, p.poisson,
+         replace(settings, seed=start), None, p.start_metrics)
+        for p in problems
+        for start in starts
+    ]  # fmt: skip
+    results = _simulations(calls, progress)
+    count = len(starts)
+    return [
+        _shape(problem, starts, results[k * count : (k + 1) * count], tolerance, mm_per_unit)
+        for k, problem in enumerate(problems)
+    ]
+
+
+WARM = ("fabkit.mechanics.simulate",)
+"""What a worker imports before its first simulation."""
+
+
+def _simulations(
+    calls: list[tuple], progress: Callable[[int, int], None] | None
+) -> list[Simulation]:
+    """The results of :func:`~fabkit.mechanics.simulate.simulate` on each of ``calls``:
+    those kept in the cache (:mod:`fabkit.mechanics.cache`) read; a start that mirrors
+    another of the same sheet, where the sheet has no natural curvature, reflected from
+    it (:func:`~fabkit.mechanics.simulate.mirrored`: exact, the energy is symmetric); the
+    others computed over the cores and kept."""
+    names = [cache.simulation_key(*call[:6], call[7]) for call in calls]
+    results = [cache.load(name) for name in names]
+    mirrors = _mirror_sources(calls)
+    missing = [k for k, r in enumerate(results) if r is None and k not in mirrors]
+    done = len(calls) - len(missing)
+
+    def advance(finished: int, _total: int) -> None:
+        if progress is not None:
+            progress(done + finished, len(calls))
+
+    computed = parallel_map(
+        "fabkit.mechanics.simulate:simulate", [calls[k] for k in missing], WARM, advance
+    )
+    for k, result in zip(missing, computed, strict=True):
+        cache.store(names[k], result)
+        results[k] = result
+    for k, source in mirrors.items():
+        results[k] = results[k] or mirrored(results[source])
+    return results
+
+
+def _mirror_sources(calls: list[tuple]) -> dict[int, int]:
+    """For each call whose start mirrors another call's start on the same sheet without
+    natural curvature, the index of that other call."""
+    where = {(id(call[2]), call[5].seed): k for k, call in enumerate(calls)}
+    sources = {}
+    for k, call in enumerate(calls):
+        partner = MIRRORED.get(call[5].seed)
+        source = where.get((id(call[2]), partner))
+        if source is not None and _symmetric(call[2]) and _symmetric(call[7]):
+            sources[k] = source
+    return sources
+
+
+def _symmetric(metrics: np.ndarray | None) -> bool:
+    """Metrics of one layer, or of layers all equal: no natural curvature."""
+    return metrics is None or metrics.ndim == 3 or bool((metrics == metrics[:1]).all())
+
+
+def _shape(
+    problem: SheetProblem,
+    starts: Sequence[str],
+    results: Sequence[Simulation],
+    tolerance: float,
+    mm_per_unit: float | None,
+) -> Shape:
+    """The :class:`Shape` of one target from the simulations of its ``problem`` from each
+    of ``starts``."""
+    ends, found = [], {}
+    for start, result in zip(starts, results, strict=True):
+        simulation = problem.simulation(result)
+        distance = compare(problem.coarse, simulation)
+        ends.append(
+            StartEnd(start, distance.rms, distance.max, distance.mirrored, distance.converged)
+        )
+        found[start] = (simulation, distance)
+    bad = worst(ends, tolerance)
+    simulation, distance = found[bad.start]
+    return Shape(
+        distance.name,
+        bad.rms,
+        bad.max,
+        bad.mirrored,
+        bad.converged,
+        tolerance,
+        sum(result.seconds for result in results),
+        None if mm_per_unit is None else distance.size * mm_per_unit,
+        None if mm_per_unit is None else formed_shape(problem.coarse, simulation, mm_per_unit),
+        tuple(ends),
+    )
+
+
+def share_progress(
     progress: Callable[[int, int], None] | None, k: int, count: int
 ) -> Callable[[int, int], None] | None:
     """The progress of the k-th of ``count`` simulations as a share of them all."""
@@ -215,6 +425,7 @@ def design_verdict(
     part: Part | None = None,
     stride: int | None = None,
     mm_per_unit: float | None = None,
+    starts: Sequence[str] = STARTS,
     progress: Callable[[int, int], None] | None = None,
 ) -> Verdict:
     """The verdict on the sheet as designed: every layer's own director and features (one
@@ -236,6 +447,7 @@ def design_verdict(
         part=part,
         stride=stride,
         mm_per_unit=mm_per_unit,
+        starts=starts,
         progress=progress,
     )
 

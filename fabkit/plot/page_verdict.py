@@ -55,10 +55,12 @@ def _sheet_simulated(verdict: Mapping[str, Any], figures: Mapping[str, Any]) -> 
         source = "the design (the machine file was read back but not simulated: see its notes)"
     return (
         f"The sheet {verdict['what']} ({sheet}, {figures['size_mm']:g} mm across) was "
-        f"simulated from flat to every target's stimulus, from {source}. A target is formed "
-        "when the simulation converged, the sheet is not the target's mirror image and it "
-        "ends within the limit of the target (RMS distance after the best rigid motion, as a "
-        "share of the patch diameter):"
+        f"simulated from flat to every target's stimulus, from {source}, from each of six "
+        "starts (the flat sheet lifted by a dome up, a dome down, a saddle of either sign "
+        "and two random bumps). A target is formed when, from every start, the simulation "
+        "converged, the sheet is not the target's mirror image and it ends within the limit "
+        "of the target (RMS distance after the best rigid motion, as a share of the patch "
+        "diameter); the figures are the worst start's:"
     )
 
 
@@ -72,18 +74,17 @@ def _compared(what: str, verdict: Mapping[str, Any]) -> str:
 
 
 def _missed(target: Mapping[str, Any]) -> str:
-    """`` (not formed: ...why)`` for a target not formed, else ""."""
+    """`` (not formed: ...why)`` for a target not formed, else "": how many of the starts
+    ended as its mirror image, did not converge or ended beyond the limit."""
     if target["formed"]:
         return ""
-    reasons = [
-        reason
-        for reason, holds in (
-            ("its mirror image", target["mirror_image"]),
-            ("not converged", not target["converged"]),
-            ("beyond the limit", target["rms_pct"] > target["limit_pct"]),
-        )
-        if holds
-    ]
+    starts = target["starts"]
+    counts = (
+        ("its mirror image", sum(s["mirror_image"] for s in starts)),
+        ("not converged", sum(not s["converged"] for s in starts)),
+        ("beyond the limit", sum(s["rms_pct"] > target["limit_pct"] for s in starts)),
+    )
+    reasons = [f"{reason} from {n} of {len(starts)} starts" for reason, n in counts if n]
     return f" (not formed: {', '.join(reasons)})"
 
 

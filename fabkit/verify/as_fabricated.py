@@ -14,7 +14,6 @@ sheet as designed on the same mesh; :func:`fabricated_verdict` is the verdict on
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -24,16 +23,19 @@ from scipy import ndimage
 
 from fabkit.design.design import Design
 from fabkit.field.part import Part
-from fabkit.mechanics.compare import FormedShape, compare, formed_shape
-from fabkit.mechanics.fabricated import SheetFields, design_fields, simulate_sheet
-from fabkit.mechanics.simulate import Settings
-from fabkit.mechanics.verdict import Shape, Verdict
+from fabkit.mechanics.fabricated import SheetFields, design_fields
+from fabkit.mechanics.simulate import STARTS, Settings
+from fabkit.mechanics.verdict import (
+    FORM_TOLERANCE,
+    Shape,
+    Verdict,
+    embedded_targets,
+    share_progress,
+    target_shapes,
+)
 from fabkit.process import Resolution
 from fabkit.verify.compare_fields import ComparedSheet, decode_features
 from fabkit.verify.raster import Readback
-
-TARGET_TRIANGLES = 800
-"""The simulation mesh is the design's grid coarsened to about this many triangles."""
 
 
 @dataclass(frozen=True)
@@ -55,35 +57,13 @@ class TargetDistance:
 
 
 def fabricated_verdict(
-    targets: tuple[TargetDistance, ...],
-    shapes: tuple[FormedShape, ...],
-    layers: int,
-    thickness_mm: float,
-    tolerance: float,
+    shapes: tuple[Shape, ...], layers: int, thickness_mm: float
 ) -> Verdict | None:
-    """The verdict on the sheet as fabricated, with the shape it takes under each target's
-    stimulus (None when it was not simulated)."""
-    if not targets:
+    """The verdict on the sheet as fabricated, from the shapes it takes under every
+    target's stimulus (None when it was not simulated)."""
+    if not shapes:
         return None
-    return Verdict(
-        "as fabricated",
-        tuple(
-            Shape(
-                t.target,
-                t.rms_pct / 100,
-                t.max_pct / 100,
-                t.mirrored,
-                t.converged,
-                tolerance,
-                t.seconds,
-                shape.diameter_mm,
-                shape,
-            )
-            for t, shape in zip(targets, shapes, strict=True)
-        ),
-        layers,
-        thickness_mm,
-    )
+    return Verdict("as fabricated", shapes, layers, thickness_mm)
 
 
 def simulation_figures(
@@ -96,7 +76,7 @@ def simulation_figures(
         "road_width_mm": readback.width_mm,
         "thickness_mm": thickness_mm,
         "layers": layers,
-        "seed": settings.seed,
+        "seed": ", ".join(STARTS),
         "path": f"flat sheet as made -> each target's stimulus, {settings.steps} ramp steps",
         "solver": "damped Newton (exact Hessian, Levenberg-Marquardt)",
     }
@@ -107,7 +87,7 @@ def simulation_note(figures: dict[str, Any]) -> str:
         f"simulated with the read-back fields averaged over a Gaussian of "
         f"{figures['smoothing_mm']:.3g} mm (road width {figures['road_width_mm']:.3g} mm, "
         f"sheet thickness {figures['thickness_mm']:.3g} mm: {figures['layers']} printed "
-        f"layer{'s' if figures['layers'] > 1 else ''}), {figures['seed']} seed, "
+        f"layer{'s' if figures['layers'] > 1 else ''}), from each start ({figures['seed']}), "
         f"path {figures['path']}"
     )
 
@@ -187,87 +167,62 @@ def simulate_targets(
     stride: int | None,
     max_iterations: int,
     with_reference: bool,
+    tolerance: float = FORM_TOLERANCE,
     progress: Callable[[int, int], None] | None = None,
-) -> tuple[tuple[TargetDistance, ...], tuple[FormedShape, ...]]:
+) -> tuple[tuple[TargetDistance, ...], tuple[Shape, ...]]:
     """The sheet of ``fields`` (one per layer, bottom first) on the cells of ``part``,
-    ``thickness_mm`` thick in all, under every target's stimulus (and, ``with_reference``,
-    the sheet as designed on the same mesh), at ``mm_per_unit`` mm per design unit, on
-    the design's grid coarsened by ``stride`` (None: about :data:`TARGET_TRIANGLES`
-    triangles), ``max_iterations`` per ramp step; ``progress`` over all their ramp steps.
-    Returns the distance to every target and the shape the sheet takes there (mm)."""
-    thickness = thickness_mm / mm_per_unit
-    stride = stride or _stride(design)
+    ``thickness_mm`` thick in all, under every target's stimulus from every start (and,
+    ``with_reference``, the sheet as designed on the same mesh), at ``mm_per_unit`` mm
+    per design unit, on the design's grid coarsened by ``stride`` (None: about
+    :data:`~fabkit.mechanics.verdict.TARGET_TRIANGLES` triangles), ``max_iterations``
+    per ramp step; ``progress`` over all their ramp steps. Returns the distance to every
+    target (the worst start's) and the shape the sheet takes there
+    (:func:`~fabkit.mechanics.verdict.target_shapes`, held to ``tolerance``)."""
     settings = Settings(max_iterations=max_iterations)
-    spec = design.problem
-    reference = None
+    sheets = [fields]
     if with_reference:
         if design.layering is None:
             own = [design_fields(design)] * len(fields)
         else:
             own = [design_fields(design.layer(k)) for k in range(design.layers)]
-        reference = [SheetFields(o.theta, o.features, fields[0].made) for o in own]
-    out, shapes = [], []
-    surfaces = [
-        s
-        for s in range(1, len(spec.targets))
-        if spec.targets[s].surface.embed(np.zeros((1, 2))) is not None  # else intrinsic
-    ]
-    runs = len(surfaces) * (2 if reference is not None else 1)
-
-    def share(k: int) -> Callable[[int, int], None] | None:
-        """The progress of the k-th simulation as a share of them all."""
-        if progress is None:
-            return None
-        return lambda done, total: progress(k * total + done, runs * total)
-
-    for surface in surfaces:
-        started = time.perf_counter()
-        coarse, simulation = simulate_sheet(
+        sheets.append([SheetFields(o.theta, o.features, fields[0].made) for o in own])
+    surfaces = embedded_targets(design)
+    found = [
+        target_shapes(
             design,
-            fields,
-            surface,
-            thickness,
-            settings=settings,
+            sheet,
+            surfaces,
+            thickness_mm / mm_per_unit,
+            tolerance=tolerance,
             part=part,
             stride=stride,
-            progress=share(len(out) * (runs // len(surfaces))),
+            settings=settings,
+            mm_per_unit=mm_per_unit,
+            progress=share_progress(progress, j, len(sheets)),
         )
-        made = compare(coarse, simulation)
-        seconds = time.perf_counter() - started
-        shapes.append(formed_shape(coarse, simulation, mm_per_unit))
-        designed = None
-        if reference is not None:
-            coarse, simulation = simulate_sheet(
-                design,
-                reference,
-                surface,
-                thickness,
-                settings=settings,
-                part=part,
-                stride=stride,
-                progress=share(2 * len(out) + 1),
-            )
-            designed = compare(coarse, simulation)
-        out.append(
-            TargetDistance(
-                target=made.name,
-                surface=surface,
-                rms_pct=100 * made.rms,
-                max_pct=100 * made.max,
-                mirrored=made.mirrored,
-                converged=made.converged,
-                triangles=made.triangles,
-                seconds=seconds,
-                designed_rms_pct=100 * designed.rms if designed else None,
-                designed_max_pct=100 * designed.max if designed else None,
-                designed_converged=designed.converged if designed else None,
-            )
-        )
-    return tuple(out), tuple(shapes)
+        for j, sheet in enumerate(sheets)
+    ]
+    designed = found[1] if with_reference else [None] * len(surfaces)
+    distances = tuple(
+        _distance(made, surface, reference)
+        for made, surface, reference in zip(found[0], surfaces, designed, strict=True)
+    )
+    return distances, tuple(found[0])
 
 
-def _stride(design: Design) -> int:
-    """The grid coarsening that leaves about TARGET_TRIANGLES triangles."""
-    valid = design.valid
-    cells = int((valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:] & valid[1:, 1:]).sum())
-    return max(1, round(math.sqrt(2 * cells / TARGET_TRIANGLES)))
+def _distance(made: Shape, surface: int, designed: Shape | None) -> TargetDistance:
+    """The figures of the sheet as fabricated against one target (and of the sheet as
+    designed on the same mesh), the worst start's."""
+    return TargetDistance(
+        target=made.target,
+        surface=surface,
+        rms_pct=100 * made.rms,
+        max_pct=100 * made.max,
+        mirrored=made.mirrored,
+        converged=made.converged,
+        triangles=len(made.mesh.triangles) if made.mesh is not None else 0,
+        seconds=made.seconds,
+        designed_rms_pct=100 * designed.rms if designed else None,
+        designed_max_pct=100 * designed.max if designed else None,
+        designed_converged=designed.converged if designed else None,
+    )

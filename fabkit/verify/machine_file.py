@@ -39,8 +39,7 @@ from fabkit.field.design_field import feature_names, field_from_design
 from fabkit.field.flat import FlatField
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile
-from fabkit.mechanics.compare import FormedShape
-from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict
+from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict
 from fabkit.process import Encode, Process, Resolution
 from fabkit.tomlfile import real
 from fabkit.toolpath.baromorph import BaromorphSettings
@@ -245,7 +244,7 @@ def verify(
     if choice.against_the_file:
         notes.append(f"read as machine {machine.name} reads it, but the file names {choice.named}")
     targets: tuple[TargetDistance, ...] = ()
-    shapes: tuple[FormedShape, ...] = ()
+    shapes: tuple[Shape, ...] = ()
     simulation: dict[str, Any] = {}
     thickness_mm = _printed_thickness(options, process, kind, layers)
     if not options.simulate:
@@ -267,6 +266,7 @@ def verify(
             stride=options.stride,
             max_iterations=options.max_iterations,
             with_reference=options.reference,
+            tolerance=options.form_tolerance,
             progress=progress,
         )
         simulation = simulation_figures(smoothing, readbacks[0], thickness_mm, layers)
@@ -290,7 +290,7 @@ def verify(
         extra={"part": _part_figures(flat.part)} if flat.part is not None else {},
         simulation=simulation,
         layers=layer_readings(sheets, readings, design.layers) if layers > 1 else (),
-        verdict=fabricated_verdict(targets, shapes, layers, thickness_mm, options.form_tolerance),
+        verdict=fabricated_verdict(shapes, layers, thickness_mm),
     )
 
 

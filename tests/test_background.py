@@ -1,0 +1,49 @@
+"""Worker processes: the pool that spreads a verdict's simulations over the cores."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+from fabkit.background import WORKERS_ENV, parallel_map
+
+
+def test_calls_come_back_in_order_with_their_progress(monkeypatch):
+    monkeypatch.setenv(WORKERS_ENV, "2")
+    seen = []
+    out = parallel_map(
+        "math:hypot", [(3, 4), (5, 12), (8, 15)], progress=lambda d, t: seen.append((d, t))
+    )
+    assert out == [5.0, 13.0, 17.0]
+    assert seen == [(1, 3), (2, 3), (3, 3)]
+
+
+def test_one_worker_calls_here(monkeypatch):
+    monkeypatch.setenv(WORKERS_ENV, "1")
+    assert parallel_map("os:getpid", [(), ()]) == [__import__("os").getpid()] * 2
+
+
+def test_a_script_that_calls_at_its_top_level_needs_no_main_guard(tmp_path):
+    # spawned workers would run such a script again (and start workers from there): they
+    # are started without the caller's __main__
+    script = tmp_path / "top_level.py"
+    script.write_text(
+        textwrap.dedent(
+            """
+            import os
+            from fabkit.background import parallel_map
+            pids = parallel_map("os:getpid", [()] * 4)
+            print(len(set(pids) - {os.getpid()}))
+            """
+        )
+    )
+    result = subprocess.run(
+        [sys.executable, str(script)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**__import__("os").environ, WORKERS_ENV: "2"},
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() in {"1", "2"}  # worker processes, not the script's own
