@@ -54,6 +54,7 @@ from fabkit.background import worker
 from fabkit.design.patches import write_patch_meshes
 from fabkit.errors import FabkitError
 from fabkit.machines import load_machine
+from fabkit.mechanics.verdict import Verdict
 from fabkit.plot import DESIGN_PICTURES, write_pictures
 from fabkit.plot.html import html_report
 from fabkit.plot.page_sections import run_page
@@ -67,7 +68,7 @@ from fabkit.run_inputs import (
     machine_name,
     with_defaults,
 )
-from fabkit.run_solve import solve_stage
+from fabkit.run_solve import NOT_SIMULATED, solve_stage
 
 WORKER_MODULES = ("fabkit.plot.design", "fabkit.toolpath.preview", "fabkit.plot.shapes")
 """What the worker imports while the run solves: the drawings it will be given."""
@@ -97,7 +98,7 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
     run, and written at the report (also when a later stage fails).
     """
     out = Path(options.out)
-    notice = ignored_notice(options)
+    notice = "; ".join(n for n in (ignored_notice(options), _not_simulated(options)) if n)
     if notice:
         say(f"      {notice}")
     with worker(warm=WORKER_MODULES) as background:
@@ -136,7 +137,7 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
         "check": solved.check.to_dict(),
         "part": solved.part.to_dict(),
         **({"layers": solved.layering} if solved.layering else {}),
-        "as designed": solved.verdict.to_dict(),
+        "as designed": solved.verdict.to_dict() if solved.verdict is not None else None,
         **made.fabricated.figures,
         "machine file": made.machine_file,
         "verify": verification,
@@ -144,18 +145,30 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
         "meshes": meshes,
         "shapes": made.shapes,
     }
-    verdicts = [solved.verdict.to_dict()]
-    if made.final is not solved.verdict:
-        verdicts.append(made.final.to_dict())
-    figures["verdicts"] = verdicts
-    figures["verdict"] = {
-        "what": made.final.what,
-        "headline": made.final.headline(),
-        "formed": all(v["formed"] for v in verdicts),
-        "lines": made.final.lines(),
-    }
+    verdicts = [solved.verdict] if solved.verdict is not None else []
+    if made.final is not None and made.final is not solved.verdict:
+        verdicts.append(made.final)
+    figures["verdicts"] = [verdict.to_dict() for verdict in verdicts]
+    figures["verdict"] = _verdict(made.final, figures["verdicts"])
     page = run_page(figures, pictures, made.fabricated.picture, out)
     html_report(page, out / "report.html")
     with atomic_path(out / "report.json") as tmp:
         tmp.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
     return figures
+
+
+def _not_simulated(options: RunOptions) -> str:
+    return "" if options.simulate else NOT_SIMULATED
+
+
+def _verdict(final: Verdict | None, verdicts: list[dict[str, Any]]) -> dict[str, Any]:
+    """report.json's ``verdict``: the ``final`` verdict's headline and lines, formed when
+    every one of ``verdicts`` is (None when nothing was simulated)."""
+    if final is None:
+        return {"what": "not simulated", "headline": NOT_SIMULATED, "formed": None, "lines": []}
+    return {
+        "what": final.what,
+        "headline": final.headline(),
+        "formed": all(v["formed"] for v in verdicts),
+        "lines": final.lines(),
+    }

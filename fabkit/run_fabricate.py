@@ -83,14 +83,15 @@ class Made:
     """What the stages after the solve made: the ``fabricated`` figures and preview, the
     first ``machine_file``'s figures, its ``verification`` (None with --no-verify), the
     ``final`` verdict (as fabricated when the machine file was simulated, else as
-    designed), the ``shapes`` it found (report.json's ``shapes``) and the ``sent``
-    figures (None without --send)."""
+    designed; None when nothing was simulated), the ``shapes`` it found (report.json's
+    ``shapes``, None when nothing was simulated) and the ``sent`` figures (None without
+    --send)."""
 
     fabricated: _Fabricated
     machine_file: dict[str, Any]
     verification: Verification | None
-    final: Verdict
-    shapes: dict[str, Any]
+    final: Verdict | None
+    shapes: dict[str, Any] | None
     sent: dict[str, Any] | None
 
 
@@ -108,7 +109,7 @@ def fabricate(run: Run) -> Made:
     final = run.solved.verdict
     if verification is not None and verification.verdict is not None:
         final = verification.verdict
-    shapes = _shapes(run, final)
+    shapes = _shapes(run, final) if final is not None else None
 
     sent = None
     if options.send:
@@ -162,7 +163,8 @@ def _verify(run: Run) -> Verification | None:
     from fabkit.verify.machine_file import VerifyOptions, verify
 
     target = out / ("channels.dxf" if options.baromorph else FORMAT_FILES[options.formats[0]])
-    say(f"[5/7] verifying {target.name}: reading it back, simulating the sheet as fabricated")
+    simulating = ", simulating the sheet as fabricated" if options.simulate else ""
+    say(f"[5/7] verifying {target.name}: reading it back{simulating}")
     result = verify(
         out / "design.npz",
         target,
@@ -173,6 +175,7 @@ def _verify(run: Run) -> Verification | None:
             baromorph=run.inputs.baromorph,
             part=run.solved.part,
             form_tolerance=options.form_tolerance,
+            simulate=options.simulate,
         ),
         design=run.solved.design,
     )

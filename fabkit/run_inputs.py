@@ -48,9 +48,11 @@ class RunOptions:
     files an earlier run wrote into ``out`` (else such a folder is refused).
     ``part_request`` cuts the part (:class:`fabkit.field.part.PartRequest`). ``layers``
     (>= 2) prints the sheet in that many layers programmed with each target's curvature
-    (:mod:`fabkit.design.layers`); every target is then simulated from flat, as designed
-    and as fabricated, and held to ``form_tolerance`` (RMS, a share of the patch
-    diameter); ``strict`` makes a target not formed an error (the run's exit code).
+    (:mod:`fabkit.design.layers`); every target is simulated, as designed and as
+    fabricated, and held to ``form_tolerance`` (RMS, a share of the patch diameter);
+    ``strict`` makes a target not formed an error (the run's exit code). ``simulate``
+    False skips those simulations: no verdict on the shapes (refused with ``layers`` > 1
+    or ``strict``, which need one).
     ``send`` is a port, a pyserial URL or a printer host's URL
     (:mod:`fabkit.link.host.web`), whose API key is ``api_key``, else the first line of
     ``api_key_file``, else the environment's FABKIT_API_KEY; the key is never shown nor
@@ -77,6 +79,7 @@ class RunOptions:
     layers: int = 1
     strict: bool = False
     form_tolerance: float = FORM_TOLERANCE
+    simulate: bool = True
 
 
 @dataclass(frozen=True)
@@ -126,6 +129,15 @@ def check_inputs(options: RunOptions, machine: MachineProfile) -> RunInputs:
         raise FabkitError(f"--size {options.size_mm:g}: expected a positive finite number")
     if not 1 <= options.layers <= MAX_LAYERS:
         raise FabkitError(f"--layers {options.layers}: expected 1 to {MAX_LAYERS} layers")
+    if not options.simulate and (options.layers > 1 or options.strict):
+        given, why = (
+            (f"--layers {options.layers}", "the layers program the targets the sheet misses")
+            if options.layers > 1
+            else ("--strict", "it judges the shapes the sheet takes")
+        )
+        raise FabkitError(
+            f"--no-simulate with {given}: {why} in the simulations; leave one of the two out"
+        )
     if not (math.isfinite(options.form_tolerance) and 0 < options.form_tolerance < 1):
         raise FabkitError(
             f"--form-tolerance {100 * options.form_tolerance:g}: expected a percentage "

@@ -35,13 +35,19 @@ from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict, design_verd
 from fabkit.process import Process
 from fabkit.run_inputs import RunInputs, RunOptions
 
+NOT_SIMULATED = (
+    "NOT SIMULATED (--no-simulate): no verdict on the shapes the sheet takes; the design's "
+    "residuals and the machine file are checked"
+)
+"""What a run without simulations says first and last, where the verdict would be."""
+
 
 @dataclass(frozen=True)
 class Solved:
     """The solve stage's results: the ``design`` (layered when asked), its check
     (``check``, the residual ``maps``), the solver's ``summary``, the ``part`` that is
     made, how well the layers program the curvature (``layering``, None for one layer)
-    and the ``verdict`` on the sheet as designed."""
+    and the ``verdict`` on the sheet as designed (None: not simulated, --no-simulate)."""
 
     design: Design
     check: CheckReport
@@ -49,7 +55,7 @@ class Solved:
     summary: dict[str, Any]
     part: Part
     layering: dict[str, Any] | None
-    verdict: Verdict
+    verdict: Verdict | None
 
 
 def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) -> Solved:
@@ -80,6 +86,9 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
         design.save(Path(options.out) / "design.npz")
         if not any(layering["weights"].values()):  # equal layers: the sheet just judged
             verdict = replace(made.metric_alone, what="as designed")
+    if not options.simulate:
+        say(f"      {NOT_SIMULATED}")
+        return Solved(design, check, result.maps, solved, part, layering, None)
     verdict = verdict or design_verdict(
         design,
         None if thickness_mm is None else thickness_mm / part.mm_per_unit,

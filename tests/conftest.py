@@ -89,3 +89,34 @@ def run_cli(capsys):
         return code, captured.out, captured.err
 
     return run
+
+
+LONGEST_FIRST = (
+    "test_run_layers.py",
+    "test_solve_layers.py",
+    "test_examples.py",
+    "test_run.py",
+    "test_packaging.py",
+    "test_optimise.py",
+    "test_link_marlin.py",
+    "test_verify.py",
+    "test_outputs.py",
+    "test_link_grbl_buffer.py",
+    "test_values_between_stages.py",
+    "test_report_browser.py",
+)
+"""The test files that take longest (``pytest --durations=0`` summed per file: 232 s for
+test_run_layers.py, the Fig. 3 run in two layers, down to 23 s), longest first. pytest-xdist
+hands whole files to its workers in collection order (``--dist loadfile
+--no-loadscope-reorder``, pyproject.toml): these start first, so that no long file starts
+last on one worker while the other has nothing left to do."""
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The :data:`LONGEST_FIRST` files first, the others after them in their own order."""
+
+    def rank(item: pytest.Item) -> int:
+        name = item.path.name
+        return LONGEST_FIRST.index(name) if name in LONGEST_FIRST else len(LONGEST_FIRST)
+
+    items.sort(key=rank)

@@ -69,13 +69,18 @@ def opened_share(region: shapely.Geometry, radius: float) -> float:
 
 @pytest.fixture(scope="module", params=sorted(FIGURES))
 def run(request, tmp_path_factory):
-    """A figure through ``fabkit run`` (no verification: test_verify covers it), its
-    printed lines, and the part rebuilt from the design as the run cut it."""
+    """A figure through ``fabkit run`` (no verification, no simulation: test_verify and
+    test_run_layers cover them), its printed lines, and the part rebuilt from the design
+    as the run cut it."""
     out = tmp_path_factory.mktemp(request.param) / "run"
     lines: list[str] = []
     report = run_pipeline(
         RunOptions(
-            spec=str(EXAMPLES / FIGURES[request.param]), out=str(out), machine=MACHINE, verify=False
+            spec=str(EXAMPLES / FIGURES[request.param]),
+            out=str(out),
+            machine=MACHINE,
+            verify=False,
+            simulate=False,
         ),
         say=lines.append,
     )

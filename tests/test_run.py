@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import EXAMPLES
+from tests.conftest import EXAMPLES, validate_report
 
 
 def run_ok(run_cli, spec: str, out: Path, *options) -> tuple[dict, str]:
@@ -124,12 +124,19 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
     assert code == 2 and "DXF only" in err
 
 
-@pytest.mark.slow
-def test_run_photoalignment_pattern(run_cli, tmp_path):
-    out = tmp_path / "laser"
-    laser = ("--machine", "dmd_photoalign", "--size", "20", "--no-verify")
-    figures, _ = run_ok(run_cli, "two_shapes.toml", out, *laser)
-    manifest = json.loads((out / "laser" / "manifest.json").read_text())
-    assert manifest and (out / "laser" / "angle.png").is_file()
-    assert not (out / "toolpath").exists()  # a laser writer needs no print lines
-    assert "binning error" in figures["exports"]["laser"]
+def test_a_run_not_simulated_says_so_first_and_last(run_cli, tmp_path):
+    out = tmp_path / "quick"
+    figures, text = run_ok(
+        run_cli, "two_shapes.toml", out, "--no-simulate", "--step", "0.1", "--diagonals", "30"
+    )
+    lines = text.strip().splitlines()
+    assert lines[0].strip().startswith("NOT SIMULATED (--no-simulate): no verdict on the shapes")
+    assert lines[-1].startswith("done: NOT SIMULATED (--no-simulate)")
+    assert "forms every target" not in text and "formed" not in text
+    assert figures["verdict"]["formed"] is None and figures["verdicts"] == []
+    assert figures["as designed"] is None and figures["shapes"] is None
+    assert figures["notice"].startswith("NOT SIMULATED") and figures["verify"]["targets"] == []
+    assert not (out / "as_designed").exists() and not (out / "as_fabricated").exists()
+    body = (out / "report.html").read_text().split("<body>", 1)[1]
+    assert body.lstrip().startswith('<p class="notice">NOT SIMULATED (--no-simulate)')
+    validate_report(figures)

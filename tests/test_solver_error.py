@@ -176,7 +176,7 @@ def test_fabkit_check_passes_on_what_fabkit_solve_writes(run_cli, tmp_path, exam
     out = tmp_path / "design.npz"
     code, text, _ = run_cli("solve", EXAMPLES / example, "--out", out, *options)
     assert code == 0, text
-    code, text, _ = run_cli("check", out)
+    code, text, _ = run_cli("check", out, "--no-simulate")  # the residuals' check
     assert code == 0, text
     summary = json.loads(out.with_suffix(".json").read_text())
     assert summary["check"]["passed"]

@@ -428,3 +428,35 @@ def test_verify_reads_with_the_machine_the_file_names(fig1_run, run_cli, tmp_pat
     code, text, err = run_cli("verify", design, renamed, "--no-simulate", *machine)
     assert code == 0, err
     assert "read as machine marlin_diw_pneumatic reads it, but the file names grbl_diw" in text
+
+
+@pytest.mark.slow
+def test_the_thickness_is_the_files_and_a_process_that_disagrees_is_the_first_line(
+    fig1_run, run_cli, tmp_path
+):
+    design, gcode = fig1_run / "design.npz", fig1_run / "sheet.gcode"
+    machine = (ROOT / "machines" / "marlin_diw_pneumatic.toml").read_text()
+    assert "layer_height_mm = 0.3\n" in machine
+    thin = tmp_path / "thin.toml"  # the same process, but half the layer height
+    thin.write_text(machine.replace("layer_height_mm = 0.3\n", "layer_height_mm = 0.15\n"))
+    same = ["verify", design, gcode, "--no-simulate"]
+    code, text, err = run_cli(*same, "--process", thin)
+    assert code == 0, err
+    first = text.splitlines()[0]
+    assert first.startswith("THICKNESS FROM THE FILE: it prints 1 layer, 0.3 mm in all"), first
+    assert "0.15 mm per layer" in first and str(thin) in first
+    asked, plain = (
+        json.loads(run_cli(*same, *more, "--json")[1]) for more in (["--process", thin], [])
+    )
+    assert asked["notice"] == asked["thickness_notice"] == first
+    assert plain["thickness_notice"] == "" and "notice" not in plain
+    # the features read back do not hang on the process's layer height
+    assert asked["features"] == plain["features"]
+
+
+def test_layer_thicknesses_step_from_the_bed():
+    from fabkit.verify.machine_file import layer_thicknesses
+
+    assert layer_thicknesses([0.3, 0.6], 0.2) == pytest.approx([0.3, 0.3])
+    assert layer_thicknesses([0.2, 0.5, 0.6], 0.3) == pytest.approx([0.2, 0.3, 0.1])
+    assert layer_thicknesses([0.0], 0.25) == [0.25]  # printed at the bed's height: the process's

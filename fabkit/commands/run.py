@@ -69,6 +69,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="do not read the machine file back and check it (fabkit verify)",
     )
     parser.add_argument(
+        "--no-simulate",
+        action="store_false",
+        dest="simulate",
+        help="do not simulate the sheet (as designed nor as fabricated): no verdict on the "
+        "shapes it takes, as the run's first and last lines say; the residuals and the "
+        "machine file are still checked",
+    )
+    parser.add_argument(
         "--send",
         metavar="PORT|URL",
         help="stream the G-code to a port or pyserial URL, e.g. sim://marlin, or print it "
@@ -103,7 +111,8 @@ def run(args: argparse.Namespace) -> int:
         "the design's check passed" if figures["check"]["passed"] else "the design's check FAILED"
     )
     verdict = figures["verdict"]
-    print(f"      the sheet {verdict['what']}:")
+    if verdict["lines"]:
+        print(f"      the sheet {verdict['what']}:")
     for line in verdict["lines"]:
         print(f"        {line}")
     left_out = ""

@@ -46,7 +46,7 @@ def run_page(
     spec = Path(figures["spec"]).name
     sections = [
         verdict_section(figures),
-        _shapes_section(figures, folder),
+        *([_shapes_section(figures, folder)] if figures.get("shapes") else []),
         _design_section(figures, pictures),
         _part_section(figures["part"]),
         *([_layers_section(figures)] if figures.get("layers") else []),

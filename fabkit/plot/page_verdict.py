@@ -24,10 +24,11 @@ from fabkit.plot.page import (
 def verdict_section(figures: Mapping[str, Any]) -> Section:
     """Which targets the sheet forms, the machine file, warnings and ignored features."""
     verdict = figures["verdict"]
-    final = figures["verdicts"][-1]
     blocks: list[Block] = [Paragraph((as_sentence(verdict["headline"]),), "headline")]
-    blocks.append(Paragraph((_sheet_simulated(final, figures),)))
-    for target in final["targets"]:
+    final = figures["verdicts"][-1] if figures["verdicts"] else {"what": "not simulated"}
+    if figures["verdicts"]:
+        blocks.append(Paragraph((_sheet_simulated(final, figures),)))
+    for target in final.get("targets", ()):
         blocks.append(Paragraph((target["line"],), "formed" if target["formed"] else "missed"))
     if final["what"] == "as fabricated":
         designed = figures["as designed"]
@@ -162,7 +163,7 @@ def _warnings(figures: Mapping[str, Any]) -> Text:
             spans += [*as_spans(warning), "; " if k < len(warnings) - 1 else ". "]
     else:
         spans.append("No warnings. ")
-    if figures.get("notice"):
+    if "NOT ENCODED" in figures.get("notice", ""):
         spans.append("Features were left out of the machine file on purpose (the first line).")
     else:
         spans.append("Every feature of the design is in the machine file.")

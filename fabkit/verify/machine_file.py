@@ -26,7 +26,7 @@ simulation of the sheet as fabricated and its verdict :mod:`fabkit.verify.as_fab
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -136,27 +136,32 @@ class Verification:
     simulation: dict[str, Any] = field(default_factory=dict)
     layers: tuple[LayerReading, ...] = ()
     verdict: Verdict | None = None
+    thickness_notice: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(replace(self, verdict=None))  # the verdict's meshes stay out
         data["verdict"] = self.verdict.to_dict() if self.verdict is not None else None
-        if self.ignored:
+        if self.notice():
             return {"notice": self.notice(), **data}
         return data
 
     def notice(self) -> str:
-        """The first line of the report when features were left out ("" if none)."""
-        if not self.ignored:
-            return ""
-        return (
-            f"NOT ENCODED: feature{'s' if len(self.ignored) > 1 else ''} "
-            f"{', '.join(self.ignored)} left out on purpose (--ignore-feature): the machine "
-            "file does not carry it and the sheet as fabricated was not simulated"
-        )
+        """The first line of the report when features were left out, or the process's
+        layer height is not the file's ("" if neither)."""
+        notices = [self.thickness_notice] if self.thickness_notice else []
+        if self.ignored:
+            notices.insert(
+                0,
+                f"NOT ENCODED: feature{'s' if len(self.ignored) > 1 else ''} "
+                f"{', '.join(self.ignored)} left out on purpose (--ignore-feature): the "
+                "machine file does not carry it and the sheet as fabricated was not simulated",
+            )
+        return "; ".join(notices)
 
     def table(self) -> str:
-        """The report as text (the first line says when features were left out)."""
-        lines = [self.notice()] if self.ignored else []
+        """The report as text (the first line says when features were left out, or the
+        sheet's thickness is not the process's)."""
+        lines = [self.notice()] if self.notice() else []
         own = self.process == f"machine {self.machine}"
         process = "its own process" if own else f"process {self.process}"
         lines += [
@@ -225,9 +230,10 @@ def verify(
     machine = choice.profile
     process = _process(options, machine)
     resolution = process.resolve(names, options.ignore_features)
-    readbacks, placement = _read(machine_file, kind, machine, process, resolution, options)
+    readbacks, placement, heights = _read(machine_file, kind, machine, process, resolution, options)
     layers = len(readbacks)
-    cut = _part_options(options, process, layers)
+    thickness_mm = _printed_thickness(options, process, kind, layers, heights)
+    cut = _part_options(options, process, thickness_mm)
     flat = _flat_field(design, str(design_path), options, placement, cut)
     scale = float(flat.mm_per_unit)
     designed = layer_fields(design, flat, str(design_path), layers)
@@ -246,7 +252,6 @@ def verify(
     targets: tuple[TargetDistance, ...] = ()
     shapes: tuple[Shape, ...] = ()
     simulation: dict[str, Any] = {}
-    thickness_mm = _printed_thickness(options, process, kind, layers)
     if not options.simulate:
         notes.append("not simulated (--no-simulate)")
     elif resolution.ignored or missing:
@@ -291,31 +296,51 @@ def verify(
         simulation=simulation,
         layers=layer_readings(sheets, readings, design.layers) if layers > 1 else (),
         verdict=fabricated_verdict(shapes, layers, thickness_mm),
+        thickness_notice="" if kind == "channels" else thickness_notice(process, heights),
     )
 
 
-def _printed_thickness(options: VerifyOptions, process: Process, kind: str, layers: int) -> float:
-    """The sheet the file makes, mm: its layers times the layer height (a baromorph
-    drawing: the part's thickness; a laser pattern: the process's film)."""
+def _printed_thickness(
+    options: VerifyOptions, process: Process, kind: str, layers: int, heights: Sequence[float]
+) -> float:
+    """The sheet the file makes, mm: the height of its top layer, as the file prints it
+    (a baromorph drawing: the part's thickness; a laser pattern, or a file printed at
+    the bed's height: its layers times the process's layer height)."""
     if kind == "channels":
         return options.baromorph.part_thickness_mm
+    if heights and max(heights) > 0:
+        return float(max(heights))
     return layers * process.layer_height_mm
+
+
+def thickness_notice(process: Process, heights: Sequence[float]) -> str:
+    """The first line of the report when the process's layer height is not the one the
+    file prints at ("" when they agree within 1 %, or the file has no heights)."""
+    if not heights or max(heights) <= 0:
+        return ""
+    printed, said = max(heights), len(heights) * process.layer_height_mm
+    if abs(printed - said) <= 0.01 * printed:
+        return ""
+    layers = f"{len(heights)} layer{'s' if len(heights) > 1 else ''}"
+    return (
+        f"THICKNESS FROM THE FILE: it prints {layers}, {printed:.3g} mm in all, where "
+        f"the process ({process.source}) says {said:.3g} mm "
+        f"({process.layer_height_mm:g} mm per layer): read back and simulated at the file's"
+    )
 
 
 def _part_figures(part: Part) -> dict[str, Any]:
     return {"summary": part.summary(), **part.to_dict()}
 
 
-def _part_options(options: VerifyOptions, process: Process, layers: int) -> PartOptions:
-    """How the file's maker cut the part: the options, the process's road width, and a
-    sheet as thick as the layers the file prints (a baromorph drawing: its part)."""
+def _part_options(options: VerifyOptions, process: Process, thickness_mm: float) -> PartOptions:
+    """How the file's maker cut the part: the options, the process's road width (a
+    baromorph drawing's: its channel pitch) and the sheet's thickness (mm)."""
     if options.baromorph:
-        settings = options.baromorph
-        road, thickness, roads = settings.pitch_mm, settings.part_thickness_mm, MIN_WIDTH_PITCHES
+        road, roads = options.baromorph.pitch_mm, MIN_WIDTH_PITCHES
     else:
-        road, thickness = process.road_width_mm, layers * process.layer_height_mm
-        roads = MIN_WIDTH_ROADS
-    return options.part_request.for_process(road, thickness, roads)
+        road, roads = process.road_width_mm, MIN_WIDTH_ROADS
+    return options.part_request.for_process(road, thickness_mm, roads)
 
 
 def _check_options(options: VerifyOptions) -> None:
@@ -375,9 +400,11 @@ def _read(
     process: Process,
     resolution: Resolution,
     options: VerifyOptions,
-) -> tuple[list[Readback], Placement]:
+) -> tuple[list[Readback], Placement, tuple[float, ...]]:
     """The file on grids of the sheet's frame, one per layer it prints (bottom first; a
-    DXF, a laser pattern or baromorph channels: one), and where the placement came from."""
+    laser pattern or baromorph channels: one), where the placement came from, and the
+    height each layer is printed at (mm above the bed, bottom first; () for a laser
+    pattern or channels, whose file has no heights)."""
     if kind in ("laser", "channels"):
         if kind == "laser":
             readback, found, _ = read_laser(path)
@@ -386,13 +413,14 @@ def _read(
         placement = _placement(options, found)
         shift = np.asarray(placement.offset_mm)
         moved = (readback.origin[0] - shift[0], readback.origin[1] - shift[1])
-        return [_replace_origin(readback, moved)], placement
+        return [_replace_origin(readback, moved)], placement, ()
     cell = options.cell_mm or process.road_width_mm / CELL_PER_WIDTH
     if kind == "dxf":
         start, end, width, road, values, height, found = read_dxf(path, process.road_width_mm)
         values = {p: values.get(p, np.full(len(start), np.nan)) for p in resolution.parameters}
+        heights = np.unique(np.round(height, 6))  # a layer at each height drawn at
         layers = []
-        for z in np.unique(np.round(height, 6)):  # a layer at each height drawn at
+        for z in heights:
             at = np.isclose(height, z, atol=1e-6)
             own = {p: v[at] for p, v in values.items()}
             layers.append(Roads(start[at], end[at], width[at], road[at], own, None))
@@ -400,10 +428,24 @@ def _read(
         printed = read_gcode(path, machine)
         found = printed.placement
         heights = np.unique(np.round(printed.start[:, 2], 6)) if len(printed.start) else [0.0]
-        layers = [_gcode_roads(printed, machine, process, resolution, z) for z in heights]
+        own = layer_thicknesses(heights, process.layer_height_mm)
+        layers = [
+            _gcode_roads(printed, machine, process, resolution, z, h)
+            for z, h in zip(heights, own, strict=True)
+        ]
     placement = _placement(options, found)
     offset = np.asarray(placement.offset_mm)
-    return [rasterise(roads.shifted(offset), cell) for roads in layers], placement
+    grids = [rasterise(roads.shifted(offset), cell) for roads in layers]
+    return grids, placement, tuple(float(z) for z in heights)
+
+
+def layer_thicknesses(heights_mm: Sequence[float], layer_height_mm: float) -> list[float]:
+    """Each layer's thickness, mm: the step from the height below it (the bed, at 0, below
+    the first), the process's ``layer_height_mm`` where the heights say nothing (a file
+    printed at the bed's height, or a drawing without heights)."""
+    below = np.concatenate([[0.0], np.asarray(heights_mm, dtype=float)[:-1]])
+    steps = np.asarray(heights_mm, dtype=float) - below
+    return [float(step) if step > 0 else layer_height_mm for step in steps]
 
 
 def _read_channels(path: Path, settings: BaromorphSettings) -> tuple[Readback, Placement]:
@@ -457,13 +499,15 @@ def _gcode_roads(
     process: Process,
     resolution: Resolution,
     height: float,
+    thickness: float,
 ) -> Roads:
-    """The segments printed at ``height`` (mm) with each channel's parameter per segment."""
+    """The segments printed at ``height`` (mm) with each channel's parameter per segment;
+    ``thickness`` (mm) is the layer's, which the extruded volume fills."""
     first = np.isclose(printed.start[:, 2], height, atol=1e-6)
     start, end = printed.start[first, :2], printed.end[first, :2]
     length = np.linalg.norm(end - start, axis=1)
     feed, volume = printed.feed[first], printed.volume[first]
-    w, h = process.road_width_mm, process.layer_height_mm
+    w, h = process.road_width_mm, thickness
     has_e = machine.gcode is not None and not machine.gcode.flow_on_gcode.strip()
     with np.errstate(invalid="ignore", divide="ignore"):
         flow = volume / (length * w * h) if has_e else process.print_speed_mm_s / feed
