@@ -93,20 +93,21 @@ def run_cli(capsys):
 
 LONGEST_FIRST = (
     "test_run_layers.py",
-    "test_solve_layers.py",
     "test_examples.py",
     "test_run.py",
-    "test_packaging.py",
-    "test_optimise.py",
-    "test_link_marlin.py",
-    "test_verify.py",
-    "test_outputs.py",
-    "test_link_grbl_buffer.py",
     "test_values_between_stages.py",
+    "test_outputs.py",
     "test_report_browser.py",
+    "test_solve_layers.py",
+    "test_link_resend_property.py",
+    "test_optimise.py",
+    "test_link_grbl_buffer.py",
+    "test_verify.py",
+    "test_packaging.py",
+    "test_link_marlin.py",
 )
-"""The test files that take longest (``pytest --durations=0`` summed per file: 232 s for
-test_run_layers.py, the Fig. 3 run in two layers, down to 23 s), longest first. pytest-xdist
+"""The test files that take longest (``pytest --durations=0`` summed per file: 200 s for
+test_run_layers.py, the Fig. 3 run in two layers, down to 24 s), longest first. pytest-xdist
 hands whole files to its workers in collection order (``--dist loadfile
 --no-loadscope-reorder``, pyproject.toml): these start first, so that no long file starts
 last on one worker while the other has nothing left to do."""

@@ -100,13 +100,14 @@ def test_a_run_with_another_machine_leaves_no_file_of_the_first(run_cli, tmp_pat
     """The issue's case: G-code run, then a laser-writer run into the same --out."""
     out, spec = tmp_path / "out", EXAMPLES / "two_shapes.toml"
     assert run_cli("run", spec, "--out", out, *COARSE)[0] == 0
-    assert {"sheet.gcode", "toolpath/toolpath.npz"} <= files(out)
-    laser = ("--machine", "dmd_photoalign")
+    assert {"sheet.gcode", "toolpath/toolpath.npz"} <= files(out) and (out / "as_designed").is_dir()
+    laser = ("--machine", "dmd_photoalign", "--no-simulate")  # it leaves no shapes of its own
     code, _, err = run_cli("run", spec, "--out", out, *COARSE, *laser)
     assert code == 2 and "give --overwrite" in err
     assert run_cli("run", spec, "--out", out, *COARSE, *laser, "--overwrite")[0] == 0
     names = files(out)
     assert "sheet.gcode" not in names and not (out / "toolpath").exists()
+    assert not (out / "as_designed").exists()  # the first run's shapes went with it
     assert "laser/manifest.json" in names and listed(out) == names
 
 

@@ -22,8 +22,9 @@ def run_ok(run_cli, spec: str, out: Path, *options) -> tuple[dict, str]:
 def test_run_writes_every_file(run_cli, tmp_path):
     out = tmp_path / "out"
     figures, text = run_ok(
-        run_cli, "two_shapes.toml", out, "--format", "gcode", "--format", "dxf", "--no-verify"
-    )
+        run_cli, "two_shapes.toml", out, "--format", "gcode", "--format", "dxf", "--no-verify",
+        "--step", "0.1", "--diagonals", "30",
+    )  # fmt: skip
     expected = [
         "design.npz",
         "design.json",
@@ -47,7 +48,7 @@ def test_run_writes_every_file(run_cli, tmp_path):
     assert leftovers == []
     assert figures["check"]["passed"]
     quality = figures["toolpath quality"][0]
-    # issue 5's bounds for Fig. 1 at 60 mm and the default 0.41 mm road
+    # issue 5's bounds for Fig. 1 at 60 mm and the default 0.41 mm road (a coarse grid here)
     assert quality["empty_fraction"] <= 0.03 and quality["mean_overlap"] <= 0.03
     assert quality["mean_angle_error_deg"] <= 3.0
     gcode = (out / "sheet.gcode").read_text()

@@ -188,6 +188,7 @@ class Part:
         unit = self.mm_per_unit or 1.0
         length = "mm" if self.mm_per_unit else "design units"
         figures: dict[str, Any] = {
+            "extent": [float(side) for side in self.extent()],
             "kept_pct": round(100 * self.kept, 2),
             "solved_area": self.solved.area * unit**2,
             "area": self.outline.area * unit**2,
@@ -206,8 +207,15 @@ class Part:
             figures["outline"] = self.rules.outline_source
         return figures
 
+    def extent(self) -> tuple[float, float]:
+        """The part's width and height along x and y (its outline's bounding box), mm when
+        scaled, else design units: the size of what is made."""
+        low_x, low_y, high_x, high_y = self.outline.bounds
+        unit = self.mm_per_unit or 1.0
+        return (high_x - low_x) * unit, (high_y - low_y) * unit
+
     def summary(self) -> str:
-        """One line: the kept area and what removed what."""
+        """One line: the part's size, the kept area and what removed what."""
         unit = self.mm_per_unit or 1.0
         length = " mm" if self.mm_per_unit else " design units"
         parts = []
@@ -225,7 +233,9 @@ class Part:
             parts.append(f"{step} -{share:.1f} %")
         area = f"{self.outline.area * unit**2:.4g} of {self.solved.area * unit**2:.4g}"
         area += " mm2" if self.mm_per_unit else " design units squared"
-        return f"part: {100 * self.kept:.1f} % of the solved area kept ({area}; {', '.join(parts)})"
+        size = " x ".join(f"{side:.3g}" for side in self.extent()) + length
+        kept = f"{100 * self.kept:.1f} % of the solved area kept ({area}; {', '.join(parts)})"
+        return f"part: {size}, {kept}"
 
 
 def solved_region(design: Design, where: str = "design") -> shapely.Polygon | shapely.MultiPolygon:

@@ -54,8 +54,11 @@ def _sheet_simulated(verdict: Mapping[str, Any], figures: Mapping[str, Any]) -> 
         source = "the design (the machine file was not read back: --no-verify)"
     else:
         source = "the design (the machine file was read back but not simulated: see its notes)"
+    width, height = figures["part"]["extent"]
+    made = f"the part {width:.3g} x {height:.3g} mm, cut from a solved region "
+    made += f"{figures['size_mm']:g} mm long"
     return (
-        f"The sheet {verdict['what']} ({sheet}, {figures['size_mm']:g} mm across) was "
+        f"The sheet {verdict['what']} ({sheet}; {made}) was "
         f"simulated from flat to every target's stimulus, from {source}, from each of six "
         "starts (the flat sheet lifted by a dome up, a dome down, a saddle of either sign "
         "and two random bumps). A target is formed when, from every start, the simulation "
