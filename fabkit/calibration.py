@@ -143,7 +143,8 @@ class Calibration:
             raise FabkitError(
                 f"{where + ': ' if where else ''}eps spans [{eps.min():.4g}, {eps.max():.4g}], "
                 f"outside the calibrated range [{low:g}, {high:g}] of {self.parameter} "
-                "(extend the table, or set clip = true / --clip-eps)"
+                "(extend the table, or clip eps to it: clip = true in the process file, which "
+                "fabkit run --process reads, or fabkit toolpath --clip-eps)"
             )
         fraction = float(outside.mean()) if eps.size else 0.0
         return self._curve(np.clip(eps, low, high)), fraction
@@ -291,8 +292,9 @@ class JointCalibration:
                 raise FabkitError(
                     f"{where + ': ' if where else ''}the eps pair ({e1[k]:.4g}, {e2[k]:.4g}) is "
                     f"outside what the joint table of {' and '.join(self.parameters)} can make "
-                    f"({len(missing)} of {len(target)} points); extend the table, or set "
-                    "clip = true / --clip-eps"
+                    f"({len(missing)} of {len(target)} points); extend the table, or clip eps "
+                    "to it: clip = true in the process file, which fabkit run --process "
+                    "reads, or fabkit toolpath --clip-eps"
                 )
             st[missing], cell[missing] = self._nearest_edge(target[missing])
         i, j = cell[:, 0], cell[:, 1]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import re
 import time
 
@@ -13,8 +14,10 @@ from fabkit.link import answers
 from fabkit.link.answers import classify, identify
 from fabkit.link.emulator.dialects import DIALECTS
 from fabkit.link.emulator.port import Emulator, config_from_url
+from fabkit.link.host.job import log_file
 from fabkit.link.host.ports import open_port
 from fabkit.link.host.send import stream_job
+from fabkit.link.host.session import LinkControl, LinkOptions, Session
 from fabkit.machines import load_machine
 from tests.test_link_responders import LatencyResponder
 from tests.test_link_support import (
@@ -258,3 +261,35 @@ def test_an_unknown_error_is_fatal_unless_a_resend_request_follows():
     with Scripted(follow=False) as machine, pytest.raises(FabkitError) as caught:
         stream_job(open_port(machine.path, 115200), job, load_machine("marlin_generic"))
     assert "reported 'Error:line 5 arrived damaged, please send again'" in str(caught.value)
+
+
+class _Replay:
+    """A port that gives ``data`` and takes anything."""
+
+    def __init__(self, data: bytes) -> None:
+        self.data, self.timeout = io.BytesIO(data), 0.0
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.data.getvalue()) - self.data.tell()
+
+    def read(self, size: int) -> bytes:
+        return self.data.read(size)
+
+    def write(self, data: bytes) -> int:
+        return len(data)
+
+
+def test_the_traffic_log_is_ascii_whatever_the_machine_sends(tmp_path):
+    """VirtualPrinter's banner holds a 0x80 byte; logged as it came, it made the log
+    unreadable as UTF-8 (a CI run under load logged the banner that a quiet run discards)."""
+    banner = "start\nMarlin: Virtual Marlin!\n\x80\nSD card ok\n".encode()
+    machine = load_machine("marlin_generic")
+    with log_file(tmp_path / "send.log") as log:
+        session = Session(
+            _Replay(banner), "replay", [], machine, LinkOptions(), LinkControl(), None, log
+        )
+        lines = [session.read_line() for _ in range(4)]
+    assert lines[2] == "\xc2\x80"  # read as latin-1, byte for byte
+    text = (tmp_path / "send.log").read_bytes().decode("ascii")
+    assert "<< '\\xc2\\x80'" in text and "<< SD card ok" in text

@@ -19,6 +19,10 @@ from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES, example_table
 
 REFERENCE = Path(__file__).parent / "data" / "solver_reference.npz"
+REFERENCE_TOLERANCE = 1e-9
+"""numpy's vectorised exp and sin differ in their last bit between CPU instruction sets
+(the reference was written on one, an AMD EPYC without AVX-512 gives 1 ulp elsewhere), and
+the march carries that to 2e-11 on Fig. 3; a change of algorithm moves far more."""
 CASES = {
     "fig1": ("two_shapes.toml", 0.1),
     "fig3": ("three_shapes.toml", 0.2),
@@ -40,7 +44,10 @@ def test_same_design_as_the_previous_algorithm(name):
         assert np.array_equal(design.valid, reference[f"{name}_valid"])
         for key in ("alpha", "beta", "eps", "r", "n"):
             np.testing.assert_allclose(
-                getattr(design, key), reference[f"{name}_{key}"], rtol=1e-12, atol=1e-12
+                getattr(design, key),
+                reference[f"{name}_{key}"],
+                rtol=REFERENCE_TOLERANCE,
+                atol=REFERENCE_TOLERANCE,
             )
 
 
@@ -54,8 +61,14 @@ def test_error_control_only_removes_points(name):
         assert design.valid.sum() >= 0.25 * valid.sum()  # Fig. 3 at twice its step: 28 %
         kept = design.valid
         np.testing.assert_allclose(
-            design.alpha[kept], reference[f"{name}_alpha"][kept], rtol=1e-12, atol=1e-12
+            design.alpha[kept],
+            reference[f"{name}_alpha"][kept],
+            rtol=REFERENCE_TOLERANCE,
+            atol=REFERENCE_TOLERANCE,
         )
         np.testing.assert_allclose(
-            design.r[:, kept], reference[f"{name}_r"][:, kept], rtol=1e-12, atol=1e-12
+            design.r[:, kept],
+            reference[f"{name}_r"][:, kept],
+            rtol=REFERENCE_TOLERANCE,
+            atol=REFERENCE_TOLERANCE,
         )

@@ -4,7 +4,9 @@ encoding every feature."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from fabkit.process import Encode
 from fabkit.toolpath.model import PRINT
 from fabkit.toolpath.plan import PlanSettings, plan_toolpath
 from fabkit.toolpath.process_file import load_process, machine_process
+from tests.conftest import ROOT
 
 SPEED = Calibration("print_speed_mm_s", (0.0, 0.2, 0.5, 1.0), (20.0, 12.0, 6.0, 2.0))
 
@@ -115,3 +118,26 @@ def test_plan_encodes_eps_on_every_vertex(parameter):
         assert move.channels[parameter] == pytest.approx(expected)
         encoded = move.speed if parameter == "print_speed_mm_s" else move.flow
         assert encoded == pytest.approx(expected)
+
+
+@pytest.mark.slow
+def test_an_eps_outside_the_table_names_options_the_command_has(run_cli, tmp_path):
+    from fabkit.cli import build_parser
+
+    machine = (ROOT / "machines" / "marlin_diw_pneumatic.toml").read_text()
+    narrow = tmp_path / "narrow.toml"  # the first feature's table covers half its range
+    narrow.write_text(
+        machine.replace("eps = [0.0, 0.25, 0.5, 0.75, 1.0]", "eps = [0.0, 0.1, 0.2, 0.3, 0.4]")
+    )
+    spec = ROOT / "examples" / "two_shapes.toml"
+    out = tmp_path / "out"
+    code, _, err = run_cli(
+        "run", spec, "--out", out, "--process", narrow, "--step", "0.1", "--diagonals", "30"
+    )
+    assert code != 0 and "outside the calibrated range" in err and len(err.splitlines()) == 1, err
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    options = {
+        name: set(commands.choices[name]._option_string_actions) for name in ("run", "toolpath")
+    }
+    named = re.findall(r"fabkit (run|toolpath) (--[a-z-]+)", err)
+    assert named and all(option in options[command] for command, option in named), err

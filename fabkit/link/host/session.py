@@ -123,8 +123,10 @@ def send_eta(
 
 
 def _visible(line: str) -> str:
-    """``line`` as is, or as a Python literal if it holds control characters."""
-    return repr(line) if any(ord(c) < 32 or ord(c) > 126 for c in line) else line
+    """``line`` as is, or as a Python literal in ASCII (every other byte escaped) if it
+    holds anything but printable ASCII: the log stays ASCII whatever the machine sends
+    (VirtualPrinter's banner holds a 0x80 byte)."""
+    return ascii(line) if any(ord(c) < 32 or ord(c) > 126 for c in line) else line
 
 
 REFUSED_COPY = "the machine asked for it again, then refused the copy as a line it had"
