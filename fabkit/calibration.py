@@ -32,6 +32,12 @@ PRINT_PARAMETERS = (
     "ink_fraction",
 )
 """Print-road parameters a channel may encode (the toolpath's and the G-code writer's)."""
+CLIP_HINT = (
+    "clip eps to it: clip = true in the process file, which fabkit run --process reads, or "
+    "fabkit toolpath --clip-eps"
+)
+"""What an eps outside a table may do instead, with the options of the commands that have
+them (the end of both tables' range errors)."""
 LIGHT_PARAMETERS = ("dose_mj_cm2", "cure_dose_mj_cm2")
 """Exposure parameters of a light writer: the polarised alignment exposure's dose, and a
 second, unpolarised exposure set (a curing or cross-linking dose)."""
@@ -143,8 +149,7 @@ class Calibration:
             raise FabkitError(
                 f"{where + ': ' if where else ''}eps spans [{eps.min():.4g}, {eps.max():.4g}], "
                 f"outside the calibrated range [{low:g}, {high:g}] of {self.parameter} "
-                "(extend the table, or clip eps to it: clip = true in the process file, which "
-                "fabkit run --process reads, or fabkit toolpath --clip-eps)"
+                f"(extend the table, or {CLIP_HINT})"
             )
         fraction = float(outside.mean()) if eps.size else 0.0
         return self._curve(np.clip(eps, low, high)), fraction
@@ -292,9 +297,7 @@ class JointCalibration:
                 raise FabkitError(
                     f"{where + ': ' if where else ''}the eps pair ({e1[k]:.4g}, {e2[k]:.4g}) is "
                     f"outside what the joint table of {' and '.join(self.parameters)} can make "
-                    f"({len(missing)} of {len(target)} points); extend the table, or clip eps "
-                    "to it: clip = true in the process file, which fabkit run --process "
-                    "reads, or fabkit toolpath --clip-eps"
+                    f"({len(missing)} of {len(target)} points); extend the table, or " + CLIP_HINT
                 )
             st[missing], cell[missing] = self._nearest_edge(target[missing])
         i, j = cell[:, 0], cell[:, 1]

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import io
 import re
 import time
 
 import pytest
+import serial
 
 from fabkit.errors import FabkitError
 from fabkit.gcode.read import frame_marlin
@@ -263,32 +263,15 @@ def test_an_unknown_error_is_fatal_unless_a_resend_request_follows():
     assert "reported 'Error:line 5 arrived damaged, please send again'" in str(caught.value)
 
 
-class _Replay:
-    """A port that gives ``data`` and takes anything."""
-
-    def __init__(self, data: bytes) -> None:
-        self.data, self.timeout = io.BytesIO(data), 0.0
-
-    @property
-    def in_waiting(self) -> int:
-        return len(self.data.getvalue()) - self.data.tell()
-
-    def read(self, size: int) -> bytes:
-        return self.data.read(size)
-
-    def write(self, data: bytes) -> int:
-        return len(data)
-
-
 def test_the_traffic_log_is_ascii_whatever_the_machine_sends(tmp_path):
     """VirtualPrinter's banner holds a 0x80 byte; logged as it came, it made the log
     unreadable as UTF-8 (a CI run under load logged the banner that a quiet run discards)."""
     banner = "start\nMarlin: Virtual Marlin!\n\x80\nSD card ok\n".encode()
     machine = load_machine("marlin_generic")
+    port = serial.serial_for_url("loop://", timeout=0)  # pyserial's loopback: reads what it wrote
+    port.write(banner)
     with log_file(tmp_path / "send.log") as log:
-        session = Session(
-            _Replay(banner), "replay", [], machine, LinkOptions(), LinkControl(), None, log
-        )
+        session = Session(port, "loop://", [], machine, LinkOptions(), LinkControl(), None, log)
         lines = [session.read_line() for _ in range(4)]
     assert lines[2] == "\xc2\x80"  # read as latin-1, byte for byte
     text = (tmp_path / "send.log").read_bytes().decode("ascii")

@@ -4,7 +4,6 @@ encoding every feature."""
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import re
 
@@ -135,9 +134,8 @@ def test_an_eps_outside_the_table_names_options_the_command_has(run_cli, tmp_pat
         "run", spec, "--out", out, "--process", narrow, "--step", "0.1", "--diagonals", "30"
     )
     assert code != 0 and "outside the calibrated range" in err and len(err.splitlines()) == 1, err
-    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    options = {
-        name: set(commands.choices[name]._option_string_actions) for name in ("run", "toolpath")
-    }
+    named_commands = ("run", "toolpath")
+    commands = build_parser(named_commands)._subparsers._group_actions[0].choices  # as clidoc
+    options = {name: set(commands[name]._option_string_actions) for name in named_commands}
     named = re.findall(r"fabkit (run|toolpath) (--[a-z-]+)", err)
     assert named and all(option in options[command] for command, option in named), err
