@@ -13,8 +13,10 @@ converge: near an equilibrium the soft modes of a sheet (near-isometric bending)
 curvatures set by the fold-angle and compressive-stress terms that the projected model
 leaves out, so projected Newton alone only creeps along them (linearly, at 0.99 per
 iteration on the Fig. 1 bump as fabricated). An exact step costs about three times a
-projected one (an exact Hessian and a fresh sparse LU, SuperLU with minimum-degree
-ordering), hence projected Newton first. The rigid motions are projected out of every
+projected one (an exact Hessian and a fresh factorisation: banded Cholesky where the
+matrix is positive definite, else SuperLU's LU, :mod:`fabkit.mechanics.factor`), hence
+projected Newton first; each simulation runs on one BLAS thread (several run side by
+side). The rigid motions are projected out of every
 system. The flat state is a symmetric stationary point, so the start is seeded with a
 small dome (or saddle) out of plane.
 
@@ -31,10 +33,12 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sparse
 import scipy.sparse.linalg as splinalg
+from threadpoolctl import threadpool_limits
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.part import SIMULATE_THICKNESS, Part
+from fabkit.mechanics.factor import factorise
 from fabkit.mechanics.mesh import DesignMesh, design_mesh
 from fabkit.mechanics.metric import grid_edge_lengths, metric_from_lengths
 from fabkit.mechanics.shell import Sheet, Shell, build_shell
@@ -143,15 +147,19 @@ def simulate(
     x = seeded(sheet.points, settings) if initial is None else np.array(initial, dtype=float)
     scale = sheet.edge_length()
     total, converged, shell = 0, False, None
-    for step in range(1, settings.steps + 1):
-        fraction = step / settings.steps
-        shell = build_shell(sheet, (1 - fraction) * start + fraction * target, thickness, poisson)
-        last = step == settings.steps
-        tolerance = settings.tolerance if last else settings.ramp_tolerance
-        x, iterations, converged = minimise(shell, x, tolerance * scale, settings.max_iterations)
-        total += iterations
-        if progress is not None:
-            progress(step, settings.steps)
+    with threadpool_limits(limits=1, user_api="blas"):  # factor.py: one core per simulation
+        for step in range(1, settings.steps + 1):
+            fraction = step / settings.steps
+            metrics_now = (1 - fraction) * start + fraction * target
+            shell = build_shell(sheet, metrics_now, thickness, poisson)
+            last = step == settings.steps
+            tolerance = settings.tolerance if last else settings.ramp_tolerance
+            x, iterations, converged = minimise(
+                shell, x, tolerance * scale, settings.max_iterations
+            )
+            total += iterations
+            if progress is not None:
+                progress(step, settings.steps)
     elapsed = time.perf_counter() - started
     return Simulation(x, shell.energy(x), total, converged, elapsed)
 
@@ -265,7 +273,8 @@ def damped_step(
     model predicts for it (< 0). ``(None, 0.0)`` when it is no descent step for the model
     (H + mu d I is then indefinite).
 
-    Solved by a sparse LU every time: MINRES preconditioned with the projected Newton
+    Solved by a fresh factorisation every time (:func:`~fabkit.mechanics.factor.factorise`):
+    MINRES preconditioned with the projected Newton
     matrix's factorisation resolves the soft modes, where the two matrices differ, too
     poorly (the Fig. 1 bump then took more iterations than it saved time).
     """
@@ -275,7 +284,7 @@ def damped_step(
     modes = rigid_modes(x)
     right = -(gradient - modes @ (modes.T @ gradient))
     try:
-        step = _factorise(matrix.tocsc()).solve(right)
+        step = factorise(matrix).solve(right)
     except RuntimeError:  # exactly singular
         return None, 0.0
     step -= modes @ (modes.T @ step)
@@ -286,22 +295,12 @@ def damped_step(
     return step.reshape(-1, 3), fall
 
 
-def _factorise(matrix: sparse.csc_matrix):
-    """Sparse LU (SuperLU, minimum degree on H + H^T, symmetric mode) of a Newton matrix."""
-    return splinalg.splu(
-        matrix,
-        permc_spec="MMD_AT_PLUS_A",
-        diag_pivot_thresh=0.0,
-        options={"SymmetricMode": True},
-    )
-
-
 class NewtonSystem:
     """Solves (H + mu I) d = -g for successive Newton matrices H (semi-definite).
 
     Rigid motions carry no energy (H is singular along them), so the system is solved
-    orthogonally to the six rigid modes at the current positions. A sparse LU
-    factorisation (SuperLU, minimum degree on H + H^T) is the expensive part and is
+    orthogonally to the six rigid modes at the current positions. The factorisation
+    (:func:`~fabkit.mechanics.factor.factorise`) is the expensive part and is
     reused: each system is solved by conjugate gradients preconditioned with the last
     factorisation, refactorised when that needs more than ``CG_ITERATIONS`` iterations.
     After a failed attempt the next attempts are skipped, twice as many after each
@@ -324,7 +323,7 @@ class NewtonSystem:
         """Newton direction (3V,) for Hessian (3V, 3V) and gradient (3V,) at x (V, 3)."""
         diagonal = hessian.diagonal()
         shift = SHIFT * max(float(np.mean(diagonal)), np.finfo(float).tiny)
-        matrix = (hessian + sparse.diags(np.full(len(diagonal), shift))).tocsc()
+        matrix = hessian + sparse.diags(np.full(len(diagonal), shift))
         modes = rigid_modes(x)
 
         def project(vector: np.ndarray) -> np.ndarray:
@@ -349,7 +348,7 @@ class NewtonSystem:
                 self.backoff = 1
                 return project(solution)
             self.wait, self.backoff = self.backoff, 2 * self.backoff
-        self.factor = _factorise(matrix)
+        self.factor = factorise(matrix)
         self.factorisations += 1
         return project(self.factor.solve(right))
 
