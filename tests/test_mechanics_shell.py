@@ -7,13 +7,14 @@ import pytest
 from scipy.spatial import Delaunay
 
 from fabkit.errors import FabkitError
+from fabkit.mechanics.kernels import fold_angles
 from fabkit.mechanics.mesh import disc_mesh, topology
 from fabkit.mechanics.metric import (
     edge_lengths,
     metric_from_director,
     metric_from_lengths,
 )
-from fabkit.mechanics.shell import Sheet, build_shell, fold_angles
+from fabkit.mechanics.shell import Sheet, build_shell
 
 
 @pytest.fixture(scope="module")

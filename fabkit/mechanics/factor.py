@@ -43,9 +43,13 @@ def factorise(matrix: sparse.spmatrix) -> BandedCholesky | splinalg.SuperLU:
     A + A^T, symmetric mode). Raises RuntimeError when the matrix is exactly singular."""
     csr = sparse.csr_matrix(matrix)
     csr.sum_duplicates()
-    order = reverse_cuthill_mckee(csr, symmetric_mode=True).astype(np.int64)
+    layout = _layout(csr)
+    band = np.zeros(layout.shape)
+    band[layout.rows, layout.columns] = csr.data[layout.lower]
     try:
-        return BandedCholesky(_cholesky(csr, order), order)
+        return BandedCholesky(
+            linalg.cholesky_banded(band, lower=True, check_finite=False), layout.order
+        )
     except linalg.LinAlgError:  # not positive definite
         return splinalg.splu(
             csr.tocsc(),
@@ -55,15 +59,49 @@ def factorise(matrix: sparse.spmatrix) -> BandedCholesky | splinalg.SuperLU:
         )
 
 
-def _cholesky(csr: sparse.csr_matrix, order: np.ndarray) -> np.ndarray:
-    """The lower band (w + 1, n) of the Cholesky factor of ``csr`` in ``order``."""
+@dataclass(frozen=True)
+class _Layout:
+    """Where a sparsity pattern's lower triangle goes in the band of its reverse
+    Cuthill-McKee order ``order``: the stored entries ``lower`` (a mask) to band
+    ``rows`` (offsets below the diagonal) and ``columns``; ``shape`` of the band."""
+
+    indptr: np.ndarray
+    indices: np.ndarray
+    order: np.ndarray
+    lower: np.ndarray
+    rows: np.ndarray
+    columns: np.ndarray
+    shape: tuple[int, int]
+
+
+_last: list[_Layout] = []
+"""The layout of the last pattern factorised: a simulation factorises matrices of one
+pattern hundreds of times."""
+
+
+def _layout(csr: sparse.csr_matrix) -> _Layout:
+    """The band layout of ``csr``'s pattern (the last one again when the pattern is)."""
+    if _last and _same_pattern(_last[0], csr):
+        return _last[0]
     size = csr.shape[0]
+    order = reverse_cuthill_mckee(csr, symmetric_mode=True).astype(np.int64)
     rank = np.empty_like(order)
     rank[order] = np.arange(size)
     rows = rank[np.repeat(np.arange(size), np.diff(csr.indptr))]
     columns = rank[csr.indices]
     lower = rows >= columns
     offsets = rows[lower] - columns[lower]
-    band = np.zeros((int(offsets.max(initial=0)) + 1, size))
-    band[offsets, columns[lower]] = csr.data[lower]
-    return linalg.cholesky_banded(band, lower=True, check_finite=False)
+    shape = (int(offsets.max(initial=0)) + 1, size)
+    layout = _Layout(
+        csr.indptr.copy(), csr.indices.copy(), order, lower, offsets, columns[lower], shape
+    )
+    _last[:] = [layout]
+    return layout
+
+
+def _same_pattern(layout: _Layout, csr: sparse.csr_matrix) -> bool:
+    return (
+        len(layout.indices) == len(csr.indices)
+        and np.array_equal(layout.indptr, csr.indptr)
+        and np.array_equal(layout.indices, csr.indices)
+    )

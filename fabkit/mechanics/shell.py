@@ -24,8 +24,9 @@ y = (a11, a12, a22, s0, s1, s2), s_i = tan(phi_i / 2):
     E_f = 1/2 (y - y0)^T K (y - y0) + c0,
 
 with K (6 x 6), y0 and c0 precomputed from the reference metrics. Gradients and Hessians
-are analytic (chain rule through a = J^T J and the fold-angle derivatives); everything
-is vectorised over faces and hinges.
+are analytic (chain rule through a = J^T J and the fold-angle derivatives); the fold
+angles and the Hessian's per-face and per-hinge blocks are compiled loops
+(:mod:`fabkit.mechanics.kernels`), the rest is vectorised over faces and hinges.
 """
 
 from __future__ import annotations
@@ -36,17 +37,11 @@ import numpy as np
 import scipy.sparse as sparse
 
 from fabkit.errors import FabkitError
+from fabkit.mechanics import kernels
 from fabkit.mechanics.mesh import counter_clockwise, topology
 
 VOIGT = np.array([[[1.0, 0.0], [0.0, 0.0]], [[0.0, 1.0], [1.0, 0.0]], [[0.0, 0.0], [0.0, 1.0]]])
 """Basis of symmetric 2 x 2 matrices: X = x11 V0 + x12 V1 + x22 V2."""
-
-_EYE = np.eye(3)
-_SELECT = np.zeros((4, 3, 12))
-for _k in range(4):
-    _SELECT[_k, :, 3 * _k : 3 * _k + 3] = _EYE
-_DE, _DU, _DW = (_SELECT[k] - _SELECT[0] for k in (1, 2, 3))
-"""d(x1 - x0), d(x2 - x0), d(x3 - x0) with respect to a hinge's 12 coordinates."""
 
 
 def voigt(matrices: np.ndarray) -> np.ndarray:
@@ -147,15 +142,8 @@ class _Pattern:
         the stored entries (every pair must be in the pattern)."""
         return np.searchsorted(self.keys, _block_keys(vertices, self.size))
 
-    def assemble(
-        self, blocks: np.ndarray, extra: tuple[np.ndarray, np.ndarray] | None = None
-    ) -> sparse.csr_matrix:
-        """Sum element matrices (F, 18, 18), and ``extra`` (blocks (n, m, m), their
-        :meth:`entries` (n, m^2)), into a (3V, 3V) CSR matrix."""
-        data = np.bincount(self.scatter, weights=blocks.ravel(), minlength=len(self.indices))
-        if extra is not None:
-            more, entries = extra
-            data += np.bincount(entries.ravel(), weights=more.ravel(), minlength=len(data))
+    def matrix(self, data: np.ndarray) -> sparse.csr_matrix:
+        """The (3V, 3V) CSR matrix with stored entries ``data`` (in :attr:`indices` order)."""
         return sparse.csr_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
 
 
@@ -183,92 +171,6 @@ def _hinge_slots(triangles: np.ndarray, hinges: np.ndarray, face_hinges: np.ndar
     return slots
 
 
-def fold_angles(x: np.ndarray, hinges: np.ndarray, order: int = 1):
-    """Fold angles phi (H,) of hinges (p, q, a, b) and their derivatives.
-
-    phi is the angle between the two face normals, positive when the sheet bends towards
-    its normal (a bowl opening along +n). Returns ``phi``, and with ``order`` >= 1 the
-    gradient (H, 12) with respect to (x_p, x_q, x_a, x_b), with ``order`` 2 also the
-    Hessian (H, 12, 12).
-    """
-    x0, x1, x2, x3 = (x[hinges[:, k]] for k in range(4))
-    e, u, w = x1 - x0, x2 - x0, x3 - x0
-    normal_a, normal_b = np.cross(e, u), np.cross(w, e)
-    length2 = np.einsum("hi,hi->h", e, e)
-    length = np.sqrt(length2)
-    area2_a = np.einsum("hi,hi->h", normal_a, normal_a)
-    area2_b = np.einsum("hi,hi->h", normal_b, normal_b)
-    sine = np.einsum("hi,hi->h", np.cross(normal_b, normal_a), e) / length
-    cosine = np.einsum("hi,hi->h", normal_a, normal_b)
-    phi = np.arctan2(sine, cosine)
-    if order == 0:
-        return phi
-    # grad phi: -(gA, gB) on the opposite vertices, cotangent-weighted on the edge ends.
-    g_a = (length / area2_a)[:, None] * normal_a
-    g_b = (length / area2_b)[:, None] * normal_b
-    t_a = np.einsum("hi,hi->h", u, e) / length2
-    t_b = np.einsum("hi,hi->h", w, e) / length2
-    rows = [
-        -((1 - t_a)[:, None] * g_a + (1 - t_b)[:, None] * g_b),
-        -(t_a[:, None] * g_a + t_b[:, None] * g_b),
-        g_a,
-        g_b,
-    ]
-    gradient = np.concatenate(rows, -1)
-    if order == 1:
-        return phi, gradient
-    d_g_a = _normal_gradient(normal_a, area2_a, e, length, _cross_jacobian(e, u, _DE, _DU))
-    d_g_b = _normal_gradient(normal_b, area2_b, e, length, _cross_jacobian(w, e, _DW, _DE))
-    d_t_a = _projection_gradient(u, e, length2, _DU)
-    d_t_b = _projection_gradient(w, e, length2, _DW)
-    outer_a = g_a[:, :, None] * d_t_a[:, None, :]
-    outer_b = g_b[:, :, None] * d_t_b[:, None, :]
-    blocks = [
-        outer_a - (1 - t_a)[:, None, None] * d_g_a + outer_b - (1 - t_b)[:, None, None] * d_g_b,
-        -outer_a - t_a[:, None, None] * d_g_a - outer_b - t_b[:, None, None] * d_g_b,
-        d_g_a,
-        d_g_b,
-    ]
-    hessian = np.concatenate(blocks, 1)
-    return phi, gradient, 0.5 * (hessian + hessian.transpose(0, 2, 1))
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """[v]x (..., 3, 3) such that [v]x w = v x w."""
-    zero = np.zeros_like(v[..., 0])
-    return np.stack(
-        [
-            np.stack([zero, -v[..., 2], v[..., 1]], -1),
-            np.stack([v[..., 2], zero, -v[..., 0]], -1),
-            np.stack([-v[..., 1], v[..., 0], zero], -1),
-        ],
-        -2,
-    )
-
-
-def _cross_jacobian(left, right, d_left, d_right):
-    """Jacobian (H, 3, 12) of left x right given the constant Jacobians of both factors."""
-    return _skew(left) @ d_right - _skew(right) @ d_left
-
-
-def _normal_gradient(normal, area2, e, length, d_normal):
-    """Jacobian (H, 3, 12) of g = |e| N / |N|^2."""
-    unit = normal / np.sqrt(area2)[:, None]
-    project = _EYE - 2 * unit[:, :, None] * unit[:, None, :]
-    d_length = np.einsum("hi,ij->hj", e / length[:, None], _DE)
-    return (normal / area2[:, None])[:, :, None] * d_length[:, None, :] + (length / area2)[
-        :, None, None
-    ] * (project @ d_normal)
-
-
-def _projection_gradient(v, e, length2, d_v):
-    """Gradient (H, 12) of t = (v . e) / |e|^2."""
-    dot = np.einsum("hi,hi->h", v, e)
-    d_dot = np.einsum("hi,ij->hj", e, d_v) + np.einsum("hi,ij->hj", v, _DE)
-    d_length2 = 2 * np.einsum("hi,ij->hj", e, _DE)
-    return d_dot / length2[:, None] - (dot / length2**2)[:, None] * d_length2
-
-
 @dataclass(frozen=True)
 class Shell:
     """Energy of a :class:`Sheet` under given reference metrics (see the module docstring).
@@ -287,39 +189,39 @@ class Shell:
         """y (F, 6) at positions x (V, 3); with order >= 1 also the parts of dy/dx.
 
         Returns ``y`` and, for order >= 1, ``(J, hinge)`` where J (F, 3, 2) is the
-        deformation gradient and ``hinge`` the output of :func:`fold_angles` at ``order``.
+        deformation gradient and ``hinge`` the fold angles with their gradients and
+        Hessians (:func:`~fabkit.mechanics.kernels.fold_angles` at ``order``).
         """
         sheet = self.sheet
-        jac = np.einsum("fac,fak->fck", x[sheet.triangles], sheet.shape)
-        metric = np.einsum("fck,fcl->fkl", jac, jac)
-        hinge = fold_angles(x, sheet.hinges, order)
-        phi = hinge if order == 0 else hinge[0]
-        tangent = np.append(np.tan(0.5 * phi), 0.0)[sheet.face_hinges]
-        y = np.concatenate([voigt(metric), tangent], -1)
+        x = np.ascontiguousarray(x, dtype=float)
+        hinge = kernels.fold_angles(x, sheet.hinges, order)
+        jac, y = kernels.face_state(x, sheet.triangles, sheet.shape, hinge[0], sheet.face_hinges)
         return (y, None) if order == 0 else (y, (jac, hinge))
 
     def energy(self, x: np.ndarray) -> float:
         """Total energy at positions x (V, 3)."""
-        delta = self.coordinates(x, 0)[0] - self.rest
-        return float(
-            0.5 * np.einsum("fi,fij,fj->", delta, self.stiffness, delta) + self.offset.sum()
-        )
+        return float(self.face_energy(x).sum())
 
     def face_energy(self, x: np.ndarray) -> np.ndarray:
         """Energy of every face (F,) at positions x (V, 3)."""
-        delta = self.coordinates(x, 0)[0] - self.rest
-        return 0.5 * np.einsum("fi,fij,fj->f", delta, self.stiffness, delta) + self.offset
+        y = self.coordinates(x, 0)[0]
+        return kernels.face_energies(y, self.rest, self.stiffness, self.offset)
 
     def gradient(self, x: np.ndarray) -> np.ndarray:
         """dE/dx (V, 3)."""
-        y, (jac, (phi, d_phi)) = self.coordinates(x, 1)
+        y, (jac, (phi, d_phi, _)) = self.coordinates(x, 1)
         stress = np.einsum("fij,fj->fi", self.stiffness, y - self.rest)
         sheet = self.sheet
-        face = 2 * np.einsum("fak,fkl,fcl->fac", sheet.shape, _symmetric(stress[:, :3]), jac)
-        gradient = _scatter(sheet.triangles, face, len(sheet.points))
         moment = _hinge_sum(sheet, stress[:, 3:]) * _tan_slope(phi)
-        hinge = (moment[:, None] * d_phi).reshape(-1, 4, 3)
-        return gradient + _scatter(sheet.hinges, hinge, len(sheet.points))
+        return kernels.gradient(
+            len(sheet.points),
+            sheet.triangles,
+            sheet.shape,
+            jac,
+            stress,
+            sheet.hinges,
+            moment[:, None] * d_phi,
+        )
 
     def hessian(self, x: np.ndarray, projected: bool = True) -> sparse.csr_matrix:
         """d^2E/dx^2 (3V, 3V), vertex-major (3 k + coordinate).
@@ -330,28 +232,33 @@ class Shell:
         onto its non-negative eigenvalues; the fold-angle curvature term is left out.
         """
         order = 1 if projected else 2
-        y, (jac, hinge) = self.coordinates(x, order)
+        y, (jac, (phi, d_phi, dd_phi)) = self.coordinates(x, order)
         sheet = self.sheet
         stress = np.einsum("fij,fj->fi", self.stiffness, y - self.rest)
-        slope = _tan_slope(hinge[0])
-        dy = _coordinate_jacobian(sheet, jac, slope[:, None] * hinge[1])
-        blocks = np.einsum("fki,fkl,flj->fij", dy, self.stiffness, dy, optimize=True)
+        slope = _tan_slope(phi)
         membrane = _symmetric(stress[:, :3])
         if projected:
-            membrane = _positive_part(membrane, sheet.shape)
-        geometric = 2 * np.einsum("fak,fkl,fbl->fab", sheet.shape, membrane, sheet.shape)
-        blocks[:, :9, :9] += np.kron(geometric, np.eye(3)[None]).reshape(-1, 9, 9)
+            membrane = kernels.positive_part(membrane, sheet.shape)
+        pattern = sheet.pattern
+        data = np.zeros(len(pattern.indices))
+        kernels.add_face_blocks(
+            data,
+            pattern.scatter,
+            jac,
+            sheet.shape,
+            self.stiffness,
+            slope[:, None] * d_phi,
+            sheet.face_hinges,
+            sheet.slots,
+            membrane,
+        )
         if not projected:
-            _, d_phi, dd_phi = hinge
             moment = _hinge_sum(sheet, stress[:, 3:])
-            curvature = moment[:, None, None] * (
-                (slope * np.tan(0.5 * hinge[0]))[:, None, None]
-                * d_phi[:, :, None]
-                * d_phi[:, None, :]
-                + slope[:, None, None] * dd_phi
+            tangent = np.tan(0.5 * phi)
+            kernels.add_hinge_blocks(
+                data, sheet.hinge_entries, moment, slope, tangent, d_phi, dd_phi
             )
-            return sheet.pattern.assemble(blocks, (curvature, sheet.hinge_entries))
-        return sheet.pattern.assemble(blocks)
+        return pattern.matrix(data)
 
 
 def _symmetric(components: np.ndarray) -> np.ndarray:
@@ -373,52 +280,6 @@ def _hinge_sum(sheet: Sheet, per_face_edge: np.ndarray) -> np.ndarray:
     return np.bincount(
         sheet.face_hinges[interior], weights=per_face_edge[interior], minlength=len(sheet.hinges)
     )
-
-
-def _scatter(indices: np.ndarray, values: np.ndarray, count: int) -> np.ndarray:
-    """Sum per-element vertex vectors (E, k, 3) into (count, 3)."""
-    flat = indices.ravel()
-    return np.stack(
-        [np.bincount(flat, weights=values[..., c].ravel(), minlength=count) for c in range(3)], -1
-    )
-
-
-def _coordinate_jacobian(sheet: Sheet, jac: np.ndarray, d_tangent: np.ndarray) -> np.ndarray:
-    """dy/dx (F, 6, 18) over each face's element coordinates (6 vertices x 3)."""
-    faces = len(sheet.triangles)
-    dy = np.zeros((faces, 6, 18))
-    shape = sheet.shape
-    d_metric = np.zeros((faces, 3, 3, 3))  # (component, vertex, coordinate)
-    d_metric[:, 0] = 2 * shape[:, :, 0, None] * jac[:, None, :, 0]
-    d_metric[:, 1] = (
-        shape[:, :, 0, None] * jac[:, None, :, 1] + shape[:, :, 1, None] * jac[:, None, :, 0]
-    )
-    d_metric[:, 2] = 2 * shape[:, :, 1, None] * jac[:, None, :, 1]
-    dy[:, :3, :9] = d_metric.reshape(faces, 3, 9)
-    rows, columns = _hinge_columns(sheet)
-    interior = sheet.face_hinges >= 0
-    values = np.where(interior[:, :, None], d_tangent[np.maximum(sheet.face_hinges, 0)], 0.0)
-    face = np.arange(faces)[:, None, None]
-    dy[face, 3 + rows, columns] = values
-    return dy
-
-
-def _hinge_columns(sheet: Sheet) -> tuple[np.ndarray, np.ndarray]:
-    """(F, 3, 12) row offsets and element columns of each edge's hinge coordinates."""
-    columns = (3 * sheet.slots[:, :, :, None] + np.arange(3)).reshape(*sheet.slots.shape[:2], 12)
-    rows = np.broadcast_to(np.arange(3)[None, :, None], columns.shape)
-    return rows, columns
-
-
-def _positive_part(stress: np.ndarray, shape: np.ndarray) -> np.ndarray:
-    """The S+ with shape S+ shape^T the positive part of shape S shape^T (F, 2, 2)."""
-    gram = np.einsum("fak,fal->fkl", shape, shape)
-    root = np.linalg.cholesky(gram)  # gram = root root^T
-    inner = np.einsum("fki,fkl,flj->fij", root, stress, root)
-    values, vectors = np.linalg.eigh(inner)
-    clipped = np.einsum("fik,fk,fjk->fij", vectors, np.maximum(values, 0.0), vectors)
-    inverse = np.linalg.inv(root)
-    return np.einsum("fki,fkl,flj->fij", inverse, clipped, inverse)
 
 
 def build_shell(
