@@ -106,11 +106,11 @@ LONGEST_FIRST = (
     "test_packaging.py",
     "test_link_marlin.py",
 )
-"""The test files that take longest (``pytest --durations=0`` summed per file: about 80 s
-for test_run_layers.py, the Fig. 3 run in two layers, down to about 15 s), longest first. pytest-xdist
-hands whole files to its workers in collection order (``--dist loadfile
---no-loadscope-reorder``, pyproject.toml): these start first, so that no long file starts
-last on one worker while the other has nothing left to do."""
+"""The test files that take longest (``pytest --durations=0`` summed per file: about
+80 s for test_run_layers.py, the Fig. 3 run in two layers, down to about 15 s), longest
+first. pytest-xdist hands whole files to its workers in collection order (``--dist
+loadfile --no-loadscope-reorder``, pyproject.toml): these start first, so that no long
+file starts last on one worker while the other has nothing left to do."""
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
