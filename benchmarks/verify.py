@@ -19,8 +19,8 @@ import argparse
 import time
 from pathlib import Path
 
-from fabkit.pipeline import run_pipeline
-from fabkit.run_inputs import RunOptions
+from fabkit.run.inputs import RunOptions
+from fabkit.run.pipeline import run_pipeline
 from fabkit.verify import as_fabricated, machine_file
 from fabkit.verify.machine_file import VerifyOptions, verify
 

@@ -21,13 +21,13 @@ from typing import Any
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.files.shipped import PROFILES_DIR
+from fabkit.files.tomlfile import Table, read_toml
 from fabkit.limits import MAGNITUDE, TEMPLATE_CHARS, TEMPLATE_LINE_CHARS
 from fabkit.process import Process, parse_process
-from fabkit.shipped import PROFILES_DIR
-from fabkit.tomlfile import Table, read_toml
 
 MACHINES_DIR = PROFILES_DIR
-"""The shipped profiles (see :mod:`fabkit.shipped`)."""
+"""The shipped profiles (see :mod:`fabkit.files.shipped`)."""
 
 DEFAULT_MACHINE = "marlin_diw_pneumatic"
 """The profile used when no machine is given (a pneumatic DIW printer with two inks; see

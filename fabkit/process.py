@@ -36,8 +36,8 @@ from fabkit.calibration import (
     JointCalibration,
 )
 from fabkit.errors import FabkitError
+from fabkit.files.tomlfile import Table
 from fabkit.limits import MAGNITUDE
-from fabkit.tomlfile import Table
 
 SETTING_KEYS = ("road_width_mm", "layer_height_mm", "print_speed_mm_s", "travel_speed_mm_s")
 
@@ -265,7 +265,7 @@ def parse_process(t: Table, *, light: bool = True, source: str | None = None) ->
 
     ``light``: light parameters (LIGHT_PARAMETERS) are allowed (a laser writer's profile,
     or a ``--process`` file); ``source`` names it in messages (default: the file).
-    Errors are one line naming the file and the key path (:mod:`fabkit.tomlfile`).
+    Errors are one line naming the file and the key path (:mod:`fabkit.files.tomlfile`).
     """
     values = {key: t.number(key, positive=True, bound=MAGNITUDE) for key in SETTING_KEYS}
     parameters = CALIBRATION_PARAMETERS if light else PRINT_PARAMETERS

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from fabkit.shipped import PROFILES_DIR
+from fabkit.files.shipped import PROFILES_DIR
 from fabkit.toolpath import PRINT, Layer, Move, Toolpath
 from fabkit.toolpath.model import save_toolpath
 from tests.attack import assert_refused, case

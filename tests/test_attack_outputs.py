@@ -1,7 +1,7 @@
 """Output folders: a folder holding an earlier run's files, or anyone else's, is refused.
 
 Every command that writes a folder (``run``, ``plot``, ``toolpath``, ``channels``,
-``swimmer``, laser ``export``) claims it first (:func:`fabkit.atomic.output_folder`):
+``swimmer``, laser ``export``) claims it first (:func:`fabkit.files.atomic.output_folder`):
 without ``--overwrite`` an earlier fabkit run's files there are a one-line error naming
 them; a file fabkit did not write there is a one-line error even with ``--overwrite``.
 Each row must leave the folder exactly as it was. Then the behaviour behind the rows:
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import pytest
 
-from fabkit.atomic import MANIFEST
+from fabkit.files.atomic import MANIFEST
 from tests.attack import assert_refused, case
 from tests.conftest import EXAMPLES, coarse_design
 

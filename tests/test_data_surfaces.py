@@ -20,10 +20,10 @@ from PIL import Image
 from fabkit.design.check import check_design
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
+from fabkit.files.tomlfile import Table
 from fabkit.problem.spec import build_spec
 from fabkit.problem.surfaces import build_surface
 from fabkit.problem.surfaces.data import HOLE_MARGIN
-from fabkit.tomlfile import Table
 from tests.conftest import EXAMPLES, example_table
 
 N = 200

@@ -9,7 +9,7 @@ Covered (the cases of :func:`tests.golden.cases`):
   with the LCE process (``directors/process_lce.toml``) and the swimmer
   (``swimmer.toml``, two printed layers). Left out: ``baromorph.toml`` (``fabkit run``
   writes a DXF for it, default machine laser_cutter: ``fabkit run --help``,
-  :func:`fabkit.run_inputs.with_defaults`), ``baromorph_channels.toml`` (channel settings,
+  :func:`fabkit.run.inputs.with_defaults`), ``baromorph_channels.toml`` (channel settings,
   not a spec) and the photoalignment runs (laser patterns);
 * every machine profile of machines/ that takes G-code (flavours marlin, klipper, grbl,
   hyrel), from the one stored toolpath :data:`tests.golden.PROFILE_TOOLPATH`;

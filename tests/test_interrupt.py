@@ -23,8 +23,8 @@ import pytest
 import trimesh
 from PIL import Image
 
-from fabkit.atomic import MANIFEST
 from fabkit.design.design import Design
+from fabkit.files.atomic import MANIFEST
 from tests.conftest import EXAMPLES
 
 COARSE = ("--step", "0.1", "--diagonals", "30", "--size", "20")
@@ -77,7 +77,7 @@ def test_ctrl_c_while_writing_gcode(run_cli, tmp_path, monkeypatch):
             raise KeyboardInterrupt
         real_replace(src, dst)
 
-    monkeypatch.setattr("fabkit.atomic.os.replace", interrupted)
+    monkeypatch.setattr("fabkit.files.atomic.os.replace", interrupted)
     out = tmp_path / "out"
     code, _, err = run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *COARSE)
     assert code == 130
@@ -160,7 +160,7 @@ run()
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("module", ["fabkit.cli", "fabkit.pipeline", "numba", "scipy"])
+@pytest.mark.parametrize("module", ["fabkit.cli", "fabkit.run.pipeline", "numba", "scipy"])
 def test_ctrl_c_while_the_command_starts_is_one_line(tmp_path, module):
     """Ctrl-C while the CLI and its stages are imported: exit 130, one line, no traceback.
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from fabkit.atomic import MANIFEST
+from fabkit.files.atomic import MANIFEST
 from tests.conftest import EXAMPLES, ROOT
 
 DISC = ["--director", "arctan2(y, x)", "--shape", "disc:5"]
@@ -74,10 +74,10 @@ def test_an_interrupted_run_lists_what_it_wrote(run_cli, tmp_path, monkeypatch):
             raise KeyboardInterrupt
         real_replace(src, dst)
 
-    monkeypatch.setattr("fabkit.atomic.os.replace", interrupted)
+    monkeypatch.setattr("fabkit.files.atomic.os.replace", interrupted)
     out = tmp_path / "out"
     assert run_cli("toolpath", *DISC, "--out", out)[0] == 130
-    monkeypatch.setattr("fabkit.atomic.os.replace", real_replace)
+    monkeypatch.setattr("fabkit.files.atomic.os.replace", real_replace)
     assert files(out) and files(out) <= listed(out)
     assert run_cli("toolpath", *DISC, "--out", out)[0] == 2
     assert run_cli("toolpath", *DISC, "--out", out, "--overwrite")[0] == 0

@@ -25,8 +25,8 @@ from fabkit.field.part import (
     solved_region,
 )
 from fabkit.machines import load_machine
-from fabkit.pipeline import run_pipeline
-from fabkit.run_inputs import RunOptions
+from fabkit.run.inputs import RunOptions
+from fabkit.run.pipeline import run_pipeline
 from fabkit.toolpath.model import load_toolpath
 from tests.conftest import EXAMPLES
 

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from fabkit.atomic import MANIFEST
 from fabkit.design.design import Design
 from fabkit.design.patches import grid_triangles, patch_mesh, write_patch_mesh
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import MANIFEST
 from tests.conftest import coarse_design
 
 

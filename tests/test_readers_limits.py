@@ -14,15 +14,15 @@ import numpy as np
 import pytest
 
 from fabkit import limits
-from fabkit.atomic import inside
 from fabkit.design.design import Design
 from fabkit.design.patches import patch_paths
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import inside
+from fabkit.files.npzfile import read_npz
+from fabkit.files.readfile import parse_json, read_limited, size_text
+from fabkit.files.tomlfile import read_toml, scan_depth
 from fabkit.machines import GCODE_KEYS, list_machines
-from fabkit.npzfile import read_npz
 from fabkit.problem.spec import build_spec, load_spec
-from fabkit.readfile import parse_json, read_limited, size_text
-from fabkit.tomlfile import read_toml, scan_depth
 from tests import hostile as h
 from tests.conftest import EXAMPLES, ROOT, coarse_design, example_table
 

@@ -24,13 +24,13 @@ from hypothesis.extra import numpy as hnp
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
+from fabkit.files.npzfile import NUMBER_KINDS, read_npy, read_npz
+from fabkit.files.readfile import nesting_depth, parse_json
+from fabkit.files.tomlfile import Table, read_toml, scan_depth
 from fabkit.machines import MachineProfile, load_machine
-from fabkit.npzfile import NUMBER_KINDS, read_npy, read_npz
 from fabkit.problem.surfaces.grids import read_grid
 from fabkit.problem.surfaces.meshes import read_mesh
-from fabkit.readfile import nesting_depth, parse_json
 from fabkit.swimmer.spec import SwimmerSpec, load_swimmer
-from fabkit.tomlfile import Table, read_toml, scan_depth
 from fabkit.toolpath.baromorph import BaromorphSettings, load_baromorph
 from fabkit.toolpath.job import ToolpathJob, run_job
 from fabkit.toolpath.model import Toolpath, load_toolpath

@@ -77,7 +77,7 @@ def test_a_stage_that_fails_after_the_pictures_were_handed_on_still_writes_them(
     def failing(*_args, **_kwargs):
         raise FabkitError("verify: made to fail by this test")
 
-    monkeypatch.setattr("fabkit.run_fabricate._verify", failing)
+    monkeypatch.setattr("fabkit.run.fabricate._verify", failing)
     out = tmp_path / "out"
     args = ("--step", "0.1", "--diagonals", "30", "--size", "20")
     code, _, err = run_cli("run", EXAMPLES / "two_shapes.toml", "--out", out, *args)

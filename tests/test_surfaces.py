@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from fabkit.files.tomlfile import Table
 from fabkit.problem.surfaces import build_surface
-from fabkit.tomlfile import Table
 
 RNG = np.random.default_rng(7)
 

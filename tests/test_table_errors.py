@@ -1,4 +1,4 @@
-"""One wording for every mistake in every TOML file fabkit reads (fabkit/tomlfile.py).
+"""One wording for every mistake in every TOML file fabkit reads (fabkit/files/tomlfile.py).
 
 Each row edits a shipped file of one of the six kinds (spec, machine profile, process,
 baromorph, swimmer, director), loads it through its public loader, and checks the one

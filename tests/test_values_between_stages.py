@@ -18,8 +18,8 @@ import pytest
 import shapely
 
 import fabkit.design.check
+import fabkit.files.tomlfile
 import fabkit.problem.spec
-import fabkit.tomlfile
 import fabkit.toolpath.model
 from fabkit.cli import main
 from fabkit.design.design import Design
@@ -40,7 +40,7 @@ def counting():
     block runs: every fabkit module that holds the function (imported by name) gets the
     counting wrapper."""
     for module in (
-        "fabkit.pipeline",
+        "fabkit.run.pipeline",
         "fabkit.commands.verify",
         "fabkit.commands.toolpath",
         "fabkit.commands.export",
@@ -62,7 +62,7 @@ def counting():
                         if value is real:
                             patch.setattr(module, attribute, wrapper)
 
-        real_read = fabkit.tomlfile.read_toml
+        real_read = fabkit.files.tomlfile.read_toml
 
         def read_toml(path, what, *args, **kwargs):
             calls[f"{what} reads"] += 1

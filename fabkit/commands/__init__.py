@@ -125,7 +125,7 @@ def add_command(subparsers: argparse._SubParsersAction, name: str) -> argparse.A
 
 
 def add_overwrite(parser: argparse.ArgumentParser, option: str = "--out") -> None:
-    """The ``--overwrite`` option of a command that writes a folder (see fabkit.atomic)."""
+    """The ``--overwrite`` option of a command that writes a folder (see fabkit.files.atomic)."""
     parser.add_argument(
         "--overwrite",
         action="store_true",
@@ -140,11 +140,11 @@ Handler = Callable[[argparse.Namespace], int]
 
 def in_out_folder(handler: Handler) -> Handler:
     """``handler``, writing into the ``--out`` folder of a command with :func:`add_overwrite`:
-    the folder is claimed while it runs (:func:`fabkit.atomic.output_folder`)."""
+    the folder is claimed while it runs (:func:`fabkit.files.atomic.output_folder`)."""
 
     @functools.wraps(handler)
     def run(args: argparse.Namespace) -> int:
-        from fabkit.atomic import output_folder
+        from fabkit.files.atomic import output_folder
 
         with output_folder(args.out, f"--out {args.out}", args.overwrite):
             return handler(args)

@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     if args.format != "laser":
         print(export(args.input, args.machine, args.format, args.out, options))
         return 0
-    from fabkit.atomic import output_folder, record
+    from fabkit.files.atomic import output_folder, record
 
     with output_folder(args.out, f"-o {args.out}", args.overwrite, whole=True):
         summary = export(args.input, args.machine, args.format, args.out, options)

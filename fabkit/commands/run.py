@@ -9,8 +9,8 @@ from fabkit.commands.check import verdict_arguments
 from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.design.patches import MESH_TYPES
 from fabkit.machines import DEFAULT_MACHINE
-from fabkit.pipeline import run_pipeline
-from fabkit.run_inputs import BAROMORPH_MACHINE, DEFAULT_SIZE_MM, FORMAT_FILES, RunOptions
+from fabkit.run.inputs import BAROMORPH_MACHINE, DEFAULT_SIZE_MM, FORMAT_FILES, RunOptions
+from fabkit.run.pipeline import run_pipeline
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -12,7 +12,7 @@ from fabkit.errors import FabkitError
 from fabkit.machines import DEFAULT_MACHINE
 from fabkit.process import Process
 from fabkit.progress import add_progress
-from fabkit.run_inputs import DEFAULT_SIZE_MM
+from fabkit.run.inputs import DEFAULT_SIZE_MM
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     solved = solve_to_file(spec, out, progress=args.progress)
     print(describe(solved.summary, solved.check))
     if process is not None:
-        from fabkit.run_solve import LayerRequest, design_part, layer_design
+        from fabkit.run.solve import LayerRequest, design_part, layer_design
 
         design = solved.solution.design
         part = design_part(design, args.size_mm, process, args.layers)

@@ -6,8 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
-from fabkit.atomic import atomic_path
 from fabkit.commands import add_command, add_overwrite, in_out_folder
+from fabkit.files.atomic import atomic_path
 from fabkit.progress import ProgressBar, add_progress
 from fabkit.swimmer.cycle import convergence, run_stroke
 from fabkit.swimmer.fabricate import fabricate

@@ -42,12 +42,12 @@ from pathlib import Path
 
 import numpy as np
 
-from fabkit.atomic import atomic_path, check_name
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import atomic_path, check_name
+from fabkit.files.npzfile import ArrayHeader, check_magnitude, read_npz
+from fabkit.files.readfile import parse_json
 from fabkit.limits import DESIGN_FEATURES, DESIGN_NODES, DESIGN_SURFACES, MAGNITUDE
-from fabkit.npzfile import ArrayHeader, check_magnitude, read_npz
 from fabkit.problem.spec import Spec, spec_from_json
-from fabkit.readfile import parse_json
 
 FORMAT = "fabkit-design/2"
 """The format tag of a one-layer design; a file without a tag is format 1 and still read."""
@@ -159,7 +159,7 @@ class Design:
     def load(cls, path: str | Path) -> Design:
         """Read and check a design file; a corrupt, foreign or hostile file is a one-line
         error, refused before any array is read when its headers already tell (see
-        :mod:`fabkit.npzfile`; sizes within :data:`fabkit.limits.DESIGN_NODES` and
+        :mod:`fabkit.files.npzfile`; sizes within :data:`fabkit.limits.DESIGN_NODES` and
         ARCHIVE_BYTES). Values outside ``valid`` are set to NaN, as the contract says."""
         path = Path(path)
         if not path.is_file():
@@ -337,7 +337,7 @@ def _check_axis(values: np.ndarray, key: str, where: str | Path) -> None:
 
 def check_names(spec: str, where: str | Path) -> None:
     """Refuse an embedded spec whose JSON nests too deep or whose surface names could not
-    safely be part of a file name (see :func:`fabkit.atomic.check_name`)."""
+    safely be part of a file name (see :func:`fabkit.files.atomic.check_name`)."""
     table = parse_json(spec, f"{where}: embedded spec")
     surfaces = table.get("surfaces") if isinstance(table, dict) else None
     for index, surface in enumerate(surfaces if isinstance(surfaces, list) else []):

@@ -7,9 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from fabkit.atomic import atomic_path, check_name, inside
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import atomic_path, check_name, inside
 from fabkit.problem.spec import Target
 
 MESH_FORMATS = (".ply", ".stl", ".glb", ".obj")
@@ -75,7 +75,7 @@ def patch_paths(
     """(surface index, mesh file) of every target with a 3D embedding, in ``folder``.
 
     Files are ``folder / f"{prefix}{index}_{name}.{mesh_format}"``; a name that could not
-    safely be part of a file name (:func:`fabkit.atomic.check_name`), or a file that would
+    safely be part of a file name (:func:`fabkit.files.atomic.check_name`), or a file that would
     land outside ``folder``, is a one-line error, so callers check before any work.
     """
     paths = []

@@ -10,12 +10,12 @@ from typing import Any
 
 import numpy as np
 
-from fabkit.atomic import atomic_path
 from fabkit.design.check import CheckReport, ResidualMaps, check_maps, residual_maps
 from fabkit.design.design import Design
 from fabkit.design.solver import Solution, solve
 from fabkit.errors import FabkitError
 from fabkit.figures import AREA_UNIT, cell_integral
+from fabkit.files.atomic import atomic_path
 from fabkit.limits import DESIGN_NODES
 from fabkit.problem.spec import Spec
 from fabkit.progress import ProgressBar

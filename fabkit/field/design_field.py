@@ -24,7 +24,7 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField, PlaneFunction
 from fabkit.field.part import Part, PartOptions, print_part, scale_for_size, solved_region
-from fabkit.tomlfile import real
+from fabkit.files.tomlfile import real
 
 DESIGN_KEYS = ("u", "v", "valid", "eps", "r", "n")
 

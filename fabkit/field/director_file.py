@@ -18,9 +18,9 @@ import shapely
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField, field_from_expression, field_from_grid
 from fabkit.field.outlines import parse_shape, polygonal
-from fabkit.npzfile import ArrayHeader, read_npz
-from fabkit.shipped import user_or_example
-from fabkit.tomlfile import Table, expected, read_toml
+from fabkit.files.npzfile import ArrayHeader, read_npz
+from fabkit.files.shipped import user_or_example
+from fabkit.files.tomlfile import Table, expected, read_toml
 
 
 def load_director_file(path: str | Path) -> FlatField:

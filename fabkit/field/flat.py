@@ -38,8 +38,8 @@ from scipy.spatial import cKDTree
 from fabkit.errors import FabkitError
 from fabkit.field.outlines import polygonal
 from fabkit.field.part import Part
+from fabkit.files.tomlfile import real
 from fabkit.problem.expr import parse, shorten
-from fabkit.tomlfile import real
 
 PlaneFunction = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """A vectorised function of x and y (mm, broadcast arrays) returning an array of their shape."""

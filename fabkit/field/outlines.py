@@ -41,8 +41,8 @@ import shapely.affinity
 import shapely.geometry
 
 from fabkit.errors import FabkitError
+from fabkit.files.readfile import check_size, decode_utf8, read_json, read_limited
 from fabkit.limits import MAGNITUDE, MIB
-from fabkit.readfile import check_size, decode_utf8, read_json, read_limited
 
 OUTLINE_BYTES = 16 * MIB
 """Largest polygon (GeoJSON, CSV) or SVG outline file."""

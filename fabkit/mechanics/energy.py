@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from fabkit.atomic import atomic_path
 from fabkit.design.design import Design
 from fabkit.design.summary import realised_areas
 from fabkit.errors import FabkitError
 from fabkit.figures import AREA_UNIT, cell_integral
+from fabkit.files.atomic import atomic_path
 
 Density = Callable[[np.ndarray, np.ndarray, float, float], np.ndarray]
 

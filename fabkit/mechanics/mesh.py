@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import Delaunay
 
-from fabkit.atomic import atomic_path
 from fabkit.design.design import Design
 from fabkit.design.patches import MESH_FORMATS
 from fabkit.errors import FabkitError
 from fabkit.field.part import Part, solved_cells
+from fabkit.files.atomic import atomic_path
 
 
 @dataclass(frozen=True)

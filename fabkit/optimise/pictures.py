@@ -15,9 +15,9 @@ import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.tri import Triangulation  # noqa: E402
 
-from fabkit.atomic import atomic_path  # noqa: E402
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.patches import grid_triangles  # noqa: E402
+from fabkit.files.atomic import atomic_path  # noqa: E402
 from fabkit.optimise.search import Result  # noqa: E402
 
 

@@ -24,12 +24,14 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from fabkit.atomic import atomic_path
 from fabkit.design.check import Tolerances, check_design
 from fabkit.design.design import Design
 from fabkit.design.solver import solve
 from fabkit.design.summary import realised_areas
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import atomic_path
+from fabkit.files.shipped import user_or_example
+from fabkit.files.tomlfile import read_toml
 from fabkit.optimise.objective import Evaluation, Limits, Objective, evaluate_batch, score
 from fabkit.optimise.search import (
     Budget,
@@ -44,8 +46,6 @@ from fabkit.optimise.search import (
 from fabkit.optimise.space import Space, search_space
 from fabkit.optimise.tomlout import dumps
 from fabkit.problem.spec import Spec, build_spec
-from fabkit.shipped import user_or_example
-from fabkit.tomlfile import read_toml
 
 
 @dataclass(frozen=True)

@@ -28,12 +28,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from fabkit.atomic import atomic_path
 from fabkit.design.check import Tolerances
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import atomic_path
+from fabkit.files.readfile import read_json
 from fabkit.optimise.objective import Evaluation, Objective, evaluate_batch
 from fabkit.optimise.space import Space
-from fabkit.readfile import read_json
 
 CHECKPOINT_FORMAT = 2
 """Version of the checkpoint file's format."""
@@ -111,7 +111,7 @@ class Result:
 
 class Checkpoint:
     """Every evaluation of a search, in one JSON file rewritten atomically
-    (:func:`fabkit.atomic.atomic_path`) after every batch: a stopped search leaves the last
+    (:func:`fabkit.files.atomic.atomic_path`) after every batch: a stopped search leaves the last
     complete file, never a half-written one. It names what was searched (a fingerprint of
     the spec, the space and the objective) so that another search cannot reuse it."""
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from fabkit.atomic import atomic_path
 from fabkit.design.check import ResidualMaps
 from fabkit.design.design import Design
 from fabkit.field.part import Part
+from fabkit.files.atomic import atomic_path
 from fabkit.plot.scene import Scene, scene
 
 DESIGN_PICTURES = (

@@ -10,7 +10,7 @@ import base64
 import html
 from pathlib import Path
 
-from fabkit.atomic import atomic_path
+from fabkit.files.atomic import atomic_path
 from fabkit.plot.page import Code, Facts, Figure, Link, Page, Paragraph, Section, Table, Text
 
 STYLE = """

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.files.tomlfile import Table
 from fabkit.problem.expr import Expression, parse, shorten
 from fabkit.problem.material import ALONG, Material
-from fabkit.tomlfile import Table
 
 PERPENDICULAR_TOLERANCE = 1e-6
 """Largest |cos| between the initial curves' tangents at t = 0 accepted as perpendicular."""

@@ -14,7 +14,7 @@ from types import MappingProxyType
 from typing import Any
 
 from fabkit.errors import FabkitError
-from fabkit.tomlfile import Table
+from fabkit.files.tomlfile import Table
 
 ALL_QUADRANTS = ((1, 1), (-1, 1), (-1, -1), (1, -1))
 MAX_SOLVER_BYTES = 4 * 2**30

@@ -2,7 +2,7 @@
 
 See ``docs/spec.md`` for every key. Every problem a user can make in a spec is a
 :class:`FabkitError` with one line naming the file, the key path and what to fix, read
-with :class:`fabkit.tomlfile.Table` (whose module documents the wording).
+with :class:`fabkit.files.tomlfile.Table` (whose module documents the wording).
 
 The ``[initial]`` table is read by :mod:`fabkit.problem.initial_data`, the ``[solver]``
 table by :mod:`fabkit.problem.solver_settings`.
@@ -19,16 +19,16 @@ from typing import Any
 
 import numpy as np
 
-from fabkit.atomic import check_name
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import check_name
+from fabkit.files.shipped import user_or_example
+from fabkit.files.tomlfile import Table, read_toml, real
 from fabkit.problem.expr import RESERVED, parse, shorten
 from fabkit.problem.initial_data import InitialData, check_curves, read_initial
 from fabkit.problem.material import ALONG, Material, check_unstretched
 from fabkit.problem.solver_settings import SolverSettings, read_solver
 from fabkit.problem.surfaces import Surface, build_surface
 from fabkit.problem.surfaces.base import UNBOUNDED
-from fabkit.shipped import user_or_example
-from fabkit.tomlfile import Table, read_toml, real
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ class Spec:
 
 def load_spec(path: str | Path) -> Spec:
     """Read and validate a TOML spec file (or a shipped example, see
-    :func:`fabkit.shipped.user_or_example`)."""
+    :func:`fabkit.files.shipped.user_or_example`)."""
     path = user_or_example(path)
     return build_spec(read_toml(path, "spec"), path.resolve().parent, str(path))
 

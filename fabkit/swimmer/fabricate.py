@@ -15,9 +15,9 @@ from pathlib import Path
 
 from fabkit.field.flat import field_from_expression
 from fabkit.field.outlines import parse_shape
+from fabkit.files.tomlfile import Table
 from fabkit.machines import DEFAULT_MACHINE
 from fabkit.swimmer.spec import SwimmerSpec
-from fabkit.tomlfile import Table
 from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.plan import PATTERNS, PlanSettings, plan_toolpath
 from fabkit.toolpath.preview import save_preview

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from fabkit.atomic import atomic_path
+from fabkit.files.atomic import atomic_path
 from fabkit.mechanics.energy import DENSITIES
 from fabkit.swimmer.cycle import POINT_ORDER, Convergence, Stroke, barycentric
 from fabkit.swimmer.motion import align

@@ -4,7 +4,7 @@ A TOML file (see ``docs/swimmer.md`` and ``examples/swimmer.toml``) with section
 ``[sheet]``, ``[stimuli]``, ``[[layers]]`` (bottom layer first), and optionally
 ``[mechanics]``, ``[hydrodynamics]`` and ``[fabrication]``. Lengths are in mm. Every
 problem is a one-line :class:`FabkitError` naming the file and the key path
-(:mod:`fabkit.tomlfile`).
+(:mod:`fabkit.files.tomlfile`).
 """
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ import numpy as np
 from fabkit.errors import FabkitError
 from fabkit.field.flat import PlaneFunction, check_finite_on_sheet, planar_expression
 from fabkit.field.outlines import parse_shape
+from fabkit.files.readfile import size_text
+from fabkit.files.shipped import user_or_example
+from fabkit.files.tomlfile import Table, expected, read_toml, real, whole
 from fabkit.limits import MAGNITUDE, SWIMMER_MESH_RINGS, SWIMMER_SHAPES, WORK_BYTES
 from fabkit.problem.expr import Expression, parse, shorten
-from fabkit.readfile import size_text
-from fabkit.shipped import user_or_example
-from fabkit.tomlfile import Table, expected, read_toml, real, whole
 
 
 @dataclass(frozen=True)

@@ -32,9 +32,9 @@ from scipy.spatial import cKDTree
 from fabkit.calibration import CHANNEL_WIDTH, Calibration
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField
+from fabkit.files.shipped import user_or_example
+from fabkit.files.tomlfile import Table, read_toml
 from fabkit.limits import MAGNITUDE
-from fabkit.shipped import user_or_example
-from fabkit.tomlfile import Table, read_toml
 from fabkit.toolpath.lines import (
     LineSettings,
     is_closed,
@@ -113,7 +113,7 @@ class ChannelReport:
 
 def load_baromorph(path: str | Path) -> BaromorphSettings:
     """Read the ``[baromorph]`` table of a TOML file (see ``docs/toolpath.md``); errors
-    name the file and the key path (:mod:`fabkit.tomlfile`)."""
+    name the file and the key path (:mod:`fabkit.files.tomlfile`)."""
     path = user_or_example(path)
     top = Table(read_toml(path, "baromorph"), str(path))
     return _settings(top.table("baromorph"))

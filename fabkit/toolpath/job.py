@@ -25,7 +25,6 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from fabkit.atomic import atomic_path, check_folder
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.design_field import field_from_design
@@ -33,6 +32,7 @@ from fabkit.field.director_file import load_director_file
 from fabkit.field.flat import FlatField, field_from_expression
 from fabkit.field.outlines import parse_shape, read_outline
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
+from fabkit.files.atomic import atomic_path, check_folder
 from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES
 from fabkit.process import Process
 from fabkit.toolpath.baromorph import (

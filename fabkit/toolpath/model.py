@@ -39,12 +39,12 @@ from typing import Any
 
 import numpy as np
 
-from fabkit.atomic import atomic_path
 from fabkit.calibration import PARAMETERS
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import atomic_path
+from fabkit.files.npzfile import ArrayHeader, check_magnitude, read_npz
+from fabkit.files.readfile import parse_json, read_json
 from fabkit.limits import TOOLPATH_LAYERS, TOOLPATH_MOVES, TOOLPATH_VERTICES
-from fabkit.npzfile import ArrayHeader, check_magnitude, read_npz
-from fabkit.readfile import parse_json, read_json
 
 FORMAT = "fabkit-toolpath/2"
 """Format tag stored in every saved toolpath."""
@@ -208,7 +208,7 @@ def load_toolpath(path: str | Path) -> Toolpath:
     """Read a toolpath written by :func:`save_toolpath`; a bad file is a one-line error.
 
     An ``.npz`` is checked from its zip directory and array headers before any array is
-    read (:mod:`fabkit.npzfile`; at most TOOLPATH_MOVES moves, TOOLPATH_VERTICES vertices,
+    read (:mod:`fabkit.files.npzfile`; at most TOOLPATH_MOVES moves, TOOLPATH_VERTICES vertices,
     TOOLPATH_LAYERS layers); a ``.json`` is at most JSON_BYTES and NESTING_DEPTH deep.
     Coordinates, widths, speeds and flows must be finite, and every number (channels
     included) within +-MAGNITUDE. Files of format 1 are read with their one ``parameter``

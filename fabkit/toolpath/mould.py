@@ -22,8 +22,8 @@ import numpy as np
 import shapely
 import trimesh
 
-from fabkit.atomic import atomic_path
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import atomic_path
 from fabkit.toolpath.baromorph import BaromorphSettings, ChannelLayout
 
 POLARITY = (

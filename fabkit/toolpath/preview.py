@@ -22,8 +22,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Patch, PathPatch
 from matplotlib.path import Path as MplPath
 
-from fabkit.atomic import atomic_path
 from fabkit.calibration import LABELS
+from fabkit.files.atomic import atomic_path
 from fabkit.toolpath.model import PRINT, Toolpath
 
 PANEL_INCHES = 6.0

@@ -29,9 +29,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from fabkit.errors import FabkitError
+from fabkit.files.tomlfile import Table, read_toml
 from fabkit.machines import DEFAULT_MACHINE, list_machines, load_machine
 from fabkit.process import Process, Resolution, parse_process
-from fabkit.tomlfile import Table, read_toml
 
 
 def machine_process(name_or_path: str | None) -> Process:

@@ -38,10 +38,10 @@ from fabkit.errors import FabkitError
 from fabkit.field.design_field import feature_names, field_from_design
 from fabkit.field.flat import FlatField
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
+from fabkit.files.tomlfile import real
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict
 from fabkit.process import Encode, Process, Resolution
-from fabkit.tomlfile import real
 from fabkit.toolpath.baromorph import BaromorphSettings
 from fabkit.verify.as_fabricated import (
     TargetDistance,

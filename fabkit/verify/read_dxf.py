@@ -23,7 +23,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from fabkit.errors import FabkitError
-from fabkit.readfile import check_size
+from fabkit.files.readfile import check_size
 from fabkit.verify.raster import Readback
 from fabkit.verify.read_gcode import Placement
 

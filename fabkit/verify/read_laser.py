@@ -25,7 +25,7 @@ import numpy as np
 from PIL import Image
 
 from fabkit.errors import FabkitError
-from fabkit.readfile import read_json
+from fabkit.files.readfile import read_json
 from fabkit.verify.raster import Readback
 from fabkit.verify.read_gcode import Placement
 

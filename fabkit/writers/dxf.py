@@ -41,9 +41,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import shapely
 
-from fabkit.atomic import atomic_path
 from fabkit.calibration import PRINT_PARAMETERS
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import atomic_path
 from fabkit.machines import MachineProfile
 from fabkit.toolpath.model import PRINT, Toolpath
 from fabkit.writers.common import check_inside, placement_offset

@@ -35,10 +35,10 @@ from fabkit.field.director_file import load_director_file
 from fabkit.field.flat import FlatField
 from fabkit.field.outlines import read_outline
 from fabkit.field.part import Part, PartRequest
+from fabkit.files.npzfile import npz_keys
+from fabkit.files.readfile import read_json
 from fabkit.machines import MachineProfile, load_machine
-from fabkit.npzfile import npz_keys
 from fabkit.process import Process
-from fabkit.readfile import read_json
 from fabkit.toolpath.exposure import LaserSettings, sample_field
 from fabkit.toolpath.model import Toolpath, load_toolpath
 from fabkit.writers.common import FORMATS

@@ -60,7 +60,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from fabkit.atomic import atomic_path
+from fabkit.files.atomic import atomic_path
 from fabkit.machines import MachineProfile
 from fabkit.toolpath.model import Toolpath
 from fabkit.writers.gcode_checks import Kinematics, check_rows, slow_travels

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fabkit.errors import FabkitError
+from fabkit.files.readfile import read_json
 from fabkit.machines import MachineProfile, load_machine
-from fabkit.readfile import read_json
 
 _HEADER = re.compile(r";\s*Generated with fabkit \S+ for machine (\S+)")
 HEADER_LINES = 40

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from fabkit.files.tomlfile import Table
 from fabkit.problem.surfaces.analytic import Graph, Metric, Parametric, Plane, Sphere
 from fabkit.problem.surfaces.base import Surface
-from fabkit.tomlfile import Table
 
 ANALYTIC = {
     "plane": Plane,

@@ -6,6 +6,7 @@ from typing import Self
 
 import numpy as np
 
+from fabkit.files.tomlfile import Table, real
 from fabkit.problem.expr import Expression, parse
 from fabkit.problem.surfaces.base import (
     UNBOUNDED,
@@ -15,7 +16,6 @@ from fabkit.problem.surfaces.base import (
     immersion_geometry,
     metric_geometry,
 )
-from fabkit.tomlfile import Table, real
 
 
 def domain_bounds(t: Table) -> Bounds:

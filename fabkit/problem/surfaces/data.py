@@ -36,8 +36,9 @@ import numpy as np
 from scipy import ndimage
 
 from fabkit.errors import FabkitError
+from fabkit.files.npzfile import check_magnitude
+from fabkit.files.tomlfile import Table, expected, real
 from fabkit.limits import MAGNITUDE
-from fabkit.npzfile import check_magnitude
 from fabkit.problem.surfaces.base import Surface, graph_geometry
 from fabkit.problem.surfaces.fit import SurfaceFit, fit_grid
 from fabkit.problem.surfaces.grids import (
@@ -48,7 +49,6 @@ from fabkit.problem.surfaces.grids import (
     read_grid,
 )
 from fabkit.problem.surfaces.meshes import MESH_FORMATS, mesh_grid, read_mesh
-from fabkit.tomlfile import Table, expected, real
 
 HOLE_MARGIN = 2.0
 """Nodes this close to a hole (in node spacings) are outside the footprint: the fit is

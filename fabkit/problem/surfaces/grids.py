@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.files.npzfile import ArrayHeader, Check, check_magnitude, npz_keys, read_npy, read_npz
+from fabkit.files.readfile import decode_utf8, read_limited
 from fabkit.limits import CSV_BYTES
-from fabkit.npzfile import ArrayHeader, Check, check_magnitude, npz_keys, read_npy, read_npz
-from fabkit.readfile import decode_utf8, read_limited
 
 MIN_SIDE = 8
 """Fewest nodes per side of a height grid."""

@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.files.npzfile import check_magnitude
+from fabkit.files.readfile import read_limited
 from fabkit.limits import MESH_BYTES, MESH_FACES, RASTER_HITS
-from fabkit.npzfile import check_magnitude
 from fabkit.problem.surfaces.grids import MAX_SIDE, MIN_SIDE, HeightGrid
-from fabkit.readfile import read_limited
 
 MESH_MAX_SIDE = 1024
 """Most nodes per side when resampling an irregular mesh."""

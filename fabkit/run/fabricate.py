@@ -6,7 +6,7 @@ reads the first back and checks it (:mod:`fabkit.verify`, unless ``--no-verify``
 writes the shape the sheet takes under every target's stimulus (``as_fabricated/``,
 else ``as_designed/``) and sends the G-code (``--send``). The pictures are handed to the
 run's worker (:class:`Drawings`) and written at the report. Called by
-:func:`fabkit.pipeline.run_pipeline`.
+:func:`fabkit.run.pipeline.run_pipeline`.
 """
 
 from __future__ import annotations
@@ -18,13 +18,13 @@ from multiprocessing.pool import AsyncResult
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from fabkit.atomic import atomic_path, inside, record
 from fabkit.background import Worker
+from fabkit.files.atomic import atomic_path, inside, record
 from fabkit.machines import MachineProfile
 from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.verdict import Verdict
-from fabkit.run_inputs import FORMAT_FILES, LASER_WRITER, RunInputs, RunOptions
-from fabkit.run_solve import Solved
+from fabkit.run.inputs import FORMAT_FILES, LASER_WRITER, RunInputs, RunOptions
+from fabkit.run.solve import Solved
 from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
 from fabkit.writers.dxf import layout_layers, write_dxf
 from fabkit.writers.export import ExportOptions, describe_dxf, write_machine_file

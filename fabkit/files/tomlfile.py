@@ -36,8 +36,8 @@ from typing import Any, NoReturn
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.files.readfile import check_depth, decode_utf8, read_limited
 from fabkit.limits import NESTING_DEPTH, TEXT_BYTES
-from fabkit.readfile import check_depth, decode_utf8, read_limited
 
 _STRINGS_AND_COMMENTS = re.compile(
     # Every alternative matches once it has started (an unterminated string runs to the

@@ -5,7 +5,7 @@ machine and the formats that suit the route (print lines, laser patterns or baro
 channels); :func:`check_inputs` refuses bad input before anything is written (formats,
 sizes, the output folder, the send, the spec, the process and its channels) and reads
 what every stage takes once (:class:`RunInputs`). Called by
-:func:`fabkit.pipeline.run_pipeline`; ``fabkit run``'s command line builds the options.
+:func:`fabkit.run.pipeline.run_pipeline`; ``fabkit run``'s command line builds the options.
 """
 
 from __future__ import annotations
@@ -14,13 +14,13 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from fabkit.atomic import check_folder
 from fabkit.design.design import MAX_LAYERS
 from fabkit.design.patches import MESH_TYPES, patch_paths
 from fabkit.errors import FabkitError
 from fabkit.field.part import (
     PartRequest,
 )
+from fabkit.files.atomic import check_folder
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile
 from fabkit.mechanics.verdict import FORM_TOLERANCE
 from fabkit.problem.spec import Spec, load_spec

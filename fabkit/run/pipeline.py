@@ -11,16 +11,16 @@ feature the process does not encode is refused before any work, unless it is nam
 ``--ignore-feature``, which the report then says on its first line); the machine file is
 then read back and checked (``fabkit verify``, skipped with ``--no-verify``). Every stage
 writes
-through :func:`fabkit.atomic.atomic_path`, so an interrupted run leaves no half-written
+through :func:`fabkit.files.atomic.atomic_path`, so an interrupted run leaves no half-written
 file under a final name. The output folder is claimed first
-(:func:`fabkit.atomic.output_folder`): a folder holding an earlier run's files is refused
+(:func:`fabkit.files.atomic.output_folder`): a folder holding an earlier run's files is refused
 unless ``--overwrite``, which removes exactly the files that run wrote (listed in the
 folder's ``.fabkit-files``); a folder holding files fabkit did not write is refused.
 
 This module holds :func:`run_pipeline`, the order of the stages and the report; the
-stages are :mod:`fabkit.run_inputs` (the options, their defaults and the checks before
-any work), :mod:`fabkit.run_solve` (solve, check, the part, the layers, the verdict as
-designed) and :mod:`fabkit.run_fabricate` (the machine files, verify, the shapes the
+stages are :mod:`fabkit.run.inputs` (the options, their defaults and the checks before
+any work), :mod:`fabkit.run.solve` (solve, check, the part, the layers, the verdict as
+designed) and :mod:`fabkit.run.fabricate` (the machine files, verify, the shapes the
 sheet takes, send).
 
 Files in the output folder:
@@ -49,18 +49,18 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
-from fabkit.atomic import atomic_path, output_folder
 from fabkit.background import worker
 from fabkit.design.patches import write_patch_meshes
 from fabkit.errors import FabkitError
+from fabkit.files.atomic import atomic_path, output_folder
 from fabkit.machines import load_machine
 from fabkit.mechanics.verdict import Verdict
 from fabkit.plot import DESIGN_PICTURES, write_pictures
 from fabkit.plot.html import html_report
 from fabkit.plot.page_sections import run_page
 from fabkit.plot.scene import scene
-from fabkit.run_fabricate import Drawings, Run, fabricate
-from fabkit.run_inputs import (
+from fabkit.run.fabricate import Drawings, Run, fabricate
+from fabkit.run.inputs import (
     RunInputs,
     RunOptions,
     check_inputs,
@@ -68,7 +68,7 @@ from fabkit.run_inputs import (
     machine_name,
     with_defaults,
 )
-from fabkit.run_solve import NOT_SIMULATED, solve_stage
+from fabkit.run.solve import NOT_SIMULATED, solve_stage
 
 WORKER_MODULES = ("fabkit.plot.design", "fabkit.toolpath.preview", "fabkit.plot.shapes")
 """What the worker imports while the run solves: the drawings it will be given."""

@@ -35,6 +35,7 @@ from typing import BinaryIO
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.files.readfile import size_text
 from fabkit.limits import (
     ARCHIVE_BYTES,
     ARCHIVE_MEMBERS,
@@ -43,7 +44,6 @@ from fabkit.limits import (
     MAGNITUDE,
     RATIO_FLOOR,
 )
-from fabkit.readfile import size_text
 
 KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,63}")
 """A member's key: the names fabkit and numpy's ``savez(key=...)`` use."""

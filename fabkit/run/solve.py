@@ -4,7 +4,7 @@
 flat sheet that is made (:func:`design_part`, or a baromorph's), programs the layers of
 a layered sheet (:func:`layer_design`, also ``fabkit solve --layers``) and gives the
 verdict on the sheet as designed (:class:`Solved`). Called by
-:func:`fabkit.pipeline.run_pipeline`.
+:func:`fabkit.run.pipeline.run_pipeline`.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from fabkit.field.part import (
 from fabkit.figures import AREA_UNIT
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict, design_verdict
 from fabkit.process import Process
-from fabkit.run_inputs import RunInputs, RunOptions
+from fabkit.run.inputs import RunInputs, RunOptions
 
 NOT_SIMULATED = (
     "NOT SIMULATED (--no-simulate): no verdict on the shapes the sheet takes; the design's "
