@@ -11,6 +11,7 @@ import json
 
 from fabkit import commands
 from fabkit.commands.toolpath import part_arguments, part_request
+from fabkit.mechanics.simulate import Settings
 from fabkit.progress import ProgressBar, add_progress
 
 
@@ -66,7 +67,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     simulation.add_argument(
         "--max-iterations",
         type=int,
-        default=100,
+        default=Settings.max_iterations,
         help="Newton iterations per ramp step (default %(default)s)",
     )
     commands.add_length(

@@ -40,6 +40,7 @@ from fabkit.field.flat import FlatField
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
 from fabkit.files.tomlfile import real
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile
+from fabkit.mechanics.simulate import Settings
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict
 from fabkit.process import Encode, Process, Resolution
 from fabkit.toolpath.baromorph import BaromorphSettings
@@ -103,7 +104,7 @@ class VerifyOptions:
     simulate: bool = True
     reference: bool = False
     stride: int | None = None
-    max_iterations: int = 100
+    max_iterations: int = Settings.max_iterations
     smoothing_mm: float | None = None
     baromorph: BaromorphSettings | None = None
     part: Part | None = None
