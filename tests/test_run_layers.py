@@ -93,3 +93,24 @@ def test_a_dxf_of_the_layered_toolpath_reads_back_layer_by_layer(layered_run, tm
     for layer in figures["layers"]:
         assert layer["director_mean_deg"] <= 3.0
         assert all(f["rms_pct"] <= 2.0 for f in layer["features"])
+
+
+@pytest.mark.slow
+def test_the_verdict_as_fabricated_does_not_hang_on_the_simulation_mesh(layered_run, run_cli):
+    """The run simulates on about 800 triangles (every second grid line here); on every
+    third the verdict on every target is the same (measured: wavy formed at 2.03 %, 2.65 %
+    and 2.23 % RMS on every third, second and every grid line; sphere and face their mirror
+    images on all three)."""
+    figures = json.loads((layered_run / "report.json").read_text())
+    default = {t["target"]: t for t in figures["verify"]["verdict"]["targets"]}
+    design, gcode = layered_run / "design.npz", layered_run / "sheet.gcode"
+    code, text, err = run_cli("verify", design, gcode, "--stride", "3", "--json")
+    assert code == 0, err
+    coarser = {t["target"]: t for t in json.loads(text)["verdict"]["targets"]}
+    for name, target in default.items():
+        other = coarser[name]
+        assert other["formed"] == target["formed"], (name, other, target)
+        assert [s["mirror_image"] for s in other["starts"]] == [
+            s["mirror_image"] for s in target["starts"]
+        ], name
+    assert coarser["wavy"]["formed"] and coarser["wavy"]["rms_pct"] < 3.0
