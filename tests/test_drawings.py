@@ -59,3 +59,18 @@ def test_a_shape_picture_per_target_from_plain_arrays():
     assert len(pictures) == 2
     for picture in pictures:
         assert picture.startswith(PNG) and len(picture) > 10_000
+
+
+def test_a_mirror_image_s_picture_quotes_the_verdict_s_distance_as_the_verdict_writes_it():
+    """Drawn as it is, a mirror image is coloured by its distance to the target itself;
+    the title quotes the verdict's distance to the mirror image, the same number as the
+    verdict's line (one figure, one source)."""
+    from fabkit.plot.shapes import sheet_title
+
+    grid = np.stack(np.meshgrid(*[np.linspace(-10.0, 10.0, 5)] * 2), -1).reshape(-1, 2)
+    cap = np.column_stack([grid, 4.0 - (grid**2).sum(axis=1) / 50])
+    mesh = FormedShape("cap", cap * [1, 1, -1], cap, Delaunay(grid).simplices, cap[:, 2], 46.9)
+    for mirrored in (True, False):
+        shape = Shape("cap", 0.012532, 0.05, mirrored, True, 0.03, 1.0, 46.9, mesh)
+        verdict_mm = shape.line().split("% (")[1].split(" mm)")[0]  # "0.588"
+        assert (f"({verdict_mm} mm RMS from it" in sheet_title("as fabricated", shape)) == mirrored

@@ -4,7 +4,11 @@ Each picture shows one target (grey) and the sheet simulated under its stimulus,
 by the distance from each point of the sheet to its own point of the target (mm), from
 the same view and at the same scale: both are turned so that the target's least spread
 direction points up (the view looks down on it at an angle), with equal lengths on every
-axis. The colour bar marks the sheet's RMS distance and the verdict's RMS limit. The
+axis. The colour bar marks the sheet's RMS distance (the verdict's figure, quoted) and
+the verdict's RMS limit. A sheet that takes the target's mirror image is shown as it is,
+coloured by its distance to the target itself; its title quotes the verdict's distance
+to the mirror image, so that the picture and the verdict never give one word two
+numbers. The
 input is plain data (a verdict's :class:`~fabkit.mechanics.verdict.Shape` with its
 :class:`~fabkit.mechanics.compare.FormedShape`), drawn in ``fabkit run``'s worker.
 """
@@ -53,7 +57,10 @@ def shape_picture(what: str, verdict: Shape) -> bytes:
     sheet = (shape.vertices_mm - shape.target_mm.mean(0)) @ turn
     triangles = _facing_up(target, shape.triangles)
     box = _box(np.vstack([target, sheet]))
-    rms = float(np.sqrt(np.mean(shape.distance_mm**2)))
+    if verdict.mirrored:  # the distances drawn are to the target itself, not the verdict's
+        rms = float(np.sqrt(np.mean(shape.distance_mm**2)))
+    else:
+        rms = verdict.rms * shape.diameter_mm  # the verdict's figure, quoted
     norm = Normalize(0.0, _nice_top(max(float(shape.distance_mm.max()), limit_mm)))
     figure = plt.figure(figsize=(11.0, 5.0))
     left = figure.add_axes((-0.03, 0.0, 0.46, 0.86), projection="3d")
@@ -63,25 +70,37 @@ def shape_picture(what: str, verdict: Shape) -> bytes:
     for axes in (left, right):
         _frame(axes, box)
     left.set_title(f"the target, {shape.name}", fontsize=11)
-    mirror = " (the target's mirror image, shown as it is)" if verdict.mirrored else ""
-    right.set_title(f"the sheet {what}{mirror}", fontsize=11)
-    _colour_bar(figure, norm, rms, limit_mm)
+    right.set_title(sheet_title(what, verdict), fontsize=11)
+    _colour_bar(figure, norm, rms, limit_mm, verdict.mirrored)
     figure.text(0.01, 0.02, "lengths in mm", fontsize=8, color="0.3")
+    to = "the target itself" if verdict.mirrored else "it"
     figure.suptitle(
-        f"{shape.name}: the sheet {what} beside the target, coloured by its distance to it "
+        f"{shape.name}: the sheet {what} beside the target, coloured by its distance to {to} "
         f"(patch diameter {shape.diameter_mm:.3g} mm)",
         fontsize=12,
-        y=0.97,
+        y=0.995 if verdict.mirrored else 0.97,
     )
     return png(figure, tight=False)
 
 
-def _colour_bar(figure, norm: Normalize, rms: float, limit: float) -> None:
+def sheet_title(what: str, verdict: Shape) -> str:
+    """The title over the sheet: for a mirror image, the verdict's RMS distance to it in
+    mm, written as the verdict's line writes it."""
+    if not verdict.mirrored:
+        return f"the sheet {what}"
+    from_mirror = verdict.rms * verdict.mesh.diameter_mm
+    return (
+        f"the sheet {what}: the target's mirror image\n({from_mirror:.3g} mm RMS from it, "
+        "the verdict's figure), shown as it is"
+    )
+
+
+def _colour_bar(figure, norm: Normalize, rms: float, limit: float, mirrored: bool) -> None:
     """The distance colour bar (mm), the RMS distance and the limit marked on it."""
     bar = figure.colorbar(
         plt.cm.ScalarMappable(norm, COLOURS), cax=figure.add_axes((0.915, 0.1, 0.018, 0.7))
     )
-    bar.set_label("distance to the target (mm)")
+    bar.set_label(f"distance to the target{' itself' if mirrored else ''} (mm)")
     for value, label, colour in ((rms, "RMS", "black"), (limit, "limit", "red")):
         bar.ax.axhline(value, color=colour, lw=2)
         bar.ax.text(
