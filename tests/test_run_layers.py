@@ -114,3 +114,14 @@ def test_the_verdict_as_fabricated_does_not_hang_on_the_simulation_mesh(layered_
             s["mirror_image"] for s in target["starts"]
         ], name
     assert coarser["wavy"]["formed"] and coarser["wavy"]["rms_pct"] < 3.0
+
+
+def test_the_manifest_lists_every_file_once(layered_run):
+    """A layered run writes design.npz twice (solved, then with its layers): its manifest
+    (``.fabkit-files``, what --overwrite removes) lists it, like every file, once."""
+    listed = (layered_run / ".fabkit-files").read_text().splitlines()
+    assert "design.npz" in listed and len(listed) == len(set(listed)), listed
+    written = {p.relative_to(layered_run).as_posix() for p in layered_run.rglob("*")}
+    assert set(listed) == {name for name in written if (layered_run / name).is_file()} - {
+        ".fabkit-files"
+    }

@@ -16,7 +16,7 @@ import re
 import tempfile
 from collections.abc import Iterator
 from contextvars import ContextVar
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from fabkit.errors import FabkitError
@@ -116,10 +116,13 @@ SHOWN = 4
 
 @dataclass
 class _Claim:
-    """A claimed output folder (resolved) and the earlier files still to remove."""
+    """A claimed output folder (resolved), the earlier files still to remove, and the
+    files listed in its manifest so far (a file written twice, such as a run's design
+    file rewritten with its layers, is listed once)."""
 
     folder: Path
     earlier: list[str] | None
+    listed: set[str] = field(default_factory=set)
 
 
 _CLAIMED: ContextVar[_Claim | None] = ContextVar("fabkit_output_folder", default=None)
@@ -193,8 +196,10 @@ def record(path: str | os.PathLike[str]) -> None:
         (claimed / MANIFEST).unlink(missing_ok=True)
         claim.earlier = None
     files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
-    files = [p for p in files if p.name != MANIFEST]
-    lines = "".join(f"{p.relative_to(claimed).as_posix()}\n" for p in files)
+    names = [p.relative_to(claimed).as_posix() for p in files if p.name != MANIFEST]
+    names = [name for name in dict.fromkeys(names) if name not in claim.listed]
+    claim.listed.update(names)
+    lines = "".join(f"{name}\n" for name in names)
     with open(claimed / MANIFEST, "a", encoding="utf-8") as handle:
         handle.write(lines)
 
