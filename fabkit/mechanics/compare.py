@@ -174,17 +174,19 @@ def target_points(design: Design, simulation: DesignSimulation) -> np.ndarray:
     return embedded
 
 
-def compare(design: Design, simulation: DesignSimulation) -> Comparison:
+def compare(design: Design, simulation: DesignSimulation, size: float | None = None) -> Comparison:
     """Align a design simulation with its target and measure the differences.
 
     Distances are measured at the design's own grid points (the refined mesh's other
-    vertices are left out, so the figures compare across refinements).
+    vertices are left out, so the figures compare across refinements), as shares of
+    ``size``, the patch diameter (design units; default: the diameter of the target
+    points of the simulated mesh).
     """
     result, mesh = simulation.result, simulation.mesh
     nodes = mesh.nodes
     target = target_points(design, simulation)[nodes]
     alignment = align(result.positions[nodes], target)
-    size = diameter(target)
+    size = diameter(target) if size is None else size
     strain = metric_strain(result.positions, mesh.points, mesh.triangles, simulation.metrics)
     return Comparison(
         simulation.name,
@@ -228,9 +230,12 @@ class FormedShape:
     diameter_mm: float
 
 
-def formed_shape(design: Design, simulation: DesignSimulation, mm_per_unit: float) -> FormedShape:
+def formed_shape(
+    design: Design, simulation: DesignSimulation, mm_per_unit: float, size: float | None = None
+) -> FormedShape:
     """The simulated sheet fitted to its target (:class:`FormedShape`), at ``mm_per_unit``
-    mm per design unit; the fit, as :func:`compare`'s, uses the design's grid points."""
+    mm per design unit; the fit, as :func:`compare`'s, uses the design's grid points, and
+    ``size`` is the patch diameter as there."""
     nodes = simulation.mesh.nodes
     positions = simulation.result.positions
     target = target_points(design, simulation)
@@ -241,5 +246,5 @@ def formed_shape(design: Design, simulation: DesignSimulation, mm_per_unit: floa
         target * mm_per_unit,
         np.asarray(simulation.mesh.triangles),
         np.linalg.norm(moved - target, axis=1) * mm_per_unit,
-        diameter(target[nodes]) * mm_per_unit,
+        (diameter(target[nodes]) if size is None else size) * mm_per_unit,
     )

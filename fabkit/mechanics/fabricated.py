@@ -40,6 +40,7 @@ from fabkit.mechanics.simulate import (
     Settings,
     Simulation,
     default_thickness,
+    diameter,
     simulate,
 )
 
@@ -241,7 +242,10 @@ class SheetProblem:
     """A sheet to simulate under one target's stimulus, as plain data: the ``coarse``
     design it is compared against, its ``mesh`` (where it was made), the per-layer
     reference metrics as made (``start_metrics``) and under the stimulus (``metrics``),
-    each (F, 2, 2) or (L, F, 2, 2) bottom first, and its ``thickness`` (design units)."""
+    each (F, 2, 2) or (L, F, 2, 2) bottom first, and its ``thickness`` (design units).
+    ``patch_size`` (design units) is the diameter of the target's patch over the whole
+    part, made or not: the base of every distance's percentage, the same for the sheet
+    as designed and as fabricated (None for a target with no 3D embedding)."""
 
     surface: int
     name: str
@@ -251,6 +255,7 @@ class SheetProblem:
     metrics: np.ndarray
     thickness: float
     poisson: float
+    patch_size: float | None = None
 
     def simulation(self, result: Simulation) -> DesignSimulation:
         """``result`` of simulating this problem, as a design simulation whose
@@ -319,8 +324,26 @@ def sheet_problem(
 
     name = design.problem.targets[surface].name
     return SheetProblem(
-        surface, name, coarse, mesh, metrics_at(0), metrics_at(surface), thickness, poisson
+        surface,
+        name,
+        coarse,
+        mesh,
+        metrics_at(0),
+        metrics_at(surface),
+        thickness,
+        poisson,
+        patch_size(coarse, surface, part),
     )
+
+
+def patch_size(design: Design, surface: int, part: Part | None = None) -> float | None:
+    """The diameter (design units) of target ``surface``'s patch over the cells of
+    ``part`` (every solved cell without one) at the design's grid points; None when the
+    target has no 3D embedding."""
+    mesh = design_mesh(design, part)
+    chart = mesh.sample(design.r[surface])[mesh.nodes]
+    points = design.problem.targets[surface].surface.embed(chart)
+    return None if points is None else diameter(points)
 
 
 def simulate_sheet(

@@ -387,7 +387,7 @@ def _shape(
     ends, found = [], {}
     for start, result in zip(starts, results, strict=True):
         simulation = problem.simulation(result)
-        distance = compare(problem.coarse, simulation)
+        distance = compare(problem.coarse, simulation, problem.patch_size)
         ends.append(
             StartEnd(start, distance.rms, distance.max, distance.mirrored, distance.converged)
         )
@@ -403,7 +403,9 @@ def _shape(
         tolerance,
         sum(result.seconds for result in results),
         None if mm_per_unit is None else distance.size * mm_per_unit,
-        None if mm_per_unit is None else formed_shape(problem.coarse, simulation, mm_per_unit),
+        None
+        if mm_per_unit is None
+        else formed_shape(problem.coarse, simulation, mm_per_unit, problem.patch_size),
         tuple(ends),
     )
 
