@@ -11,9 +11,10 @@ from fabkit.design.design import Design
 from fabkit.design.patches import MESH_FORMATS
 from fabkit.errors import FabkitError
 from fabkit.field.part import simulation_part
-from fabkit.mechanics.compare import compare
+from fabkit.mechanics.compare import Comparison, compare
 from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.simulate import SEEDS, Settings, simulate_design, surface_index
+from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, StartEnd
 from fabkit.progress import ProgressBar, add_progress
 
 
@@ -87,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     report = compare(design, simulation)
+    alone = _this_start(report, settings.seed)
     if args.out is not None:
         save_mesh(args.out, simulation.result.positions, simulation.mesh.triangles)
     used = {
@@ -95,11 +97,16 @@ def run(args: argparse.Namespace) -> int:
         "solver": "damped Newton (exact Hessian, Levenberg-Marquardt)",
     }
     if args.json:
-        print(json.dumps({**report.to_dict(), "part": part.to_dict(), **used}, indent=2))
+        figures = {**report.to_dict(), "part": part.to_dict(), **used}
+        print(json.dumps({**figures, "this_start": alone.to_dict()}, indent=2))
     else:
         print(part.summary())
         print(report.table())
         print(f"  started flat with a {used['seed']} seed; path {used['path']}")
+        print(
+            f"  from this start alone (a verdict takes all six: fabkit check, fabkit run): "
+            f"{alone.line()}"
+        )
         if not simulation.result.converged:
             print(
                 f"  not converged: Newton stopped at {settings.max_iterations} iterations per "
@@ -108,3 +115,19 @@ def run(args: argparse.Namespace) -> int:
         if args.out is not None:
             print(f"wrote {args.out}")
     return 0
+
+
+def _this_start(report: Comparison, seed: str) -> Shape:
+    """The verdict's words and limit applied to this one start (a verdict takes every
+    start of :data:`~fabkit.mechanics.simulate.STARTS`)."""
+    end = StartEnd(seed, report.rms, report.max, report.mirrored, report.converged)
+    return Shape(
+        report.name,
+        report.rms,
+        report.max,
+        report.mirrored,
+        report.converged,
+        FORM_TOLERANCE,
+        report.seconds,
+        starts=(end,),
+    )
