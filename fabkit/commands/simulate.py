@@ -120,14 +120,5 @@ def run(args: argparse.Namespace) -> int:
 def _this_start(report: Comparison, seed: str) -> Shape:
     """The verdict's words and limit applied to this one start (a verdict takes every
     start of :data:`~fabkit.mechanics.simulate.STARTS`)."""
-    end = StartEnd(seed, report.rms, report.max, report.mirrored, report.converged)
-    return Shape(
-        report.name,
-        report.rms,
-        report.max,
-        report.mirrored,
-        report.converged,
-        FORM_TOLERANCE,
-        report.seconds,
-        starts=(end,),
-    )
+    end = StartEnd.of(seed, report)
+    return Shape.of(report.name, (end,), FORM_TOLERANCE, report.seconds)

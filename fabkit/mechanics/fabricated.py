@@ -116,10 +116,9 @@ def coarsened(design: Design, stride: int) -> Design:
     )
 
 
-def made_mesh(design: Design, made: PointFunction, part: Part | None = None) -> DesignMesh:
-    """The design's mesh (the cells of ``part``) with only the faces whose centroid was
-    made (unused vertices dropped); a one-line error if nothing is left."""
-    mesh = design_mesh(design, part)
+def made_mesh(mesh: DesignMesh, made: PointFunction) -> DesignMesh:
+    """A design's ``mesh`` with only the faces whose centroid was made (unused vertices
+    dropped); a one-line error if nothing is left."""
     centroids = mesh.points[mesh.triangles].mean(axis=1)
     return _faces(mesh, np.asarray(made(centroids), dtype=bool))
 
@@ -300,7 +299,8 @@ def sheet_problem(
     """
     layers = [fields] if isinstance(fields, SheetFields) else list(fields)
     coarse = coarsened(design, stride)
-    mesh = made_mesh(coarse, layers[0].made, part)
+    whole = design_mesh(coarse, part)
+    mesh = made_mesh(whole, layers[0].made)
     if thickness is None:
         thickness = default_thickness(design)
 
@@ -332,15 +332,14 @@ def sheet_problem(
         metrics_at(surface),
         thickness,
         poisson,
-        patch_size(coarse, surface, part),
+        patch_size(coarse, surface, whole),
     )
 
 
-def patch_size(design: Design, surface: int, part: Part | None = None) -> float | None:
-    """The diameter (design units) of target ``surface``'s patch over the cells of
-    ``part`` (every solved cell without one) at the design's grid points; None when the
+def patch_size(design: Design, surface: int, mesh: DesignMesh) -> float | None:
+    """The diameter (design units) of target ``surface``'s patch over the design's
+    ``mesh`` (the whole part, made or not) at the design's grid points; None when the
     target has no 3D embedding."""
-    mesh = design_mesh(design, part)
     chart = mesh.sample(design.r[surface])[mesh.nodes]
     points = design.problem.targets[surface].surface.embed(chart)
     return None if points is None else diameter(points)

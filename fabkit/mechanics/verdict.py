@@ -25,7 +25,7 @@ from fabkit.background import parallel_map
 from fabkit.design.design import Design
 from fabkit.field.part import Part
 from fabkit.mechanics import cache
-from fabkit.mechanics.compare import FormedShape, compare, formed_shape
+from fabkit.mechanics.compare import Comparison, FormedShape, compare, formed_shape
 from fabkit.mechanics.fabricated import SheetFields, SheetProblem, design_fields, sheet_problem
 from fabkit.mechanics.simulate import (
     MIRRORED,
@@ -54,6 +54,11 @@ class StartEnd:
     max: float
     mirrored: bool
     converged: bool
+
+    @classmethod
+    def of(cls, start: str, distance: Comparison) -> StartEnd:
+        """Where ``start`` ended, from its comparison with the target."""
+        return cls(start, distance.rms, distance.max, distance.mirrored, distance.converged)
 
     def formed(self, tolerance: float) -> bool:
         return self.converged and not self.mirrored and self.rms <= tolerance
@@ -138,10 +143,40 @@ class Shape:
                 parts.append(text.format(len(ends), count) + f" ({', '.join(ends)})")
         return "; ".join(parts)
 
+    @classmethod
+    def of(
+        cls,
+        target: str,
+        ends: Sequence[StartEnd],
+        tolerance: float,
+        seconds: float = 0.0,
+        diameter_mm: float | None = None,
+        mesh: FormedShape | None = None,
+    ) -> Shape:
+        """The shape from where every start ended: the worst start's figures (:func:`worst`;
+        ``mesh``, when given, is that start's sheet)."""
+        bad = worst(ends, tolerance)
+        return cls(
+            target,
+            bad.rms,
+            bad.max,
+            bad.mirrored,
+            bad.converged,
+            tolerance,
+            seconds,
+            diameter_mm,
+            mesh,
+            tuple(ends),
+        )
+
+    def mm(self, share: float) -> float | None:
+        """A share of the patch diameter in mm (None where the scale is unknown)."""
+        return None if self.diameter_mm is None else share * self.diameter_mm
+
     def _pct(self, share: float, spec: str = ".2f") -> str:
         """A share of the patch diameter as a percentage, and in mm when known."""
         text = f"{100 * share:{spec}} %"
-        return text if self.diameter_mm is None else f"{text} ({share * self.diameter_mm:.3g} mm)"
+        return text if self.diameter_mm is None else f"{text} ({self.mm(share):.3g} mm)"
 
     def miss(self) -> str:
         """A missed target in a few words: ``wavy (5.36 % RMS, mirror image from 3 of 6
@@ -162,10 +197,7 @@ class Shape:
 
     def to_dict(self) -> dict:
         """The figures; the ``_mm`` ones None where the scale is unknown."""
-
-        def mm(share: float) -> float | None:
-            return None if self.diameter_mm is None else share * self.diameter_mm
-
+        mm = self.mm
         rms = [end.rms for end in self.starts] or [self.rms]
         return {
             "target": self.target,
@@ -388,26 +420,16 @@ def _shape(
     for start, result in zip(starts, results, strict=True):
         simulation = problem.simulation(result)
         distance = compare(problem.coarse, simulation, problem.patch_size)
-        ends.append(
-            StartEnd(start, distance.rms, distance.max, distance.mirrored, distance.converged)
-        )
+        ends.append(StartEnd.of(start, distance))
         found[start] = (simulation, distance)
-    bad = worst(ends, tolerance)
-    simulation, distance = found[bad.start]
-    return Shape(
-        distance.name,
-        bad.rms,
-        bad.max,
-        bad.mirrored,
-        bad.converged,
-        tolerance,
-        sum(result.seconds for result in results),
-        None if mm_per_unit is None else distance.size * mm_per_unit,
-        None
-        if mm_per_unit is None
-        else formed_shape(problem.coarse, simulation, mm_per_unit, problem.patch_size),
-        tuple(ends),
-    )
+    simulation, distance = found[worst(ends, tolerance).start]
+    if mm_per_unit is None:
+        diameter_mm, mesh = None, None
+    else:
+        diameter_mm = distance.size * mm_per_unit
+        mesh = formed_shape(problem.coarse, simulation, mm_per_unit, problem.patch_size)
+    seconds = sum(result.seconds for result in results)
+    return Shape.of(distance.name, ends, tolerance, seconds, diameter_mm, mesh)
 
 
 def share_progress(

@@ -60,7 +60,7 @@ def shape_picture(what: str, verdict: Shape) -> bytes:
     if verdict.mirrored:  # the distances drawn are to the target itself, not the verdict's
         rms = float(np.sqrt(np.mean(shape.distance_mm**2)))
     else:
-        rms = verdict.rms * shape.diameter_mm  # the verdict's figure, quoted
+        rms = verdict.mm(verdict.rms)  # the verdict's figure, quoted
     norm = Normalize(0.0, _nice_top(max(float(shape.distance_mm.max()), limit_mm)))
     figure = plt.figure(figsize=(11.0, 5.0))
     left = figure.add_axes((-0.03, 0.0, 0.46, 0.86), projection="3d")
@@ -88,7 +88,7 @@ def sheet_title(what: str, verdict: Shape) -> str:
     mm, written as the verdict's line writes it."""
     if not verdict.mirrored:
         return f"the sheet {what}"
-    from_mirror = verdict.rms * verdict.mesh.diameter_mm
+    from_mirror = verdict.mm(verdict.rms)
     return (
         f"the sheet {what}: the target's mirror image\n({from_mirror:.3g} mm RMS from it, "
         "the verdict's figure), shown as it is"
