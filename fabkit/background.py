@@ -53,6 +53,30 @@ class Worker:
         return self._pool.apply_async(_call, (function, args))
 
 
+class _Pool(Pool):
+    """A :class:`multiprocessing.pool.Pool` whose ``terminate()`` cannot hang.
+
+    The pool's feeder thread writes each task to a pipe the workers read. A task larger
+    than the pipe holds (64 kB: the toolpath preview's arrays, a simulation's mesh) given
+    while every worker is busy leaves the feeder blocked in that write. ``terminate()``
+    drains the pipe once, then kills the workers and joins the feeder, which a write
+    begun after the drain keeps blocked for ever (CPython issues 73945 and 78178 are of
+    this family): a Ctrl-C at that moment hung the run. Here the drain goes on, in a
+    thread of its own, until the feeder has ended.
+    """
+
+    @staticmethod
+    def _help_stuff_finish(inqueue: Any, task_handler: threading.Thread, size: int) -> None:
+        inqueue._rlock.acquire()  # as Pool does: no worker takes a task from here on
+
+        def drain() -> None:
+            while task_handler.is_alive():
+                if inqueue._reader.poll(0.05):
+                    inqueue._reader.recv_bytes()
+
+        threading.Thread(target=drain, name="fabkit-pool-drain", daemon=True).start()
+
+
 _WORKER: Pool | None = None
 
 
@@ -65,9 +89,8 @@ def worker(warm: tuple[str, ...] = ()) -> Iterator[Worker]:
     interrupted command goes on."""
     global _WORKER
     if _WORKER is None:
-        context = multiprocessing.get_context("spawn")
         with _sigint_ignored(), _main_hidden():
-            _WORKER = context.Pool(1, initializer=_start, initargs=(warm,))
+            _WORKER = _Pool(1, _start, (warm,), context=multiprocessing.get_context("spawn"))
         atexit.register(_terminate_worker)
     try:
         yield Worker(_WORKER)
@@ -146,9 +169,8 @@ def _pool(workers: int, warm: tuple[str, ...]) -> Pool:
     """The pool of :func:`parallel_map`, started at its first use."""
     global _POOL
     if _POOL is None:
-        context = multiprocessing.get_context("spawn")
         with _sigint_ignored(), _main_hidden():
-            _POOL = context.Pool(workers, initializer=_start, initargs=(warm,))
+            _POOL = _Pool(workers, _start, (warm,), context=multiprocessing.get_context("spawn"))
         atexit.register(_POOL.terminate)
     return _POOL
 

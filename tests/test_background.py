@@ -47,3 +47,33 @@ def test_a_script_that_calls_at_its_top_level_needs_no_main_guard(tmp_path):
     )
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() in {"1", "2"}  # worker processes, not the script's own
+
+
+def test_a_worker_stops_at_once_while_a_large_task_waits_for_it(tmp_path):
+    # Pool.terminate() alone hangs for ever here: the feeder thread, still pickling a task
+    # larger than the pipe holds when the pool drains the pipe, then blocks writing it to
+    # a busy worker (a Ctrl-C just after the run handed the toolpath preview to the
+    # picture worker)
+    script = tmp_path / "stop.py"
+    script.write_text(
+        textwrap.dedent(
+            """
+            import time
+            from fabkit.background import worker
+            try:
+                with worker() as background:
+                    background.start("time:sleep", 10.0)
+                    time.sleep(0.5)  # the worker is busy
+                    background.start("builtins:len", list(range(3_000_000)))  # slow to pickle
+                    start = time.perf_counter()
+                    raise KeyboardInterrupt
+            except KeyboardInterrupt:
+                print(f"stopped in {time.perf_counter() - start:.1f} s")
+            """
+        )
+    )
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=60, cwd=tmp_path
+    )
+    assert done.returncode == 0, done.stderr
+    assert float(done.stdout.split()[2]) < 5.0

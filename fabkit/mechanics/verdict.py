@@ -378,6 +378,8 @@ def _simulations(
         if progress is not None:
             progress(done + finished, len(calls))
 
+    if done:
+        advance(0, len(missing))  # those read or reflected count as done
     computed = parallel_map(
         "fabkit.mechanics.simulate:simulate", [calls[k] for k in missing], WARM, advance
     )
