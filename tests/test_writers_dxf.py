@@ -81,7 +81,9 @@ def test_baromorph_channels_outline_and_inlet(tmp_path):
     (inlet,) = layers["INLET"]
     assert inlet.dxftype() == "CIRCLE" and inlet.dxf.radius == 0.6
     assert (inlet.dxf.center.x, inlet.dxf.center.y) == (plate.inlet.x, plate.inlet.y)
-    assert summary.entities == {"PATHS": 4, "TRAVEL": 2, "CHANNELS": 1, "OUTLINE": 1, "INLET": 1}
+    assert summary.entities == {
+        "PATHS": 4, "TRAVEL": 2, "CHANNELS": 1, "OUTLINE": 1, "INLET": 1, "MANIFOLD": 0
+    }  # fmt: skip
 
 
 def test_polygons_with_holes_lists_and_lines():
@@ -138,14 +140,25 @@ def test_librecad_opens_and_prints_the_drawing(tmp_path):
     assert pdf.read_bytes().startswith(b"%PDF") and pdf.stat().st_size > 5000
 
 
-def test_channel_layout_gives_the_three_sheet_layers():
+def test_channel_layout_gives_the_four_sheet_layers():
     plate = baromorph()
-    manifold = shapely.Point(0, 0).buffer(19.0).difference(shapely.Point(0, 0).buffer(18.0))
+    ring = shapely.Point(0, 0).buffer(19.0).difference(shapely.Point(0, 0).buffer(18.0))
+    inlet_channel = shapely.box(18.5, -0.5, 21.0, 0.5)  # overlaps the ring
     layout = SimpleNamespace(
-        outline=plate.outline, network=plate.channels.union(manifold), inlet=(2.0, 0.0)
+        outline=plate.outline,
+        network=plate.channels.union(ring).union(inlet_channel),
+        manifold=shapely.GeometryCollection([ring, inlet_channel]),
+        inlet=(2.0, 0.0),
     )
     doc, summary = dxf_document(**layout_layers(layout))
     assert summary.entities["OUTLINE"] == 1 and summary.entities["INLET"] == 1
     rings = 1 + len(layout.network.interiors)
     assert summary.entities["CHANNELS"] == rings
     assert all(e.closed for e in _by_layer(doc)["CHANNELS"])
+    # the manifold as one region (the overlap does not cancel in even-odd), never plotted
+    manifold = [shapely.Polygon(e.get_points("xy")) for e in _by_layer(doc)["MANIFOLD"]]
+    region = manifold[0]
+    for polygon in manifold[1:]:
+        region = region.symmetric_difference(polygon)
+    assert region.area == pytest.approx(ring.union(inlet_channel).area, rel=1e-6)
+    assert doc.layers.get("MANIFOLD").dxf.plot == 0 and doc.layers.get("CHANNELS").dxf.plot == 1

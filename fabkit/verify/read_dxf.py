@@ -143,6 +143,11 @@ def _placement(document, path: Path) -> Placement:
 
 CHANNELS = "CHANNELS"
 OUTLINE = "OUTLINE"
+MANIFOLD = "MANIFOLD"
+WALL_TURN_DEG = 20.0
+"""A cut one of whose ends meets a wall turned more than this from the channel's
+direction (a channel's round end, two channels merging) is not read: there the cut's
+length is not the channel's width."""
 NEIGHBOURS = 24
 """Nearest wall points whose direction (as a tensor) gives a channel cell's direction."""
 WIDEST_MARGIN = 0.05
@@ -162,12 +167,15 @@ def read_channels(
     perpendicular to it, within the channel (exact, from the polygons; a cut wider than
     the widest channel ``widest_mm``, at a junction, is not read).
     Walls take the values of the nearest channel cell within half a ``pitch_mm``; cells
-    within ``band_mm`` of the ``OUTLINE`` (the manifold ring along the edge) are not read.
+    within ``band_mm`` of the ``OUTLINE`` (the manifold ring along the edge) are not read,
+    nor, where the drawing has a ``MANIFOLD`` layer (:mod:`fabkit.writers.dxf`), the
+    manifold's ring, inlet channel and connectors, nor a cut that runs into them: they
+    are as wide as the manifold, not as a feature asks.
     """
 
     document = _document(path)
     path = Path(path)
-    rings: dict[str, list[shapely.Polygon]] = {CHANNELS: [], OUTLINE: []}
+    rings: dict[str, list[shapely.Polygon]] = {CHANNELS: [], OUTLINE: [], MANIFOLD: []}
     for entity in document.modelspace():
         layer = entity.dxf.get("layer")
         if layer in rings and entity.dxftype() == "LWPOLYLINE" and entity.closed:
@@ -187,8 +195,11 @@ def read_channels(
     y = low[1] + cell * (np.arange(shape[1]) + 0.5)
     xx, yy = np.meshgrid(x, y, indexing="ij")
     channel = shapely.contains_xy(network, xx, yy)
+    manifold = _even_odd(rings[MANIFOLD]) if rings[MANIFOLD] else None
+    if manifold is not None:
+        channel &= ~shapely.contains_xy(manifold.buffer(cell), xx, yy)
     points = np.column_stack([xx[channel], yy[channel]])
-    direction, width = _cuts(network, points, 2 * widest_mm, cell)
+    direction, width = _cuts(network, points, 2 * widest_mm, cell, manifold)
     width[width > widest_mm * (1 + WIDEST_MARGIN)] = np.nan  # a junction, not a channel
     theta = np.full(shape, np.nan)
     widths = np.full(shape, np.nan)
@@ -226,10 +237,15 @@ def _even_odd(polygons: list[shapely.Geometry]) -> shapely.Geometry:
 
 
 def _cuts(
-    network: shapely.Geometry, points: np.ndarray, reach: float, step: float
+    network: shapely.Geometry,
+    points: np.ndarray,
+    reach: float,
+    step: float,
+    manifold: shapely.Geometry | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Channel direction (rad) and width (mm) at points inside the channels: the nearest
-    wall's direction, and the length of the cut perpendicular to it through the point."""
+    wall's direction, and the length of the cut perpendicular to it through the point
+    (NaN where the cut runs into ``manifold``)."""
     boundary = shapely.segmentize(shapely.boundary(network), step / 4)
     lines = shapely.get_parts(boundary)
     vertices, tangents = [], []
@@ -249,9 +265,17 @@ def _cuts(
     pieces = shapely.intersection(cuts, network)
     width = np.full(len(points), np.nan)
     probes = shapely.points(points)
+    ends = np.full((len(points), 2, 2), np.nan)
     for k, piece in enumerate(pieces):
         for part in shapely.get_parts(piece):
             if shapely.distance(part, probes[k]) < 1e-9:
-                width[k] = part.length if part.length < reach else np.nan
+                if part.length < reach and not (manifold and shapely.intersects(part, manifold)):
+                    width[k] = part.length
+                    ends[k] = np.asarray(part.coords)[[0, -1], :2]
                 break
+    cut = np.flatnonzero(np.isfinite(width))
+    _, at_end = cKDTree(vertices).query(ends[cut].reshape(-1, 2))
+    wall = np.arctan2(tangents[at_end, 1], tangents[at_end, 0]).reshape(-1, 2)
+    turned = np.abs(np.sin(wall - angle[cut, None])) > np.sin(np.radians(WALL_TURN_DEG))
+    width[cut[turned.any(axis=1)]] = np.nan
     return angle, width

@@ -1,6 +1,6 @@
 """DXF writer: toolpaths and sheet geometry as a drawing for CAD, cutters and plotters.
 
-One DXF (R2010, units mm) with five layers:
+One DXF (R2010, units mm) with six layers:
 
 ========= ====== =============================================================
 layer     colour content
@@ -10,6 +10,10 @@ TRAVEL    8      every travel move, an open LWPOLYLINE (DASHED)
 CHANNELS  1      channel boundaries (baromorphs), closed LWPOLYLINEs
 OUTLINE   5      the sheet outline, closed LWPOLYLINEs
 INLET     3      inlets: a CIRCLE of ``inlet_radius_mm`` per point, or closed polylines
+MANIFOLD  4      a baromorph's manifold ring, inlet channel and connectors (part of the
+                 channels), closed LWPOLYLINEs on a layer that is not plotted: a cutter
+                 skips it, the read-back (:mod:`fabkit.verify.read_dxf`) reads no width
+                 there
 ========= ====== =============================================================
 
 Every print move's polyline has the road width as its constant width and carries the
@@ -22,7 +26,7 @@ The header's custom properties ``fabkit_offset_mm`` (x,y,z) and ``fabkit_mm_per_
 record where the sheet was placed and its scale. Dose channels are refused (the laser
 writer exposes them).
 
-Channels, outline and inlet are plain shapely geometry (polygons, multipolygons, rings,
+Channels, outline, inlet and manifold are plain shapely geometry (polygons, multipolygons, rings,
 lines, points, or lists of them), in the sheet frame like the toolpath;
 :func:`layout_layers` takes them from a baromorph channel layout. A polygon gives
 one closed polyline per ring (holes included). A print move whose height varies (not
@@ -57,8 +61,11 @@ LAYERS = {
     "CHANNELS": (1, "CONTINUOUS"),
     "OUTLINE": (5, "CONTINUOUS"),
     "INLET": (3, "CONTINUOUS"),
+    "MANIFOLD": (4, "CONTINUOUS"),
 }
 """Layer name -> (ACI colour, linetype)."""
+NOT_PLOTTED = ("MANIFOLD",)
+"""Layers drawn for the record, which a plotter or cutter skips."""
 DEFAULT_INLET_RADIUS_MM = 0.5
 APP_ID = "FABKIT"
 """The registered application of the channels' extended data."""
@@ -95,6 +102,7 @@ def dxf_document(
     outline: Geometry = None,
     channels: Geometry = None,
     inlet: Geometry = None,
+    manifold: Geometry = None,
     machine: MachineProfile | None = None,
     offset_mm: tuple[float, ...] | None = None,
     inlet_radius_mm: float = DEFAULT_INLET_RADIUS_MM,
@@ -109,7 +117,12 @@ def dxf_document(
         raise FabkitError(f"inlet radius must be > 0 mm, got {inlet_radius_mm}")
     shapes = {
         name: _parts(g, name)
-        for name, g in (("OUTLINE", outline), ("CHANNELS", channels), ("INLET", inlet))
+        for name, g in (
+            ("OUTLINE", outline),
+            ("CHANNELS", channels),
+            ("INLET", inlet),
+            ("MANIFOLD", manifold),
+        )
     }
     moves = [m for _, m in toolpath.moves()] if toolpath is not None else []
     if not moves and not any(shapes.values()):
@@ -136,7 +149,9 @@ def dxf_document(
         doc.header.custom_vars.append("fabkit_mm_per_unit", f"{scale:.9g}")
     doc.appids.new(APP_ID)
     for name, (colour, linetype) in LAYERS.items():
-        doc.layers.add(name, color=colour, linetype=linetype)
+        layer = doc.layers.add(name, color=colour, linetype=linetype)
+        if name in NOT_PLOTTED:
+            layer.dxf.plot = 0
     msp = doc.modelspace()
     counts = dict.fromkeys(LAYERS, 0)
     for move in moves:
@@ -179,17 +194,24 @@ def _add_move(msp: Any, move: Any, shift: np.ndarray, channels: tuple[str, ...])
 
 
 def layout_layers(layout: Any) -> dict[str, shapely.Geometry]:
-    """The ``outline``, ``channels`` and ``inlet`` layers of a baromorph channel layout.
+    """The ``outline``, ``channels``, ``inlet`` and ``manifold`` layers of a baromorph
+    channel layout.
 
     ``layout`` is anything with ``outline`` (polygon), ``network`` (the union of channels,
-    manifold and inlet channel: what a cutter cuts) and ``inlet`` ((x, y) or a point), as
+    manifold and inlet channel: what a cutter cuts), ``manifold`` (the ring, inlet channel
+    and connectors) and ``inlet`` ((x, y) or a point), as
     :class:`fabkit.toolpath.baromorph.ChannelLayout` has; pass the result to
     :func:`write_dxf` as keyword arguments.
     """
     inlet = layout.inlet
     if not isinstance(inlet, shapely.Geometry):
         inlet = shapely.Point(*inlet)
-    return {"outline": layout.outline, "channels": layout.network, "inlet": inlet}
+    return {
+        "outline": layout.outline,
+        "channels": layout.network,
+        "inlet": inlet,
+        "manifold": shapely.union_all(layout.manifold),  # one region: no overlap cancels
+    }
 
 
 def _parts(geometry: Geometry, name: str) -> list[shapely.Geometry]:
