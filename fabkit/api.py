@@ -23,9 +23,6 @@ if TYPE_CHECKING:
     from fabkit.verify.machine_file import Verification
     from fabkit.writers.export import Exported, ExportOptions, Source
 
-DEFAULT_SIZE_MM = 60.0
-"""The sheet's longest side when none is given (mm), as ``fabkit run``'s ``--size``."""
-
 PLAN_SETTINGS = (
     "mm_per_unit",
     "part_request",
@@ -67,12 +64,13 @@ def solve(spec: Spec, progress: Callable[[int, int], None] | None = None) -> Des
 def plan_toolpath(
     design: Design,
     machine: str | MachineProfile | None = None,
-    size_mm: float = DEFAULT_SIZE_MM,
+    size_mm: float | None = None,
     **settings: Any,
 ) -> Plan:
-    """Print lines along the director of ``design`` for ``machine``'s process, the sheet
-    ``size_mm`` long on its longest side (:func:`fabkit.toolpath.job.plan_job`, as
-    ``fabkit toolpath design.npz --size``, writing nothing).
+    """Print lines along the director of ``design`` for ``machine``'s process, the part
+    ``size_mm`` long on its longest side (default ``fabkit run``'s, 60 mm;
+    :func:`fabkit.toolpath.job.plan_job`, as ``fabkit toolpath design.npz --size``,
+    writing nothing).
 
     ``machine``: a profile name (``fabkit machines`` lists them), a .toml path or a
     :class:`~fabkit.machines.MachineProfile` (default marlin_diw_pneumatic). The design
@@ -86,6 +84,7 @@ def plan_toolpath(
     frame, placed on the bed by the writer), ``plan.quality`` (one per layer) and
     ``plan.warnings`` (one line each).
     """
+    from fabkit.run.inputs import DEFAULT_SIZE_MM
     from fabkit.toolpath.job import ToolpathJob, plan_job
 
     unknown = sorted(set(settings) - set(PLAN_SETTINGS))
@@ -94,7 +93,7 @@ def plan_toolpath(
     job = ToolpathJob(
         inputs=("design.npz",),  # the field's name only: the design is given as a value
         design=design,
-        size_mm=size_mm,
+        size_mm=DEFAULT_SIZE_MM if size_mm is None else size_mm,
         **({"process": _profile(machine).process} if machine is not None else {}) | settings,
     )
     return plan_job(job).plan
