@@ -230,7 +230,7 @@ def add_length(parser: argparse._ActionsContainer, flag: str, help: str, **kwarg
 
 
 def add_scale(parser: argparse._ActionsContainer, size_help: str, scale_help: str) -> None:
-    """The design's scale, one of ``--size MM`` (the sheet's longest side) and ``--scale
+    """The design's scale, one of ``--size MM`` (the part's longest side) and ``--scale
     MM_PER_UNIT``, in ``args.size_mm`` and ``args.mm_per_unit``."""
     scale = parser.add_mutually_exclusive_group()
     add_length(scale, "--size", size_help)

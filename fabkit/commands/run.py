@@ -33,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     commands.add_length(
         parser,
         "--size",
-        "longest side of the flat sheet in mm (default %(default)g)",
+        "longest side of the part that is printed, mm (default %(default)g)",
         default=DEFAULT_SIZE_MM,
     )
     commands.add_process(

@@ -37,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     commands.add_length(
         layers,
         "--size",
-        "longest side of the flat sheet in mm, as fabkit run --size (default %(default)g)",
+        "longest side of the part, mm, as fabkit run --size (default %(default)g)",
         default=DEFAULT_SIZE_MM,
     )
     add_progress(parser)

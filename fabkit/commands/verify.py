@@ -35,7 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     commands.add_scale(
         parser,
-        "the sheet's longest side (default: the file's)",
+        "the part's longest side, as fabkit run --size (default: the file's scale)",
         "mm per design unit (default: file's)",
     )
     parser.add_argument(

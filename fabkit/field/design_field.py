@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField, PlaneFunction
-from fabkit.field.part import Part, PartOptions, print_part, scale_for_size, solved_region
+from fabkit.field.part import Part, PartOptions, part_of_size, print_part, solved_region
 from fabkit.files.tomlfile import real
 
 DESIGN_KEYS = ("u", "v", "valid", "eps", "r", "n")
@@ -43,7 +43,7 @@ def field_from_design(
     ``part``: a :class:`~fabkit.field.part.Part` made already (its scale is the field's; then give
     neither size nor scale), or the options to make one (default :class:`PartOptions`: the
     smooth margin outline only). Otherwise give exactly one of ``size_mm`` (the longest
-    side of the solved region's bounding box, mm) and ``mm_per_unit`` (mm per design unit).
+    side of the part's bounding box, mm) and ``mm_per_unit`` (mm per design unit).
     Every feature of the design is carried, named as in its spec.
     """
     design, path = _design_and_name(source, name)
@@ -59,10 +59,14 @@ def field_from_design(
                 "design: give the size (--size MM, longest side) or --scale MM_PER_UNIT"
             )
         solved = solved_region(design, str(path))
+        options = part or PartOptions()
         if size_mm is not None:
-            mm_per_unit = scale_for_size(solved, real(size_mm, "--size", positive=True))
-        scale = real(mm_per_unit, "--scale", positive=True)
-        part = print_part(design, scale, part or PartOptions(), solved, str(path))
+            size = real(size_mm, "--size", positive=True)
+            part = part_of_size(design, size, options, solved, str(path))
+        else:
+            scale = real(mm_per_unit, "--scale", positive=True)
+            part = print_part(design, scale, options, solved, str(path))
+        scale = part.mm_per_unit
     arrays = {key: getattr(design, key) for key in DESIGN_KEYS}
     names = feature_names(design, str(path))
     mesh = _DesignMesh.build(arrays, scale, str(path))

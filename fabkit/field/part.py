@@ -274,6 +274,47 @@ def scale_for_size(solved: shapely.Geometry, size_mm: float) -> float:
     return size_mm / max(high_x - low_x, high_y - low_y)
 
 
+SIZE_TOLERANCE = 0.002
+"""A part is of the size asked when its longest side is within this share below it."""
+SIZE_ITERATIONS = 12
+"""Most parts cut while looking for the scale of a size (each about 0.07 s)."""
+
+
+def part_of_size(
+    design: Design,
+    size_mm: float,
+    options: PartOptions,
+    solved: shapely.Geometry | None = None,
+    where: str = "design",
+) -> Part:
+    """The part of ``design`` whose longest side (its bounding box's, mm) is ``size_mm``:
+    within :data:`SIZE_TOLERANCE`, never longer. The trim and the minimum width are
+    lengths in mm that remove more of a smaller sheet, so the scale is found by
+    iteration from the one that gives the solved region that size (the part is never
+    larger than the solved region); where no scale reaches it within
+    :data:`SIZE_ITERATIONS` parts, the longest part below it. With an ``--outline`` (a
+    shape in mm, which bounds the part whatever the scale) ``size_mm`` is the solved
+    region's longest side."""
+    solved = solved_region(design, where) if solved is None else solved
+    scale = scale_for_size(solved, size_mm)
+    if options.outline is not None:
+        return print_part(design, scale, options, solved, where)
+    best, low, high = None, 0.0, math.inf  # the first part is never longer than asked
+    for _ in range(SIZE_ITERATIONS):
+        part = print_part(design, scale, options, solved, where)
+        longest = max(part.extent())
+        if longest > size_mm:
+            high = scale
+        else:
+            low = scale
+            best = part if best is None or longest > max(best.extent()) else best
+            if longest >= (1 - SIZE_TOLERANCE) * size_mm:
+                break
+        guess = scale * size_mm / longest
+        scale = guess if low < guess < high else (low + high) / 2
+    return best
+
+
 def bending_length(design: Design, thickness: float) -> float | None:
     """sqrt(h R) (design units) for thickness h; None when every target is flat, or the
     design carries no spec with targets (a design made by other means than the solver:

@@ -36,7 +36,8 @@ DEFAULT_SIZE_MM = 60.0
 
 @dataclass(frozen=True)
 class RunOptions:
-    """What ``fabkit run`` is asked to do; ``size_mm`` is the sheet's longest side in mm.
+    """What ``fabkit run`` is asked to do; ``size_mm`` is the longest side of the part
+    that is printed, in mm.
 
     ``step`` and ``diagonals`` replace the spec's solver settings when given;
     ``mesh_format`` is the patch meshes' file type (ply, stl, glb or obj).

@@ -26,8 +26,7 @@ from fabkit.field.part import (
     MIN_WIDTH_ROADS,
     Part,
     PartRequest,
-    print_part,
-    scale_for_size,
+    part_of_size,
     solved_region,
 )
 from fabkit.figures import AREA_UNIT
@@ -185,7 +184,7 @@ def design_part(
     options = (request or PartRequest()).for_process(
         process.road_width_mm, layers * process.layer_height_mm, MIN_WIDTH_ROADS
     )
-    return print_part(design, scale_for_size(solved, size_mm), options, solved)
+    return part_of_size(design, size_mm, options, solved)
 
 
 def _part(options: RunOptions, inputs: RunInputs, design: Design) -> Part:
@@ -198,9 +197,9 @@ def _part(options: RunOptions, inputs: RunInputs, design: Design) -> Part:
         )
     settings = inputs.baromorph
     solved = solved_region(design)
-    return print_part(
+    return part_of_size(
         design,
-        scale_for_size(solved, options.size_mm),
+        options.size_mm,
         options.part_request.for_process(
             settings.pitch_mm, settings.part_thickness_mm, MIN_WIDTH_PITCHES
         ),
