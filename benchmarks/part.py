@@ -1,4 +1,4 @@
-"""The part (issue 17) of Fig. 1 and Fig. 3 at 60 mm: its figures, and docs/part.md's pictures.
+"""The part (issue 17) of Fig. 1 and Fig. 3, 60 mm long: its figures, and docs/part.md's pictures.
 
     python benchmarks/part.py [--pictures docs/images]
 
@@ -36,8 +36,7 @@ from fabkit.field.part import (  # noqa: E402
     Part,
     PartOptions,
     margin_outline,
-    print_part,
-    scale_for_size,
+    part_of_size,
     solved_region,
 )
 from fabkit.machines import load_machine  # noqa: E402
@@ -46,7 +45,7 @@ from tests.test_part import opened_share, turn_over  # noqa: E402
 
 SIZE_MM = 60.0
 FIGURES = {"Fig. 1": "two_shapes.toml", "Fig. 3": "three_shapes.toml"}
-CLOSE_UPS = {"Fig. 1": (-14.0, 6.0, 5.0), "Fig. 3": (44.0, 16.0, 6.0)}
+CLOSE_UPS = {"Fig. 1": (-20.0, 8.5, 5.0), "Fig. 3": (45.0, 16.3, 6.0)}
 """Centre x, y and half-width (mm) of each close-up."""
 USER_OUTLINE = "ellipse:22,11"
 
@@ -59,7 +58,7 @@ def cut(design: Design, outline: str | None = None) -> tuple[Part, float]:
     options = PartOptions(
         outline=outline, road_width_mm=process.road_width_mm, thickness_mm=process.layer_height_mm
     )
-    part = print_part(design, scale_for_size(solved, SIZE_MM), options, solved)
+    part = part_of_size(design, SIZE_MM, options, solved)
     return part, time.perf_counter() - started
 
 
