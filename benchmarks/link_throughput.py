@@ -58,8 +58,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from fabkit.gcode.duration import estimate  # noqa: E402
 from fabkit.gcode.read import Command, commands_from_lines, frame_marlin, read_job  # noqa: E402
-from fabkit.link.duration import estimate  # noqa: E402
 from fabkit.link.emulator.port import PtyEmulator, config_from_url  # noqa: E402
 from fabkit.link.host.ports import open_port  # noqa: E402
 from fabkit.link.host.send import stream_job  # noqa: E402

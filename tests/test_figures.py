@@ -64,6 +64,7 @@ def made(tmp_path_factory):
         "export", out / "toolpath" / "toolpath.npz", "--machine", "marlin_diw_pneumatic",
         "--format", "gcode", "-o", folder / "again.gcode",
     )  # fmt: skip
+    texts["dry_run"] = stdout("send", out / "sheet.gcode", "--dry-run")
     return {
         "out": out,
         "texts": texts,
@@ -137,6 +138,27 @@ def test_lengths_are_one_figure_each(made):
         assert numbers_after(line, "printing")[0] == pytest.approx(printing, abs=0.05)
         assert numbers_after(line, "non-printing moves")[0] == pytest.approx(moving, abs=0.05)
     assert f"<td>{between:.4g}</td>" in made["html"]
+
+
+def test_the_duration_and_the_moves_are_one_figure_each(made):
+    """Issue 37: the header said ;TIME:361 and the report "about 6 min" where send
+    --dry-run said 0:06:24 (the writer summed length over feed, send planned the moves);
+    the moves were 31,434 in the report and 31,436 in the dry run (the start and end
+    G-code's two moves). Every one now quotes the planner's figure on the file."""
+    from fabkit.progress import clock
+
+    machine_file = made["report"]["machine file"]
+    seconds, moves = machine_file["estimated_seconds"], machine_file["moves"]
+    header = made["gcode"]
+    assert f";TIME:{round(seconds)}\n" in header
+    assert numbers_after(header, ";fabkit printing path")[-1] == pytest.approx(seconds, abs=0.05)
+    dry_run = made["texts"]["dry_run"]
+    assert f"estimated duration: {clock(seconds)} (moves and dwells" in dry_run
+    assert f" {moves} moves fit machine" in dry_run
+    html = re.sub(r"<[^>]+>", "", made["html"])
+    assert f"({moves} moves), in {clock(seconds)} (h:mm:ss" in html
+    for line in (made["report"]["exports"]["gcode"], made["texts"]["export"]):
+        assert f"({moves} moves)" in line and f"estimated duration {clock(seconds)};" in line
 
 
 def test_no_repr_and_no_empty_words(made):

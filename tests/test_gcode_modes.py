@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
+from fabkit.gcode.duration import estimate
 from fabkit.gcode.modes import DistanceModes
 from fabkit.gcode.read import commands_from_lines
-from fabkit.link.duration import estimate
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from fabkit.verify.read_gcode import read_gcode

@@ -18,9 +18,9 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.duration import estimate
 from fabkit.gcode.position import Position
 from fabkit.gcode.read import commands_from_lines
-from fabkit.link.duration import estimate
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
 from tests.test_link_support import quick, run_sim

@@ -7,8 +7,8 @@ import random
 
 import pytest
 
+from fabkit.gcode.duration import Kinematics, estimate, trapezoid_time
 from fabkit.gcode.read import Command, commands_from_lines
-from fabkit.link.duration import Kinematics, estimate, trapezoid_time
 from fabkit.link.emulator.port import Emulator, config_from_url
 from fabkit.link.host.session import send_eta
 from fabkit.machines import load_machine

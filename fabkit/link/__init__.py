@@ -2,7 +2,7 @@
 profile, stream it over serial or hand it to a printer host) and the emulated machine
 (:mod:`~fabkit.link.emulator`), sharing the G-code words and dialects
 (:mod:`~fabkit.gcode.read`, :mod:`~fabkit.link.answers`, :mod:`~fabkit.link.arcs`,
-:mod:`~fabkit.link.duration`)."""
+:mod:`~fabkit.gcode.duration`)."""
 
 import serial
 

@@ -19,6 +19,7 @@ from fabkit.plot.page import (
     as_sentence,
     as_spans,
 )
+from fabkit.progress import clock
 
 
 def verdict_section(figures: Mapping[str, Any]) -> Section:
@@ -100,11 +101,12 @@ def _machine_file_sentences(figures: Mapping[str, Any]) -> list[Paragraph]:
     head += [" for ", Code(figures["machine"]), ")"]
     if "estimated_seconds" in machine_file:
         volume = machine_file["volume_mm3"]
-        time = _duration(machine_file["estimated_seconds"])
+        time = clock(machine_file["estimated_seconds"])
         head.append(
             f" prints {machine_file['print_length_mm'] / 1000:.3g} m of road in "
-            f"{machine_file['lines']} lines, in about {time} (the writer's estimate), with "
-            f"{volume:.4g} mm³ of material ({volume / 1000:.3g} mL)."
+            f"{machine_file['lines']} lines ({machine_file['moves']} moves), in {time} "
+            "(h:mm:ss, as the machine's planner runs its moves and dwells; homing and "
+            f"heating not counted), with {volume:.4g} mm³ of material ({volume / 1000:.3g} mL)."
         )
     elif "entities" in machine_file:
         entities = machine_file["entities"]
@@ -121,14 +123,6 @@ def _machine_file_sentences(figures: Mapping[str, Any]) -> list[Paragraph]:
     if sent:
         paragraphs.append(Paragraph(_sent_sentence(sent)))
     return paragraphs
-
-
-def _duration(seconds: float) -> str:
-    """A duration in words: ``15 min``, ``1 h 12 min``, ``40 s``."""
-    if seconds < 90:
-        return f"{seconds:.0f} s"
-    minutes = round(seconds / 60)
-    return f"{minutes} min" if minutes < 60 else f"{minutes // 60} h {minutes % 60} min"
 
 
 def _sent_sentence(sent: Mapping[str, Any]) -> Text:

@@ -39,6 +39,7 @@ from fabkit.files.npzfile import npz_keys
 from fabkit.files.readfile import read_json
 from fabkit.machines import MachineProfile, load_machine
 from fabkit.process import Process
+from fabkit.progress import clock
 from fabkit.toolpath.exposure import LaserSettings, sample_field
 from fabkit.toolpath.model import Toolpath, load_toolpath
 from fabkit.writers.common import FORMATS
@@ -204,8 +205,8 @@ def describe_gcode(out: Path, s: GcodeSummary, machine: str) -> str:
     return (
         f"wrote {out}: {s.lines} lines ({s.motion_lines} moves), printing {s.print_length_mm:.1f}"
         f" mm, non-printing moves {s.travel_length_mm:.1f} mm (travels between lines, lifts, "
-        f"to and from the sheet), volume {s.volume_mm3:.2f} mm^3, estimated "
-        f"{s.duration_s / 60:.1f} min; {extrusion}; offset {_xyz(s.offset_mm)} mm on {machine}"
+        f"to and from the sheet), volume {s.volume_mm3:.2f} mm^3, estimated duration "
+        f"{clock(s.duration_s)}; {extrusion}; offset {_xyz(s.offset_mm)} mm on {machine}"
     )
 
 

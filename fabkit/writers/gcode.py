@@ -61,6 +61,8 @@ from dataclasses import replace
 from pathlib import Path
 
 from fabkit.files.atomic import atomic_path
+from fabkit.gcode.duration import estimate
+from fabkit.gcode.read import commands_from_lines
 from fabkit.machines import MachineProfile
 from fabkit.toolpath.model import Toolpath
 from fabkit.writers.gcode_checks import Kinematics, check_rows, slow_travels
@@ -98,6 +100,10 @@ def gcode_bytes(
     summary = job_summary(rows, kinematics, paths, setup)
     rows = rows.modal(setup)
     body = render(rows.prefix, row_prefixes(setup), rows.values, rows.present, WORDS)
-    head = header_bytes(summary, toolpath, machine, setup)
-    text = head + body + lines_bytes(machine.render("end_gcode"))
-    return text, replace(summary, lines=text.count(b"\n"), motion_lines=int(rows.motion().sum()))
+    end = lines_bytes(machine.render("end_gcode"))
+    draft = header_bytes(summary, toolpath, machine, setup) + body + end
+    # the file as the machine plans it (the header's time is a comment, which it skips)
+    planned = estimate(commands_from_lines(draft.decode("ascii").splitlines()), machine)
+    summary = replace(summary, duration_s=planned.total_s, motion_lines=planned.moves)
+    text = header_bytes(summary, toolpath, machine, setup) + body + end
+    return text, replace(summary, lines=text.count(b"\n"))

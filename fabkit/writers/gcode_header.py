@@ -28,7 +28,12 @@ _FLAVOUR_NAMES = {
 
 @dataclass(frozen=True)
 class GcodeSummary:
-    """What was written: counts, lengths (mm), volume (mm^3), E total, time (s), bounds."""
+    """What was written: counts, lengths (mm), volume (mm^3), E total, time (s), bounds.
+
+    ``duration_s`` and ``motion_lines`` are the file's as :func:`fabkit.gcode.duration.estimate`
+    plans and counts them (moves and dwells, as the machine's planner runs them; homing
+    and heating not counted): the one figure the header, the report, ``export`` and
+    ``send`` quote."""
 
     lines: int
     motion_lines: int
@@ -51,11 +56,11 @@ def lines_bytes(lines: list[str]) -> bytes:
 
 
 def job_summary(rows: Rows, kin: Kinematics, paths: Paths, setup: Setup) -> GcodeSummary:
+    """The job's figures from its rows; its ``lines``, ``motion_lines`` and
+    ``duration_s`` are those of the whole file, set once it is rendered."""
     printing = paths.printing[rows.move[kin.rows]]
     length = np.nan_to_num(kin.length)
     e = rows.e_delta[kin.rows]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        seconds = np.where(length > 0, length, np.abs(e)) / kin.speed
     low, high = column_bounds(kin.position[np.isfinite(kin.position).all(axis=1)])
     return GcodeSummary(
         lines=0,
@@ -64,7 +69,7 @@ def job_summary(rows: Rows, kin: Kinematics, paths: Paths, setup: Setup) -> Gcod
         travel_length_mm=float(length[~printing].sum()),
         volume_mm3=float(rows.volume.sum()),
         e_total=float(e[printing].sum()),
-        duration_s=float(np.nan_to_num(seconds, posinf=0.0).sum()),
+        duration_s=0.0,
         low_mm=tuple(low.tolist()),
         high_mm=tuple(high.tolist()),
         offset_mm=tuple(paths.offset.tolist()),

@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import TextIO
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.duration import Estimate, estimate
 from fabkit.gcode.read import Command, read_job_bytes
-from fabkit.link.duration import Estimate, estimate
 from fabkit.link.host.preflight import JobCheck, check_job
 from fabkit.link.host.session import LinkControl
 from fabkit.machines import MachineProfile

@@ -23,10 +23,10 @@ from collections.abc import Callable, Sequence
 from typing import Protocol
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.duration import STOPS, estimate
 from fabkit.gcode.read import Command, code_of, frame_marlin
 from fabkit.link import answers
 from fabkit.link.answers import Answer, classify
-from fabkit.link.duration import STOPS, estimate
 from fabkit.link.host.session import LinkControl, LinkOptions
 from fabkit.machines import MachineProfile
 

@@ -261,7 +261,7 @@ class MarlinDialect:
         self.modes.apply("M83")
 
     def _G4(self, label: str, block: Block) -> None:
-        """A dwell moves nothing (its time counts in fabkit.link.duration)."""
+        """A dwell moves nothing (its time counts in fabkit.gcode.duration)."""
 
     def _G92(self, label: str, block: Block) -> None:
         """Set the logical position: the shift becomes machine - value (G92.cpp)."""

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 from typing import Any, Protocol, TextIO
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.duration import Estimate, estimate
 from fabkit.gcode.read import Command
-from fabkit.link.duration import Estimate, estimate
 from fabkit.machines import MachineProfile
 from fabkit.progress import ProgressBar
 

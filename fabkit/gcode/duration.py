@@ -83,12 +83,14 @@ class Estimate:
 
     ``end_s[i]``: the motion clock when command ``i`` (of the job) has finished (its
     move, or its dwell); ``positions[i]``: the logical X, Y, Z, E after command ``i``
-    (None where unknown); ``waits``: commands whose time is not included.
+    (None where unknown); ``waits``: commands whose time is not included; ``moves``: the
+    commands that move (as the pre-flight check counts them).
     """
 
     end_s: tuple[float, ...]
     positions: tuple[tuple[float | None, ...], ...]
     waits: tuple[str, ...]
+    moves: int = 0
 
     @property
     def total_s(self) -> float:
@@ -206,6 +208,7 @@ def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
     positions: list[tuple[float | None, ...]] = []
     waits: list[str] = []
     segments: list[list[_Block]] = [blocks]
+    moves = 0
     for index, command in enumerate(job):
         try:
             block = read(command.text)
@@ -214,6 +217,7 @@ def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
         deltas = walker.step(block)
         positions.append(tuple(walker.position.logical))
         if deltas is not None:
+            moves += 1
             planned = _block(deltas, walker.motion, block.values, walker, kinematics, index)
             if planned is not None:
                 segments[-1].append(planned)
@@ -237,7 +241,7 @@ def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
     for index in range(len(job)):
         clock_s += finish[index] + dwell_after.get(index, 0.0)
         end_s.append(clock_s)
-    return Estimate(tuple(end_s), tuple(positions), tuple(waits))
+    return Estimate(tuple(end_s), tuple(positions), tuple(waits), moves)
 
 
 def _block(
