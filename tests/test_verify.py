@@ -351,7 +351,7 @@ def test_run_reports_the_verification(fig1_run):
     assert [t["target"] for t in verified["targets"]] == ["sphere", "bump"]
     assert figures["channels"] == {"print_speed_mm_s": "eps"}
     page = (fig1_run / "report.html").read_text()
-    assert "<th>director error, mean / 95th percentile (deg)</th>" in page
+    assert "<th>director error, read back: mean / 95th percentile (deg)</th>" in page
     assert "<th>eps, as the print speed (mm/s), error: RMS / 95th percentile</th>" in page
     assert "NOT ENCODED" not in page
 

@@ -289,9 +289,9 @@ def _print_lines(figures: Mapping[str, Any]) -> list[Block]:
     )
     header = (
         "layer",
-        "not covered",
-        "overlap",
-        "mean angle to the director (deg)",
+        "not covered, as planned",
+        "overlap, as planned",
+        "mean angle to the director, as planned (deg)",
         "print lines",
         "printing (mm)",
         "travel between lines (mm)",
@@ -357,9 +357,9 @@ def _verify_section(figures: Mapping[str, Any]) -> Section:
     features = [f"{f['feature']}, as the {_label(f['channel'])}," for f in layers[0]["features"]]
     header = (
         "layer",
-        "not covered",
-        "overlap",
-        "director error, mean / 95th percentile (deg)",
+        "not covered, read back",
+        "overlap, read back",
+        "director error, read back: mean / 95th percentile (deg)",
         *(f"{name} error: RMS / 95th percentile" for name in features),
     )
     rows = tuple(
