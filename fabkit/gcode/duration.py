@@ -39,6 +39,9 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+from numpy.typing import ArrayLike
+
 from fabkit.gcode.position import MOTION, Position
 from fabkit.gcode.read import Block, Command, GcodeError, firmware_reader
 from fabkit.machines import MachineProfile
@@ -138,20 +141,6 @@ def _off_segment(point: Sequence[float], start: Sequence[float], end: Sequence[f
     return math.dist(point, [a + along * c for a, c in zip(start, d, strict=True)])
 
 
-@dataclass
-class _Block:
-    """One planned move: length (mm), unit direction, nominal speed (mm/s), acceleration
-    (mm/s^2), the highest entry speed its junction allows (mm/s), and its command."""
-
-    length: float
-    unit: tuple[float, float, float, float]
-    nominal: float
-    accel: float
-    max_entry: float
-    index: int
-    entry: float = 0.0
-
-
 _AXIS_COMMANDS = frozenset({"G92", "G28", "G30", "G10", "G53", "G38.2", "G38.3", "G38.4", "G38.5"})
 """GRBL commands that take a block's axis words themselves (gcode.c: ``axis_command``);
 without one, axis words move the machine in the modal motion mode."""
@@ -203,12 +192,11 @@ def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
     kinematics = Kinematics.of(machine)
     walker = _Walker(kinematics, machine.flavour)
     read = firmware_reader(machine)
-    blocks: list[_Block] = []
-    dwell_after: dict[int, float] = {}
+    planned = _Moves()
+    dwell_s = [0.0] * len(job)
     positions: list[tuple[float | None, ...]] = []
     waits: list[str] = []
-    segments: list[list[_Block]] = [blocks]
-    moves = 0
+    segment, moves = 0, 0
     for index, command in enumerate(job):
         try:
             block = read(command.text)
@@ -218,60 +206,81 @@ def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
         positions.append(tuple(walker.position.logical))
         if deltas is not None:
             moves += 1
-            planned = _block(deltas, walker.motion, block.values, walker, kinematics, index)
-            if planned is not None:
-                segments[-1].append(planned)
+            planned.add(deltas, walker, block.values, kinematics, index, segment)
         stops = [code for code in block.codes if code in STOPS]
         if stops:
             waits += [code for code in stops if code in UNKNOWN_TIME]
             if "G4" in stops:
                 values = block.values
-                dwell_after[index] = values.get("P", 0.0) / 1000.0 + values.get("S", 0.0)
-            segments.append([])
-    finish = [0.0] * len(job)
-    for segment in segments:
-        _plan(segment, kinematics)
-        exits = [block.entry for block in segment[1:]] + [0.0]
-        for block, exit_speed in zip(segment, exits, strict=False):
-            finish[block.index] += trapezoid_time(
-                block.length, block.entry, exit_speed, block.nominal, block.accel
-            )
-    end_s: list[float] = []
-    clock_s = 0.0
-    for index in range(len(job)):
-        clock_s += finish[index] + dwell_after.get(index, 0.0)
-        end_s.append(clock_s)
+                dwell_s[index] = values.get("P", 0.0) / 1000.0 + values.get("S", 0.0)
+            segment += 1  # the planner empties: the next move starts at rest
+    finish = np.asarray(dwell_s)
+    np.add.at(finish, np.asarray(planned.index, dtype=int), planned.seconds(kinematics))
+    end_s = np.cumsum(finish).tolist()
     return Estimate(tuple(end_s), tuple(positions), tuple(waits), moves)
 
 
-def _block(
-    deltas: list[float],
-    code: str,
-    values: dict[str, float],
-    walker: _Walker,
-    k: Kinematics,
-    index: int,
-) -> _Block | None:
-    """The planner block of a move (None for a move of zero length)."""
-    xyz = math.sqrt(sum(d * d for d in deltas[:3]))
-    length = xyz if xyz > 0 else abs(deltas[3])
-    if code in ("G2", "G3") and ("I" in values or "J" in values):
-        length = _arc_length(deltas, values, code)
-    if length <= 0:
-        return None
-    unit = tuple(d / length for d in deltas)
-    rapid = code == "G0" and k.rapid_mm_s is not None
-    speed = k.rapid_mm_s if rapid else walker.feed or k.max_mm_s[0]
-    if walker.inverse and walker.feed and not rapid:
-        speed = walker.feed * length  # G93: the move takes 60/F s
-    accel = math.inf
-    for i in range(4):
-        share = abs(unit[i])
-        if share > 0:
-            speed = min(speed, k.max_mm_s[i] / share)
-            if k.accel_mm_s2[i] > 0:
-                accel = min(accel, k.accel_mm_s2[i] / share)
-    return _Block(length, unit, speed, accel, 0.0, index)
+class _Moves:
+    """The moves of a job as the planner sees them (one entry per move of non-zero
+    length): X, Y, Z, E deltas (mm), length (mm, an arc's along the arc), feed (mm/s, or
+    1/s under G93), whether the feed is G93's inverse time, the command's index and the
+    planner segment (moves between two commands that empty the planner)."""
+
+    def __init__(self) -> None:
+        self.deltas: list[list[float]] = []
+        self.length: list[float] = []
+        self.feed: list[float] = []
+        self.inverse: list[bool] = []
+        self.index: list[int] = []
+        self.segment: list[int] = []
+
+    def add(
+        self,
+        deltas: list[float],
+        walker: _Walker,
+        values: dict[str, float],
+        k: Kinematics,
+        index: int,
+        segment: int,
+    ) -> None:
+        xyz = math.sqrt(sum(d * d for d in deltas[:3]))
+        length = xyz if xyz > 0 else abs(deltas[3])
+        if walker.motion in ("G2", "G3") and ("I" in values or "J" in values):
+            length = _arc_length(deltas, values, walker.motion)
+        if length <= 0:
+            return
+        rapid = walker.motion == "G0" and k.rapid_mm_s is not None
+        self.deltas.append(deltas)
+        self.length.append(length)
+        self.feed.append(k.rapid_mm_s if rapid else walker.feed or k.max_mm_s[0])
+        self.inverse.append(bool(walker.inverse and walker.feed and not rapid))
+        self.index.append(index)
+        self.segment.append(segment)
+
+    def seconds(self, k: Kinematics) -> np.ndarray:
+        """(n,) s: each move's time, its entry and exit speeds planned by junction
+        deviation and a backward and a forward pass (module docstring)."""
+        if not self.length:
+            return np.zeros(0)
+        length = np.asarray(self.length)
+        unit = np.asarray(self.deltas, dtype=float) / length[:, None]
+        feed = np.asarray(self.feed)
+        nominal = np.where(self.inverse, feed * length, feed)  # G93: the move takes 60/F s
+        accel = np.full(len(length), math.inf)
+        for axis in range(4):
+            share = np.abs(unit[:, axis])
+            moving = share > 0
+            safe = np.where(moving, share, 1.0)
+            nominal = np.where(moving, np.minimum(nominal, k.max_mm_s[axis] / safe), nominal)
+            if k.accel_mm_s2[axis] > 0:
+                accel = np.where(moving, np.minimum(accel, k.accel_mm_s2[axis] / safe), accel)
+        segment = np.asarray(self.segment)
+        first = np.r_[True, segment[1:] != segment[:-1]]
+        max_entry = np.r_[0.0, _junctions(unit, nominal, accel, k.junction_deviation_mm)]
+        max_entry[first] = 0.0
+        entry = _passes(length, accel, max_entry, first)
+        exit_speed = np.r_[np.where(first[1:], 0.0, entry[1:]), 0.0]
+        return trapezoid_time(length, entry, exit_speed, nominal, accel)
 
 
 def _arc_length(deltas: list[float], values: dict[str, float], code: str) -> float:
@@ -287,54 +296,63 @@ def _arc_length(deltas: list[float], values: dict[str, float], code: str) -> flo
     return math.hypot(radius * sweep, deltas[2])
 
 
-def _junction(prev: _Block, block: _Block, deviation_mm: float) -> float:
-    """The highest speed at the junction of ``prev`` and ``block`` (mm/s)."""
-    cos_theta = -sum(a * b for a, b in zip(prev.unit[:3], block.unit[:3], strict=True))
-    if not any(block.unit[:3]) or not any(prev.unit[:3]):
-        cos_theta = -sum(a * b for a, b in zip(prev.unit, block.unit, strict=True))
-    limit = min(prev.nominal, block.nominal)
-    if cos_theta > 0.999999:
-        return min(MIN_JUNCTION_MM_S, limit)
-    cos_theta = max(cos_theta, -0.999999)
-    sin_half = math.sqrt(0.5 * (1.0 - cos_theta))
-    if math.isinf(block.accel):
-        return limit
-    v2 = block.accel * deviation_mm * sin_half / (1.0 - sin_half)
-    return min(math.sqrt(v2), limit)
+def _junctions(
+    unit: np.ndarray, nominal: np.ndarray, accel: np.ndarray, deviation_mm: float
+) -> np.ndarray:
+    """(n - 1,) mm/s: the highest speed at the junction of each move with the next."""
+    before, after = unit[:-1], unit[1:]
+    cos_theta = -np.einsum("ij,ij->i", before[:, :3], after[:, :3])
+    no_xyz = ~before[:, :3].any(axis=1) | ~after[:, :3].any(axis=1)
+    cos_theta = np.where(no_xyz, -np.einsum("ij,ij->i", before, after), cos_theta)
+    limit = np.minimum(nominal[:-1], nominal[1:])
+    sin_half = np.sqrt(0.5 * (1.0 - np.maximum(cos_theta, -0.999999)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v2 = accel[1:] * deviation_mm * sin_half / (1.0 - sin_half)
+    speed = np.where(np.isinf(accel[1:]), limit, np.minimum(np.sqrt(v2), limit))
+    return np.where(cos_theta > 0.999999, np.minimum(MIN_JUNCTION_MM_S, limit), speed)
 
 
-def _plan(blocks: list[_Block], k: Kinematics) -> None:
-    """Entry speeds: junction limits, then the backward and forward passes."""
-    for prev, block in zip(blocks, blocks[1:], strict=False):
-        block.max_entry = _junction(prev, block, k.junction_deviation_mm)
-    if blocks:
-        blocks[0].max_entry = 0.0
-    exit_speed = 0.0  # at rest after the last block
-    for block in reversed(blocks):
-        block.entry = min(block.max_entry, _reach(exit_speed, block))
-        exit_speed = block.entry
-    for prev, block in zip(blocks, blocks[1:], strict=False):
-        block.entry = min(block.entry, _reach(prev.entry, prev))
+def _passes(
+    length: np.ndarray, accel: np.ndarray, max_entry: np.ndarray, first: np.ndarray
+) -> np.ndarray:
+    """Entry speeds (mm/s): each at most its junction's, reachable backward from the
+    next (at rest after a segment's last move) and forward from the previous."""
+    lengths, accels, entry = length.tolist(), accel.tolist(), max_entry.tolist()
+    starts = first.tolist()
+    exit_speed = 0.0
+    for i in range(len(entry) - 1, -1, -1):
+        entry[i] = min(entry[i], _reach(exit_speed, lengths[i], accels[i]))
+        exit_speed = 0.0 if starts[i] else entry[i]
+    for i in range(1, len(entry)):
+        if not starts[i]:
+            entry[i] = min(entry[i], _reach(entry[i - 1], lengths[i - 1], accels[i - 1]))
+    return np.asarray(entry)
 
 
-def _reach(speed: float, block: _Block) -> float:
-    """The speed reached from ``speed`` over the block at its acceleration."""
-    if math.isinf(block.accel):
+def _reach(speed: float, length: float, accel: float) -> float:
+    """The speed reached from ``speed`` over ``length`` mm at ``accel`` mm/s^2."""
+    if math.isinf(accel):
         return math.inf
-    return math.sqrt(speed * speed + 2.0 * block.accel * block.length)
+    return math.sqrt(speed * speed + 2.0 * accel * length)
 
 
 def trapezoid_time(
-    length: float, entry: float, exit_speed: float, nominal: float, accel: float
-) -> float:
+    length: ArrayLike, entry: ArrayLike, exit_speed: ArrayLike, nominal: ArrayLike, accel: ArrayLike
+) -> np.ndarray | float:
     """Seconds to cover ``length`` mm from ``entry`` to ``exit_speed`` (mm/s), cruising
-    at most at ``nominal``, accelerating and braking at ``accel`` (mm/s^2)."""
-    if math.isinf(accel):
-        return length / nominal
-    accelerate = (nominal * nominal - entry * entry) / (2.0 * accel)
-    brake = (nominal * nominal - exit_speed * exit_speed) / (2.0 * accel)
-    if accelerate + brake <= length:
-        cruise = length - accelerate - brake
-        return (nominal - entry) / accel + (nominal - exit_speed) / accel + cruise / nominal
-    peak = math.sqrt(max(0.0, (2.0 * accel * length + entry * entry + exit_speed * exit_speed) / 2))
-    return max(0.0, (peak - entry) / accel) + max(0.0, (peak - exit_speed) / accel)
+    at most at ``nominal``, accelerating and braking at ``accel`` (mm/s^2); numbers or
+    arrays of one shape alike."""
+    length, entry, exit_speed, nominal, accel = np.broadcast_arrays(
+        *(np.asarray(v, dtype=float) for v in (length, entry, exit_speed, nominal, accel))
+    )
+    free = np.isinf(accel)
+    a = np.where(free, 1.0, accel)
+    accelerate = (nominal * nominal - entry * entry) / (2.0 * a)
+    brake = (nominal * nominal - exit_speed * exit_speed) / (2.0 * a)
+    cruise = length - accelerate - brake
+    trapezoid = (nominal - entry) / a + (nominal - exit_speed) / a + cruise / nominal
+    peak = np.sqrt(np.maximum(0.0, (2.0 * a * length + entry * entry + exit_speed**2) / 2))
+    triangle = np.maximum(0.0, (peak - entry) / a) + np.maximum(0.0, (peak - exit_speed) / a)
+    cruising = accelerate + brake <= length
+    seconds = np.where(free, length / nominal, np.where(cruising, trapezoid, triangle))
+    return seconds if seconds.ndim else float(seconds)
