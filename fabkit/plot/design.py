@@ -25,11 +25,27 @@ from fabkit.design.patches import grid_triangles  # noqa: E402
 from fabkit.field.part import Part  # noqa: E402
 from fabkit.plot.scene import Scene, curve_stride, grid_lines, true_runs  # noqa: E402
 
+DPI = 110
+"""Pixels per inch of the report's pictures."""
+SHOWN_PX = 1168
+"""The widest a picture is shown in report.html (its body's width, px): a wider one is
+scaled down, its text with it."""
+MIN_TEXT_PX = 10.0
+"""The smallest text height a reader sees in the report (px)."""
+PANEL_INCHES = 4.0
+
+
+def readable_points(width_inches: float, points: float = 9.0) -> float:
+    """A font size (pt) at least ``points`` that the report shows at least
+    :data:`MIN_TEXT_PX` tall in a picture ``width_inches`` wide."""
+    shown = min(1.0, SHOWN_PX / (width_inches * DPI))
+    return max(points, round(MIN_TEXT_PX / shown * 72 / DPI + 0.05, 1))
+
 
 def png(figure: plt.Figure, tight: bool = True) -> bytes:
-    """The figure as PNG bytes (110 dpi; ``tight``: cropped to what is drawn); closes it."""
+    """The figure as PNG bytes (:data:`DPI`; ``tight``: cropped to what is drawn); closes it."""
     buffer = io.BytesIO()
-    figure.savefig(buffer, dpi=110, bbox_inches="tight" if tight else None, format="png")
+    figure.savefig(buffer, dpi=DPI, bbox_inches="tight" if tight else None, format="png")
     plt.close(figure)
     return buffer.getvalue()
 
@@ -121,7 +137,9 @@ def actuated_surfaces(scene: Scene) -> bytes:
     labelled axes in design units, a few ticks each.
     """
     views = scene.surfaces
-    figure = plt.figure(figsize=(5.5 * max(len(views), 1), 5.8))
+    width = 5.5 * max(len(views), 1)
+    figure = plt.figure(figsize=(width, 5.8))
+    ticks, labels = readable_points(width, 8.0), readable_points(width)
     for column, view in enumerate(views):
         axes = figure.add_subplot(1, len(views), column + 1, projection="3d")
         if view.backdrop is not None:
@@ -132,13 +150,14 @@ def actuated_surfaces(scene: Scene) -> bytes:
         for curves, colour in ((view.u_curves, "tab:red"), (view.v_curves, "tab:blue")):
             for xyz in curves:
                 axes.plot(xyz[:, 0], xyz[:, 1], xyz[:, 2], color=colour, lw=0.8)
-        _equal_3d(axes, view.box)
-        axes.set_title(view.title)
+        _equal_3d(axes, view.box, ticks, labels)
+        axes.set_title(view.title, fontsize=readable_points(width, 10.0))
     return png(figure)
 
 
-def _equal_3d(axes, box) -> None:
-    """Equal scales: the same span on x, y and z; labelled axes with four ticks each."""
+def _equal_3d(axes, box, ticks: float, labels: float) -> None:
+    """Equal scales: the same span on x, y and z; labelled axes with four ticks each
+    (their labels ``ticks`` pt, the axes' names ``labels`` pt)."""
     from matplotlib.ticker import MaxNLocator
 
     if box is not None:
@@ -148,8 +167,8 @@ def _equal_3d(axes, box) -> None:
     axes.set_box_aspect((1, 1, 1))
     for axis, name in ((axes.xaxis, "x"), (axes.yaxis, "y"), (axes.zaxis, "z")):
         axis.set_major_locator(MaxNLocator(4))
-        axis.set_tick_params(labelsize=8)
-        axis.set_label_text(f"{name} (design units)", fontsize=9)
+        axis.set_tick_params(labelsize=ticks)
+        axis.set_label_text(f"{name} (design units)", fontsize=labels)
 
 
 FLOOR = 1e-7
@@ -157,7 +176,7 @@ FLOOR = 1e-7
 
 
 def residual_maps(scene: Scene) -> bytes:
-    """Residual maps on the (u, v) grid: one row per surface, one column per residual.
+    """Residual maps on the (u, v) grid: one column per surface, one row per residual.
 
     One log colour scale for every panel; its colour bar marks the check's tolerances
     (:class:`~fabkit.design.check.Tolerances`), and every panel's title gives its median
@@ -165,27 +184,30 @@ def residual_maps(scene: Scene) -> bytes:
     """
     design, maps, tolerances = scene.design, scene.maps, Tolerances()
     # a fixed grid (panels of one size, the colour bar beside them): constrained layout
-    # took most of this picture's 2-4 s measuring every tick label
-    height = 3.4 * len(maps)
+    # took most of this picture's 2-4 s measuring every tick label. One column per
+    # surface keeps the picture narrow enough for the report to show it near full size.
+    width, height = PANEL_INCHES * len(maps) + 1.9, PANEL_INCHES * len(RESIDUALS) * 0.85
+    text = readable_points(width)
     figure, axes = plt.subplots(
-        len(maps),
         len(RESIDUALS),
-        figsize=(4 * len(RESIDUALS) + 1.5, height),
+        len(maps),
+        figsize=(width, height),
         squeeze=False,
         gridspec_kw={
-            "left": 0.05,
-            "right": 0.86,
-            "bottom": 0.45 / height + 0.04,
+            "left": 0.6 / width,
+            "right": 1 - 1.75 / width,
+            "bottom": 0.5 / height,
             "top": 1 - 0.75 / height,
-            "wspace": 0.28,
-            "hspace": 0.25 + 1.0 / 3.4,
+            "wspace": 0.3,
+            "hspace": 0.7,
         },
     )
     extent = [design.u[0], design.u[-1], design.v[0], design.v[-1]]
     norm = LogNorm(vmin=FLOOR, vmax=1e-1)
-    for row, surface in enumerate(maps):
-        for column, key in enumerate(RESIDUALS):
-            values = np.clip(surface.maps[key], FLOOR, None)
+    for column, surface in enumerate(maps):
+        for row, key in enumerate(RESIDUALS):
+            exact = surface.maps[key] < FLOOR  # round-off: the initial curves, given
+            values = np.where(exact, np.nan, surface.maps[key])
             panel = axes[row, column]
             image = panel.imshow(
                 values.T, origin="lower", extent=extent, norm=norm, cmap="magma", aspect="auto"
@@ -198,17 +220,21 @@ def residual_maps(scene: Scene) -> bytes:
                 limits = f"limits {tolerances.isometry_median:.0e} / {tolerances.isometry_p95:.0e}"
             panel.set_title(
                 f"{surface.name}: {RESIDUAL_TITLES[key]}\n"
-                f"median {median:.1e}, p95 {p95:.1e} ({limits})",
-                fontsize=9,
+                f"median {median:.1e}, p95 {p95:.1e}\n({limits})",
+                fontsize=text,
             )
-            panel.set_xlabel("u" if row == len(maps) - 1 else "")
-            panel.set_ylabel("v" if column == 0 else "")
+            panel.tick_params(labelsize=text)
+            panel.set_xlabel("u" if row == len(RESIDUALS) - 1 else "", fontsize=text)
+            panel.set_ylabel("v" if column == 0 else "", fontsize=text)
             _zoom(panel, design, np.isfinite(surface.maps[key]))
-    bar = figure.colorbar(image, cax=figure.add_axes((0.885, 0.12, 0.012, 0.76)))
+    bar = figure.colorbar(image, cax=figure.add_axes((1 - 1.45 / width, 0.12, 0.12 / width, 0.76)))
+    bar.ax.tick_params(labelsize=text)
     bar.set_label(
-        f"relative residual (log scale; below {FLOOR:.0e} drawn at it)\n"
+        f"relative residual (log scale; blank: below {FLOOR:.0e}, exact to round-off, on "
+        "the initial curves)\n"
         f"cyan: the check's limits, {tolerances.isometry_median:.0e} (isometry median), "
-        f"{tolerances.isometry_p95:.0e} (isometry p95, curvature median)"
+        f"{tolerances.isometry_p95:.0e} (isometry p95, curvature median)",
+        fontsize=text,
     )
     for value in {tolerances.isometry_median, tolerances.isometry_p95, tolerances.curvature_median}:
         bar.ax.axhline(value, color="cyan", lw=2.5)
