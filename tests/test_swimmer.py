@@ -246,3 +246,27 @@ def test_command_writes_results_and_machine_file(tmp_path, run_cli):
         assert (tmp_path / "out" / name).stat().st_size > 0
     code, _, err = run_cli("swimmer", tmp_path / "missing.toml", "--out", tmp_path / "x")
     assert code == 2 and err.startswith("fabkit: error:")
+
+
+def test_the_summary_says_which_displacement_to_quote():
+    # issue 37: the computed -0.014347 R and the extrapolated -0.018778 R were printed
+    # 31 % apart with no word on which one to trust
+    from fabkit.swimmer.report import describe
+
+    data = {
+        "displacement_per_cycle_radii": -0.014347,
+        "displacement_per_cycle_mm": -0.14347,
+        "sideways_drift_radii": 0.0,
+        "rotation_rad": 0.0,
+        "stations": 19,
+        "stokes_points": 1321,
+        "converged": [True] * 19,
+        "closure_radii": 0.0,
+        "seconds": {"shapes": 1.0, "hydrodynamics": 2.0},
+        "convergence": {
+            "extrapolated to fine points": {"displacement_per_cycle_radii": -0.018778, "order": 0.6}
+        },
+    }
+    text = describe(data)
+    assert "quote the extrapolated -0.0188 R: the computed value is 24 % off it" in text
+    assert "quote" not in describe({**data, "convergence": None})

@@ -109,6 +109,14 @@ def describe(data: dict[str, Any]) -> str:
             else f"(Richardson, error ~ h^{item['order']:g})"
         )
         lines.append(f"  {label:28} {item['displacement_per_cycle_radii']:+.5g} R {where}")
+    limit = (data["convergence"] or {}).get("extrapolated to fine points")
+    if limit:
+        best, computed = limit["displacement_per_cycle_radii"], data["displacement_per_cycle_radii"]
+        short = abs(best - computed) / abs(best) if best else 0.0
+        lines.append(
+            f"  quote the extrapolated {best:+.3g} R: the computed value is {100 * short:.0f} % "
+            "off it, the Stokeslet points' discretisation error (docs/swimmer.md)"
+        )
     failed = data["converged"].count(False)
     if failed:
         lines.append(f"warning: {failed} of {len(data['converged'])} shapes did not converge")
