@@ -194,7 +194,7 @@ def residual_maps(scene: Scene) -> bytes:
         figsize=(width, height),
         squeeze=False,
         gridspec_kw={
-            "left": 0.6 / width,
+            "left": 0.95 / width,
             "right": 1 - 1.75 / width,
             "bottom": 0.5 / height,
             "top": 1 - 0.75 / height,
