@@ -42,9 +42,17 @@ _IMAGES = """Array.from(document.images).map(i => {
           box: [r.left + scrollX, r.top + scrollY, r.width, r.height], caption: caption};
 })"""
 _PROSE = """(() => { const body = document.body.cloneNode(true);
-  body.querySelectorAll('code').forEach(c => c.remove());
+  body.querySelectorAll('code, script').forEach(c => c.remove());
   return body.innerText; })()"""
 _NAMES = "Array.from(document.querySelectorAll('code')).map(c => c.textContent)"
+_VIEW = """(() => { const g = document.getElementById('view3d');
+  const r = g.getBoundingClientRect();
+  return {traces: g.data.map(d => d.name), visible: g.data.map(d => d.visible),
+          buttons: Array.from(g.querySelectorAll('.updatemenu-button')).map(b => b.textContent),
+          webgl: g.querySelectorAll('canvas').length, title: g.layout.title.text,
+          box: [r.left + scrollX, r.top + scrollY, r.width, r.height]}; })()"""
+_CLICK_LAST = """(() => { const b = document.querySelectorAll('#view3d .updatemenu-button');
+  b[b.length - 1].dispatchEvent(new MouseEvent('click', {bubbles: true})); return b.length; })()"""
 SPECS = {"Fig. 1": "two_shapes.toml", "Fig. 3": "three_shapes.toml"}
 
 
@@ -64,7 +72,10 @@ def seen(request, tmp_path_factory):
             "prose": browser.evaluate(_PROSE),
             "names": browser.evaluate(_NAMES),
             "shot": Image.open(io.BytesIO(browser.screenshot())).convert("RGB"),
+            "view": browser.evaluate(_VIEW),
         }
+        browser.evaluate(_CLICK_LAST)
+        shown["view after the last button"] = browser.evaluate(_VIEW)
         shown["errors"], shown["requests"] = list(browser.errors), list(browser.requests)
     figures = json.loads((out / "report.json").read_text())
     return {"out": out, "figures": figures, **shown}
@@ -119,6 +130,24 @@ def test_every_picture_is_decoded_and_shown_with_its_caption(seen):
         assert shown.std() > 10, f"{image['alt']}: blank where the picture should be"
         difference = _difference(shown, _picture(seen["out"], image["alt"]), width, height)
         assert difference < 0.03, image["alt"]
+
+
+def test_the_shapes_turn_in_3d_one_target_at_a_time(seen):
+    """Issue 37: the shapes in a 3D view (plotly.js, embedded): per target its surface and
+    the sheet's, one target shown at a time, a button per target; WebGL draws it."""
+    targets = [t["target"] for t in seen["figures"]["verdicts"][-1]["targets"]]
+    view = seen["view"]
+    assert view["buttons"] == targets and view["webgl"] >= 1
+    assert view["traces"] == [f"{t}: {part}" for t in targets for part in ("target", "the sheet")]
+    assert view["visible"] == [k < 2 for k in range(2 * len(targets))]
+    first = seen["figures"]["verdicts"][-1]["targets"][0]
+    assert view["title"].startswith("formed" if first["formed"] else "NOT formed")
+    left, top, width, height = (int(round(v)) for v in view["box"])
+    drawn = np.asarray(seen["shot"].crop((left, top, left + width, top + height)), float)
+    assert width > 800 and drawn.std() > 10, "the 3D view is blank"
+    after = seen["view after the last button"]
+    assert after["visible"] == [k >= 2 * len(targets) - 2 for k in range(2 * len(targets))]
+    assert after["title"] != view["title"]
 
 
 def test_report_json_follows_its_schema(seen):

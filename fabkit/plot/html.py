@@ -1,7 +1,8 @@
 """One self-contained HTML page: a :class:`~fabkit.plot.page.Page` written out.
 
-The pictures are embedded (PNG, base64) and the page loads nothing else: no script, no
-font, no style sheet from elsewhere; its links point at files the run wrote beside it.
+The pictures are embedded (PNG, base64), and so is plotly.js where the page has a 3D view
+(:mod:`fabkit.plot.view3d`): the page loads nothing else, no script, font or style sheet
+from elsewhere; its links point at files the run wrote beside it.
 """
 
 from __future__ import annotations
@@ -10,8 +11,22 @@ import base64
 import html
 from pathlib import Path
 
+from plotly.offline import get_plotlyjs
+
 from fabkit.files.atomic import atomic_path
-from fabkit.plot.page import Code, Facts, Figure, Link, Page, Paragraph, Section, Table, Text
+from fabkit.plot.page import (
+    Block,
+    Code,
+    Facts,
+    Link,
+    Page,
+    Paragraph,
+    Section,
+    Table,
+    Text,
+    View3D,
+)
+from fabkit.plot.view3d import view_html
 
 STYLE = """
 body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 1200px; color: #222;
@@ -36,9 +51,11 @@ figcaption { color: #555; max-width: 70em; }
 def html_report(page: Page, path: str | Path) -> None:
     """Write ``page`` as one HTML file at ``path`` (atomically)."""
     sections = "\n".join(_section(section) for section in page.sections)
+    views = any(isinstance(b, View3D) for section in page.sections for b in section.blocks)
+    script = f"<script>{get_plotlyjs()}</script>" if views else ""
     document = f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(page.title)}</title>
-<style>{STYLE}</style></head>
+<style>{STYLE}</style>{script}</head>
 <body>
 {f'<p class="notice">{_text(page.notice)}</p>' if page.notice else ""}
 <h1>{_text(page.heading)}</h1>
@@ -54,7 +71,7 @@ def _section(section: Section) -> str:
     return f"<section>\n<h2>{html.escape(section.heading)}</h2>\n{blocks}\n</section>"
 
 
-def _block(block: Paragraph | Facts | Table | Figure) -> str:
+def _block(block: Block) -> str:
     """One block as HTML."""
     if isinstance(block, Paragraph):
         style = f' class="{block.style}"' if block.style else ""
@@ -72,6 +89,9 @@ def _block(block: Paragraph | Facts | Table | Figure) -> str:
             for row in block.rows
         )
         return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    if isinstance(block, View3D):
+        caption = html.escape(block.caption)
+        return f"<figure>{view_html(block, 'view3d')}<figcaption>{caption}</figcaption></figure>"
     data = base64.b64encode(block.path.read_bytes()).decode("ascii")
     caption = html.escape(block.caption)
     return (

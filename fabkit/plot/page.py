@@ -15,6 +15,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from fabkit.calibration import LABELS
 
 
@@ -68,7 +70,30 @@ class Figure:
     caption: str
 
 
-Block = Paragraph | Facts | Table | Figure
+@dataclass(frozen=True, eq=False)
+class Shape3D:
+    """One target and the sheet's shape under its stimulus, to turn and zoom: vertices
+    (V, 3) in mm of the target and of the sheet (placed on it) on the same ``triangles``
+    (F, 3), each sheet vertex's ``distance_mm`` to the target, and the ``title`` (the
+    verdict's words)."""
+
+    name: str
+    target_mm: np.ndarray
+    sheet_mm: np.ndarray
+    triangles: np.ndarray
+    distance_mm: np.ndarray
+    title: str
+
+
+@dataclass(frozen=True)
+class View3D:
+    """A 3D view of ``shapes``, one at a time (a button per target), with its ``caption``."""
+
+    shapes: tuple[Shape3D, ...]
+    caption: str
+
+
+Block = Paragraph | Facts | Table | Figure | View3D
 
 
 @dataclass(frozen=True)

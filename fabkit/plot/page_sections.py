@@ -22,9 +22,11 @@ from fabkit.plot.page import (
     Page,
     Paragraph,
     Section,
+    Shape3D,
     Span,
     Table,
     Text,
+    View3D,
     as_sentence,
     as_spans,
     in_words,
@@ -39,14 +41,16 @@ def run_page(
     pictures: Sequence[tuple[str, Path]],
     preview: tuple[str, Path],
     folder: Path,
+    shapes: tuple[Shape3D, ...] = (),
 ) -> Page:
     """The page of a ``fabkit run``: ``figures`` as in ``report.json``, the design
     ``pictures`` and the machine file's ``preview`` ((caption, PNG) pairs), written in
-    ``folder`` (the run's output folder)."""
+    ``folder`` (the run's output folder); ``shapes``: the final verdict's, for the 3D
+    view."""
     spec = Path(figures["spec"]).name
     sections = [
         verdict_section(figures),
-        *([_shapes_section(figures, folder)] if figures.get("shapes") else []),
+        *([_shapes_section(figures, folder, shapes)] if figures.get("shapes") else []),
         _design_section(figures, pictures),
         _part_section(figures["part"]),
         *([_layers_section(figures)] if figures.get("layers") else []),
@@ -85,8 +89,10 @@ def design_page(
     )
 
 
-def _shapes_section(figures: Mapping[str, Any], folder: Path) -> Section:
-    """A picture per target of the sheet beside it, and the meshes."""
+def _shapes_section(
+    figures: Mapping[str, Any], folder: Path, shapes_3d: tuple[Shape3D, ...]
+) -> Section:
+    """A picture per target of the sheet beside it, the 3D view, and the meshes."""
     shapes = figures["shapes"]
     lines = {t["target"]: t for t in figures["verdicts"][-1]["targets"]}
     blocks: list[Block] = []
@@ -107,6 +113,15 @@ def _shapes_section(figures: Mapping[str, Any], folder: Path) -> Section:
             f"its RMS distance and the limit.{mirror}"
         )
         blocks.append(Figure(folder / shape["picture"], caption))
+    if shapes_3d:
+        blocks.append(
+            View3D(
+                shapes_3d,
+                f"Every target (grey) and the sheet {shapes['what']} under its stimulus, "
+                "coloured by its distance to the target (mm, one scale for all), in mm: drag "
+                "to turn, scroll to zoom, a button per target.",
+            )
+        )
     meshes = [shape["mesh"] for shape in shapes["targets"]]
     blocks.append(
         Paragraph(

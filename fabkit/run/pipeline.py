@@ -59,6 +59,7 @@ from fabkit.plot import DESIGN_PICTURES, write_pictures
 from fabkit.plot.html import html_report
 from fabkit.plot.page_sections import run_page
 from fabkit.plot.scene import scene
+from fabkit.plot.view3d import shapes_3d
 from fabkit.run.fabricate import Drawings, Run, fabricate
 from fabkit.run.inputs import (
     RunInputs,
@@ -150,7 +151,8 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
         verdicts.append(made.final)
     figures["verdicts"] = [verdict.to_dict() for verdict in verdicts]
     figures["verdict"] = _verdict(made.final, figures["verdicts"])
-    page = run_page(figures, pictures, made.fabricated.picture, out)
+    shapes = shapes_3d(made.final) if made.final is not None else ()
+    page = run_page(figures, pictures, made.fabricated.picture, out, shapes)
     html_report(page, out / "report.html")
     with atomic_path(out / "report.json") as tmp:
         tmp.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
