@@ -93,6 +93,14 @@ def test_a_dxf_of_the_layered_toolpath_reads_back_layer_by_layer(layered_run, tm
     for layer in figures["layers"]:
         assert layer["director_mean_deg"] <= 3.0
         assert all(f["rms_pct"] <= 2.0 for f in layer["features"])
+    # the first figures are the bottom layer's, and the text says so
+    assert figures["empty_fraction"] == figures["layers"][0]["empty_fraction"]
+    code, text, err = run_cli("verify", layered_run / "design.npz", dxf, "--no-simulate")
+    assert code == 0, err
+    bottom = (
+        f"  coverage (layer 1 of 2, the bottom one): empty {100 * figures['empty_fraction']:.2f} %"
+    )
+    assert bottom in text and "\n  layer 2: empty" in text
 
 
 @pytest.mark.slow

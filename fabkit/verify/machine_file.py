@@ -165,11 +165,12 @@ class Verification:
         lines = [self.notice()] if self.notice() else []
         own = self.process == f"machine {self.machine}"
         process = "its own process" if own else f"process {self.process}"
+        bottom = f" (layer 1 of {len(self.layers)}, the bottom one)" if self.layers else ""
         lines += [
             f"verify {self.file} ({self.kind}, machine {self.machine}, {process}; "
             f"placement from {self.placement}; cells {self.cell_mm:.3g} mm)",
             *([f"  {self.extra['part']['summary']}"] if "part" in self.extra else []),
-            f"  coverage: empty {100 * self.empty_fraction:.2f} %, overlap "
+            f"  coverage{bottom}: empty {100 * self.empty_fraction:.2f} %, overlap "
             f"{100 * self.mean_overlap:.2f} %",
             f"  director error: mean {self.director_mean_deg:.2f} deg, p95 "
             f"{self.director_p95_deg:.2f} deg",
