@@ -163,6 +163,11 @@ def test_the_shapes_are_written_beside_the_page(seen):
         mesh = trimesh.load(seen["out"] / shape["mesh"], process=False)
         distance = mesh.metadata["_ply_raw"]["vertex"]["data"]["distance_mm"]
         assert len(distance) == len(mesh.vertices) and np.all(distance >= 0)
+        # the target's mesh where the sheet is placed: the distances are between the two
+        target = trimesh.load(seen["out"] / shape["target_mesh"], process=False)
+        assert np.array_equal(target.faces, mesh.faces)
+        between = np.linalg.norm(mesh.vertices - target.vertices, axis=1)
+        np.testing.assert_allclose(between, distance, atol=1e-4)
         assert (seen["out"] / shape["picture"]).read_bytes()[:4] == b"\x89PNG"
         assert f'href="{shape["mesh"]}"' in (seen["out"] / "report.html").read_text()
 

@@ -122,9 +122,11 @@ def fabricate(run: Run) -> Made:
 
 def _shapes(run: Run, verdict: Verdict) -> dict[str, Any]:
     """The shape the sheet takes under every target's stimulus (``verdict``'s meshes): a
-    mesh per target written now (PLY, mm, with each vertex's distance to the target), a
-    picture per target drawn by the worker; both in ``as_fabricated/`` (``as_designed/``
-    when the machine file was not simulated). Returns report.json's ``shapes``."""
+    mesh per target written now (PLY, mm, with each vertex's distance to the target) and
+    the target's own (its ``_target.ply``, where the sheet is placed on it: open both in
+    a mesh viewer), a picture per target drawn by the worker; all in ``as_fabricated/``
+    (``as_designed/`` when the machine file was not simulated). Returns report.json's
+    ``shapes``."""
     folder = verdict.what.replace(" ", "_")
     shown = tuple(shape for shape in verdict.shapes if shape.mesh is not None)
     targets = []
@@ -132,10 +134,14 @@ def _shapes(run: Run, verdict: Verdict) -> dict[str, Any]:
         mesh = shape.mesh
         path = inside(run.out / folder, f"{shape.target}.ply")
         save_mesh(path, mesh.vertices_mm, mesh.triangles, {"distance_mm": mesh.distance_mm})
+        save_mesh(
+            inside(run.out / folder, f"{shape.target}_target.ply"), mesh.target_mm, mesh.triangles
+        )
         targets.append(
             {
                 "target": shape.target,
                 "mesh": f"{folder}/{shape.target}.ply",
+                "target_mesh": f"{folder}/{shape.target}_target.ply",
                 "picture": f"{folder}/{shape.target}.png",
             }
         )

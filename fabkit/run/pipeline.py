@@ -33,7 +33,8 @@ toolpath/          toolpath.npz, quality.json, preview.png/svg (``fabkit toolpat
 sheet.gcode        machine file(s), one per ``--format`` (``fabkit export``)
 sheet.dxf          (with ``--format dxf``)
 laser/             (with ``--format laser`` on a laser-writer profile)
-as_fabricated/     per target, the sheet as fabricated beside it (PNG) and as a mesh (PLY, mm);
+as_fabricated/     per target, the sheet as fabricated beside it (PNG), as a mesh (PLY, mm)
+                   and the target's mesh where the sheet is placed (NAME_target.ply);
                    ``as_designed/`` when the machine file is not simulated
 report.html        the verdict first, then every picture and figure in words (one page)
 report.json        the key figures as data (``docs/report.schema.json``)
