@@ -68,3 +68,18 @@ def test_cli_plot_writes_pictures_meshes_and_report(run_cli, fig1_design, tmp_pa
     assert page.count("data:image/png;base64,") == 4 and "check passed" in page
     for name in ("flat_sheet.png", "surfaces.png"):
         assert (tmp_path / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_drawn_grid_curves_stay_on_the_patch(fig1_design):
+    # issue 37: surfaces.png drew the initial curves, valid along their whole length,
+    # as arcs running far past the solved patch
+    from fabkit.plot.scene import patch_nodes, surface_views
+
+    patch = patch_nodes(fig1_design)
+    assert (fig1_design.valid & ~patch).any()  # valid nodes beside no solved cell exist
+    for j, view in enumerate(surface_views(fig1_design), start=1):
+        surface = fig1_design.problem.targets[j].surface
+        on_patch = surface.embed(fig1_design.r[j][patch])
+        for curve in (*view.u_curves, *view.v_curves):
+            gaps = np.min(np.linalg.norm(curve[:, None, :] - on_patch[None], axis=2), axis=1)
+            assert gaps.max() < 1e-9

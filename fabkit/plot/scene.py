@@ -13,7 +13,7 @@ import numpy as np
 
 from fabkit.design.check import ResidualMaps, residual_maps
 from fabkit.design.design import Design
-from fabkit.field.part import Part, PartRules, make_part
+from fabkit.field.part import Part, PartRules, make_part, solved_cells
 
 CURVES = 24
 """About this many u-curves and v-curves are drawn on each picture."""
@@ -91,23 +91,35 @@ def true_runs(mask: np.ndarray) -> list[np.ndarray]:
 def surface_views(design: Design) -> tuple[SurfaceView, ...]:
     """A :class:`SurfaceView` of every target of ``design`` with an embedding in 3D."""
     views = []
+    patch = patch_nodes(design)
     for j, target in enumerate(design.problem.targets):
         if j == 0 or target.surface.embed(target.start[None]) is None:
             continue
         chart = design.r[j]
-        box = _cube(target.surface.embed(chart[design.valid]))
+        box = _cube(target.surface.embed(chart[patch]))
         u_curves, v_curves = (
             tuple(
                 target.surface.embed(line)
-                for line in grid_lines(chart, design.valid, axis, curve_stride(design, axis))
+                for line in grid_lines(chart, patch, axis, curve_stride(design, axis))
             )
             for axis in (0, 1)
         )
         stimulus = ", ".join(f"{s:g}" for s in target.stimulus)
         title = f"{target.name} (stimulus {stimulus})\nu-curves red, v-curves blue"
-        backdrop = _surface_backdrop(target.surface, chart[design.valid], box)
+        backdrop = _surface_backdrop(target.surface, chart[patch], box)
         views.append(SurfaceView(title, u_curves, v_curves, backdrop, box))
     return tuple(views)
+
+
+def patch_nodes(design: Design) -> np.ndarray:
+    """(nu, nv) bool: the grid nodes that are a corner of a solved cell (the patch). The
+    initial curves are valid along their whole length, also where nothing beside them was
+    solved: drawn from the valid nodes, they ran past the patch."""
+    cells = solved_cells(design)
+    nodes = np.zeros(design.valid.shape, dtype=bool)
+    for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        nodes[di : di + cells.shape[0], dj : dj + cells.shape[1]] |= cells
+    return nodes
 
 
 def _cube(points: np.ndarray) -> tuple[np.ndarray, float] | None:
