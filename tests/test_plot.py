@@ -73,9 +73,10 @@ def test_cli_plot_writes_pictures_meshes_and_report(run_cli, fig1_design, tmp_pa
 def test_the_drawn_grid_curves_stay_on_the_patch(fig1_design):
     # issue 37: surfaces.png drew the initial curves, valid along their whole length,
     # as arcs running far past the solved patch
-    from fabkit.plot.scene import patch_nodes, surface_views
+    from fabkit.field.part import solved_nodes
+    from fabkit.plot.scene import surface_views
 
-    patch = patch_nodes(fig1_design)
+    patch = solved_nodes(fig1_design)
     assert (fig1_design.valid & ~patch).any()  # valid nodes beside no solved cell exist
     for j, view in enumerate(surface_views(fig1_design), start=1):
         surface = fig1_design.problem.targets[j].surface

@@ -267,6 +267,16 @@ def solved_cells(design: Design) -> np.ndarray:
     return valid[:-1, :-1] & valid[1:, :-1] & valid[1:, 1:] & valid[:-1, 1:]
 
 
+def solved_nodes(design: Design) -> np.ndarray:
+    """(nu, nv) bool: the grid nodes that are a corner of a solved cell (an initial curve's
+    valid nodes beside no solved cell are not)."""
+    cells = solved_cells(design)
+    nodes = np.zeros(design.valid.shape, dtype=bool)
+    for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        nodes[di : di + cells.shape[0], dj : dj + cells.shape[1]] |= cells
+    return nodes
+
+
 def scale_for_size(solved: shapely.Geometry, size_mm: float) -> float:
     """mm per design unit that makes the longest side of ``solved``'s bounding box
     ``size_mm`` long."""
@@ -382,10 +392,7 @@ def make_part(
 
 def margin_outline(design: Design) -> shapely.Polygon | shapely.MultiPolygon:
     """Step 1: the contour of the nodes' depth at MARGIN_DEPTH, on the flat sheet."""
-    cells = solved_cells(design)
-    nodes = np.zeros(design.valid.shape, dtype=bool)
-    for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
-        nodes[di : di + cells.shape[0], dj : dj + cells.shape[1]] |= cells
+    nodes = solved_nodes(design)
     depth = ndimage.distance_transform_edt(np.pad(nodes, 1))[1:-1, 1:-1]
     nu, nv = nodes.shape
     generator = contourpy.contour_generator(

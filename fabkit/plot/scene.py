@@ -13,7 +13,7 @@ import numpy as np
 
 from fabkit.design.check import ResidualMaps, residual_maps
 from fabkit.design.design import Design
-from fabkit.field.part import Part, PartRules, make_part, solved_cells
+from fabkit.field.part import Part, PartRules, make_part, solved_nodes
 
 CURVES = 24
 """About this many u-curves and v-curves are drawn on each picture."""
@@ -91,7 +91,7 @@ def true_runs(mask: np.ndarray) -> list[np.ndarray]:
 def surface_views(design: Design) -> tuple[SurfaceView, ...]:
     """A :class:`SurfaceView` of every target of ``design`` with an embedding in 3D."""
     views = []
-    patch = patch_nodes(design)
+    patch = solved_nodes(design)  # the initial curves' valid nodes run past the patch
     for j, target in enumerate(design.problem.targets):
         if j == 0 or target.surface.embed(target.start[None]) is None:
             continue
@@ -109,17 +109,6 @@ def surface_views(design: Design) -> tuple[SurfaceView, ...]:
         backdrop = _surface_backdrop(target.surface, chart[patch], box)
         views.append(SurfaceView(title, u_curves, v_curves, backdrop, box))
     return tuple(views)
-
-
-def patch_nodes(design: Design) -> np.ndarray:
-    """(nu, nv) bool: the grid nodes that are a corner of a solved cell (the patch). The
-    initial curves are valid along their whole length, also where nothing beside them was
-    solved: drawn from the valid nodes, they ran past the patch."""
-    cells = solved_cells(design)
-    nodes = np.zeros(design.valid.shape, dtype=bool)
-    for di, dj in ((0, 0), (1, 0), (0, 1), (1, 1)):
-        nodes[di : di + cells.shape[0], dj : dj + cells.shape[1]] |= cells
-    return nodes
 
 
 def _cube(points: np.ndarray) -> tuple[np.ndarray, float] | None:
