@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+import tomllib
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
 from fabkit.design.design import Design
 from fabkit.design.layers import layered, second_forms
+from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.mechanics.simulate import simulate
+from fabkit.problem.spec import build_spec
 from tests.conftest import coarse_design
 from tests.test_mechanics_simulate import fit_circle
 
+SPECS = Path(__file__).parent / "data" / "specs"
 THICKNESS = 0.078  # Fig. 3 at 60 mm: two 0.3 mm layers, in design units
 
 
@@ -106,3 +112,40 @@ def test_a_layered_design_file_round_trips_and_says_so(fig3, tmp_path):
     np.savez(tmp_path / "one.npz", **arrays)
     with pytest.raises(FabkitError, match="2 to 64 layers of a positive thickness, got 1 layers"):
         Design.load(tmp_path / "one.npz")
+
+
+def unseen_design(name: str) -> Design:
+    """A spec of tests/data/specs (made for issue 35, not tuned) on a coarse grid."""
+    with open(SPECS / name, "rb") as handle:
+        table = tomllib.load(handle)
+    table["solver"].update(step=0.1, diagonals=50)
+    return solve(build_spec(table, SPECS)).design
+
+
+def test_a_target_whose_curvature_is_out_of_reach_is_told_why():
+    design = unseen_design("bowl_saddle.toml")
+    names = [t.name for t in design.problem.targets]
+    bowl, saddle = names.index("bowl"), names.index("saddle")
+    _, report = layered(design, 2, THICKNESS, weights=np.array([0.0, 1.0, 1.0]))
+    reach = report.reach
+    # lambda1 = 1: nothing acts along the director; eps acts across it at both stimuli
+    assert reach.out_of_reach[bowl, 0] > 0.5 and reach.out_of_reach[bowl, 2] < 0.01
+    # across it the one feature bends bowl and saddle alike, where they need opposite bends
+    assert reach.held_back[bowl].sum() > 0.2 and reach.opposed[bowl, saddle] > 0.2
+    assert reach.held_back[saddle].sum() > 0.2 and reach.opposed[saddle, bowl] > 0.2
+    assert report.matched[bowl] < 0.1
+    line = report.lines()[bowl - 1]
+    assert "along the director, which no feature reaches" in line
+    assert "held back where saddle needs the opposite bend" in line
+    assert "what would change it: a feature acting along the director" in line
+
+
+def test_what_the_layers_of_fig3_can_reach_and_what_not(fig3):
+    _, report = layered(fig3, 2, THICKNESS)
+    reach, lines = report.reach, report.lines()
+    # the wavy sheet (L = (0, 2)) is reached: told nothing
+    assert report.matched[3] > 0.5 and "why:" not in lines[2]
+    assert reach.out_of_reach[3].sum() < 0.05
+    # the face (L = (2, 0)) curves across the director, where eps2 acts on nothing at L2 = 0
+    assert reach.out_of_reach[2, 2] > 0.8 and report.matched[2] < 0.1
+    assert "of its curvature is across the director, which no feature reaches" in lines[1]

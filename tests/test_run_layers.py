@@ -104,24 +104,32 @@ def test_a_dxf_of_the_layered_toolpath_reads_back_layer_by_layer(layered_run, tm
 
 
 @pytest.mark.slow
-def test_the_verdict_as_fabricated_does_not_hang_on_the_simulation_mesh(layered_run, run_cli):
+def test_the_verdict_as_fabricated_on_a_coarser_simulation_mesh(layered_run, run_cli):
     """The run simulates on about 800 triangles (every second grid line here); on every
-    third the verdict on every target is the same (measured: wavy formed at 2.03 % and
-    2.59 % RMS on every third and second grid line, 2.23 % on every one; sphere and face
-    their mirror images on all three)."""
+    third the sphere and the face get the same verdicts, with the same starts mirrored.
+    The wavy sheet does not quite: from the dome-down start it ends in a second stable
+    state, 4.16 % RMS from the target with an energy 5 % above the state the other five
+    starts reach (Nielsen's damping finds it; the damping before it, 2.20 %, did not;
+    with 4 or more ramp steps both reach the lower one). Its verdict hangs on the mesh
+    and the solver's path (docs/layers.md): this test holds what does not, and that the
+    verdict names the start that missed."""
     figures = json.loads((layered_run / "report.json").read_text())
     default = {t["target"]: t for t in figures["verify"]["verdict"]["targets"]}
     design, gcode = layered_run / "design.npz", layered_run / "sheet.gcode"
     code, text, err = run_cli("verify", design, gcode, "--stride", "3", "--json")
     assert code == 0, err
     coarser = {t["target"]: t for t in json.loads(text)["verdict"]["targets"]}
-    for name, target in default.items():
-        other = coarser[name]
-        assert other["formed"] == target["formed"], (name, other, target)
-        assert [s["mirror_image"] for s in other["starts"]] == [
-            s["mirror_image"] for s in target["starts"]
+    for name in ("sphere", "face"):
+        assert coarser[name]["formed"] == default[name]["formed"], name
+        assert [s["mirror_image"] for s in coarser[name]["starts"]] == [
+            s["mirror_image"] for s in default[name]["starts"]
         ], name
-    assert coarser["wavy"]["formed"] and coarser["wavy"]["rms_pct"] < 3.0
+    assert default["wavy"]["formed"]
+    wavy = coarser["wavy"]
+    missed = [s["start"] for s in wavy["starts"] if s["rms_pct"] > wavy["limit_pct"]]
+    assert wavy["formed_starts"] >= 5 and wavy["converged"]
+    assert all(not s["mirror_image"] for s in wavy["starts"])
+    assert wavy["formed"] or f"end farther than the limit ({', '.join(missed)})" in wavy["line"]
 
 
 def test_the_manifest_lists_every_file_once(layered_run):

@@ -66,6 +66,80 @@ from fabkit.design.design import MAX_LAYERS, Design, Layering
 from fabkit.errors import FabkitError
 
 TINY = 1e-12
+EXPLAINED = 0.5
+"""A target asked for its curvature that gets less than this share of it is told why."""
+REACHES = 1e-6
+"""A lever reaches a component of a target's curvature where its effect (per unit
+height, in the target's own lengths) is larger than this."""
+COMPONENTS = (
+    "along the director, which no feature reaches at its stimulus",
+    "twist, which no shear reaches (the stimulus stretches both ways alike)",
+    "across the director, which no feature reaches at its stimulus",
+)
+"""II's components in the material frame (uu, uv, vv), and what would reach them."""
+REMEDIES = (
+    "a feature acting along the director at its stimulus",
+    "a stimulus that stretches along and across the director unequally",
+    "a feature acting across the director at its stimulus",
+)
+
+
+@dataclass(frozen=True)
+class Reach:
+    """Why the layers give a target little of its curvature (shapes (S, 3), shares of
+    the target's |II|² over its solved points, by component uu, uv, vv):
+    ``out_of_reach``: in a component no lever reaches at its stimulus (a feature acting
+    along the director for uu, a shear for the twist, a feature across for vv);
+    ``held_back``: reached, but at points where another target needs the opposite bend
+    from every lever that reaches it (the layers then leave it at zero);
+    ``opposed`` (S, S): the share of target k's |II|² held back by target j."""
+
+    out_of_reach: np.ndarray
+    held_back: np.ndarray
+    opposed: np.ndarray
+
+    def unreachable(self, k: int) -> float:
+        """The share of target k's curvature out of reach or held back."""
+        return float(self.out_of_reach[k].sum() + self.held_back[k].sum())
+
+    def why(self, k: int, names: tuple[str, ...], limited: np.ndarray) -> str:
+        """``45% of its curvature is along the director, which no feature reaches at its
+        stimulus; 50% is held back where saddle needs the opposite bend from the same
+        lever; what would change it: ...`` (``limited`` as :class:`LayeringReport`'s)."""
+        reasons, remedies = [], []
+        for c, share in enumerate(self.out_of_reach[k]):
+            if share >= 0.05:
+                reasons.append(f"{share:.0%} of its curvature is {COMPONENTS[c]}")
+                remedies.append(REMEDIES[c])
+        held = float(self.held_back[k].sum())
+        if held >= 0.05:
+            others = [names[j] for j in np.argsort(-self.opposed[k]) if self.opposed[k, j] >= 0.05]
+            reasons.append(
+                f"{held:.0%} is held back where {' and '.join(others)} need"
+                f"{'s' if len(others) == 1 else ''} the opposite bend from the same lever"
+            )
+            remedies.append(
+                "a second feature for that bend, or one whose effect changes sign between "
+                "the stimuli"
+            )
+        if np.max(limited, initial=0.0) >= 0.05:
+            reasons.append(f"the features' ranges cap it at {np.max(limited):.0%} of the points")
+            remedies.append("a wider feature range")
+        if not reasons:
+            reasons.append("the levers reach it, but their fit to every target gives it little")
+            remedies.append("more layers or a larger size")
+        return f"{'; '.join(reasons)}; what would change it: {', or '.join(remedies)}"
+
+    def to_dict(self, names: tuple[str, ...]) -> dict:
+        """report.json's ``out_of_reach`` and ``held_back`` per target and component."""
+
+        def table(values: np.ndarray) -> dict:
+            return {
+                names[k]: dict(zip(("uu", "uv", "vv"), map(float, values[k]), strict=True))
+                for k in range(1, len(names))
+            }
+
+        return {"out_of_reach": table(self.out_of_reach), "held_back": table(self.held_back)}
 
 
 @dataclass(frozen=True)
@@ -81,7 +155,7 @@ class LayeringReport:
     between the layers' mean metric and the design's, over stimuli and points, and
     ``metric_error_p99`` its 99th percentile over the points (one point where the shear
     nearly vanishes can ask for a large turn: the largest alone would hide that the rest
-    agree).
+    agree); ``reach``: why a target got little of its curvature (:class:`Reach`).
     """
 
     names: tuple[str, ...]
@@ -91,22 +165,29 @@ class LayeringReport:
     metric_error: float
     weights: np.ndarray
     metric_error_p99: float = 0.0
+    reach: Reach | None = None
 
     def lines(self) -> list[str]:
         """One line per target, for the command line."""
         out = []
         for k in range(1, len(self.names)):
             name, matched, side = self.names[k], self.matched[k], self.right_side[k]
+            why = self.why(k)
             if self.weights[k] > 0:
-                out.append(
+                line = (
                     f"{name}: {max(0.0, matched):.0%} of its curvature programmed, bending to "
                     f"its side at {side:.0%} of the points"
                 )
+                line += f"; why: {why}" if why else ""
             else:
-                out.append(
+                line = (
                     f"{name}: none of its curvature asked for ({max(0.0, matched):.0%} given), "
                     f"none against it (bending to its side at {side:.0%} of the points)"
                 )
+                line += (
+                    f"; asked for, most of it is out of these layers' reach: {why}" if why else ""
+                )
+            out.append(line)
         return out
 
     def to_dict(self) -> dict:
@@ -121,7 +202,19 @@ class LayeringReport:
             "features_limited": [float(x) for x in self.limited],
             "metric_error": self.metric_error,
             "metric_error_p99": self.metric_error_p99,
+            **({} if self.reach is None else self.reach.to_dict(self.names)),
+            "why": {self.names[k]: self.why(k) for k in range(1, len(self.names))},
         }
+
+    def why(self, k: int) -> str:
+        """Why target k gets little of its curvature, or would if asked for it ("" when it
+        gets, or would get, most of it): the sentence its line ends with."""
+        if self.reach is None:
+            return ""
+        asked = self.weights[k] > 0
+        if (self.matched[k] >= EXPLAINED) if asked else (self.reach.unreachable(k) < EXPLAINED):
+            return ""
+        return self.reach.why(k, self.names, self.limited)
 
 
 def layered(
@@ -324,6 +417,43 @@ class _System:
         vv = -c * np.einsum("sn...,n...->s...", self.across, slope)
         return np.stack([uu, uv, vv], axis=1)
 
+    def levers(self) -> list[list[tuple[int, np.ndarray]]]:
+        """Every lever (the twist, then each feature) as its effects: (the component of
+        the curvature it acts on: 0 uu, 1 uv, 2 vv; its effect on that component of every
+        target, (S, nu, nv)). A feature acting both along and across the director has
+        two effects, with one sign (:meth:`solve`)."""
+        features = self.along.shape[1]
+        out = [[(1, -self.shear)]]
+        for i in range(features):
+            out.append([(0, -self.along[:, i]), (2, -self.across[:, i])])
+        return out
+
+    def reach(self, valid: np.ndarray) -> Reach:
+        """Why each target gets what it gets (:class:`Reach`), over the ``valid`` points."""
+        known = self.known & valid
+        targets = len(self.weights)
+        weight = np.stack(
+            [(2.0 if c == 1 else 1.0) * self.target[:, c] ** 2 * known for c in range(3)], 1
+        )  # (S, 3, nu, nv): |II|² by component
+        reached = np.zeros(weight.shape, dtype=bool)
+        free = np.zeros(weight.shape, dtype=bool)  # some lever may bend it its way
+        against = np.zeros((targets, targets, *known.shape[1:]), dtype=bool)
+        for effects in self.levers():
+            votes = [(c, _votes(col, self.target[:, c], self.known)) for c, col in effects]
+            sign = _allowed([(col, self.target[:, c]) for c, col in effects], self.known)
+            for (c, column), (_, vote) in zip(effects, votes, strict=True):
+                reaches = np.abs(column) > REACHES
+                reached[:, c] |= reaches
+                free[:, c] |= reaches & ((vote == 0) | (vote * sign > 0))
+                for _, other in votes:
+                    against |= (vote[:, None] * other[None, :] < 0) & reaches[:, None]
+        held = reached & ~free
+        total = np.maximum(weight.sum(axis=(1, 2, 3)), TINY)
+        out_of_reach = np.sum(weight * ~reached, axis=(2, 3)) / total[:, None]
+        held_back = np.sum(weight * held, axis=(2, 3)) / total[:, None]
+        opposed = np.einsum("kcij,kmij->km", weight * held, against) / total[:, None]
+        return Reach(out_of_reach, held_back, opposed)
+
     def report(
         self,
         design: Design,
@@ -351,7 +481,8 @@ class _System:
         errors = _metric_errors(design, layered)
         worst = float(errors.max(initial=0.0))
         p99 = float(np.percentile(errors, 99)) if errors.size else 0.0
-        return LayeringReport(names, matched, side, limited, worst, self.weights, p99)
+        reach = self.reach(design.valid)
+        return LayeringReport(names, matched, side, limited, worst, self.weights, p99, reach)
 
 
 def _allowed(effects: list[tuple[np.ndarray, np.ndarray]], known: np.ndarray) -> np.ndarray:
@@ -359,16 +490,23 @@ def _allowed(effects: list[tuple[np.ndarray, np.ndarray]], known: np.ndarray) ->
     side: +1, -1, or 0 where targets want opposite signs (or none is reached). Each of
     ``effects`` is (its effect on one component of every target's curvature, that
     component of every target's II), both (S, nu, nv); every target whose II is
-    ``known`` (S, nu, nv) votes, whatever its weight, where its component is more than a
-    tenth of its typical size and the unknown reaches it."""
+    ``known`` (S, nu, nv) votes (:func:`_votes`), whatever its weight."""
     plus = minus = np.zeros(known.shape[1:], dtype=bool)
     for column, target in effects:
-        typical = np.sqrt(np.mean(target**2, axis=(1, 2), keepdims=True)) + TINY
-        votes = np.sign(column * target) * (np.abs(target) > 0.1 * typical)
-        votes *= known & (np.abs(column) > TINY)
+        votes = _votes(column, target, known)
         plus = plus | (votes > 0).any(axis=0)
         minus = minus | (votes < 0).any(axis=0)
     return np.where(plus & ~minus, 1.0, np.where(minus & ~plus, -1.0, 0.0))
+
+
+def _votes(column: np.ndarray, target: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """(S, nu, nv) the sign every target wants an unknown to take for one component of
+    its curvature (``column`` the unknown's effect on it, ``target`` the component of
+    II, both (S, nu, nv)): 0 where the unknown does not reach it, where its II is not
+    ``known``, or where the component is less than a tenth of its typical size."""
+    typical = np.sqrt(np.mean(target**2, axis=(1, 2), keepdims=True)) + TINY
+    votes = np.sign(column * target) * (np.abs(target) > 0.1 * typical)
+    return votes * (known & (np.abs(column) > TINY))
 
 
 def _norm(parts: np.ndarray) -> float:

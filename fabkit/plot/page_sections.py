@@ -256,6 +256,9 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
         for name, weight in layers["weights"].items()
     )
     limited = ", ".join(f"{100 * share:.0f} %" for share in layers["features_limited"])
+    reasons = tuple(
+        Paragraph((f"{name}: {why}.",)) for name, why in layers.get("why", {}).items() if why
+    )
     blocks = (
         Paragraph(
             (
@@ -272,6 +275,11 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
                 "of its points bent to its own side",
             ),
             rows,
+        ),
+        *(
+            (Paragraph(("Why a target gets little of its curvature:",)), *reasons)
+            if reasons
+            else ()
         ),
         Paragraph(
             (
