@@ -126,3 +126,17 @@ class _CallablePackage(types.ModuleType):
 
 # fabkit/verify/__init__.py is a docstring: importing it loads no stage
 importlib.import_module("fabkit.verify").__class__ = _CallablePackage
+
+
+def _show_in_notebooks() -> None:
+    """In a notebook (an IPython shell is running), show fabkit's values as HTML
+    (:mod:`fabkit.plot.notebook`); elsewhere do nothing and import nothing."""
+    import sys
+
+    ipython = sys.modules.get("IPython")
+    shell = ipython.get_ipython() if ipython is not None else None
+    if shell is not None and hasattr(shell, "display_formatter"):
+        importlib.import_module("fabkit.plot.notebook").register(shell)
+
+
+_show_in_notebooks()
