@@ -101,9 +101,20 @@ def gcode_bytes(
     rows = rows.modal(setup)
     body = render(rows.prefix, row_prefixes(setup), rows.values, rows.present, WORDS)
     end = lines_bytes(machine.render("end_gcode"))
+    body = _without_repeat(body, end)
     draft = header_bytes(summary, toolpath, machine, setup) + body + end
     # the file as the machine plans it (the header's time is a comment, which it skips)
     planned = estimate(commands_from_lines(draft.decode("ascii").splitlines()), machine)
     summary = replace(summary, duration_s=planned.total_s, motion_lines=planned.moves)
     text = header_bytes(summary, toolpath, machine, setup) + body + end
     return text, replace(summary, lines=text.count(b"\n"))
+
+
+def _without_repeat(body: bytes, end: bytes) -> bytes:
+    """``body`` without its last line when the end G-code starts with the same command
+    (the last road's valve closed, then the end G-code closing it again: ``M42 P4 S0``
+    twice)."""
+    first = end.split(b"\n", 1)[0]
+    if first and body.endswith(b"\n" + first + b"\n"):
+        return body[: -len(first) - 1]
+    return body

@@ -61,7 +61,7 @@ def job_summary(rows: Rows, kin: Kinematics, paths: Paths, setup: Setup) -> Gcod
     printing = paths.printing[rows.move[kin.rows]]
     length = np.nan_to_num(kin.length)
     e = rows.e_delta[kin.rows]
-    low, high = column_bounds(kin.position[np.isfinite(kin.position).all(axis=1)])
+    low, high = column_bounds(kin.position[_printed(kin.position, printing)])
     return GcodeSummary(
         lines=0,
         motion_lines=0,
@@ -77,6 +77,17 @@ def job_summary(rows: Rows, kin: Kinematics, paths: Paths, setup: Setup) -> Gcod
         e_units=setup.e_units,
         nominal_e=setup.nominal_e,
     )
+
+
+def _printed(position: np.ndarray, printing: np.ndarray) -> np.ndarray:
+    """(n,) the kinematic rows whose position (n, 3) a printed road starts or ends at: the
+    header's MINX ... MAXZ are the print's extent, as Cura writes them (the travel lift
+    above the sheet is no part of it); every known position when nothing prints."""
+    known = np.isfinite(position).all(axis=1)
+    starts = np.zeros_like(printing)
+    starts[:-1] = printing[1:]  # a road starts where the row before it ends
+    drawn = (printing | starts) & known
+    return drawn if drawn.any() else known
 
 
 def header_bytes(
