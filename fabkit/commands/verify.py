@@ -97,5 +97,5 @@ def run(args: argparse.Namespace) -> int:
         result = verify(args.design, args.machine_file, options, bar)
     finally:
         bar.close()
-    print(json.dumps(result.to_dict(), indent=2) if args.json else result.table())
+    print(json.dumps(result.to_dict(), indent=2) if args.json else result.text())
     return 0

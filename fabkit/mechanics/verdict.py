@@ -219,6 +219,12 @@ class Shape:
         }
 
 
+TIE = 1e-6
+"""RMS distances (shares of the patch diameter) closer than this are one figure: ends in
+one state differ by 1e-9 to 1e-7 (Fig. 3's face from the two random starts, and the
+same sheet simulated by ``run`` and by ``verify``)."""
+
+
 def _mirror(end: StartEnd) -> bool:
     return end.mirrored
 
@@ -233,8 +239,14 @@ def _far(tolerance: float) -> Callable[[StartEnd], bool]:
 
 def worst(ends: Sequence[StartEnd], tolerance: float) -> StartEnd:
     """The start whose end is worst: one that did not form the target, if any, then the
-    largest RMS."""
-    return max(ends, key=lambda end: (not end.formed(tolerance), end.rms))
+    largest RMS; of the starts within :data:`TIE` of the largest (ends in one state,
+    whose RMS differ by the solver's tolerance: a start and its mirror image, two random
+    starts), the first in the order of :data:`~fabkit.mechanics.simulate.STARTS`, so that
+    ``run`` and ``verify`` name the same start."""
+    missed = [end for end in ends if not end.formed(tolerance)] or list(ends)
+    largest = max(end.rms for end in missed)
+    tied = [end for end in missed if end.rms >= largest - TIE]
+    return min(tied, key=lambda end: STARTS.index(end.start) if end.start in STARTS else 0)
 
 
 @dataclass(frozen=True)

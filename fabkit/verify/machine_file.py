@@ -205,8 +205,17 @@ class Verification:
                 )
             lines.append(line)
         lines += [f"  note: {note}" for note in self.notes]
-        lines.append(f"  {self.seconds:.1f} s")
+        lines.append(f"  verified in {self.seconds:.1f} s")
         return "\n".join(lines)
+
+    def text(self) -> str:
+        """What ``fabkit verify`` prints: :meth:`table`, then, when the sheet was
+        simulated, the verdict's line per target and its headline last."""
+        if self.verdict is None:
+            return self.table()
+        shapes = [f"    {line}" for line in self.verdict.lines()]
+        block = [f"  the sheet {self.verdict.what}:", *shapes, self.verdict.headline()]
+        return "\n".join([self.table(), *block])
 
 
 def verify(
