@@ -84,7 +84,7 @@ def plan_toolpath(
     frame, placed on the bed by the writer), ``plan.quality`` (one per layer) and
     ``plan.warnings`` (one line each).
     """
-    from fabkit.run.inputs import DEFAULT_SIZE_MM
+    from fabkit.field.part import DEFAULT_SIZE_MM
     from fabkit.toolpath.job import ToolpathJob, plan_job
 
     unknown = sorted(set(settings) - set(PLAN_SETTINGS))

@@ -183,9 +183,9 @@ CASES = [
     ),
     case("toolpath {wrong_json} --out {out}", "expected a design .npz", id="toolpath-json"),
     case(
-        "toolpath {design} --out {out}",
-        "give the size",
-        id="toolpath-design-without-size",
+        "toolpath {design} --size 60 --scale 10 --out {out}",
+        "not allowed with argument",
+        id="toolpath-design-size-and-scale",
     ),
     *[
         case(

@@ -14,7 +14,7 @@ from fabkit.field.design_field import field_from_design
 from fabkit.field.director_file import load_director_file
 from fabkit.field.flat import field_from_expression, field_from_grid, planar_expression
 from fabkit.field.outlines import parse_shape
-from fabkit.field.part import SIZE_TOLERANCE
+from fabkit.field.part import DEFAULT_SIZE_MM, SIZE_TOLERANCE
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "directors"
 
@@ -80,6 +80,8 @@ def test_design_field_follows_the_grid(tmp_path):
     sized = field_from_design(path, size_mm=30.0)  # the size is the part's longest side
     assert 30.0 * (1 - SIZE_TOLERANCE) <= max(sized.part.extent()) <= 30.0
     assert sized.outline.difference(sized.part.outline_mm()).area == 0.0
+    default = field_from_design(path)  # neither size nor scale: fabkit run's 60 mm
+    assert DEFAULT_SIZE_MM * (1 - SIZE_TOLERANCE) <= max(default.part.extent()) <= DEFAULT_SIZE_MM
 
 
 def test_design_solved_region_is_the_union_of_cell_images(tmp_path):
@@ -141,10 +143,10 @@ def test_bad_design_files_are_one_line_errors(tmp_path, change, message):
         field_from_design(tmp_path / "bad.npz", size_mm=10)
 
 
-def test_design_needs_exactly_one_scale(tmp_path):
+def test_design_takes_at_most_one_scale(tmp_path):
     path = write_design(tmp_path / "d.npz")
-    with pytest.raises(FabkitError, match="--size"):
-        field_from_design(path)
+    with pytest.raises(FabkitError, match="--size MM. or --scale, not both"):
+        field_from_design(path, size_mm=10, mm_per_unit=1)
     with pytest.raises(FabkitError, match="does not exist"):
         field_from_design(tmp_path / "missing.npz", size_mm=1)
 

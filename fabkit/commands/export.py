@@ -31,7 +31,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="X,Y[,Z]: sheet origin on the machine (mm); default: centred on the bed",
     )
     design = parser.add_argument_group("design input")
-    commands.add_length(design, "--size", "longest side of the part that is made (mm)")
+    commands.add_length(
+        design, "--size", "longest side of the part that is made (mm; default 60, as fabkit run)"
+    )
     design.add_argument(
         "--scale", type=float, metavar="MM_PER_UNIT", dest="mm_per_unit", help="mm per design unit"
     )

@@ -8,8 +8,9 @@ from fabkit import commands
 from fabkit.commands.check import verdict_arguments
 from fabkit.commands.toolpath import part_arguments, part_request
 from fabkit.design.patches import MESH_TYPES
+from fabkit.field.part import DEFAULT_SIZE_MM
 from fabkit.machines import DEFAULT_MACHINE
-from fabkit.run.inputs import BAROMORPH_MACHINE, DEFAULT_SIZE_MM, FORMAT_FILES, RunOptions
+from fabkit.run.inputs import BAROMORPH_MACHINE, FORMAT_FILES, RunOptions
 from fabkit.run.pipeline import run_pipeline
 
 

@@ -9,10 +9,10 @@ from fabkit import commands
 from fabkit.commands import add_command
 from fabkit.design.design import MAX_LAYERS
 from fabkit.errors import FabkitError
+from fabkit.field.part import DEFAULT_SIZE_MM
 from fabkit.machines import DEFAULT_MACHINE
 from fabkit.process import Process
 from fabkit.progress import add_progress
-from fabkit.run.inputs import DEFAULT_SIZE_MM
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

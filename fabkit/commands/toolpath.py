@@ -71,7 +71,7 @@ def _field_arguments(parser: argparse.ArgumentParser, inputs_help: str) -> None:
     source.add_argument("--eps", metavar="EXPR", help='eps(x, y), e.g. "0.2 + 0.01*r"')
     commands.add_scale(
         parser.add_argument_group("design scale"),
-        "longest side of the part that is printed, mm",
+        "longest side of the part that is printed, mm (default 60, as fabkit run)",
         "mm per design unit",
     )
     part_arguments(parser)

@@ -23,7 +23,14 @@ from scipy.spatial import cKDTree
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.flat import FlatField, PlaneFunction
-from fabkit.field.part import Part, PartOptions, part_of_size, print_part, solved_region
+from fabkit.field.part import (
+    DEFAULT_SIZE_MM,
+    Part,
+    PartOptions,
+    part_of_size,
+    print_part,
+    solved_region,
+)
 from fabkit.files.tomlfile import real
 
 DESIGN_KEYS = ("u", "v", "valid", "eps", "r", "n")
@@ -42,8 +49,10 @@ def field_from_design(
 
     ``part``: a :class:`~fabkit.field.part.Part` made already (its scale is the field's; then give
     neither size nor scale), or the options to make one (default :class:`PartOptions`: the
-    smooth margin outline only). Otherwise give exactly one of ``size_mm`` (the longest
-    side of the part's bounding box, mm) and ``mm_per_unit`` (mm per design unit).
+    smooth margin outline only). Otherwise give at most one of ``size_mm`` (the longest
+    side of the part's bounding box, mm; default
+    :data:`~fabkit.field.part.DEFAULT_SIZE_MM`, as ``fabkit run``) and ``mm_per_unit`` (mm
+    per design unit).
     Every feature of the design is carried, named as in its spec.
     """
     design, path = _design_and_name(source, name)
@@ -54,10 +63,10 @@ def field_from_design(
             raise FabkitError(f"{path}: the part sets the scale; give no --size or --scale")
         scale = part.mm_per_unit
     else:
-        if (size_mm is None) == (mm_per_unit is None):
-            raise FabkitError(
-                "design: give the size (--size MM, longest side) or --scale MM_PER_UNIT"
-            )
+        if size_mm is not None and mm_per_unit is not None:
+            raise FabkitError("design: give the size (--size MM) or --scale, not both")
+        if mm_per_unit is None:
+            size_mm = DEFAULT_SIZE_MM if size_mm is None else size_mm
         solved = solved_region(design, str(path))
         options = part or PartOptions()
         if size_mm is not None:

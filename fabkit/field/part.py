@@ -284,6 +284,9 @@ def scale_for_size(solved: shapely.Geometry, size_mm: float) -> float:
     return size_mm / max(high_x - low_x, high_y - low_y)
 
 
+DEFAULT_SIZE_MM = 60.0
+"""The part's longest side when no size or scale is given (mm): ``fabkit run``'s,
+``toolpath``'s, ``export``'s and the API's."""
 SIZE_TOLERANCE = 0.002
 """A part is of the size asked when its longest side is within this share below it."""
 SIZE_ITERATIONS = 12

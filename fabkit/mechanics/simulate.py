@@ -87,9 +87,10 @@ class Settings:
     ``ramp_tolerance``: the same for the intermediate ramp steps; ``max_iterations``:
     Newton iterations per ramp step (2000: a saddle-shaped target from a random start
     needs up to 827 in its first step, the sheet crossing from the random bump to the
-    saddle, and the same saddle programmed in two layers 1160 in its second; the Fig. 3 face needed 337-360 over its two steps and stopped unconverged at
-    100, 0.7 design units RMS away from the equilibrium it then reaches; a simulation
-    that converges stops long before, so the cap costs only those that do not);
+    saddle, and the same saddle programmed in two layers 1160 in its second; the Fig. 3
+    face needed 337-360 over its two steps and stopped unconverged at 100, 0.7 design
+    units RMS away from the equilibrium it then reaches; a simulation that converges
+    stops long before, so the cap costs only those that do not);
     ``seed``: the start, one of
     :data:`STARTS`; ``seed_height``: its height relative to the sheet's radius.
     """

@@ -18,6 +18,7 @@ from fabkit.design.design import MAX_LAYERS
 from fabkit.design.patches import MESH_TYPES, patch_paths
 from fabkit.errors import FabkitError
 from fabkit.field.part import (
+    DEFAULT_SIZE_MM,
     PartRequest,
 )
 from fabkit.files.atomic import check_folder
@@ -31,7 +32,6 @@ from fabkit.toolpath.process_file import load_process, resolve_channels
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
 BAROMORPH_MACHINE = "laser_cutter"
 LASER_WRITER = "laser_writer"
-DEFAULT_SIZE_MM = 60.0
 
 
 @dataclass(frozen=True)
