@@ -50,24 +50,25 @@ def test_cli_plot_writes_pictures_meshes_and_report(run_cli, fig1_design, tmp_pa
     fig1_design.save(design_path)
     code, out, _ = run_cli("plot", design_path, "--out", tmp_path / "plots")
     assert code == 0
-    names = {p.name for p in (tmp_path / "plots").iterdir()}
-    expected = {
-        "flat_sheet.png",
-        "eps.png",
-        "surfaces.png",
-        "residuals.png",
+    plots = tmp_path / "plots"
+    names = {p.relative_to(plots).as_posix() for p in plots.rglob("*")}
+    expected = {  # where fabkit run writes them (issue 37)
+        "pictures/flat_sheet.png",
+        "pictures/eps.png",
+        "pictures/surfaces.png",
+        "pictures/residuals.png",
         "report.html",
-        "patch_0_flat.ply",
-        "patch_1_sphere.ply",
-        "patch_2_bump.ply",
+        "patches/0_flat.ply",
+        "patches/1_sphere.ply",
+        "patches/2_bump.ply",
     }
     assert expected <= names
-    leftovers = [n for n in names - {MANIFEST} if n.startswith(".")]
+    leftovers = [n for n in names - {MANIFEST} if n.rsplit("/", 1)[-1].startswith(".")]
     assert not leftovers  # no temporary files left
     page = (tmp_path / "plots" / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 4 and "check passed" in page
     for name in ("flat_sheet.png", "surfaces.png"):
-        assert (tmp_path / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert (plots / "pictures" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_the_drawn_grid_curves_stay_on_the_patch(fig1_design):

@@ -191,9 +191,9 @@ def test_a_name_that_would_leave_the_folder_is_refused(name, tmp_path):
 
 def test_mesh_files_stay_inside_their_folder(tmp_path):
     spec = load_spec(EXAMPLES / "two_shapes.toml")
-    paths = patch_paths(spec.targets, tmp_path / "patches", "ply", "patch_")
+    paths = patch_paths(spec.targets, tmp_path / "patches", "ply")
     names = [p.name for _, p in paths]
-    assert names == ["patch_0_flat.ply", "patch_1_sphere.ply", "patch_2_bump.ply"]
+    assert names == ["0_flat.ply", "1_sphere.ply", "2_bump.ply"]
     with pytest.raises(FabkitError, match="outside the output folder"):
         patch_paths(spec.targets, tmp_path / "patches", "ply/../../../x")
     assert inside(tmp_path, "a.ply") == tmp_path / "a.ply"

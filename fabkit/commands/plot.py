@@ -34,8 +34,9 @@ def run(args: argparse.Namespace) -> int:
 
     design = Design.load(args.design)
     out = Path(args.out)
-    pictures = render_design(design, out)
-    meshes = [path.name for path in write_patch_meshes(design, out, args.mesh_format, "patch_")]
+    pictures = render_design(design, out / "pictures")  # where fabkit run writes them
+    patches = write_patch_meshes(design, out / "patches", args.mesh_format)
+    meshes = [path.relative_to(out).as_posix() for path in patches]
     report = check_design(design)
     figures = {
         "valid points": int(design.valid.sum()),

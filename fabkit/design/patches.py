@@ -70,11 +70,11 @@ def write_patch_mesh(design: Design, surface: int, path: str | Path) -> None:
 
 
 def patch_paths(
-    targets: Sequence[Target], folder: str | Path, mesh_format: str = "ply", prefix: str = ""
+    targets: Sequence[Target], folder: str | Path, mesh_format: str = "ply"
 ) -> list[tuple[int, Path]]:
     """(surface index, mesh file) of every target with a 3D embedding, in ``folder``.
 
-    Files are ``folder / f"{prefix}{index}_{name}.{mesh_format}"``; a name that could not
+    Files are ``folder / f"{index}_{name}.{mesh_format}"``; a name that could not
     safely be part of a file name (:func:`fabkit.files.atomic.check_name`), or a file that would
     land outside ``folder``, is a one-line error, so callers check before any work.
     """
@@ -82,16 +82,14 @@ def patch_paths(
     for index, target in enumerate(targets):
         if target.surface.embed(target.start[None]) is not None:
             name = check_name(target.name, f"surfaces[{index}].name")
-            paths.append((index, inside(folder, f"{prefix}{index}_{name}.{mesh_format}")))
+            paths.append((index, inside(folder, f"{index}_{name}.{mesh_format}")))
     return paths
 
 
-def write_patch_meshes(
-    design: Design, folder: str | Path, mesh_format: str = "ply", prefix: str = ""
-) -> list[Path]:
+def write_patch_meshes(design: Design, folder: str | Path, mesh_format: str = "ply") -> list[Path]:
     """Write the patch on every surface with a 3D embedding (see :func:`patch_paths`);
     returns the paths written. Surfaces given only by their metric are skipped."""
-    paths = patch_paths(design.problem.targets, folder, mesh_format, prefix)
+    paths = patch_paths(design.problem.targets, folder, mesh_format)
     for index, path in paths:
         write_patch_mesh(design, index, path)
     return [path for _, path in paths]
