@@ -85,3 +85,20 @@ def test_the_drawn_grid_curves_stay_on_the_patch(fig1_design):
         for curve in (*view.u_curves, *view.v_curves):
             gaps = np.min(np.linalg.norm(curve[:, None, :] - on_patch[None], axis=2), axis=1)
             assert gaps.max() < 1e-9
+
+
+def test_the_surface_behind_the_curves_is_the_patch_and_its_margin(fig1_design):
+    # issue 37: the sphere's backdrop was its patch's whole chart box, an open band around
+    # the sphere far wider than the patch
+    from scipy.spatial import cKDTree
+
+    from fabkit.field.part import solved_nodes
+    from fabkit.plot.scene import surface_views
+
+    sphere = fig1_design.problem.targets[1]
+    patch = sphere.surface.embed(fig1_design.r[1][solved_nodes(fig1_design)])
+    view = surface_views(fig1_design)[0]
+    drawn = view.backdrop[np.isfinite(view.backdrop).all(axis=-1)]
+    far = cKDTree(patch).query(drawn)[0]
+    extent = float(np.ptp(patch, axis=0).max())
+    assert len(drawn) > 100 and far.max() < 0.15 * extent  # 0.107 (the chart box: 0.267)

@@ -22,7 +22,7 @@ from matplotlib.tri import Triangulation  # noqa: E402
 from fabkit.design.check import RESIDUAL_TITLES, RESIDUALS, Tolerances  # noqa: E402
 from fabkit.design.design import Design  # noqa: E402
 from fabkit.design.patches import grid_triangles  # noqa: E402
-from fabkit.field.part import Part  # noqa: E402
+from fabkit.field.part import Part, solved_nodes  # noqa: E402
 from fabkit.plot.scene import Scene, curve_stride, grid_lines, true_runs  # noqa: E402
 
 DPI = 110
@@ -90,7 +90,8 @@ def _outline(axes, part: Part) -> None:
 def eps_maps(scene: Scene) -> bytes:
     """Every feature on the flat sheet (left column) and on the (u, v) grid (right column)."""
     design, features = scene.design, scene.features
-    points, triangles = grid_triangles(design.valid)
+    patch = solved_nodes(design)  # an initial curve's valid nodes run past the patch
+    points, triangles = grid_triangles(patch)
     figure, axes = plt.subplots(
         len(features), 2, figsize=(11, 4.6 * len(features)), squeeze=False, layout="constrained"
     )
@@ -108,7 +109,7 @@ def eps_maps(scene: Scene) -> bytes:
         axes[row, 0].set_xlabel("x (design units)")
         axes[row, 0].set_ylabel("y (design units)")
         axes[row, 0].set_title(f"{name} on the flat sheet")
-        solved = np.where(design.valid, values, np.nan)
+        solved = np.where(patch, values, np.nan)
         image = axes[row, 1].imshow(
             solved.T, origin="lower", extent=extent, cmap="viridis", aspect="auto"
         )
@@ -116,7 +117,7 @@ def eps_maps(scene: Scene) -> bytes:
         axes[row, 1].set_xlabel("u")
         axes[row, 1].set_ylabel("v")
         axes[row, 1].set_title(f"{name} on the material grid")
-        _zoom(axes[row, 1], design)
+        _zoom(axes[row, 1], design, patch)
     return png(figure)
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from fabkit.design.check import ResidualMaps, residual_maps
 from fabkit.design.design import Design
@@ -111,6 +112,13 @@ def surface_views(design: Design) -> tuple[SurfaceView, ...]:
     return tuple(views)
 
 
+BACKDROP_MARGIN = 0.08
+"""How far the target surface is drawn around the patch, as a share of the patch's
+extent in its chart."""
+BACKDROP_POINTS = 90
+"""Chart points along each side of the backdrop (its edge steps are this fine)."""
+
+
 def _cube(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     """(centre (3,), half side) of the cube around ``points`` (n, 3); None if empty."""
     if len(points) == 0:
@@ -120,19 +128,24 @@ def _cube(points: np.ndarray) -> tuple[np.ndarray, float] | None:
 
 
 def _surface_backdrop(surface, chart_points: np.ndarray, box) -> np.ndarray | None:
-    """The target surface over the patch's chart bounding box (40, 40, 3), NaN outside the
-    surface and outside ``box`` (matplotlib does not clip 3D surfaces to the axes)."""
+    """The target surface around the patch ((n, n, 3), n = :data:`BACKDROP_POINTS`): over
+    the patch's chart bounding box, NaN farther than :data:`BACKDROP_MARGIN` of that box
+    from the patch (a patch that curls, as the sphere's does, drew the whole box: an open
+    band around the sphere), outside the surface and outside ``box`` (matplotlib does not
+    clip 3D surfaces)."""
     if len(chart_points) == 0 or box is None:
         return None
     low, high = chart_points.min(axis=0), chart_points.max(axis=0)
-    margin = 0.08 * (high - low + 1e-9)
+    span = high - low + 1e-9
+    margin = BACKDROP_MARGIN * span
     a, b = np.meshgrid(
-        np.linspace(low[0] - margin[0], high[0] + margin[0], 40),
-        np.linspace(low[1] - margin[1], high[1] + margin[1], 40),
+        np.linspace(low[0] - margin[0], high[0] + margin[0], BACKDROP_POINTS),
+        np.linspace(low[1] - margin[1], high[1] + margin[1], BACKDROP_POINTS),
         indexing="ij",
     )
     grid = np.stack([a, b], -1)
-    inside = surface.contains(grid)
+    near, _ = cKDTree(chart_points / span).query(grid / span)
+    inside = surface.contains(grid) & (near <= BACKDROP_MARGIN)
     xyz = surface.embed(np.where(inside[..., None], grid, np.nan))
     centre, half = box
     with np.errstate(invalid="ignore"):
