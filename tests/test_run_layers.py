@@ -59,7 +59,8 @@ def test_two_layers_form_the_wavy_sheet_as_fabricated_from_every_start(layered_r
     for target in verify["verdict"]["targets"]:
         starts = target["starts"]
         assert len(starts) == 6 and target["formed"] == all(s["formed"] for s in starts)
-        assert target["rms_pct"] == max(s["rms_pct"] for s in starts) or not target["formed"]
+        largest = max(s["rms_pct"] for s in starts)  # of ends in one state, the first
+        assert target["rms_pct"] == pytest.approx(largest, abs=1e-4) or not target["formed"]
     assert verify["verdict"]["formed"] == figures["verdict"]["formed"]
     validate_report(figures)
 

@@ -181,8 +181,9 @@ class LayeringReport:
                 line += f"; why: {why}" if why else ""
             else:
                 line = (
-                    f"{name}: none of its curvature asked for ({max(0.0, matched):.0%} given), "
-                    f"none against it (bending to its side at {side:.0%} of the points)"
+                    f"{name}: its curvature not asked for (the metric alone reaches its shape "
+                    f"or its mirror image); the layers give it {max(0.0, matched):.0%} of it, "
+                    f"bending to its side at {side:.0%} of the points"
                 )
                 line += (
                     f"; asked for, most of it is out of these layers' reach: {why}" if why else ""

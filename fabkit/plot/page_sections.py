@@ -255,7 +255,13 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
         )
         for name, weight in layers["weights"].items()
     )
-    limited = ", ".join(f"{100 * share:.0f} %" for share in layers["features_limited"])
+    features = list(figures.get("channels", {}).values())
+    if len(features) != len(layers["features_limited"]):
+        features = [f"feature {k + 1}" for k in range(len(layers["features_limited"]))]
+    limited = ", ".join(
+        f"{name} at {100 * share:.0f} %"
+        for name, share in zip(features, layers["features_limited"], strict=True)
+    )
     reasons = tuple(
         Paragraph((f"{name}: {why}.",)) for name, why in layers.get("why", {}).items() if why
     )
@@ -283,8 +289,8 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
         ),
         Paragraph(
             (
-                f"Share of the points where a feature's range held its difference between the "
-                f"layers back: {limited} (one per feature). The layers' mean metric differs "
+                f"The process's range of each feature capped its difference between the layers "
+                f"at a share of the points: {limited}. The layers' mean metric differs "
                 f"from the design's by at most {100 * layers['metric_error_p99']:.2g} % at 99 % "
                 f"of the grid points, and by {100 * layers['metric_error']:.2g} % at the worst "
                 "one (relative).",
