@@ -48,13 +48,14 @@ def preview_images(
     figure = Figure(figsize=(PANEL_INCHES * len(shown), PANEL_INCHES))
     axes = figure.subplots(1, len(shown), squeeze=False)[0]
     low, high = toolpath.bounds()
-    extent = float(max(high[0] - low[0], high[1] - low[1], 1e-9)) * 1.04
+    span = np.maximum(np.asarray(high[:2] - low[:2], float), 1e-9) * 1.04
+    extent = float(span.max())
     norm = _norm(toolpath, channel)
     middle = 0.5 * (low + high)
     for ax, index in zip(axes, shown, strict=True):
         _draw_layer(ax, toolpath, index, outlines[index % len(outlines)], channel, norm, extent)
-        ax.set_xlim(middle[0] - extent / 2, middle[0] + extent / 2)
-        ax.set_ylim(middle[1] - extent / 2, middle[1] + extent / 2)
+        ax.set_xlim(middle[0] - span[0] / 2, middle[0] + span[0] / 2)  # the part, no more:
+        ax.set_ylim(middle[1] - span[1] / 2, middle[1] + span[1] / 2)  # the box fits it
     if norm is not None:
         label = f"{LABELS.get(channel, channel)}: {toolpath.channels[channel] or 'eps'}"
         mappable = ScalarMappable(norm=norm, cmap="viridis")
@@ -62,7 +63,7 @@ def preview_images(
     images = {}
     for fmt in formats:
         buffer = io.BytesIO()
-        figure.savefig(buffer, dpi=dpi, format=fmt)
+        figure.savefig(buffer, dpi=dpi, format=fmt, bbox_inches="tight", pad_inches=0.05)
         images[fmt] = buffer.getvalue()
     return images
 
@@ -107,7 +108,7 @@ def _draw_layer(
     ax, toolpath: Toolpath, index: int, outline, channel: str | None, norm, extent: float
 ) -> None:
     layer = toolpath.layers[index]
-    ax.set_aspect("equal")
+    ax.set_aspect("equal", adjustable="box")
     ax.set_title(f"layer {index + 1}  z = {layer.z_mm:g} mm")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
