@@ -189,35 +189,58 @@ def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
     """Plan ``job`` on ``machine`` (see the module docstring). Each command is read as the
     machine's firmware reads it (:func:`~fabkit.gcode.read.firmware_reader`); one it
     refuses moves nothing (the pre-flight check names it)."""
-    kinematics = Kinematics.of(machine)
-    walker = _Walker(kinematics, machine.flavour)
     read = firmware_reader(machine)
-    planned = _Moves()
-    dwell_s = [0.0] * len(job)
-    positions: list[tuple[float | None, ...]] = []
-    waits: list[str] = []
-    segment, moves = 0, 0
-    for index, command in enumerate(job):
+    planner = Planner(machine)
+    for command in job:
         try:
             block = read(command.text)
         except GcodeError:
             block = Block(())
+        planner.add(block)
+    return planner.estimate()
+
+
+class Planner:
+    """:func:`estimate` one command at a time: :meth:`add` every command of a job as its
+    firmware read it, in order, then :meth:`estimate`. For a caller that reads each
+    command once for several purposes (``fabkit send``: the pre-flight check and the
+    plan, :func:`fabkit.link.host.job.prepare_job`)."""
+
+    def __init__(self, machine: MachineProfile) -> None:
+        self.kinematics = Kinematics.of(machine)
+        self.walker = _Walker(self.kinematics, machine.flavour)
+        self.planned = _Moves()
+        self.dwell_s: list[float] = []
+        self.positions: list[tuple[float | None, ...]] = []
+        self.waits: list[str] = []
+        self.segment, self.moves = 0, 0
+
+    def add(self, block: Block) -> None:
+        """The next command of the job, as its firmware read it (a refused one: an empty
+        block, which moves nothing)."""
+        index = len(self.dwell_s)
+        walker = self.walker
         deltas = walker.step(block)
-        positions.append(tuple(walker.position.logical))
+        self.positions.append(tuple(walker.position.logical))
+        self.dwell_s.append(0.0)
         if deltas is not None:
-            moves += 1
-            planned.add(deltas, walker, block.values, kinematics, index, segment)
+            self.moves += 1
+            self.planned.add(deltas, walker, block.values, self.kinematics, index, self.segment)
         stops = [code for code in block.codes if code in STOPS]
         if stops:
-            waits += [code for code in stops if code in UNKNOWN_TIME]
+            self.waits += [code for code in stops if code in UNKNOWN_TIME]
             if "G4" in stops:
                 values = block.values
-                dwell_s[index] = values.get("P", 0.0) / 1000.0 + values.get("S", 0.0)
-            segment += 1  # the planner empties: the next move starts at rest
-    finish = np.asarray(dwell_s)
-    np.add.at(finish, np.asarray(planned.index, dtype=int), planned.seconds(kinematics))
-    end_s = np.cumsum(finish).tolist()
-    return Estimate(tuple(end_s), tuple(positions), tuple(waits), moves)
+                self.dwell_s[index] = values.get("P", 0.0) / 1000.0 + values.get("S", 0.0)
+            self.segment += 1  # the planner empties: the next move starts at rest
+
+    def estimate(self) -> Estimate:
+        """The plan of every command added so far."""
+        finish = np.asarray(self.dwell_s)
+        planned = self.planned
+        np.add.at(finish, np.asarray(planned.index, dtype=int), planned.seconds(self.kinematics))
+        end_s = np.cumsum(finish).tolist()
+        return Estimate(tuple(end_s), tuple(self.positions), tuple(self.waits), self.moves)
 
 
 class _Moves:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TextIO
 
 from fabkit.errors import FabkitError
-from fabkit.gcode.duration import Estimate, estimate
+from fabkit.gcode.duration import Estimate, Planner
 from fabkit.gcode.read import Command, read_job_bytes
 from fabkit.link.host.preflight import JobCheck, check_job
 from fabkit.link.host.session import LinkControl
@@ -80,9 +80,10 @@ def prepare_job(path: str | Path, choice: MachineChoice) -> PreparedJob:
     """Read ``path``, check the job against the machine ``choice`` (:func:`job_machine`)
     and plan its duration; FabkitError at the first problem."""
     data, job = read_job_bytes(path)
-    checked = check_job(job, choice.profile, source=str(path))
+    planner = Planner(choice.profile)  # fed each command as the check reads it: one reading
+    checked = check_job(job, choice.profile, source=str(path), also=planner.add)
     return PreparedJob(
-        str(path), data, job, choice.profile, choice.note, checked, estimate(job, choice.profile)
+        str(path), data, job, choice.profile, choice.note, checked, planner.estimate()
     )
 
 

@@ -16,7 +16,7 @@ heat but that the check cannot follow (``... cannot be checked: <why>``).
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from fabkit.errors import FabkitError
@@ -98,8 +98,9 @@ class _Checker:
         except GcodeError as exc:
             raise FabkitError(f"machine {self.machine.name}: [gcode] {key}: {exc}") from None
 
-    def check(self, text: str) -> None:
-        """Check one command (GcodeError without the file line)."""
+    def check(self, text: str) -> Block:
+        """Check one command (GcodeError without the file line); the command as the
+        firmware reads it."""
         self._check_text(text)
         block = self.read(text)
         if "G20" in block.codes or "G70" in block.codes:
@@ -108,6 +109,7 @@ class _Checker:
         self.dialect.run(text, block)
         if not self.tracker.flow_on:  # the firmware stopped the flow (GRBL's M2, M30)
             self.inks_on = [False, False]
+        return block
 
     def _check_text(self, text: str) -> None:
         limit = MAX_GRBL_CHARS if self.grbl else MAX_MARLIN_CHARS
@@ -145,15 +147,23 @@ def _holds(block: Block, line: Block) -> bool:
     )
 
 
-def check_job(job: Sequence[Command], machine: MachineProfile, source: str = "job") -> JobCheck:
+def check_job(
+    job: Sequence[Command],
+    machine: MachineProfile,
+    source: str = "job",
+    also: Callable[[Block], None] | None = None,
+) -> JobCheck:
     """Walk ``job`` and refuse it (FabkitError naming ``source`` and the file line) at the
-    first command the machine must not get."""
+    first command the machine must not get; ``also`` gets every command checked, as the
+    firmware reads it (the duration's planner: the file is read once)."""
     checker = _Checker(machine)
     for command in job:
         try:
-            checker.check(command.text)
+            block = checker.check(command.text)
         except GcodeError as exc:
             raise FabkitError(f"{source}:{command.file_line}: {exc}") from None
+        if also is not None:
+            also(block)
     tracker = checker.tracker
     return JobCheck(
         source=source,
