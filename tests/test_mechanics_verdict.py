@@ -32,7 +32,8 @@ def test_a_side_the_metric_leaves_open_is_not_formed_whatever_the_order_of_the_s
     mirrored = [end.start for end in sphere.starts if end.mirrored]
     assert 0 < len(mirrored) < len(STARTS)
     assert not sphere.formed and not verdict.formed
-    assert f"its side is not programmed: {len(mirrored)} of 6 starts end as its mirror" in (
+    verb = "ends" if len(mirrored) == 1 else "end"  # "1 of 6 starts ends", "2 ... end"
+    assert f"its side is not programmed: {len(mirrored)} of 6 starts {verb} as its mirror" in (
         sphere.line()
     )
     turned = design_verdict(design, starts=STARTS[::-1])

@@ -132,15 +132,21 @@ class Shape:
         did not converge, or ended farther than the limit, likewise."""
         count = len(self.starts)
         parts = []
-        groups = (
-            ("its side is not programmed: {} of {} starts end as its mirror image", _mirror),
-            ("{} of {} starts do not converge", _unconverged),
-            ("{} of {} starts end farther than the limit", _far(self.tolerance)),
+        groups = (  # the verb for several starts, then for one
+            (
+                "its side is not programmed: {} of {} starts {} as its mirror image",
+                "end",
+                "ends",
+                _mirror,
+            ),
+            ("{} of {} starts {} not converge", "do", "does", _unconverged),
+            ("{} of {} starts {} farther than the limit", "end", "ends", _far(self.tolerance)),
         )
-        for text, holds in groups:
+        for text, several, one, holds in groups:
             ends = [end.start for end in self.starts if holds(end)]
             if ends:
-                parts.append(text.format(len(ends), count) + f" ({', '.join(ends)})")
+                verb = one if len(ends) == 1 else several
+                parts.append(text.format(len(ends), count, verb) + f" ({', '.join(ends)})")
         return "; ".join(parts)
 
     @classmethod
