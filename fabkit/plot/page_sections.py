@@ -118,8 +118,8 @@ def _shapes_section(
             View3D(
                 shapes_3d,
                 f"Every target (grey) and the sheet {shapes['what']} under its stimulus, "
-                "coloured by its distance to the target (mm, one scale for all), in mm: drag "
-                "to turn, scroll to zoom, a button per target.",
+                "coloured by its distance to the target (mm, each target on its own scale), "
+                "in mm: drag to turn, scroll to zoom, a button per target.",
             )
         )
     meshes = [shape["mesh"] for shape in shapes["targets"]]

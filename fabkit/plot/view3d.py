@@ -3,9 +3,9 @@
 One plotly figure (plotly.js is embedded once in the page, :mod:`fabkit.plot.html`; the
 page still loads nothing from elsewhere): per target, the target as a grey surface and the
 sheet as a surface coloured by its distance to the target (mm), in mm with equal scales on
-every axis; one target is shown at a time, a button per target switches (the first is
-shown first). The data are the verdict's meshes, as the pictures and the PLY files have
-them (:class:`~fabkit.plot.page.Shape3D`).
+every axis, the colours on each target's own scale; one target is shown at a time, a
+button per target switches (the first is shown first). The data are the verdict's meshes,
+as the pictures and the PLY files have them (:class:`~fabkit.plot.page.Shape3D`).
 """
 
 from __future__ import annotations
@@ -46,8 +46,8 @@ def view_html(view: View3D, element_id: str) -> str:
     """The view as an HTML fragment (a ``div`` with ``element_id`` and its script;
     plotly.js itself not included)."""
     figure = go.Figure()
-    top = max(float(np.max(shape.distance_mm)) for shape in view.shapes) or 1.0
     for k, shape in enumerate(view.shapes):
+        top = float(np.max(shape.distance_mm)) or 1.0  # its own scale: a sphere's 0.5 mm
         i, j, m = (shape.triangles[:, c] for c in range(3))
         figure.add_trace(_mesh(shape.target_mm, i, j, m, k == 0, name=f"{shape.name}: target"))
         figure.add_trace(
@@ -98,7 +98,8 @@ def _mesh(
     distance: np.ndarray | None = None,
 ) -> go.Mesh3d:
     """One surface: grey and half transparent (the target) or coloured by ``distance``
-    (mm, 0 to ``top``: one scale for every target)."""
+    (mm, 0 to ``top``, the target's own largest: a scale shared with a target 14 mm off
+    drew a sphere's sub-mm distances in one colour)."""
     x, y, z = np.round(vertices, 3).T
     common = {"x": x, "y": y, "z": z, "i": i, "j": j, "k": k, "name": name, "visible": visible}
     if distance is None:
