@@ -348,21 +348,10 @@ class _System:
         normal = np.sum(w * (c * self.shear) ** 2, axis=0)
         right = np.sum(w * (-c * self.shear) * self.target[:, 1], axis=0)
         turn = np.where(normal > TINY, right / np.where(normal > TINY, normal, 1.0), 0.0)
-        known = self.known
-        turn = np.where(turn * _allowed([(-self.shear, self.target[:, 1])], known) > 0, turn, 0.0)
+        twist, *signs = self.signs()
+        turn = np.where(turn * twist > 0, turn, 0.0)
         features = eps.shape[0]
-        sides = np.stack(
-            [
-                _allowed(
-                    [
-                        (-self.along[:, i], self.target[:, 0]),
-                        (-self.across[:, i], self.target[:, 2]),
-                    ],
-                    known,
-                )
-                for i in range(features)
-            ]
-        )
+        sides = np.stack(signs)
         free = sides != 0
         slope = np.zeros(eps.shape)
         limited = np.zeros(features)
@@ -429,6 +418,14 @@ class _System:
             out.append([(0, -self.along[:, i]), (2, -self.across[:, i])])
         return out
 
+    def signs(self) -> list[np.ndarray]:
+        """Per lever (:meth:`levers`), (nu, nv) the sign it may take without bending any
+        target to its wrong side (:func:`_allowed`)."""
+        return [
+            _allowed([(column, self.target[:, c]) for c, column in effects], self.known)
+            for effects in self.levers()
+        ]
+
     def reach(self, valid: np.ndarray) -> Reach:
         """Why each target gets what it gets (:class:`Reach`), over the ``valid`` points."""
         known = self.known & valid
@@ -439,9 +436,8 @@ class _System:
         reached = np.zeros(weight.shape, dtype=bool)
         free = np.zeros(weight.shape, dtype=bool)  # some lever may bend it its way
         against = np.zeros((targets, targets, *known.shape[1:]), dtype=bool)
-        for effects in self.levers():
+        for effects, sign in zip(self.levers(), self.signs(), strict=True):
             votes = [(c, _votes(col, self.target[:, c], self.known)) for c, col in effects]
-            sign = _allowed([(col, self.target[:, c]) for c, col in effects], self.known)
             for (c, column), (_, vote) in zip(effects, votes, strict=True):
                 reaches = np.abs(column) > REACHES
                 reached[:, c] |= reaches
