@@ -14,9 +14,11 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import shapely
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
+from fabkit.mechanics.outline import on_outline
 from fabkit.mechanics.simulate import DesignSimulation, diameter
 
 
@@ -231,20 +233,31 @@ class FormedShape:
 
 
 def formed_shape(
-    design: Design, simulation: DesignSimulation, mm_per_unit: float, size: float | None = None
+    design: Design,
+    simulation: DesignSimulation,
+    mm_per_unit: float,
+    size: float | None = None,
+    outline: shapely.Geometry | None = None,
 ) -> FormedShape:
     """The simulated sheet fitted to its target (:class:`FormedShape`), at ``mm_per_unit``
     mm per design unit; the fit, as :func:`compare`'s, uses the design's grid points, and
-    ``size`` is the patch diameter as there."""
+    ``size`` is the patch diameter as there. With the part's ``outline`` (flat-sheet
+    coordinates) the mesh is drawn up to it (:func:`~fabkit.mechanics.outline.on_outline`)
+    rather than along its grid cells."""
     nodes = simulation.mesh.nodes
     positions = simulation.result.positions
     target = target_points(design, simulation)
     moved = _rigid_motion(positions[nodes], target[nodes])(positions)
+    size = diameter(target[nodes]) if size is None else size
+    triangles = np.asarray(simulation.mesh.triangles)
+    if outline is not None:
+        drawn = on_outline(design, simulation.mesh, moved, target, simulation.surface, outline)
+        moved, target, triangles = drawn.sheet, drawn.target, drawn.triangles
     return FormedShape(
         simulation.name,
         moved * mm_per_unit,
         target * mm_per_unit,
-        np.asarray(simulation.mesh.triangles),
+        triangles,
         np.linalg.norm(moved - target, axis=1) * mm_per_unit,
-        (diameter(target[nodes]) if size is None else size) * mm_per_unit,
+        size * mm_per_unit,
     )

@@ -26,9 +26,10 @@ lambda = 1), so the ramp starts from J^T J, the designed flat metric.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+import shapely
 
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
@@ -244,7 +245,9 @@ class SheetProblem:
     each (F, 2, 2) or (L, F, 2, 2) bottom first, and its ``thickness`` (design units).
     ``patch_size`` (design units) is the diameter of the target's patch over the whole
     part, made or not: the base of every distance's percentage, the same for the sheet
-    as designed and as fabricated (None for a target with no 3D embedding)."""
+    as designed and as fabricated (None for a target with no 3D embedding). ``outline``
+    is the part's (flat-sheet coordinates; None: no part), up to which its shapes are
+    drawn."""
 
     surface: int
     name: str
@@ -255,6 +258,7 @@ class SheetProblem:
     thickness: float
     poisson: float
     patch_size: float | None = None
+    outline: shapely.Geometry | None = field(default=None, repr=False, compare=False)
 
     def simulation(self, result: Simulation) -> DesignSimulation:
         """``result`` of simulating this problem, as a design simulation whose
@@ -333,6 +337,7 @@ def sheet_problem(
         thickness,
         poisson,
         patch_size(coarse, surface, whole),
+        None if part is None else part.outline,
     )
 
 

@@ -447,7 +447,9 @@ def _shape(
         diameter_mm, mesh = None, None
     else:
         diameter_mm = distance.size * mm_per_unit
-        mesh = formed_shape(problem.coarse, simulation, mm_per_unit, problem.patch_size)
+        mesh = formed_shape(
+            problem.coarse, simulation, mm_per_unit, problem.patch_size, problem.outline
+        )
     seconds = sum(result.seconds for result in results)
     return Shape.of(distance.name, ends, tolerance, seconds, diameter_mm, mesh)
 
