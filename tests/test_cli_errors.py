@@ -663,7 +663,7 @@ CASES = [
     ),
     case(
         "simulate {design} --stimulus 1 --thickness -1 --out {out}.ply",
-        "thickness must be positive",
+        "--thickness -1: expected a positive finite length (mm)",
         outputs=("{out}.ply",),
         id="simulate-thickness",
     ),

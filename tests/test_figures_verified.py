@@ -1,9 +1,10 @@
 """One figure, one source, with the sheet verified (issue 37): a coarse ``fabkit run`` of
-Fig. 1 and of Fig. 3, read back and simulated, then ``fabkit verify`` and ``fabkit send
---dry-run`` on its files. The part, the coverage read back, the material, the patch
-diameters, the duration and moves, and the verdict as fabricated must be the same
-figure in the run's lines, ``fabkit verify``'s, report.json, report.html and the G-code
-header. ``fabkit verify`` ends with the verdict, as ``fabkit run`` does."""
+Fig. 1 and of Fig. 3, read back and simulated, then ``fabkit verify``, ``fabkit send
+--dry-run`` and ``fabkit simulate`` on its files. The part, the coverage read back, the
+material, the patch diameters, the duration and moves, and the verdict as fabricated must
+be the same figure in the run's lines, ``fabkit verify``'s (and ``simulate``'s part),
+report.json, report.html and the G-code header. ``fabkit verify`` ends with the verdict,
+as ``fabkit run`` does."""
 
 from __future__ import annotations
 
@@ -41,6 +42,7 @@ def verified(tmp_path_factory, request):
         "run": run,
         "verify": stdout("verify", design, gcode),
         "dry_run": stdout("send", gcode, "--dry-run"),
+        "simulate": stdout("simulate", design, "--stimulus", "1", "--size", "20"),
         "report": json.loads((out / "report.json").read_text()),
         "page": html.unescape(re.sub(r"<[^>]+>", "", (out / "report.html").read_text())),
         "gcode": gcode.read_text(),
@@ -56,6 +58,7 @@ def test_the_part_is_one_figure(verified):
     summary = report["verify"]["extra"]["part"]["summary"]
     assert set(lines_with(verified["run"], "part: ")) == {summary}  # solve and verify stages
     assert lines_with(verified["verify"], "part: ") == [summary]
+    assert lines_with(verified["simulate"], "part: ") == [summary]  # the sheet run prints
     width, length = report["part"]["extent"]
     assert summary.startswith(f"part: {width:.3g} x {length:.3g} mm")
     assert f"{width:.3g} x {length:.3g} mm" in verified["page"]

@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
         from fabkit.mechanics.verdict import design_verdict
 
         thickness = design.layering.thickness if design.layering else None
-        part, thickness = simulation_part(design, thickness)  # as fabkit simulate does
+        part, thickness = simulation_part(design, thickness)  # design units: no scale
         verdict = design_verdict(design, thickness, tolerance=args.form_tolerance / 100, part=part)
     if args.json:
         data = report.to_dict()

@@ -72,7 +72,7 @@ region before the closing (a fillet of radius rho in a right-angled notch reache
 QUAD_SEGS = 32
 """Segments per quarter circle of the buffers (2.8 degrees each)."""
 SIMULATE_THICKNESS = 0.01
-"""``fabkit simulate``'s default thickness: this fraction of the solved flat domain's
+"""``fabkit check``'s thickness for its verdict: this fraction of the solved flat domain's
 diameter (design units)."""
 
 
@@ -152,7 +152,7 @@ class Part:
 
     ``outline`` and ``solved`` are polygonal geometries in design units (flat-sheet
     coordinates r[0]); ``mm_per_unit`` the scale (None for a part cut in design units
-    only, as ``fabkit simulate`` does); ``removed`` the area each step removed, in order
+    only, as ``fabkit check`` does); ``removed`` the area each step removed, in order
     (design units squared); ``bending_length`` (design units, None without a trim).
     """
 
@@ -478,7 +478,7 @@ def print_part(
 def simulation_part(
     design: Design, thickness: float | None, trim: float | None = None
 ) -> tuple[Part, float]:
-    """The part ``fabkit simulate`` simulates, and the thickness (design units; default
+    """The part ``fabkit check`` simulates, and the thickness (design units; default
     :data:`SIMULATE_THICKNESS` of the solved region's diameter): no minimum width (no
     road width is known), trimmed to ``trim`` bending lengths (None:
     :data:`TRIM_BENDING_LENGTHS`, 0: not trimmed)."""

@@ -144,14 +144,15 @@ class Comparison:
     def to_dict(self) -> dict:
         return asdict(self)
 
-    def table(self) -> str:
-        """A short human summary."""
+    def table(self, mm_per_unit: float | None = None) -> str:
+        """A short human summary; lengths in mm at ``mm_per_unit`` (None: design units)."""
         mirror = " (mirror image)" if self.mirrored else ""
+        scale, unit = (1.0, "") if mm_per_unit is None else (mm_per_unit, " mm")
         return "\n".join(
             [
                 f"surface {self.surface} '{self.name}': {self.triangles} triangles, "
-                f"thickness {self.thickness:.4g}",
-                f"  distance to target / patch size {self.size:.4g}: "
+                f"thickness {self.thickness * scale:.4g}{unit}",
+                f"  distance to target / patch diameter {self.size * scale:.4g}{unit}: "
                 f"RMS {100 * self.rms:.3f} %, max {100 * self.max:.3f} %{mirror}",
                 f"  metric strain: median {self.strain_median:.2e}, p95 {self.strain_p95:.2e}, "
                 f"max {self.strain_max:.2e}",

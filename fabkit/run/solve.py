@@ -177,12 +177,15 @@ def design_part(
     process: Process,
     layers: int = 1,
     request: PartRequest | None = None,
+    thickness_mm: float | None = None,
 ) -> Part:
     """The part of a printed sheet (``fabkit run``): at ``size_mm`` (its longest side), for
-    the process's road width and a sheet of ``layers`` of its layer height."""
+    the process's road width and a sheet of ``layers`` of its layer height (or
+    ``thickness_mm`` thick, when given)."""
     solved = solved_region(design)
+    thickness_mm = layers * process.layer_height_mm if thickness_mm is None else thickness_mm
     options = (request or PartRequest()).for_process(
-        process.road_width_mm, layers * process.layer_height_mm, MIN_WIDTH_ROADS
+        process.road_width_mm, thickness_mm, MIN_WIDTH_ROADS
     )
     return part_of_size(design, size_mm, options, solved)
 
