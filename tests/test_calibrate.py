@@ -8,6 +8,8 @@ Every bad input is one line, exit 2, and no table written.
 
 from __future__ import annotations
 
+import tomllib
+
 import numpy as np
 import pytest
 
@@ -278,3 +280,45 @@ def test_bad_table_file_one_line(edit, says, fig1_table, tmp_path):
     with pytest.raises(FabkitError) as error:
         build_spec(table, tmp_path)
     assert says in str(error.value) and "\n" not in str(error.value), str(error.value)
+
+
+def test_a_stimulus_acting_both_ways_is_left_free(tmp_path):
+    """exp(L eps) over eps of both signs rises with L at eps > 0 and falls at eps < 0."""
+    rows = fig1_samples(count=400, seed=5)
+    rows[:, 0] = 1.5 * rows[:, 0] - 0.5  # eps in [-0.5, 1]
+    law = np.exp(rows[:, 1] * rows[:, 0])
+    rows[:, 3], rows[:, 5] = law * (1 + np.random.default_rng(6).normal(0, NOISE, 400)), NOISE * law
+    samples = write_csv(tmp_path / "samples.csv", FIG1_HEADER, rows)
+    calibration = calibrate(samples, None, features=["eps"], stimuli=["L"])
+    assert calibration.fits[1].directions == (1, None)
+    material = calibration.material
+    eps = np.linspace(*material.box[0], 201)[None]
+    stimuli = np.linspace(0, 2, 9)[:, None]
+    error = np.abs(material.response(eps, stimuli).lambda2 / np.exp(stimuli * eps) - 1).max()
+    assert error < NOISE, error  # measured 0.0028
+
+
+def test_the_example_spec_uses_its_table(run_cli):
+    code, text, err = run_cli("spec", EXAMPLES / "calibrate" / "two_shapes_table.toml")
+    assert code == 0, err
+    assert "material: table of log(lambda1), log(lambda2), cubic B-splines (4 x 4)" in text
+    assert "eps: acts across the director" in text
+
+
+def test_initial_eps_outside_the_table_is_refused():
+    table = example_table("two_shapes.toml")
+    table["material"] = {"table": "calibrate/material.toml"}
+    table["initial"]["eps"] = ["1.5"]
+    with pytest.raises(FabkitError, match=r"initial.eps: eps = 1.5 at the start point is outside"):
+        build_spec(table, EXAMPLES)
+
+
+def test_a_spec_written_back_keeps_its_table():
+    """``fabkit optimise`` writes its best spec from the normalised tables."""
+    from fabkit.optimise.tomlout import dumps
+
+    table = example_table("two_shapes.toml")
+    table["material"] = {"table": "calibrate/material.toml"}
+    spec = build_spec(table, EXAMPLES)
+    again = build_spec(tomllib.loads(dumps(spec.normalised)), EXAMPLES)
+    np.testing.assert_array_equal(again.material.log2, spec.material.log2)

@@ -66,6 +66,10 @@ class Material:
         of six values from -1 to 2 per feature."""
         return grid_points([np.array([-1.0, -0.3, 0.0, 0.4, 1.0, 2.0])] * len(self.features))
 
+    def check_domain(self, eps: np.ndarray, where: str) -> None:
+        """Nothing to refuse: expressions have no range of their own (a value where they
+        are not finite is refused or stops the solver where it is met)."""
+
     def classify(self, stimuli: np.ndarray) -> tuple[str, ...]:
         """``along``/``across`` per feature at the ``stimuli`` (S, k): see :func:`classify`."""
         return classify(self, stimuli)
@@ -144,6 +148,8 @@ class MaterialLaw(Protocol):
     def describe(self) -> str: ...
 
     def check_points(self) -> np.ndarray: ...
+
+    def check_domain(self, eps: np.ndarray, where: str) -> None: ...
 
 
 def classify(material: MaterialLaw, stimuli: np.ndarray) -> tuple[str, ...]:

@@ -108,6 +108,15 @@ class TableMaterial:
         """(N, count**N) the grid of ``count`` values per feature over the box."""
         return grid_points([np.linspace(a, b, count) for a, b in self.box[: len(self.features)]])
 
+    def check_domain(self, eps: np.ndarray, where: str) -> None:
+        """Refuse features ``eps`` (N,) (the design's start) outside the table's box."""
+        for name, value, (low, high) in zip(self.features, eps, self.box[: len(eps)], strict=True):
+            if not low <= value <= high:
+                raise FabkitError(
+                    f"{where}: {name} = {value:.6g} at the start point is outside the material "
+                    f"table's range [{low:.6g}, {high:.6g}] (the samples'): measure samples there"
+                )
+
     def check_stimuli(self, stimuli: np.ndarray, where: str) -> None:
         """Refuse a stimulus (rows of ``stimuli`` (S, k)) outside the table's box."""
         box = self.box[len(self.features) :]

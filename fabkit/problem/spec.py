@@ -412,6 +412,7 @@ def _check_material_at_start(
     """lambda1, lambda2 and (where lambda > 0) their log-derivatives by eps must be finite
     at the start point's eps (the initial eps at t = 0) under every surface's stimulus."""
     eps = np.array([[e(0.0)] for e in initial.eps])  # (N, 1)
+    material.check_domain(eps[:, 0], f"{shown}: initial.eps")
     for index, target in enumerate(targets):
         response = material.response(eps, np.array([target.stimulus]))
         for label, parts in (
