@@ -231,6 +231,15 @@ def test_bad_samples_one_line_nothing_written(case, tmp_path, run_cli):
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["samples.csv"]
 
 
+def test_a_spreadsheet_csv_reads(tmp_path):
+    """A byte order mark, CRLF line ends, comment and blank lines, spaces around cells."""
+    lines = [", ".join(f"{v:.8g}" for v in row) for row in fig1_samples(count=60)]
+    text = "\ufeff# made on 2026-12-06\r\n" + FIG1_HEADER + "\r\n\r\n" + "\r\n".join(lines)
+    path = tmp_path / "samples.csv"
+    path.write_bytes(text.encode("utf-8"))
+    assert calibrate(path, None, features=["eps"], stimuli=["L"]).samples == 60
+
+
 def test_noisier_than_the_stated_spread_is_refused(tmp_path, run_cli):
     rows = fig1_samples(noise=0.05)
     rows[:, 5] = NOISE * np.exp(rows[:, 1] * rows[:, 0])  # states 0.5 %, scatters 5 %

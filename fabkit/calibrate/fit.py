@@ -178,10 +178,11 @@ def fit_stretch(space: Basis, y: np.ndarray, weights: np.ndarray) -> StretchFit:
             directions.append(0)
             continue
         G = _along(space.shape, axis, _differences(space.shape[axis], 1))
+        G = G[np.abs(G @ T).sum(axis=1) > 1e-12]  # not the differences the model fixes
         sign = 1 if np.sum(G @ model) >= 0 else -1
         constrained = _solve(space, y, weights, T, ((axis, sign),))
         tolerance = 1e-9 * (1 + np.abs(constrained).max())
-        binding = int(np.sum(np.abs(sign * G @ constrained) < tolerance))
+        binding = int(np.sum(np.abs(G @ constrained) < tolerance))
         excess = (_rss(space, y, weights, constrained) - rss_model) / variance
         monotone = excess <= stats.chi2.isf(LEVEL, max(binding, 1))
         directions.append(sign if monotone else None)

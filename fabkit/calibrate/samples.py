@@ -44,6 +44,7 @@ def read_samples(path: str | Path, features: tuple[str, ...], stimuli: tuple[str
     lambda1, lambda2 and optionally lambda1_sd, lambda2_sd, in any order."""
     shown = str(path)
     text = decode_utf8(read_limited(path, "samples CSV", CSV_BYTES), "samples CSV", path)
+    text = text.removeprefix("\ufeff")  # the byte order mark a spreadsheet may write
     rows = [
         (number, row)
         for number, row in enumerate(csv.reader(io.StringIO(text)), start=1)
