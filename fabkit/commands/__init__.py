@@ -39,6 +39,14 @@ class Command(NamedTuple):
 
 
 COMMANDS: dict[str, Command] = {
+    "calibrate": Command(
+        "calibrate",
+        "fit a material table to measured samples, for a spec's [material] table",
+        "Fit lambda1 and lambda2 of the features and stimuli to the samples of a CSV as a "
+        "monotone cubic B-spline table, report its residuals and the range the samples "
+        "cover, and write it (TOML) for a spec's [material] table = FILE "
+        "(docs/calibrate.md).",
+    ),
     "check": Command(
         "check", "measure how well a design realises each target (exit 1 if over tolerance)"
     ),

@@ -17,7 +17,7 @@ import numpy as np
 from fabkit.errors import FabkitError
 from fabkit.files.tomlfile import Table
 from fabkit.problem.expr import Expression, parse, shorten
-from fabkit.problem.material import ALONG, Material
+from fabkit.problem.material import ALONG, MaterialLaw
 
 PERPENDICULAR_TOLERANCE = 1e-6
 """Largest |cos| between the initial curves' tangents at t = 0 accepted as perpendicular."""
@@ -39,7 +39,7 @@ class InitialData:
 
 def read_initial(
     t: Table,
-    material: Material,
+    material: MaterialLaw,
     classes: tuple[str, ...],
     parameters: Mapping[str, float],
 ):

@@ -3,13 +3,18 @@
 Each designable feature eps_i acts either **along** the director (it changes
 lambda1 at some given stimulus) or **across** it (it changes lambda2); a feature
 that does both makes the design equations non-hyperbolic and is refused, as is one
-that does neither.
+that does neither (:func:`classify`).
+
+A material is given as expressions (:class:`Material`) or as a table fitted to measured
+samples (:class:`fabkit.problem.material_table.TableMaterial`, ``fabkit calibrate``);
+both are a :class:`MaterialLaw`, all the rest of fabkit asks of a material.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -52,31 +57,26 @@ class Material:
     def names(self) -> tuple[str, ...]:
         return self.features + self.stimuli
 
-    def classify(self, stimuli: np.ndarray) -> tuple[str, ...]:
-        """``along``/``across`` per feature, from the derivatives of the stretches.
+    def describe(self) -> str:
+        """The law in one line, as ``fabkit spec`` prints it."""
+        return f"lambda1 = {self.lambda1.text}, lambda2 = {self.lambda2.text}"
 
-        ``stimuli`` (S, k) are the stimuli at which the sheet is used; a feature acts
-        along the director if d lambda1/d eps_i is not zero at one of them (see
-        :meth:`_acts`). Raises :class:`FabkitError` for a feature acting both ways or
-        neither.
-        """
-        classes = []
-        for index, feature in enumerate(self.features):
-            along = self._acts(self.lambda1, index, stimuli)
-            across = self._acts(self.lambda2, index, stimuli)
-            if along and across:
-                raise FabkitError(
-                    f"material: feature '{feature}' changes both lambda1 and lambda2: the design "
-                    "equations are not hyperbolic; let each feature act only along (lambda1) "
-                    "or only across (lambda2) the director"
-                )
-            if not (along or across):
-                raise FabkitError(
-                    f"material: feature '{feature}' changes neither lambda1 nor lambda2 at the "
-                    "given stimuli, so it designs nothing"
-                )
-            classes.append(ALONG if along else ACROSS)
-        return tuple(classes)
+    def check_points(self) -> np.ndarray:
+        """(N, M) eps points at which :func:`check_unstretched` evaluates the law: a grid
+        of six values from -1 to 2 per feature."""
+        return grid_points([np.array([-1.0, -0.3, 0.0, 0.4, 1.0, 2.0])] * len(self.features))
+
+    def check_domain(self, eps: np.ndarray, where: str) -> None:
+        """Nothing to refuse: expressions have no range of their own (a value where they
+        are not finite is refused or stops the solver where it is met)."""
+
+    def classify(self, stimuli: np.ndarray) -> tuple[str, ...]:
+        """``along``/``across`` per feature at the ``stimuli`` (S, k): see :func:`classify`."""
+        return classify(self, stimuli)
+
+    def acts(self, stretch: int, index: int, stimuli: np.ndarray) -> bool:
+        """Whether feature ``index`` changes lambda1 (``stretch`` 0) or lambda2 (1)."""
+        return self._acts((self.lambda1, self.lambda2)[stretch], index, stimuli)
 
     def _acts(self, stretch: Expression, index: int, stimuli: np.ndarray) -> bool:
         """Whether d stretch / d eps_index is not zero at one of the ``stimuli`` (S, k).
@@ -128,6 +128,60 @@ class Material:
         return Response(lam1, lam2, l1_e, l2_e, l1_ee, l2_ee)
 
 
+class MaterialLaw(Protocol):
+    """What the rest of fabkit asks of a material: its names, its response, and whether a
+    feature acts on a stretch. :class:`Material` (expressions) and
+    :class:`fabkit.problem.material_table.TableMaterial` (a fitted table) are both one."""
+
+    features: tuple[str, ...]
+    stimuli: tuple[str, ...]
+
+    @property
+    def names(self) -> tuple[str, ...]: ...
+
+    def classify(self, stimuli: np.ndarray) -> tuple[str, ...]: ...
+
+    def acts(self, stretch: int, index: int, stimuli: np.ndarray) -> bool: ...
+
+    def response(self, eps: np.ndarray, stimuli: np.ndarray) -> Response: ...
+
+    def describe(self) -> str: ...
+
+    def check_points(self) -> np.ndarray: ...
+
+    def check_domain(self, eps: np.ndarray, where: str) -> None: ...
+
+
+def classify(material: MaterialLaw, stimuli: np.ndarray) -> tuple[str, ...]:
+    """``along``/``across`` per feature of ``material``, from whether it changes lambda1 or
+    lambda2 at one of the ``stimuli`` (S, k) at which the sheet is used
+    (``material.acts``). Raises :class:`FabkitError` for a feature acting both ways or
+    neither: the words every material (expressions, table, ``fabkit calibrate``) refuses it
+    with."""
+    classes = []
+    for index, feature in enumerate(material.features):
+        along = material.acts(0, index, stimuli)
+        across = material.acts(1, index, stimuli)
+        if along and across:
+            raise FabkitError(
+                f"material: feature '{feature}' changes both lambda1 and lambda2: the design "
+                "equations are not hyperbolic; let each feature act only along (lambda1) "
+                "or only across (lambda2) the director"
+            )
+        if not (along or across):
+            raise FabkitError(
+                f"material: feature '{feature}' changes neither lambda1 nor lambda2 at the "
+                "given stimuli, so it designs nothing"
+            )
+        classes.append(ALONG if along else ACROSS)
+    return tuple(classes)
+
+
+def grid_points(axes: Sequence[np.ndarray]) -> np.ndarray:
+    """(len(axes), M) the points of the grid of the values ``axes`` (one array per axis)."""
+    return np.stack([g.ravel() for g in np.meshgrid(*axes, indexing="ij")])
+
+
 def _classify_samples(count: int) -> np.ndarray:
     """(count, M) eps sample points for :meth:`Material._acts`: round values from -2 to 2
     on every axis, plus seeded random points in [-2, 2]^count."""
@@ -137,12 +191,9 @@ def _classify_samples(count: int) -> np.ndarray:
     return np.concatenate([rounded, scattered], axis=1)
 
 
-def check_unstretched(material: Material, stimulus: Sequence[float], where: str) -> None:
+def check_unstretched(material: MaterialLaw, stimulus: Sequence[float], where: str) -> None:
     """Refuse unless lambda1 = lambda2 = 1 at the flat sheet's stimulus, for any eps."""
-    samples = np.array([-1.0, -0.3, 0.0, 0.4, 1.0, 2.0])
-    grids = np.meshgrid(*([samples] * len(material.features)), indexing="ij")
-    eps = np.stack([g.ravel() for g in grids])
-    response = material.response(eps, np.asarray([stimulus], dtype=float))
+    response = material.response(material.check_points(), np.asarray([stimulus], dtype=float))
     for label, values in (("lambda1", response.lambda1), ("lambda2", response.lambda2)):
         if not np.allclose(values, 1.0, rtol=0, atol=1e-12):
             worst = values.flat[np.argmax(abs(values - 1))]

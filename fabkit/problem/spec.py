@@ -25,7 +25,8 @@ from fabkit.files.shipped import user_or_example
 from fabkit.files.tomlfile import Table, read_toml, real
 from fabkit.problem.expr import RESERVED, parse, shorten
 from fabkit.problem.initial_data import InitialData, check_curves, read_initial
-from fabkit.problem.material import ALONG, Material, check_unstretched
+from fabkit.problem.material import ALONG, Material, MaterialLaw, check_unstretched
+from fabkit.problem.material_table import TableMaterial, read_table
 from fabkit.problem.solver_settings import SolverSettings, read_solver
 from fabkit.problem.surfaces import Surface, build_surface
 from fabkit.problem.surfaces.base import UNBOUNDED
@@ -78,7 +79,7 @@ class OptimiseSettings:
 class Spec:
     """A validated design problem."""
 
-    material: Material
+    material: MaterialLaw
     classes: tuple[str, ...]
     targets: tuple[Target, ...]
     initial: InitialData
@@ -163,7 +164,7 @@ def build_spec(table: Mapping[str, Any], base_dir: Path, shown: str = "spec") ->
     top.require(("surfaces",), "[[surfaces]] tables")
     top.require(("initial",), "a table [initial]")
     optimise = _optimise(top.table("optimise", default={}))
-    material, material_table = _material(top.table("material"))
+    material, material_table = _material(top.table("material"), base_dir)
     targets, surface_tables = _targets(top, material, base_dir, optimise.values)
     stimuli = np.array([t.stimulus for t in targets])
     classes = material.classify(stimuli[1:])
@@ -235,7 +236,11 @@ def _names(t: Table, key: str) -> tuple[str, ...]:
     return tuple(value)
 
 
-def _material(t: Table) -> tuple[Material, dict[str, Any]]:
+def _material(t: Table, base_dir: Path) -> tuple[MaterialLaw, dict[str, Any]]:
+    """The ``[material]`` table: expressions ``lambda1``, ``lambda2``, or a ``table`` (a
+    file written by ``fabkit calibrate``, or in a normalised spec that file's content)."""
+    if "table" in t:
+        return _material_table(t, base_dir)
     t.check_keys({"features", "stimuli", "lambda1", "lambda2"})
     t.require(("features", "stimuli"), 'a list of names, like ["eps"]')
     t.require(("lambda1", "lambda2"), "an expression in the features and stimuli")
@@ -256,6 +261,30 @@ def _material(t: Table) -> tuple[Material, dict[str, Any]]:
         "lambda2": lambda2.text,
     }
     return Material(features, stimuli, lambda1, lambda2), normalised
+
+
+def _material_table(t: Table, base_dir: Path) -> tuple[TableMaterial, dict[str, Any]]:
+    """``[material] table = "FILE"`` (``features``, ``stimuli`` optional, and then the
+    table's); the normalised table holds the file's content, so that a design file stands
+    on its own and a changed table is a changed spec."""
+    t.check_keys({"features", "stimuli", "table"})
+    value = t.get("table")
+    if isinstance(value, str):
+        path = base_dir / value
+        material = read_table(Table(read_toml(path, "material table", value), value))
+    elif isinstance(value, Mapping):
+        material = read_table(t.table("table"))
+    else:
+        t.expected("table", "the name of a material table file (fabkit calibrate --out)", value)
+    for key in ("features", "stimuli"):
+        if key in t and _names(t, key) != getattr(material, key):
+            t.expected(key, f"the table's {key} {list(getattr(material, key))}", t[key])
+    normalised = {
+        "features": list(material.features),
+        "stimuli": list(material.stimuli),
+        "table": material.to_table(),
+    }
+    return material, normalised
 
 
 def _vector(
@@ -282,7 +311,7 @@ def _constant(
     return real(value, where)
 
 
-def _targets(top: Table, material: Material, base_dir: Path, parameters: Mapping[str, float]):
+def _targets(top: Table, material: MaterialLaw, base_dir: Path, parameters: Mapping[str, float]):
     count = len(material.features) + 2
     what = (
         f"{count} [[surfaces]] tables ({len(material.features)} feature(s): the flat sheet and "
@@ -306,7 +335,7 @@ def _targets(top: Table, material: Material, base_dir: Path, parameters: Mapping
 def _target(
     index: int,
     t: Table,
-    material: Material,
+    material: MaterialLaw,
     base_dir: Path,
     parameters: Mapping[str, float],
 ):
@@ -378,11 +407,12 @@ def _absolute_files(geometry: dict[str, Any], base_dir: Path) -> dict[str, Any]:
 
 
 def _check_material_at_start(
-    material: Material, initial: InitialData, targets: tuple[Target, ...], shown: str
+    material: MaterialLaw, initial: InitialData, targets: tuple[Target, ...], shown: str
 ) -> None:
     """lambda1, lambda2 and (where lambda > 0) their log-derivatives by eps must be finite
     at the start point's eps (the initial eps at t = 0) under every surface's stimulus."""
     eps = np.array([[e(0.0)] for e in initial.eps])  # (N, 1)
+    material.check_domain(eps[:, 0], f"{shown}: initial.eps")
     for index, target in enumerate(targets):
         response = material.response(eps, np.array([target.stimulus]))
         for label, parts in (
@@ -410,7 +440,7 @@ def describe_spec(spec: Spec) -> str:
     and the initial data the problem needs."""
     material = spec.material
     lines = [
-        f"material: lambda1 = {material.lambda1.text}, lambda2 = {material.lambda2.text}",
+        f"material: {material.describe()}",
         f"stimuli: {', '.join(material.stimuli)}",
         "features:",
     ]
