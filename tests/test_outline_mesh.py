@@ -11,21 +11,26 @@ import shapely
 from fabkit.design.solver import solve
 from fabkit.field.part import PartOptions, part_of_size
 from fabkit.mechanics.fabricated import coarsened
-from fabkit.mechanics.mesh import design_mesh
+from fabkit.mechanics.mesh import DesignMesh, design_mesh
 from fabkit.mechanics.outline import SIMPLIFY, on_outline
 from fabkit.mechanics.verdict import grid_stride
 from fabkit.problem.spec import build_spec
 from tests.conftest import EXAMPLES, example_table
 
 
-@pytest.fixture(scope="module")
-def drawn():
+@pytest.fixture(scope="module", params=["whole", "with faces left out"])
+def drawn(request):
     """Fig. 1's part at 60 mm on the verdict's coarse mesh, with the bump's target as the
-    'sheet' (a smooth map known everywhere), drawn up to the outline."""
+    'sheet' (a smooth map known everywhere), drawn up to the outline; also with every
+    seventh triangle left out, as a simulation leaves out the faces it cannot make (a cell
+    left half, a notch in the edge)."""
     design = solve(build_spec(example_table("two_shapes.toml"), EXAMPLES)).design
     part = part_of_size(design, 60.0, PartOptions(road_width_mm=0.41, thickness_mm=0.6))
     coarse = coarsened(design, grid_stride(design))
     mesh = design_mesh(coarse, part)
+    if request.param != "whole":
+        kept = np.arange(len(mesh.triangles)) % 7 != 3
+        mesh = DesignMesh(mesh.points, mesh.triangles[kept], mesh.grid, mesh.refine)
     surface = 2
     target = coarse.problem.targets[surface].surface.embed(mesh.sample(coarse.r[surface]))
     sheet = target + np.array([0.0, 0.0, 0.25])  # a rigid shift: carried exactly
@@ -52,6 +57,7 @@ def test_the_drawn_mesh_fills_the_outline_and_only_it(drawn):
     assert covered.symmetric_difference(outline).area < 0.005 * outline.area
     band = SIMPLIFY * side * 1.01  # the outline is simplified within this before the cut
     assert covered.difference(outline.buffer(band)).area < 1e-9 * outline.area
+    assert isinstance(covered, shapely.Polygon) and not covered.interiors  # no notch, no hole
     edge = shapely.get_coordinates(covered.boundary)
     away = shapely.distance(shapely.points(edge), outline.boundary)
     assert away.max() < band

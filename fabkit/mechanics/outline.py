@@ -74,38 +74,47 @@ def on_outline(
 def _with_cells_beside(
     design: Design, mesh: DesignMesh, sheet: np.ndarray, target: np.ndarray, surface: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The mesh's vertices and triangles with the solved cells that touch its cells added
-    (flat, sheet, target, triangles); the added corners' sheet points carried by the
-    nearest vertex's deformation, their target points the design's."""
-    solved = solved_cells(design)
-    meshed = np.zeros_like(solved)
-    cell = mesh.grid[mesh.triangles].min(axis=1)
-    meshed[cell[:, 0], cell[:, 1]] = True
-    beside = ndimage.binary_dilation(meshed, np.ones((3, 3), bool)) & solved & ~meshed
-    i, j = np.nonzero(beside)
-    quads = np.stack([(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)], axis=1).T  # (C, 4, 2)
-    grid = np.concatenate([mesh.grid, quads.reshape(-1, 2)])
+    """The mesh's vertices and triangles with every solved cell's missing halves added in
+    its cells and the cells that touch them (flat, sheet, target, triangles): a cell the
+    simulation left half (a face it could not make) is whole again; the added corners'
+    sheet points carried by the nearest vertex's deformation, their target points the
+    design's."""
+    i, j, half = _missing_halves(solved_cells(design), mesh)
+    a, b, c, d = (i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)
+    lower, upper = np.stack([a, b, c]), np.stack([a, c, d])  # (3, 2, H)
+    added = np.where(half == 0, lower, upper).transpose(2, 0, 1)  # (H, 3, 2)
+    grid = np.concatenate([mesh.grid, added.reshape(-1, 2)])  # added: (H, 3, 2)
     grid, first, inverse = np.unique(grid, axis=0, return_index=True, return_inverse=True)
     inverse = inverse.ravel()
     old = first < len(mesh.grid)  # grid points already meshed keep their positions
     new_grid = grid[~old]
-    r0 = design.r[0][new_grid[:, 0], new_grid[:, 1]]
     rs = design.r[surface][new_grid[:, 0], new_grid[:, 1]]
-    added_target = design.problem.targets[surface].surface.embed(rs)
     flat = np.empty((len(grid), 2))
     points3 = np.empty((len(grid), 3))
     target3 = np.empty((len(grid), 3))
-    flat[old], points3[old], target3[old] = (
-        mesh.points[first[old]],
-        sheet[first[old]],
-        target[first[old]],
-    )
-    flat[~old], target3[~old] = r0, added_target
+    kept = first[old]
+    flat[old], points3[old], target3[old] = mesh.points[kept], sheet[kept], target[kept]
+    flat[~old] = design.r[0][new_grid[:, 0], new_grid[:, 1]]
+    target3[~old] = design.problem.targets[surface].surface.embed(rs)
     points3[~old] = _carried(mesh, sheet, new_grid)
-    a, b, c, d = inverse[len(mesh.grid) :].reshape(-1, 4).T
-    meshed_triangles = inverse[: len(mesh.grid)][mesh.triangles]
-    triangles = np.concatenate([meshed_triangles, np.stack([a, b, c], -1), np.stack([a, c, d], -1)])
+    meshed = inverse[: len(mesh.grid)][mesh.triangles]
+    triangles = np.concatenate([meshed, inverse[len(mesh.grid) :].reshape(-1, 3)])
     return flat, points3, target3, triangles
+
+
+def _missing_halves(
+    solved: np.ndarray, mesh: DesignMesh
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The halves (cell i, j and 0 for the triangle through corner (i + 1, j), 1 for the
+    one through (i, j + 1)) of the solved cells in or beside the mesh's cells that the
+    mesh lacks."""
+    corners = mesh.grid[mesh.triangles]  # (F, 3, 2)
+    cell = corners.min(axis=1)
+    half = (corners == (cell + [0, 1])[:, None, :]).all(axis=-1).any(axis=-1).astype(int)
+    present = np.zeros((*solved.shape, 2), dtype=bool)
+    present[cell[:, 0], cell[:, 1], half] = True
+    near = ndimage.binary_dilation(present.any(axis=-1), np.ones((3, 3), bool)) & solved
+    return np.nonzero(near[..., None] & ~present)
 
 
 def _carried(mesh: DesignMesh, sheet: np.ndarray, grid: np.ndarray) -> np.ndarray:
@@ -121,10 +130,11 @@ def _carried(mesh: DesignMesh, sheet: np.ndarray, grid: np.ndarray) -> np.ndarra
     for k in range(3):
         np.add.at(total, t[:, k], gradients)
         np.add.at(count, t[:, k], 1.0)
-    vertex_gradient = total / np.maximum(count, 1.0)[:, None, None]
-    _, nearest = cKDTree(g).query(grid.astype(float))
-    step = grid - g[nearest]
-    return sheet[nearest] + np.einsum("mij,mj->mi", vertex_gradient[nearest], step)
+    used = np.flatnonzero(count)  # a vertex no triangle uses has no gradient
+    gradient = total[used] / count[used, None, None]
+    _, nearest = cKDTree(g[used]).query(grid.astype(float))
+    step = grid - g[used][nearest]
+    return sheet[used][nearest] + np.einsum("mij,mj->mi", gradient[nearest], step)
 
 
 def _cut(
