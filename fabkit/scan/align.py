@@ -34,12 +34,12 @@ SURFACE_SAMPLES = 20_000
 COARSE_POINTS = 400
 TRY_POINTS = 1_000
 FINE_POINTS = 2_000
-TURNS = 12
+TURNS = 8
 """Turns about the normal tried as global starts (each way up)."""
-POLISH_POINTS = 6_000
+POLISH_POINTS = 5_000
 """Points the best refined fit is polished with (a rotationally symmetric target holds
 the fit in place by its edge only: a few points there move it)."""
-COARSE_ITERATIONS = 15
+COARSE_ITERATIONS = 10
 TRY_ITERATIONS = 10
 FINE_ITERATIONS = 30
 POLISH_ITERATIONS = 10
@@ -51,7 +51,7 @@ TRIM = 0.9
 FINE_TRIM = 1.0
 """Share of the nearest pairs a refining iteration fits (a scan's points beyond the
 target's edge are what holds a fit on a rotationally symmetric target in place)."""
-CANDIDATES = 4
+CANDIDATES = 1
 """Nearest samples whose triangles are searched for a point's nearest point."""
 EDGE_SPACINGS = 3.0
 """A point is beyond a surface's edge when its nearest sample is farther sideways than
@@ -158,17 +158,28 @@ class Surface:
         )
 
     def _closest(self, points: np.ndarray) -> np.ndarray:
-        from trimesh.triangles import closest_point
-
         _, nearest = self.nearest(points, k=CANDIDATES)
         _, vertex = self.vertex_tree.query(points)
-        faces = np.hstack([self.sample_faces[nearest], self.vertex_faces[vertex]])
-        count = faces.shape[1]
-        repeated = np.repeat(points, count, axis=0)
-        found = closest_point(self.vertices[self.triangles[faces.ravel()]], repeated)
-        found = found.reshape(len(points), count, 3)
-        gaps = np.linalg.norm(found - points[:, None, :], axis=2)
+        faces = np.hstack(
+            [self.sample_faces[nearest].reshape(len(points), -1), self.vertex_faces[vertex]]
+        )
+        corners = self.vertices[self.triangles[faces.ravel()]]
+        repeated = np.repeat(points, faces.shape[1], axis=0)
+        found = closest_on_triangles(corners[:, 0], corners[:, 1], corners[:, 2], repeated)
+        found = found.reshape(len(points), faces.shape[1], 3)
+        gaps = np.einsum("nkd,nkd->nk", found - points[:, None], found - points[:, None])
         return found[np.arange(len(points)), np.argmin(gaps, axis=1)]
+
+    def plane_distances(self, points: np.ndarray) -> np.ndarray:
+        """The distance (n,) from every one of ``points`` (n, 3) to the plane of its
+        nearest sample's triangle, or to that sample where the point lies beyond the
+        surface's edge (:data:`EDGE_SPACINGS`): quick, and within the sampling of
+        :meth:`distances`."""
+        distances, nearest = self.nearest(points)
+        offsets = points - self.samples[nearest]
+        normal = np.abs(np.einsum("ij,ij->i", offsets, self.normals[nearest]))
+        sideways = np.sqrt(np.maximum(distances**2 - normal**2, 0.0))
+        return np.where(sideways <= EDGE_SPACINGS * self.spacing, normal, distances)
 
 
 @dataclass(frozen=True)
@@ -229,8 +240,7 @@ def refine(
         motion = motion.then(_rotation(step[:3]), step[3:])
         if np.linalg.norm(step[:3]) < 1e-6 and np.linalg.norm(step[3:]) < 1e-3 * surface.spacing:
             break
-    distances = surface.distances(motion.apply(points))
-    return Fit(motion, _trimmed_rms(distances))
+    return Fit(motion, _trimmed_rms(surface.plane_distances(motion.apply(points))))
 
 
 def _icp_step(moved: np.ndarray, surface: Surface, edge: float) -> np.ndarray:
@@ -307,6 +317,37 @@ def _axes(points: np.ndarray) -> np.ndarray:
     if np.linalg.det(axes) < 0:
         axes[:, 2] *= -1
     return axes
+
+
+def closest_on_triangles(
+    a: np.ndarray, b: np.ndarray, c: np.ndarray, points: np.ndarray
+) -> np.ndarray:
+    """The nearest point (n, 3) of each triangle (``a``, ``b``, ``c``: its corners, (n,
+    3) each) to the point of ``points`` (n, 3) in the same row (Ericson, Real-Time
+    Collision Detection, 5.1.5: the vertex regions win over the edge regions, these over
+    the inside)."""
+    ab, ac = b - a, c - a
+
+    def dots(offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.einsum("ij,ij->i", ab, offset), np.einsum("ij,ij->i", ac, offset)
+
+    (d1, d2), (d3, d4), (d5, d6) = dots(points - a), dots(points - b), dots(points - c)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        total = va + vb + vc
+        found = a + ab * (vb / total)[:, None] + ac * (vc / total)[:, None]
+        edges = (
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a, ab, d1 / (d1 - d3)),
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a, ac, d2 / (d2 - d6)),
+            ((va <= 0) & (d4 >= d3) & (d5 >= d6), b, c - b, (d4 - d3) / (d4 - d3 + d5 - d6)),
+        )
+        for on, start, side, share in reversed(edges):
+            found[on] = start[on] + share[on, None] * side[on]
+    for on, corner in (((d6 >= 0) & (d5 <= d6), c), ((d3 >= 0) & (d4 <= d3), b)):
+        found[on] = corner[on]
+    at_a = (d1 <= 0) & (d2 <= 0)
+    found[at_a] = a[at_a]
+    return found
 
 
 def _vertex_faces(triangles: np.ndarray, count: int) -> np.ndarray:
