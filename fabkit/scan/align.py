@@ -36,7 +36,7 @@ TRY_POINTS = 1_000
 FINE_POINTS = 2_000
 TURNS = 8
 """Turns about the normal tried as global starts (each way up)."""
-POLISH_POINTS = 5_000
+POLISH_POINTS = 10_000
 """Points the best refined fit is polished with (a rotationally symmetric target holds
 the fit in place by its edge only: a few points there move it)."""
 COARSE_ITERATIONS = 10

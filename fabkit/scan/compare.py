@@ -213,8 +213,9 @@ class Compared:
     """A scan compared: the ``verdict``, the ``motion`` fitting it to the target, the
     scan's vertices moved so (``aligned_mm`` (V, 3), ``faces`` (F, 3)) with each one's
     distance to the target (``distance_mm`` (V,)) and, after the fit to the simulated
-    sheet, to that sheet (``sheet_distance_mm`` (V,), None without one); the measured
-    points moved (``points_mm`` (n, 3)) with their distances (``point_distance_mm``)."""
+    sheet (``sheet_motion``), to that sheet (``sheet_distance_mm`` (V,); both None
+    without one); the measured points moved (``points_mm`` (n, 3)) with their distances
+    (``point_distance_mm``)."""
 
     verdict: ScanVerdict
     motion: Motion
@@ -224,6 +225,7 @@ class Compared:
     sheet_distance_mm: np.ndarray | None
     points_mm: np.ndarray
     point_distance_mm: np.ndarray
+    sheet_motion: Motion | None = None
 
 
 def compare_scan(scan: Scan, target: Target, tolerance: float = FORM_TOLERANCE) -> Compared:
@@ -269,7 +271,15 @@ def compare_scan(scan: Scan, target: Target, tolerance: float = FORM_TOLERANCE) 
     )
     faces = scan.faces[:, ::-1] if motion.mirrored else scan.faces  # outward stays outward
     return Compared(
-        verdict, motion, aligned, faces, aligned_distances, sheet_distances, points, distances
+        verdict,
+        motion,
+        aligned,
+        faces,
+        aligned_distances,
+        sheet_distances,
+        points,
+        distances,
+        None if sheet is None else sheet[1],
     )
 
 
