@@ -200,7 +200,7 @@ def test_a_scan_of_another_target_is_not_formed(tmp_path):
 def test_a_design_alone_gives_the_target_at_the_parts_size(tmp_path):
     path = tmp_path / "design.npz"
     coarse_design().save(path)
-    target = design_target(path, "sphere", 40.0)
+    target = design_target(path, "sphere", 40.0, road_width_mm=0.41, layer_height_mm=0.3)
     assert 20.0 < target.diameter_mm < 80.0  # a target of about the part's size
     turn, shift = pose(8)
     scan = write_scan(

@@ -35,6 +35,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     commands.add_length(
         parser, "--size", "with --design: the part's longest side (default 60, as fabkit run)"
     )
+    commands.add_machine(
+        parser,
+        "with --design: the machine it was made on, whose road width and layer height cut "
+        "the part as fabkit run cuts it (default marlin_diw_pneumatic)",
+    )
+    commands.add_process(parser, "with --design: a TOML whose [process] replaces the machine's")
     parser.add_argument(
         "--units",
         choices=("mm", "cm", "m", "in"),
@@ -87,11 +93,20 @@ def _target(args: argparse.Namespace):
     if (args.run_dir is None) == (args.design is None):
         raise FabkitError("give a run's folder (RUN_DIR) or --design design.npz, one of them")
     if args.design is None:
-        if args.size_mm is not None:
-            raise FabkitError("--size goes with --design: a run's folder sets the part's size")
+        given = [flag for flag, value in _DESIGN_ONLY if getattr(args, value) is not None]
+        if given:
+            raise FabkitError(f"{given[0]} goes with --design: a run's folder sets the part")
         return run_target(args.run_dir, args.target), {"run": str(args.run_dir)}
     size = DEFAULT_SIZE_MM if args.size_mm is None else args.size_mm
-    return design_target(args.design, args.target, size), {"design": args.design, "size_mm": size}
+    process = commands.chosen_process(args)
+    target = design_target(
+        args.design, args.target, size, process.road_width_mm, process.layer_height_mm
+    )
+    return target, {"design": args.design, "size_mm": size}
+
+
+_DESIGN_ONLY = (("--size", "size_mm"), ("--machine", "machine"), ("--process", "process_file"))
+"""The options that only a design alone takes, and their destinations."""
 
 
 def _picture(compared, target) -> bytes:

@@ -6,9 +6,9 @@ shapes (``as_fabricated/``, or ``as_designed/`` when the machine file was not si
 where every target's surface placed as the sheet lies (``<target>_target.ply``) and the
 simulated sheet (``<target>.ply``) are, in mm; the patch diameter is the verdict's.
 From a design alone (``design.npz``): the target embedded over the design's grid points in
-its part at ``size_mm`` (the part's longest side; cut as ``fabkit toolpath --design`` cuts
-it by default: the smooth margin outline only, no process's trim), its diameter that of
-those points.
+its part at ``size_mm`` (the part's longest side), cut as ``fabkit run`` cuts it for a
+process (its road width sets the minimum width, the sheet's thickness, its layers' height
+times the design's layers, the trim), its diameter that of those points.
 """
 
 from __future__ import annotations
@@ -74,11 +74,18 @@ def run_target(folder: str | Path, name: str | None) -> Target:
     )
 
 
-def design_target(path: str | Path, name: str | None, size_mm: float) -> Target:
+def design_target(
+    path: str | Path,
+    name: str | None,
+    size_mm: float,
+    road_width_mm: float,
+    layer_height_mm: float,
+) -> Target:
     """Target ``name`` (None: the design's only one) of the design in ``path`` at
-    ``size_mm`` (module docstring)."""
+    ``size_mm``, its part cut for a process of ``road_width_mm`` and ``layer_height_mm``
+    (module docstring)."""
     from fabkit.design.design import Design
-    from fabkit.field.part import PartOptions, part_of_size
+    from fabkit.field.part import PartRequest, part_of_size
     from fabkit.mechanics.mesh import design_mesh
     from fabkit.mechanics.verdict import embedded_targets
 
@@ -89,7 +96,8 @@ def design_target(path: str | Path, name: str | None, size_mm: float) -> Target:
     if not surfaces:
         raise FabkitError(f"{path}: the design has no target embedded in 3D to compare with")
     name = _chosen(name, list(surfaces), str(path))
-    part = part_of_size(design, size_mm, PartOptions())
+    options = PartRequest().for_process(road_width_mm, design.layers * layer_height_mm)
+    part = part_of_size(design, size_mm, options)
     mesh = design_mesh(design, part)
     surface = design.problem.targets[surfaces[name]].surface
     points = surface.embed(mesh.sample(design.r[surfaces[name]])) * part.mm_per_unit
