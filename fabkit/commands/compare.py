@@ -22,7 +22,7 @@ FIGURES = "compare.json"
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = commands.add_command(subparsers, "compare")
-    parser.add_argument("scan", help="the scan: a mesh or point cloud (PLY, STL, OBJ, OFF, GLB)")
+    parser.add_argument("scan", help="the scan: a mesh or point cloud (PLY, STL, OBJ, OFF or GLB)")
     parser.add_argument(
         "run_dir", nargs="?", metavar="RUN_DIR", help="the --out folder of a fabkit run"
     )

@@ -112,14 +112,15 @@ class ScanVerdict:
     def line(self) -> str:
         """The verdict in ``run``'s words, e.g. ``sphere: formed, 0.41 % (0.3 mm) RMS, max
         1.9 % (1.4 mm) of the patch diameter (73.6 mm); limit 3 % (2.21 mm) RMS; not a
-        mirror image (...); the scan covers 80 % of the target (a scan point within 1 mm)``."""
+        mirror image (...); the scan covers 80 % of the target (within 1 mm of where a scan
+        point lies nearest it)``."""
         status = "formed" if self.formed else f"NOT formed ({'; '.join(self.why())})"
         figures = f"{self._pct(self.rms_mm)} RMS, max {self._pct(self.max_mm)} of the patch "
         figures += f"diameter ({self.diameter_mm:.3g} mm)"
         return (
             f"{self.target}: {status}, {figures}; limit {self._pct(self.limit_mm, '.3g')} RMS; "
             f"{self.mirror_words()}; the scan covers {100 * self.coverage:.0f} % of the target "
-            f"(a scan point within {self.cover_mm:.2g} mm)"
+            f"(within {self.cover_mm:.2g} mm of where a scan point lies nearest it)"
         )
 
     def why(self) -> list[str]:

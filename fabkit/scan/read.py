@@ -1,25 +1,32 @@
 """Reading a scan of a printed sheet: the file, its units, and the points to measure.
 
-A scan is a mesh or a point cloud in any format trimesh reads (PLY, STL, OBJ, OFF, GLB
-...). Its lengths are scaled to mm by its ``units``; its extent must be plausible for the
-target it is compared with (:func:`check_extent`), else the units are likely wrong. The
-scan is measured at no more than :data:`MAX_POINTS` points (so that a scan of millions of
-points takes bounded time and memory): a mesh at points spread evenly over its surface
-(by area, so that a scanner's dense and sparse regions weigh as the surface does), a
-point cloud at its own points, a seeded random choice of them when there are more.
+A scan is a mesh or a point cloud in PLY, STL, OBJ, OFF or GLB (read by trimesh). Its
+lengths are scaled to mm by its ``units``; its extent must be plausible for the target it
+is compared with (:func:`check_extent`), else the units are likely wrong. The scan is
+measured at no more than :data:`MAX_POINTS` points (so that a scan of millions of points
+takes bounded time and memory): a mesh at points spread evenly over its surface (by
+area, so that a scanner's dense and sparse regions weigh as the surface does), a point
+cloud at its own points, a seeded random choice of them when there are more.
 """
 
 from __future__ import annotations
 
+import io
 import logging
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.files.npzfile import check_magnitude
+from fabkit.files.readfile import read_limited
+from fabkit.limits import SCAN_BYTES
 
+SCAN_TYPES = ("ply", "stl", "obj", "off", "glb")
+"""The file types a scan may be, by suffix."""
 UNITS = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 """mm per unit of a scan's lengths, by the name ``--units`` takes."""
 MAX_POINTS = 20_000
@@ -64,6 +71,7 @@ def read_scan(path: str | Path, units: str = "mm", points: int = MAX_POINTS) -> 
             f"{path.name}: {bad} of {len(vertices)} vertices are not finite numbers (NaN or "
             "inf): remove them in the scanning software and export again"
         )
+    check_magnitude(vertices, "vertices", path.name)
     vertices = vertices * UNITS[units]
     measured, sampling = _measured_points(vertices, faces, points)
     if len(np.unique(measured.round(9), axis=0)) < 4:
@@ -72,22 +80,37 @@ def read_scan(path: str | Path, units: str = "mm", points: int = MAX_POINTS) -> 
 
 
 def _load(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """The vertices (V, 3) and faces (F, 3) of the file (a scene's geometries joined)."""
+    """The vertices (V, 3) and faces (F, 3) of the file (a scene's geometries joined).
+
+    The file (at most :data:`~fabkit.limits.SCAN_BYTES`) is handed to trimesh as bytes
+    without a name, so that no other file it names is opened (an OBJ's material library,
+    a texture), with trimesh's warnings and log lines held back (one line on stderr)."""
     import trimesh
 
-    if not path.is_file():
+    if not path.exists():
         raise FabkitError(f"{path}: no such file")
-    logging.getLogger("trimesh").setLevel(logging.CRITICAL)  # its warnings are not ours
+    kind = path.suffix.lower().lstrip(".")
+    if kind not in SCAN_TYPES:
+        raise FabkitError(f"{path.name}: a scan must be one of {', '.join(SCAN_TYPES)}")
+    data = read_limited(path, "scan", SCAN_BYTES)
+    logger = logging.getLogger("trimesh")
+    disabled, logger.disabled = logger.disabled, True
     try:
-        loaded = trimesh.load(path, process=False)
-        if isinstance(loaded, trimesh.Scene):
-            loaded = loaded.to_geometry() if loaded.geometry else None
-        vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=float)
-        faces = getattr(loaded, "faces", None)
-        faces = np.asarray(np.zeros((0, 3)) if faces is None else faces, dtype=np.int64)
-    except Exception as exc:  # trimesh raises many kinds on a file it cannot read
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            loaded = trimesh.load(io.BytesIO(data), file_type=kind, process=False)
+            if isinstance(loaded, trimesh.Scene):
+                loaded = loaded.to_geometry() if loaded.geometry else None
+            vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=float)
+            faces = getattr(loaded, "faces", None)
+            faces = np.asarray(np.zeros((0, 3)) if faces is None else faces, dtype=np.int64)
+    # trimesh's loaders raise many exception types on corrupt input; all of them mean the
+    # same to the user
+    except Exception as exc:  # noqa: BLE001
         reason = (str(exc).splitlines() or [type(exc).__name__])[0][:120]
         raise FabkitError(f"{path.name}: cannot read the scan ({reason})") from None
+    finally:
+        logger.disabled = disabled
     if vertices.ndim != 2 or vertices.shape[1:] != (3,) or len(vertices) == 0:
         raise FabkitError(f"{path.name}: the scan holds no points (an empty or damaged file?)")
     if faces.ndim != 2 or faces.shape[1:] != (3,):
