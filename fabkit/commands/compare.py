@@ -114,7 +114,7 @@ def _picture(compared, target) -> bytes:
     from fabkit.plot.scan import scan_picture
 
     verdict = compared.verdict
-    mirror = " (its mirror image)" if verdict.mirrored else ""
+    mirror = ", mirrored to fit" if verdict.mirrored else ""
     return scan_picture(
         target.mesh.vertices_mm,
         target.mesh.triangles,

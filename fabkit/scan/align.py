@@ -1,23 +1,25 @@
 """Aligning a scan to a surface without correspondences: a global start, then ICP.
 
 The surface (a triangle mesh, mm) is sampled densely and evenly (:class:`Surface`); its
-exact distances are measured to the triangles themselves. A scan's points are aligned in
-two stages, for the proper fit (a rotation and a translation) and for the mirrored one
-(the scan's mirror image first, then a rotation and a translation), kept apart:
+distances are measured to the triangles themselves. A scan's points are aligned for the
+proper fit (a rotation and a translation) and for the mirrored one (the scan's mirror
+image first, then a rotation and a translation) apart, in three stages:
 
 1. the global start: both point sets centred and turned onto their principal axes,
    their least spread axis (a sheet's normal) either way up and turned by every
    :data:`TURNS`-th of a turn about it (the principal axes of a partial scan, or of a
    rotationally symmetric target, say nothing about the turn); from each of these starts
-   a few iterations of trimmed point-to-point ICP on :data:`COARSE_POINTS` points, all
-   starts at once;
-2. the best :data:`REFINED` starts refined by trimmed point-to-plane ICP on
-   :data:`FINE_POINTS` points; the fit kept is the one with the least trimmed RMS of
-   exact distances.
+   :data:`COARSE_ITERATIONS` of point-to-point ICP on :data:`COARSE_POINTS` points
+   against :data:`COARSE_SAMPLES` samples, fitting the nearest :data:`TRIM` of the
+   pairs (so that what the target lacks and its holes do not pull), all starts at once;
+2. the best :data:`REFINED` starts tried further by ICP (point-to-plane over the surface,
+   point-to-point beyond its edge, where a plane would let the scan slide off) on
+   :data:`TRY_POINTS` points, the best of them refined on :data:`FINE_POINTS` points;
+3. that fit polished on :data:`POLISH_POINTS` points.
 
-Trimmed: every iteration ignores the pairs farther than the :data:`TRIM` quantile, so
-that the parts of a scan the target lacks (a base plate, a stray point) and its holes do
-not pull the fit.
+Stages 2 and 3 fit every pair (:data:`FINE_TRIM`): a scan's points beyond the edge of a
+rotationally symmetric target are what hold the fit in place, so a scan must be cropped
+to the sheet (no base plate, no turntable).
 """
 
 from __future__ import annotations
