@@ -13,6 +13,7 @@ times the design's layers, the trim), its diameter that of those points.
 
 from __future__ import annotations
 
+import io
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.files.readfile import read_limited
+from fabkit.limits import SCAN_BYTES
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,8 +66,8 @@ def run_target(folder: str | Path, name: str | None) -> Target:
         )
     name = _chosen(name, list(entries), str(folder))
     entry = entries[name]
-    target = _mesh(folder / entry["target_mesh"])
-    sheet = _mesh(folder / entry["mesh"])
+    target = _mesh(folder, entry.get("target_mesh"))
+    sheet = _mesh(folder, entry.get("mesh"))
     return Target(
         name,
         target,
@@ -129,13 +132,20 @@ def _chosen(name: str | None, names: list[str], where: str) -> str:
     return name
 
 
-def _mesh(path: Path) -> Mesh:
-    """The mesh a run wrote at ``path``."""
+def _mesh(folder: Path, name: object) -> Mesh:
+    """The mesh a run wrote into ``folder`` as ``name`` (its report's word), read as the
+    scan is (within :data:`~fabkit.limits.SCAN_BYTES`)."""
     import trimesh
 
+    if not isinstance(name, str) or not name.endswith(".ply"):
+        raise FabkitError(f"{folder}/report.json: a shape's mesh is not named (damaged?)")
+    path = folder / name
+    if folder.resolve() not in path.resolve().parents:
+        raise FabkitError(f"{folder}/report.json: the mesh {name} lies outside the run's folder")
+    data = read_limited(path, "the run's mesh", SCAN_BYTES)
     try:
-        mesh = trimesh.load(path, process=False, force="mesh")
-    except Exception as exc:  # trimesh raises many kinds on a file it cannot read
+        mesh = trimesh.load(io.BytesIO(data), file_type="ply", process=False, force="mesh")
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds on a damaged file
         raise FabkitError(f"{path}: cannot read the run's mesh ({type(exc).__name__})") from None
     vertices = np.asarray(mesh.vertices, dtype=float)
     triangles = np.asarray(mesh.faces, dtype=np.int64)
