@@ -5,7 +5,8 @@ The scans are made here from the meshes of the sheet as fabricated that a run wr
 as_fabricated/, whose sphere the run's verdict finds within 1.28 % of its target, up to
 its side): turned and moved at random, in m, with Gaussian noise of 0.2 mm and a fifth of
 the surface cut away; mirrored; another target's sheet. The verdict must be right on each
-and the pose found within 0.5 mm RMS of the truth. A chiral target (a surface no rotation
+and the pose found within 0.5 mm RMS of the truth where the surface has no continuous
+symmetry (a sphere cap slides on its sphere: within 1 mm). A chiral target (a surface no rotation
 turns into its mirror image, made here) shows the mirror image named. Bad scans are
 refused in one line, writing nothing.
 """
@@ -23,6 +24,7 @@ import trimesh
 from scipy.spatial import Delaunay
 
 from fabkit.mechanics.simulate import diameter
+from fabkit.scan.align import Surface, fit
 from fabkit.scan.compare import compare_scan
 from fabkit.scan.read import MAX_POINTS, read_scan
 from fabkit.scan.targets import Mesh, Target, design_target, run_target
@@ -34,6 +36,7 @@ pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second 
 RUN = ROOT / "tests" / "data" / "compare_run"
 NOISE_MM = 0.2
 POSE_MM = 0.5
+SLIDE_MM = 1.0
 
 
 def sheet(name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -127,24 +130,49 @@ def test_a_scan_of_the_sheet_as_fabricated_forms_its_target(formed, capsys):
     assert (out / "compare.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.parametrize("name", ["sphere", "bump"])
-def test_the_pose_is_found_within_half_a_mm(tmp_path, name):
-    """Scans of the target surface the run placed where the sheet is, and of the sheet
-    (pose, m, noise, a fifth cut away): the scan is moved onto the target (onto the
-    sheet) within :data:`POSE_MM` RMS of where it was cut from."""
-    target = run_target(RUN, name)
-    alone = replace(target, sheet=None)  # the fit to the target only: quicker
-    for source, placed in (("target", target.mesh), ("sheet", target.sheet)):
-        vertices, triangles, _ = cut(placed.vertices_mm, placed.triangles, 0.2, seed=10)
-        noise = np.random.default_rng(11).normal(scale=NOISE_MM, size=vertices.shape)
-        truth = vertices + noise
-        turn, shift = pose(12)
-        path = write_scan(tmp_path / f"{source}.ply", (truth @ turn.T + shift) / 1000, triangles)
-        compared = compare_scan(read_scan(path, "m"), alone if source == "target" else target)
-        motion = compared.motion if source == "target" else compared.sheet_motion
-        found = motion.apply(read_scan(path, "m").vertices_mm)
-        error = np.sqrt(np.mean(np.sum((found - truth) ** 2, axis=1)))
-        assert error < POSE_MM, (source, error)
+def posed_scan(folder: Path, mesh: Mesh, seed: int):
+    """A scan of ``mesh`` (a fifth cut away, noise, posed, in m) read back, and where its
+    vertices were cut from (mm, in the mesh's frame)."""
+    vertices, triangles, _ = cut(mesh.vertices_mm, mesh.triangles, 0.2, seed=seed)
+    truth = vertices + np.random.default_rng(seed + 1).normal(scale=NOISE_MM, size=vertices.shape)
+    turn, shift = pose(seed + 2)
+    path = write_scan(folder / "posed.ply", (truth @ turn.T + shift) / 1000, triangles)
+    return read_scan(path, "m"), truth
+
+
+def _pose_error(folder: Path, mesh: Mesh) -> float:
+    """The RMS distance (mm) from where the proper fit moves a scan of ``mesh`` to where
+    its vertices were cut from."""
+    scan, truth = posed_scan(folder, mesh, seed=10)
+    motion = fit(scan.points_mm, Surface.of(mesh.vertices_mm, mesh.triangles), False).motion
+    return float(np.sqrt(np.mean(np.sum((motion.apply(scan.vertices_mm) - truth) ** 2, axis=1))))
+
+
+@pytest.mark.parametrize("surface", ["bump target", "bump sheet", "chiral target"])
+def test_the_pose_is_found_within_half_a_mm(tmp_path, surface):
+    """Surfaces with no continuous symmetry: the run's bump target and its sheet as
+    fabricated, the chiral saddle (over 8 other seeds: within 0.32, 0.29, 0.11 mm)."""
+    name, source = surface.split()
+    target = chiral_target() if name == "chiral" else run_target(RUN, name)
+    mesh = target.mesh if source == "target" else target.sheet
+    assert _pose_error(tmp_path, mesh) < POSE_MM
+
+
+def test_a_sphere_cap_is_fitted_as_well_as_the_truth_but_slides(tmp_path):
+    """A sphere cap slides on its sphere; only its outline holds a fit in place, and
+    little: the sheet as fabricated is placed within 1 mm (0.22-0.70 mm over 9 seeds).
+    The run's target cap is nearly symmetric under a half turn too, so its pose is not
+    one; its fit is as close to it as the truth, within 0.05 mm RMS."""
+    target = run_target(RUN, "sphere")
+    assert _pose_error(tmp_path, target.sheet) < SLIDE_MM
+    scan, truth = posed_scan(tmp_path, target.mesh, seed=20)
+    surface = Surface.of(target.mesh.vertices_mm, target.mesh.triangles)
+    found = fit(scan.points_mm, surface, False).motion.apply(scan.vertices_mm)
+    assert _rms(surface.distances(found)) < _rms(surface.distances(truth)) + 0.05
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values**2)))
 
 
 def test_compare_json_follows_its_schema(formed):

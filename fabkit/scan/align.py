@@ -14,7 +14,9 @@ image first, then a rotation and a translation) apart, in three stages:
    pairs (so that what the target lacks and its holes do not pull), all starts at once;
 2. the best :data:`REFINED` starts tried further by ICP (point-to-plane over the surface,
    point-to-point beyond its edge, where a plane would let the scan slide off) on
-   :data:`TRY_POINTS` points, the best of them refined on :data:`FINE_POINTS` points;
+   :data:`TRY_POINTS` points; each distinct pose they reach refined on
+   :data:`FINE_POINTS` points (a nearly symmetric target has several, nearly as good),
+   the best kept;
 3. that fit polished on :data:`POLISH_POINTS` points.
 
 Stages 2 and 3 fit every pair (:data:`FINE_TRIM`): a scan's points beyond the edge of a
@@ -48,6 +50,8 @@ POLISH_ITERATIONS = 10
 REFINED = 4
 """Global starts tried further (:data:`TRY_ITERATIONS` on :data:`TRY_POINTS` points), of
 each of the proper and the mirrored fits; the best is refined."""
+SAME_POSE = 5.0
+"""Sample spacings (RMS over the points) within which two tried fits are one pose."""
 TRIM = 0.9
 """Share of the nearest pairs an iteration from a global start fits."""
 FINE_TRIM = 1.0
@@ -223,9 +227,22 @@ def fit(points: np.ndarray, surface: Surface, mirrored: bool) -> Fit:
     scores = [_trimmed_rms(surface.coarse_tree.query(s.apply(coarse))[0]) for s in starts]
     tried = _subset(points, TRY_POINTS, rng)
     fits = [refine(tried, surface, starts[k], TRY_ITERATIONS) for k in np.argsort(scores)[:REFINED]]
+    fine = _subset(points, FINE_POINTS, rng)
+    fits = [refine(fine, surface, found.motion) for found in _distinct(fits, coarse, surface)]
     found = min(fits, key=lambda found: found.trimmed_rms)
-    found = refine(_subset(points, FINE_POINTS, rng), surface, found.motion, FINE_ITERATIONS)
     return refine(_subset(points, POLISH_POINTS, rng), surface, found.motion, POLISH_ITERATIONS)
+
+
+def _distinct(fits: list[Fit], points: np.ndarray, surface: Surface) -> list[Fit]:
+    """``fits`` without those that place ``points`` within :data:`SAME_POSE` sample
+    spacings (RMS) of a better one: the poses worth refining."""
+    kept: list[Fit] = []
+    for found in sorted(fits, key=lambda found: found.trimmed_rms):
+        moved = found.motion.apply(points)
+        gaps = [np.sqrt(np.mean(np.sum((moved - k.motion.apply(points)) ** 2, 1))) for k in kept]
+        if all(gap > SAME_POSE * surface.spacing for gap in gaps):
+            kept.append(found)
+    return kept
 
 
 def refine(
