@@ -233,21 +233,9 @@ def compare_scan(scan: Scan, target: Target, tolerance: float = FORM_TOLERANCE) 
     """``scan`` against ``target`` (module docstring)."""
     start = time.perf_counter()
     surface = Surface.of(target.mesh.vertices_mm, target.mesh.triangles)
-    fits = [fit(scan.points_mm, surface, mirrored) for mirrored in (False, True)]
-    moved = [found.motion.apply(scan.points_mm) for found in fits]
-    feet = [surface.closest(points) for points in moved]
-    measured = [np.linalg.norm(a - b, axis=1) for a, b in zip(feet, moved, strict=True)]
-    rms = [_rms(distances) for distances in measured]
-    best = int(rms[1] < rms[0])
-    motion, distances, points = fits[best].motion, measured[best], moved[best]
-    sheet = _sheet_fit(scan, target)
-    aligned = motion.apply(scan.vertices_mm)
-    sheet_distances = None
-    if sheet is not None:
-        sheet_surface, sheet_motion = sheet
-        sheet_points = sheet_surface.distances(sheet_motion.apply(scan.points_mm))
-        sheet_distances = sheet_surface.distances(sheet_motion.apply(scan.vertices_mm))
-    aligned_distances = surface.distances(aligned)
+    proper, mirrored = (_Measured.of(scan, surface, side) for side in (False, True))
+    best = mirrored if mirrored.rms < proper.rms else proper
+    sheet = _SheetFit.of(scan, target)
     cover_mm = cover_radius(scan.points_mm)
     verdict = ScanVerdict(
         target.name,
@@ -257,41 +245,82 @@ def compare_scan(scan: Scan, target: Target, tolerance: float = FORM_TOLERANCE) 
         len(scan.points_mm),
         target.diameter_mm,
         tolerance,
-        rms[best],
-        float(distances.max()),
-        bool(best),
-        rms[0],
-        rms[1],
+        best.rms,
+        float(best.distances.max()),
+        best is mirrored,
+        proper.rms,
+        mirrored.rms,
         self_mirror(surface),
-        coverage(surface, feet[best], cover_mm),
+        coverage(surface, best.feet, cover_mm),
         cover_mm,
-        target.sheet_what if sheet is not None else "",
-        None if sheet is None else _rms(sheet_points),
-        None if sheet is None else float(sheet_points.max()),
+        target.sheet_what if sheet else "",
+        sheet.rms if sheet else None,
+        float(sheet.point_distances.max()) if sheet else None,
         time.perf_counter() - start,
     )
-    faces = scan.faces[:, ::-1] if motion.mirrored else scan.faces  # outward stays outward
+    motion = best.motion
+    aligned = motion.apply(scan.vertices_mm)
     return Compared(
         verdict,
         motion,
         aligned,
-        faces,
-        aligned_distances,
-        sheet_distances,
-        points,
-        distances,
-        None if sheet is None else sheet[1],
+        scan.faces[:, ::-1] if motion.mirrored else scan.faces,  # outward stays outward
+        surface.distances(aligned),
+        sheet.vertex_distances if sheet else None,
+        best.points,
+        best.distances,
+        sheet.motion if sheet else None,
     )
 
 
-def _sheet_fit(scan: Scan, target: Target) -> tuple[Surface, Motion] | None:
-    """The simulated sheet's surface and the scan's better motion onto it, proper or
-    mirrored (None without a sheet)."""
-    if target.sheet is None:
-        return None
-    surface = Surface.of(target.sheet.vertices_mm, target.sheet.triangles)
-    fits = [fit(scan.points_mm, surface, mirrored) for mirrored in (False, True)]
-    return surface, min(fits, key=lambda found: found.trimmed_rms).motion
+@dataclass(frozen=True, eq=False)
+class _Measured:
+    """One fit (``motion``) of a scan's measured points: moved (``points`` (n, 3)), their
+    nearest points of the surface (``feet`` (n, 3)) and distances to it (``distances``)."""
+
+    motion: Motion
+    points: np.ndarray
+    feet: np.ndarray
+    distances: np.ndarray
+
+    @classmethod
+    def of(cls, scan: Scan, surface: Surface, mirrored: bool) -> _Measured:
+        motion = fit(scan.points_mm, surface, mirrored).motion
+        points = motion.apply(scan.points_mm)
+        feet = surface.closest(points)
+        return cls(motion, points, feet, np.linalg.norm(feet - points, axis=1))
+
+    @property
+    def rms(self) -> float:
+        return _rms(self.distances)
+
+
+@dataclass(frozen=True, eq=False)
+class _SheetFit:
+    """A scan fitted to the simulated sheet, proper or mirrored, the better kept
+    (``motion``): the distances (mm) of its measured points and of its vertices."""
+
+    motion: Motion
+    point_distances: np.ndarray
+    vertex_distances: np.ndarray
+
+    @classmethod
+    def of(cls, scan: Scan, target: Target) -> _SheetFit | None:
+        """None without a simulated sheet."""
+        if target.sheet is None:
+            return None
+        surface = Surface.of(target.sheet.vertices_mm, target.sheet.triangles)
+        fits = [fit(scan.points_mm, surface, mirrored) for mirrored in (False, True)]
+        motion = min(fits, key=lambda found: found.trimmed_rms).motion
+        return cls(
+            motion,
+            surface.distances(motion.apply(scan.points_mm)),
+            surface.distances(motion.apply(scan.vertices_mm)),
+        )
+
+    @property
+    def rms(self) -> float:
+        return _rms(self.point_distances)
 
 
 def self_mirror(surface: Surface) -> float:
