@@ -97,8 +97,8 @@ def chiral_target() -> Target:
 @pytest.fixture(scope="module")
 def formed(folder):
     """The sphere's sheet as a scan (pose, m, noise, a fifth cut away) compared through
-    the command line: (exit code, stdout, the output folder, the true vertices in the
-    target's frame)."""
+    the command line: (exit code, the output folder, where the scan's vertices were cut
+    from, mm)."""
     from fabkit.cli import main
 
     vertices, triangles = sheet("sphere")

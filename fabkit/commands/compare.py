@@ -10,9 +10,14 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fabkit import commands
 from fabkit.errors import FabkitError
+
+if TYPE_CHECKING:
+    from fabkit.scan.compare import Compared
+    from fabkit.scan.targets import Target
 
 ALIGNED = "scan_aligned.ply"
 PICTURE = "compare.png"
@@ -85,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     return 1 if args.strict and not verdict.formed else 0
 
 
-def _target(args: argparse.Namespace):
+def _target(args: argparse.Namespace) -> tuple[Target, dict]:
     """The target compared with, and where it came from (compare.json's ``source``)."""
     from fabkit.field.part import DEFAULT_SIZE_MM
     from fabkit.scan.targets import design_target, run_target
@@ -109,7 +114,7 @@ _DESIGN_ONLY = (("--size", "size_mm"), ("--machine", "machine"), ("--process", "
 """The options that only a design alone takes, and their destinations."""
 
 
-def _picture(compared, target) -> bytes:
+def _picture(compared: Compared, target: Target) -> bytes:
     """The picture of the scan beside its target (:func:`fabkit.plot.scan.scan_picture`)."""
     from fabkit.plot.scan import scan_picture
 
@@ -128,7 +133,7 @@ def _picture(compared, target) -> bytes:
     )
 
 
-def _write(out: Path, compared, picture: bytes, figures: dict) -> None:
+def _write(out: Path, compared: Compared, picture: bytes, figures: dict) -> None:
     """The outputs, each atomically; the figures last (they name the others)."""
     from fabkit.files.atomic import atomic_path, inside
     from fabkit.mechanics.mesh import save_mesh

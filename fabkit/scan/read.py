@@ -42,7 +42,8 @@ SEED = 0
 class Scan:
     """A scan in mm. ``vertices_mm`` (V, 3) and ``faces`` (F, 3) as in the file (F = 0 for
     a point cloud); ``points_mm`` (n, 3), n <= :data:`MAX_POINTS`: where the scan is
-    measured; ``sampling``: how those points were chosen, in words."""
+    measured; ``sampling``: how those points were chosen, in words; ``units``: the unit
+    the file's lengths were read in."""
 
     name: str
     vertices_mm: np.ndarray
