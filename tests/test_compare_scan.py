@@ -148,6 +148,7 @@ def _pose_error(folder: Path, mesh: Mesh) -> float:
     return float(np.sqrt(np.mean(np.sum((motion.apply(scan.vertices_mm) - truth) ** 2, axis=1))))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("surface", ["bump target", "bump sheet", "chiral target"])
 def test_the_pose_is_found_within_half_a_mm(tmp_path, surface):
     """Surfaces with no continuous symmetry: the run's bump target and its sheet as
@@ -158,6 +159,7 @@ def test_the_pose_is_found_within_half_a_mm(tmp_path, surface):
     assert _pose_error(tmp_path, mesh) < POSE_MM
 
 
+@pytest.mark.slow
 def test_a_sphere_cap_is_fitted_as_well_as_the_truth_but_slides(tmp_path):
     """A sphere cap slides on its sphere; only its outline holds a fit in place, and
     little: the sheet as fabricated is placed within 1 mm (0.22-0.70 mm over 9 seeds).
@@ -215,6 +217,7 @@ def test_the_mirror_image_of_a_chiral_target_is_named(tmp_path, mirrored):
         assert "not a mirror image (its mirror image fits at" in verdict.line()
 
 
+@pytest.mark.slow
 def test_a_scan_of_another_target_is_not_formed(tmp_path):
     bump, triangles = sheet("bump")
     turn, shift = pose(7)
