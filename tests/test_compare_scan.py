@@ -177,6 +177,12 @@ def _rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(values**2)))
 
 
+def test_the_limit_is_the_runs():
+    target = run_target(RUN, "sphere")
+    assert target.tolerance == 0.03 and target.diameter_mm == pytest.approx(73.649, abs=1e-3)
+    assert target.sheet_what == "as fabricated"
+
+
 def test_compare_json_follows_its_schema(formed):
     import jsonschema
 

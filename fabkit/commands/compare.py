@@ -54,7 +54,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     commands.add_overwrite(parser)
-    commands.add_strict(parser, "the scan does not form the target")
+    parser.add_argument(
+        "--form-tolerance",
+        type=float,
+        metavar="PCT",
+        help="the scan forms the target within this RMS distance, %% of the patch diameter "
+        "(default: the run's limit, else 3, as fabkit run)",
+    )
+    commands.add_strict(parser, "exit 1 when the scan does not form the target")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
     parser.set_defaults(func=run)
 
@@ -67,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     target, source = _target(args)
     scan = read_scan(args.scan, args.units)
     check_extent(scan, target.extent_mm, target.name, args.units)
-    compared = compare_scan(scan, target)
+    compared = compare_scan(scan, target, _tolerance(args.form_tolerance, target))
     verdict = compared.verdict
     picture = _picture(compared, target)
     figures = {
@@ -112,6 +119,17 @@ def _target(args: argparse.Namespace) -> tuple[Target, dict]:
 
 _DESIGN_ONLY = (("--size", "size_mm"), ("--machine", "machine"), ("--process", "process_file"))
 """The options that only a design alone takes, and their destinations."""
+
+
+def _tolerance(percent: float | None, target: Target) -> float:
+    """The limit (a share of the patch diameter): ``--form-tolerance``, else the run's."""
+    from fabkit.mechanics.verdict import FORM_TOLERANCE
+
+    if percent is None:
+        return FORM_TOLERANCE if target.tolerance is None else target.tolerance
+    if not (0 < percent < 100):
+        raise FabkitError(f"--form-tolerance {percent:g}: expected a percentage above 0, below 100")
+    return percent / 100
 
 
 def _picture(compared: Compared, target: Target) -> bytes:

@@ -38,13 +38,15 @@ class Target:
     """Target ``name``'s surface (``mesh``, mm) and its patch diameter (mm: the largest
     distance between two of its points, what the verdict's percentages are shares of);
     ``sheet``: the simulated sheet placed on it (``sheet_what``: "as fabricated" or "as
-    designed"), None without a run."""
+    designed") and ``tolerance``, the limit the run's verdict held it to (a share of the
+    diameter), both None without a run."""
 
     name: str
     mesh: Mesh
     diameter_mm: float
     sheet: Mesh | None = None
     sheet_what: str = ""
+    tolerance: float | None = None
 
     @property
     def extent_mm(self) -> float:
@@ -68,13 +70,21 @@ def run_target(folder: str | Path, name: str | None) -> Target:
     entry = entries[name]
     target = _mesh(folder, entry.get("target_mesh"))
     sheet = _mesh(folder, entry.get("mesh"))
+    figures = _verdict_figures(report, shapes.get("what"), name)
+    diameter, limit = figures.get("patch_diameter_mm"), figures.get("limit_pct")
     return Target(
         name,
         target,
-        _verdict_diameter(report, shapes.get("what"), name) or _diameter(target.vertices_mm),
+        diameter if _number(diameter, 1e6) else _diameter(target.vertices_mm),
         sheet,
         str(shapes.get("what", "")),
+        limit / 100 if _number(limit, 100) else None,
     )
+
+
+def _number(value: object, below: float) -> bool:
+    """``value`` is a number above 0 and below ``below`` (a figure of a report)."""
+    return isinstance(value, (int, float)) and 0 < value < below
 
 
 def design_target(
@@ -154,15 +164,15 @@ def _mesh(folder: Path, name: object) -> Mesh:
     return Mesh(vertices, triangles)
 
 
-def _verdict_diameter(report: dict, what: object, name: str) -> float | None:
-    """The patch diameter (mm) the run's verdict on the sheet ``what`` gave target
-    ``name``, if it is there."""
+def _verdict_figures(report: dict, what: object, name: str) -> dict:
+    """The figures the run's verdict on the sheet ``what`` gave target ``name`` (report.json's
+    ``verdicts``; empty where they are not there)."""
     for verdict in report.get("verdicts") or []:
         if isinstance(verdict, dict) and verdict.get("what") == what:
             for shape in verdict.get("targets") or []:
-                if shape.get("target") == name and shape.get("patch_diameter_mm"):
-                    return float(shape["patch_diameter_mm"])
-    return None
+                if isinstance(shape, dict) and shape.get("target") == name:
+                    return shape
+    return {}
 
 
 def _diameter(points: np.ndarray) -> float:
