@@ -54,6 +54,8 @@ MESH_BYTES = 128 * MIB
 """Largest mesh file (STL, OBJ, PLY)."""
 MESH_FACES = 2_000_000
 """Most triangles of a mesh."""
+SCAN_BYTES = 256 * MIB
+"""Largest scan file (``fabkit compare``): about 20 million points in binary PLY."""
 RASTER_HITS = 40_000_000
 """Most (triangle, grid node) pairs tested when resampling a mesh on its grid (about 3 GB
 of work arrays); a height-field mesh of 2048 x 2048 nodes needs about 34 million."""

@@ -105,6 +105,7 @@ LONGEST_FIRST = (
     "test_verify.py",
     "test_packaging.py",
     "test_link_marlin.py",
+    "test_compare_scan.py",
 )
 """The test files that take longest (``pytest --durations=0`` summed per file: about
 80 s for test_run_layers.py, the Fig. 3 run in two layers, down to about 15 s), longest

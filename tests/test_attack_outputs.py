@@ -1,7 +1,8 @@
 """Output folders: a folder holding an earlier run's files, or anyone else's, is refused.
 
 Every command that writes a folder (``run``, ``plot``, ``toolpath``, ``channels``,
-``swimmer``, laser ``export``) claims it first (:func:`fabkit.files.atomic.output_folder`):
+``swimmer``, laser ``export``, ``compare``) claims it first
+(:func:`fabkit.files.atomic.output_folder`):
 without ``--overwrite`` an earlier fabkit run's files there are a one-line error naming
 them; a file fabkit did not write there is a one-line error even with ``--overwrite``.
 Each row must leave the folder exactly as it was. Then the behaviour behind the rows:
@@ -30,6 +31,8 @@ _COMMANDS = {
     "channels": f"channels {DISC} --baromorph {EXAMPLES / 'baromorph_channels.toml'} --out",
     "swimmer": f"swimmer {EXAMPLES / 'swimmer.toml'} --no-convergence --out",
     "export": "export {design} --machine dmd_photoalign --format laser --size 20 -o",
+    "compare": f"compare {EXAMPLES / 'data' / 'sphere_scan.ply'} {{run}} --target sphere "
+    "--units m --out",
 }
 
 _OCCUPIED = {
@@ -82,6 +85,7 @@ def places(folder) -> dict[str, str]:
         "foreign": str(foreign),
         "escaping": str(escaping),
         "root": str(folder),
+        "run": str(EXAMPLES.parent / "tests" / "data" / "compare_run"),
     }
 
 

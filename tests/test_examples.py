@@ -4,7 +4,9 @@ The commands are read from the README's ``sh`` blocks, so the page and this test
 drift apart. ``fabkit run`` gets ``--step 0.1 --diagonals 30`` appended (a coarse solver
 grid) and ``--no-verify`` (the ``fabkit verify`` example reads a run back, simulations
 included); the swimmer runs on a copy of its spec with small meshes and two stations per leg
-(as in tests/test_swimmer.py). Outputs go to the test's folder, never to ``out/``.
+(as in tests/test_swimmer.py). ``fabkit compare`` reads the run of the README's main
+command (``out/``, two layers, verified and simulated: too slow here) from its stored
+copy, tests/data/compare_run. Outputs go to the test's folder, never to ``out/``.
 """
 
 from __future__ import annotations
@@ -74,6 +76,8 @@ def test_example_runs(command, run_cli, tmp_path):
         assert code == 0, err
         assert "director error" in text and "as fabricated vs" in text
         return
+    if args[0] == "compare":  # the README's main command's run, stored
+        args[args.index("out")] = str(ROOT / "tests" / "data" / "compare_run")
     out = tmp_path / out_name(command).removeprefix("out/")
     args[args.index("--out") + 1] = str(out)
     args = [str(ROOT / a) if a.startswith("examples/") else a for a in args]
@@ -99,6 +103,7 @@ def test_example_runs(command, run_cli, tmp_path):
         "swimmer": ["summary.json", "stroke.npz", "swimmer.gcode"],
         "toolpath": ["toolpath.npz", "quality.json", "preview.png"],
         "channels": ["channels.json", "mould.stl", "channels.png"],
+        "compare": ["compare.json", "compare.png", "scan_aligned.ply"],
     }[name]
     if name == "run":
         if "--baromorph" in args:

@@ -50,6 +50,16 @@ COMMANDS: dict[str, Command] = {
     "check": Command(
         "check", "measure how well a design realises each target (exit 1 if over tolerance)"
     ),
+    "compare": Command(
+        "compare",
+        "compare a scan of the printed sheet with its target, as run's verdict (docs/compare.md)",
+        "Read a scan (mesh or point cloud, in --units), fit it to the target at the part's "
+        "printed size (a global search, then ICP; its mirror image tried too) and give the "
+        "verdict in run's words and limit: formed or not, RMS and max distance, the mirror "
+        "image, the share of the target the scan covers; and, where the run simulated the "
+        "sheet, the scan against that sheet. Writes compare.png, scan_aligned.ply (with each "
+        "vertex's distance_mm) and compare.json into --out.",
+    ),
     "energy": Command("energy", "work bounds: frustrated stretching energy of a design held flat"),
     "export": Command(
         "export",
