@@ -120,8 +120,9 @@ def test_a_scan_of_the_sheet_as_fabricated_forms_its_target(formed, capsys):
     assert verdict["formed"] and verdict["this_target"] and not verdict["mirror_image"]
     assert verdict["rms_pct"] < 2.0  # the run's verdict: 1.28 % by correspondence
     assert verdict["coverage_pct"] > 70  # a fifth cut away
-    assert verdict["lines"][0].startswith("sphere: formed")
-    assert "a scan cannot tell which way it bends" in verdict["lines"][0]  # a sphere cap
+    assert verdict["lines"][-1].startswith("sphere: formed in shape")  # the verdict, last
+    assert verdict["lines"][0].startswith("caveat: sphere's mirror image has the same shape")
+    assert "a scan cannot tell which way the sheet bends" in verdict["lines"][0]  # a cap
     assert verdict["sheet"]["what"] == "as fabricated"
     assert verdict["sheet"]["rms_mm"] < 2 * NOISE_MM  # the scan is of that sheet
     aligned = trimesh.load(out / "scan_aligned.ply", process=False)
@@ -199,7 +200,8 @@ def test_a_mirrored_scan_of_a_sphere_cap_is_formed_and_said_undecidable(tmp_path
     scan = read_scan(write_scan(tmp_path / "mirror.stl", mirrored, triangles[:, ::-1]))
     verdict = compare_scan(scan, replace(run_target(RUN, "sphere"), sheet=None)).verdict
     assert verdict.formed and not verdict.mirror_tells and not verdict.mirror_image
-    assert "its mirror image has the same shape" in verdict.line()
+    assert "mirror image has the same shape" in verdict.lines()[0]  # the caveat first
+    assert verdict.line().startswith("sphere: formed in shape (which way it bends: unknown")
 
 
 @pytest.mark.parametrize("mirrored", [False, True], ids=["proper", "mirrored"])

@@ -92,8 +92,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(figures, indent=2))
     else:
-        print("\n".join(verdict.lines()))
+        lines = verdict.lines()
+        print("\n".join(lines[:-1]))
         print(f"wrote {PICTURE}, {ALIGNED} and {FIGURES} into {args.out}")
+        print(lines[-1])  # the verdict, last
     return 1 if args.strict and not verdict.formed else 0
 
 

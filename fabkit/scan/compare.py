@@ -115,6 +115,8 @@ class ScanVerdict:
         mirror image (...); the scan covers 80 % of the target (within 1 mm of where a scan
         point lies nearest it)``."""
         status = "formed" if self.formed else f"NOT formed ({'; '.join(self.why())})"
+        if self.formed and not self.mirror_tells:
+            status = "formed in shape (which way it bends: unknown, see the first line)"
         figures = f"{self._pct(self.rms_mm)} RMS, max {self._pct(self.max_mm)} of the patch "
         figures += f"diameter ({self.diameter_mm:.3g} mm)"
         return (
@@ -142,17 +144,27 @@ class ScanVerdict:
     def mirror_words(self) -> str:
         other = self._pct(self.proper_rms_mm if self.mirrored else self.mirrored_rms_mm)
         if not self.mirror_tells:
-            return (
-                "not a mirror image: its mirror image has the same shape (within "
-                f"{self._pct(self.self_mirror_mm)} RMS), a scan cannot tell which way it bends"
-            )
+            return "the mirror image or not: a scan cannot tell (see the first line)"
         if self.mirror_image:
             return f"the target's mirror image ({other} RMS from the target itself)"
         return f"not a mirror image (its mirror image fits at {other} RMS)"
 
+    def caveat(self) -> str | None:
+        """What the verdict cannot say, for its first line: which way a target congruent
+        to its own mirror image bends (None: nothing)."""
+        if self.mirror_tells:
+            return None
+        return (
+            f"caveat: {self.target}'s mirror image has the same shape (within "
+            f"{self._pct(self.self_mirror_mm)} RMS), so a scan cannot tell which way the sheet "
+            "bends: the verdict is on its shape; mark the sheet's top face and look which "
+            "side it bulges to"
+        )
+
     def lines(self) -> list[str]:
-        """The verdict, the scan against the simulated sheet, and what was measured."""
-        lines = [self.line()]
+        """The caveat (if any) first, the scan against the simulated sheet, what was
+        measured, and the verdict last."""
+        lines = [] if self.caveat() is None else [self.caveat()]
         if self.sheet_rms_mm is not None:
             lines.append(
                 f"scan vs the simulated sheet {self.sheet_what}: {self._pct(self.sheet_rms_mm)} "
@@ -162,7 +174,7 @@ class ScanVerdict:
             f"measured at {self.sampling} (its lengths read in {self.units}), "
             f"in {self.seconds:.1f} s"
         )
-        return lines
+        return [*lines, self.line()]
 
     def _pct(self, mm: float, spec: str = ".2f") -> str:
         """A length as a percentage of the patch diameter, and in mm (``run``'s form)."""
