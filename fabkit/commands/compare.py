@@ -149,7 +149,7 @@ def _picture(compared: Compared, target: Target) -> bytes:
         verdict.limit_mm,
         f"{target.name}: the scan {verdict.scan} beside the target, coloured by its distance "
         f"to it (patch diameter {verdict.diameter_mm:.3g} mm)",
-        f"the scan{mirror}: {'formed' if verdict.formed else 'NOT formed'}",
+        f"the scan{mirror}: {verdict.status()}",
     )
 
 

@@ -114,9 +114,11 @@ class ScanVerdict:
         1.9 % (1.4 mm) of the patch diameter (73.6 mm); limit 3 % (2.21 mm) RMS; not a
         mirror image (...); the scan covers 80 % of the target (within 1 mm of where a scan
         point lies nearest it)``."""
-        status = "formed" if self.formed else f"NOT formed ({'; '.join(self.why())})"
-        if self.formed and not self.mirror_tells:
-            status = "formed in shape (which way it bends: unknown, see the first line)"
+        status = self.status()
+        if not self.formed:
+            status += f" ({'; '.join(self.why())})"
+        elif not self.mirror_tells:
+            status += " (which way it bends: unknown, see the first line)"
         figures = f"{self._pct(self.rms_mm)} RMS, max {self._pct(self.max_mm)} of the patch "
         figures += f"diameter ({self.diameter_mm:.3g} mm)"
         return (
@@ -124,6 +126,12 @@ class ScanVerdict:
             f"{self.mirror_words()}; the scan covers {100 * self.coverage:.0f} % of the target "
             f"(within {self.cover_mm:.2g} mm of where a scan point lies nearest it)"
         )
+
+    def status(self) -> str:
+        """``formed``, ``formed in shape`` (a side a scan cannot tell) or ``NOT formed``."""
+        if not self.formed:
+            return "NOT formed"
+        return "formed" if self.mirror_tells else "formed in shape"
 
     def why(self) -> list[str]:
         """Why the scan is not formed, in a few words each."""
