@@ -224,7 +224,9 @@ class Evaluator:
 
     def power(self, node: Node, base: Jet, exponent: Jet) -> Jet:
         """u ** v: by c u^(c-1) for an exponent without derivative, else with both partials
-        v u^(v-1) and u^v log(u) (so 0 ** v has derivative 0 by u for v > 1)."""
+        v u^(v-1) and u^v log(u) (so 0 ** v has derivative 0 by u for v > 1); the terms
+        with a zero coefficient are zero, as for a constant exponent (u ** x at x = 0 has
+        derivative 0 by u also where u = 0, whether x is differentiated or not)."""
         if exponent.grad is None:
             c = float(node.args[1].value) if node.args[1].kind == "const" else exponent.value
             return self.chain(base, _power(c))
@@ -233,13 +235,12 @@ class Evaluator:
         log = np.log(u)
 
         def second() -> tuple[Array, Array, Array]:
-            return (
-                v * (v - 1) * np.power(u, v - 2),
-                np.power(u, v - 1) * (1 + v * log),
-                value * log**2,
-            )
+            coefficient = v * (v - 1)
+            fuu = np.where(coefficient == 0, 0.0, coefficient * np.power(u, v - 2))
+            return fuu, np.power(u, v - 1) * (1 + v * log), value * log**2
 
-        return self.binary(base, exponent, value, (v * np.power(u, v - 1), value * log), second)
+        fu = np.where(v == 0, 0.0, v * np.power(u, v - 1))  # as a constant exponent's
+        return self.binary(base, exponent, value, (fu, value * log), second)
 
     def arctan2(self, y: Jet, x: Jet) -> Jet:
         """The angle of (x, y): partials x/r^2 by y and -y/r^2 by x."""
