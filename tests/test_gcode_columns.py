@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from fabkit.errors import FabkitError
 from fabkit.gcode.columns import LETTERS, read_columns
-from fabkit.gcode.duration import Planner
+from fabkit.gcode.duration import Planner, _passes, _passes_in_order
 from fabkit.gcode.read import commands_from_lines, read_marlin
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
@@ -217,3 +217,35 @@ def random_jobs(draw) -> list[str]:
 @given(lines=random_jobs())
 def test_random_jobs_plan_and_check_alike(name, lines):
     assert_same(lines, load_machine(name))
+
+
+# -- the planner's passes ------------------------------------------------------------------
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    moves=st.lists(
+        st.tuples(
+            st.floats(1e-4, 50),  # length, mm
+            st.sampled_from([math.inf, 10.0, 500.0, 3000.0]),  # acceleration, mm/s^2
+            st.floats(0, 300),  # the junction's highest entry speed, mm/s
+            st.integers(0, 9),  # 0: the planner emptied before this move
+        ),
+        min_size=1,
+        max_size=300,
+    )
+)
+def test_the_passes_in_array_sweeps_are_the_passes_in_order(moves):
+    length, accel, max_entry, stop = (np.array(column) for column in zip(*moves, strict=True))
+    first = np.r_[True, stop[1:] == 0]
+    max_entry[first] = 0.0
+    swept = _passes(length, accel, max_entry, first)
+    assert _same_floats(swept, _passes_in_order(length, accel, max_entry, first))
+
+
+def test_a_long_ramp_is_passed_in_order_alike():
+    length, accel = np.full(2000, 0.01), np.full(2000, 100.0)  # 2000 moves, each limited
+    max_entry = np.r_[0.0, np.full(1999, 200.0)]
+    first = np.r_[True, np.zeros(1999, bool)]
+    swept = _passes(length, accel, max_entry, first)
+    assert _same_floats(swept, _passes_in_order(length, accel, max_entry, first))

@@ -97,12 +97,14 @@ def read_columns(texts: Sequence[str], first: int, limit: int, codes: str) -> Mo
     kind = _CLASS[data]
     ends = np.flatnonzero(kind == _END)
     starts = np.concatenate(([0], ends[:-1] + 1))
-    line = np.cumsum(kind == _END) - (kind == _END)  # each byte's line
-    body = kind != _END  # the bytes after "G0" / "G1"
+    end = kind == _END
+    line = np.cumsum(end, dtype=np.int32) - end  # each byte's line
+    body = ~end  # the bytes after "G0" / "G1"
     body[starts] = False
     body[np.minimum(starts + 1, ends)] = False
     plain = _heads(data, kind, starts, ends, limit, codes)
-    wrong = np.flatnonzero(body[:-1] & ~_FOLLOWS[kind[:-1], kind[1:]])
+    pairs = kind[:-1] * np.int8(len(_FOLLOWS)) + kind[1:]
+    wrong = np.flatnonzero(body[:-1] & ~_FOLLOWS.ravel()[pairs])
     plain[line[wrong]] = False
     words = _Words(data, kind, line, body & plain[line])
     plain[words.line[~words.readable]] = False
@@ -141,7 +143,7 @@ class _Words:
     def __init__(self, data: np.ndarray, kind: np.ndarray, line: np.ndarray, inside: np.ndarray):
         letters = np.flatnonzero(inside & (kind == _LETTER))
         self.line, self.column = line[letters], _COLUMN[data[letters]]
-        word = np.cumsum(inside & (kind == _LETTER)) - 1  # each byte's word
+        word = np.cumsum(inside & (kind == _LETTER), dtype=np.int32) - 1  # each byte's word
         self.digits = np.flatnonzero(inside & (kind == _DIGIT))
         self.digit_word = word[self.digits]
         dots = np.flatnonzero(inside & (kind == _DOT))

@@ -36,7 +36,7 @@ tolerance, $12).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -470,11 +470,60 @@ def _junctions(
     return np.where(cos_theta > 0.999999, np.minimum(MIN_JUNCTION_MM_S, limit), speed)
 
 
+MAX_SWEEPS = 64
+"""Array sweeps of a pass before it is run one move at a time instead (a long chain of
+moves each limited by the next, or the previous: a long ramp over short moves)."""
+
+
 def _passes(
     length: np.ndarray, accel: np.ndarray, max_entry: np.ndarray, first: np.ndarray
 ) -> np.ndarray:
     """Entry speeds (mm/s): each at most its junction's, reachable backward from the
-    next (at rest after a segment's last move) and forward from the previous."""
+    next (at rest after a segment's last move) and forward from the previous.
+
+    Each pass runs one move at a time (:func:`_passes_in_order`), and its result is the
+    only fixed point of ``entry = min(bound, reach(neighbour))``: array sweeps of that map
+    from the bound until nothing changes give the very same floats (each computed by the
+    same operations from the same neighbour), far faster when the chains are short."""
+    if np.isnan(length).any() or np.isnan(max_entry).any():
+        return _passes_in_order(length, accel, max_entry, first)
+    last = np.r_[first[1:], True]  # the move ends at rest: its segment's last
+    backward = _sweep(max_entry, lambda x: np.where(last, 0.0, np.r_[x[1:], 0.0]), length, accel)
+    if backward is None:
+        return _passes_in_order(length, accel, max_entry, first)
+    before = (np.r_[0.0, length[:-1]], np.r_[math.inf, accel[:-1]])
+    forward = _sweep(backward, lambda x: np.r_[0.0, x[:-1]], *before, skip=first)
+    return _passes_in_order(length, accel, max_entry, first) if forward is None else forward
+
+
+def _sweep(
+    bound: np.ndarray,
+    neighbour: Callable[[np.ndarray], np.ndarray],
+    length: np.ndarray,
+    accel: np.ndarray,
+    skip: np.ndarray | None = None,
+) -> np.ndarray | None:
+    """The fixed point of ``x = min(bound, reach(neighbour(x), length, accel))`` (``bound``
+    where ``skip``), or None when :data:`MAX_SWEEPS` sweeps do not reach it."""
+    free = np.isinf(accel)
+    twice = 2.0 * np.where(free, 0.0, accel) * length
+    x = bound
+    for _ in range(MAX_SWEEPS):
+        speed = neighbour(x)
+        reach = np.where(free, math.inf, np.sqrt(speed * speed + twice))
+        if skip is not None:
+            reach = np.where(skip, math.inf, reach)
+        new = np.minimum(bound, reach)
+        if np.array_equal(new, x):
+            return new
+        x = new
+    return None
+
+
+def _passes_in_order(
+    length: np.ndarray, accel: np.ndarray, max_entry: np.ndarray, first: np.ndarray
+) -> np.ndarray:
+    """:func:`_passes`, one move at a time."""
     lengths, accels, entry = length.tolist(), accel.tolist(), max_entry.tolist()
     starts = first.tolist()
     sqrt, inf = math.sqrt, math.inf
