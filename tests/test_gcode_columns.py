@@ -184,30 +184,48 @@ def test_a_plain_move_reads_as_the_marlin_reader_reads_it(texts):
 
 BETWEEN = [
     "G90", "G91", "M82", "M83", "G92 E0", "G92 X10 Y10", "M220 S80", "M221 S120", "G4 P10",
-    "G28 X", "M400", "G1 X1 Q1", "G2 X1 Y1 I1 J0",
+    "G28", "M400", "G1 X1 Q1", "M104 S200", "M106 S255", "M107", "M82", "M83", "M400",
 ]  # fmt: skip
 """Non-plain commands between the runs of random jobs."""
 
 
 @st.composite
+def number(draw, low: float, high: float) -> str:
+    """A number in [low, high] as a G-code writer or a person might write it."""
+    value = draw(st.floats(low, high))
+    text = f"{value:.{draw(st.integers(0, 5))}f}"
+    form = draw(st.integers(0, 9))
+    if form == 0 and text.startswith("0."):
+        return text[1:]  # .5
+    if form == 1 and not text.startswith("-"):
+        return "+" + text
+    return text
+
+
+@st.composite
 def random_jobs(draw) -> list[str]:
-    """Plain moves in both modes, with non-plain commands between them."""
-    lines = list(draw(st.sampled_from([MARLIN, ["G21", "G91", "G28", "M83", "G1 F900"]])))
-    for _ in range(draw(st.integers(1, 40))):
-        kind = draw(st.integers(0, 9))
-        if kind == 0:
+    """Plain moves, mostly inside the envelope and the limits, in both distance modes,
+    with non-plain commands and now and then a refused value between them."""
+    absolute = draw(st.booleans())
+    lines = [*MARLIN, "G1 X100 Y100 Z1", *([] if absolute else ["G91", "M83"])]
+    e = 0.0  # the absolute E so far
+    for _ in range(draw(st.integers(1, 60))):
+        if draw(st.integers(0, 11)) == 0:
             lines.append(draw(st.sampled_from(BETWEEN)))
+            absolute = {"G90": True, "G91": False}.get(lines[-1], absolute)
+            e = 0.0 if lines[-1] == "G92 E0" else e
             continue
-        words = []
-        for letter in draw(st.lists(st.sampled_from("XYZEF"), unique=True, max_size=4)):
-            if letter == "F":
-                value = draw(st.integers(-10, 20000))
-            elif letter == "Z":
-                value = draw(st.integers(-5, 50)) / 10
-            else:
-                value = draw(st.integers(-3000, 25000)) / 100
-            words.append(f"{letter}{value:g}")
-        lines.append(" ".join([draw(st.sampled_from(["G0", "G1"])), *words]))
+        e += draw(st.floats(-0.1, 0.5))
+        ranges = {"X": (5, 200), "Y": (5, 200), "Z": (0.2, 3), "E": (e, e), "F": (300, 4800)}
+        if not absolute:
+            ranges |= {"X": (-5, 5), "Y": (-5, 5), "Z": (-0.05, 0.05), "E": (-0.1, 0.5)}
+        if draw(st.integers(0, 40)) == 0:  # a value the check may refuse
+            ranges[draw(st.sampled_from("XYZEF"))] = (-1000, 100000)
+        letters = draw(st.lists(st.sampled_from("XYXYXYEF"), unique=True, max_size=4))
+        if draw(st.integers(0, 15)) == 0:
+            letters += ["Z"] if "X" in letters else ["X", "Z"]  # Z alone: too fast for Z
+        words = [f"{k}{draw(number(*ranges[k]))}" for k in letters]
+        lines.append(" ".join([draw(st.sampled_from(["G0", "G1", "G1"])), *words]))
     return lines
 
 
