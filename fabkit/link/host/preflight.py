@@ -189,7 +189,7 @@ def check_job(
     if runs is None:
         _check_each(checker, job, source, also)
     else:
-        codes = "1" if machine.flavour == "hyrel" else "01"  # Hyrel's G0 is not modal
+        codes = "1" if machine.flavour == "hyrel" else "01"  # Hyrel: F on G0 is for that move only
         for first in range(0, len(job), CHUNK_COMMANDS):
             part = job[first : first + CHUNK_COMMANDS]
             texts = [command.text for command in part]
