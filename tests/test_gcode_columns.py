@@ -135,6 +135,40 @@ def test_written_jobs_plan_and_check_alike(case, name):
     assert_same(CASES[case], load_machine(name))
 
 
+DIW = ["G21", "G90", "M42 P4 S0", "M42 P5 S0", "G28", "G1 Z1 F600", "G1 X10 Y10 F1200"]
+LINE = [f"G1 X{20 + 2 * k} Y{30 + k % 2}" for k in range(8)]
+FASTER = ["G1 X60 Y60 F1800", "G1 X70 Y60", "G1 X70 Y70", "G1 X60 Y70"]  # 30 mm/s
+VALVES = {
+    "valves": [
+        *DIW, "M42 P4 S255", *LINE, "M42 P4 S0", "G0 Z2 F600", "G0 X10 Y10 F2400", "G0 Z1 F600",
+        "M42 P5 S255", *LINE, "M42 P5 S0", *FASTER,
+    ],
+    "faster than printing while the first ink flows": [*DIW, "M42 P4 S255", *LINE, *FASTER],
+    "faster than printing while the second ink flows": [*DIW, "M42 P5 S255", *LINE, *FASTER],
+    "one ink off, the other still on": [
+        *DIW, "M42 P4 S255", *LINE, "M42 P5 S255", "M42 P4 S0", *LINE, *FASTER,
+    ],
+    "both off: travel": [*DIW, "M42 P4 S255", "M42 P5 S255", *LINE, "M42 P5 S0", "M42 P4 S0",
+                         *FASTER],
+    "a pin the profile does not write": [*DIW, *LINE, "M42 P6 S255", *LINE],
+    "a pin write spaced otherwise": [*DIW, *LINE, "M42  P4 S255", *LINE, *FASTER],
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", list(VALVES))
+def test_the_profiles_pin_writes_switch_the_flow_alike(case):
+    assert_same(VALVES[case], load_machine("marlin_diw_pneumatic"))
+
+
+def test_pin_writes_join_a_run():
+    machine = load_machine("marlin_diw_pneumatic")
+    assert assert_same(VALVES["valves"], machine) == len(VALVES["valves"]) - 5  # G21 ... G28
+    message, _, _ = _outcome(
+        VALVES["faster than printing while the first ink flows"], machine, True
+    )
+    assert message.startswith(f"job.gcode:{len(DIW) + 1 + len(LINE) + 1}: feed 30.000 mm/s")
+
+
 def test_runs_are_taken_at_once():
     assert (
         assert_same(CASES["G92 and G91 between runs"], load_machine("marlin_generic")) == 43
@@ -167,7 +201,7 @@ def command_texts(draw) -> str:
 @settings(max_examples=400, deadline=None)
 @given(texts=st.lists(command_texts(), min_size=1, max_size=12))
 def test_a_plain_move_reads_as_the_marlin_reader_reads_it(texts):
-    columns = read_columns(texts, 0, 80, "01")
+    columns = read_columns(texts, 0, 80, "01", {})
     for k, text in enumerate(texts):
         if not columns.plain[k]:
             continue
@@ -177,6 +211,14 @@ def test_a_plain_move_reads_as_the_marlin_reader_reads_it(texts):
         assert given == block.values
         for letter, value in block.values.items():
             assert math.copysign(1, value) == math.copysign(1, given[letter])
+
+
+def test_named_commands_count_as_plain():
+    columns = read_columns(["G1 X1", "M42 P4 S255", "M42 P4  S255", "G1 Y2"], 0, 80, "01",
+                           {"M42 P4 S255": 3, "G1 Y2": 5})  # fmt: skip
+    assert columns.plain.tolist() == [True, True, False, True]
+    assert columns.other.tolist() == [-1, 3, -1, -1]  # a plain move stays one
+    assert not columns.given[1].any() and not columns.g0.any()
 
 
 # -- random jobs through both paths --------------------------------------------------------
@@ -203,13 +245,17 @@ def number(draw, low: float, high: float) -> str:
 
 
 @st.composite
-def random_jobs(draw) -> list[str]:
+def random_jobs(draw, pin_writes: tuple[str, ...] = ()) -> list[str]:
     """Plain moves, mostly inside the envelope and the limits, in both distance modes,
-    with non-plain commands and now and then a refused value between them."""
+    with non-plain commands (and ``pin_writes``) and now and then a refused value between
+    them."""
     absolute = draw(st.booleans())
     lines = [*MARLIN, "G1 X100 Y100 Z1", *([] if absolute else ["G91", "M83"])]
     e = 0.0  # the absolute E so far
     for _ in range(draw(st.integers(1, 60))):
+        if pin_writes and draw(st.integers(0, 5)) == 0:
+            lines.append(draw(st.sampled_from(pin_writes)))
+            continue
         if draw(st.integers(0, 11)) == 0:
             lines.append(draw(st.sampled_from(BETWEEN)))
             absolute = {"G90": True, "G91": False}.get(lines[-1], absolute)
@@ -230,10 +276,14 @@ def random_jobs(draw) -> list[str]:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["marlin_generic", "klipper_generic", "hyrel_pulse"])
+@pytest.mark.parametrize(
+    "name", ["marlin_generic", "klipper_generic", "hyrel_pulse", "marlin_diw_pneumatic"]
+)
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(lines=random_jobs())
-def test_random_jobs_plan_and_check_alike(name, lines):
+@given(data=st.data())
+def test_random_jobs_plan_and_check_alike(name, data):
+    valves = ("M42 P4 S255", "M42 P4 S0", "M42 P5 S255", "M42 P5 S0", "M42 P4  S255")
+    lines = data.draw(random_jobs(valves if name == "marlin_diw_pneumatic" else ()))
     assert_same(lines, load_machine(name))
 
 

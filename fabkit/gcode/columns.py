@@ -13,7 +13,7 @@ gone from a command's text) is left to the per-command path.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,14 +26,17 @@ _COLUMN[np.frombuffer(LETTERS.encode("ascii"), np.uint8)] = np.arange(len(LETTER
 
 @dataclass(frozen=True)
 class MoveRun:
-    """Consecutive plain moves of a job. ``first``: the job index of the first; ``g0``
-    (n,) bool: the command is G0 (else G1); ``values`` (n, 5) float64: X, Y, Z, E, F as
-    written (mm, mm/min), NaN where absent; ``given`` (n, 5) bool: the letter is there."""
+    """Consecutive plain moves of a job, and other commands the caller named. ``first``:
+    the job index of the first; ``g0`` (n,) bool: the command is G0 (else G1, or another);
+    ``values`` (n, 5) float64: X, Y, Z, E, F as written (mm, mm/min), NaN where absent;
+    ``given`` (n, 5) bool: the letter is there; ``other`` (n,) int8: -1 for a plain move,
+    else the caller's number for the command's text (:func:`read_columns`)."""
 
     first: int
     g0: np.ndarray
     values: np.ndarray
     given: np.ndarray
+    other: np.ndarray
 
     def __len__(self) -> int:
         return len(self.g0)
@@ -42,13 +45,15 @@ class MoveRun:
 @dataclass(frozen=True)
 class MoveColumns:
     """A slice of a job starting at job index ``first``: ``plain`` (n,) bool, the commands
-    that are plain moves, and the columns of :class:`MoveRun` (meaningful where plain)."""
+    that are plain moves or named others, and the columns of :class:`MoveRun` (meaningful
+    where plain)."""
 
     first: int
     plain: np.ndarray
     g0: np.ndarray
     values: np.ndarray
     given: np.ndarray
+    other: np.ndarray
 
     def spans(self) -> Iterator[tuple[int, int, bool]]:
         """``(start, stop, plain)``: the slice cut where ``plain`` changes (slice indices)."""
@@ -61,7 +66,9 @@ class MoveColumns:
     def run(self, start: int, stop: int) -> MoveRun:
         """The plain moves ``start:stop`` of the slice (all plain)."""
         part = slice(start, stop)
-        return MoveRun(self.first + start, self.g0[part], self.values[part], self.given[part])
+        return MoveRun(
+            self.first + start, self.g0[part], self.values[part], self.given[part], self.other[part]
+        )
 
 
 _OTHER, _BLANK, _LETTER, _SIGN, _DIGIT, _DOT, _END = range(7)
@@ -85,14 +92,19 @@ _POW10 = np.array([10.0**k for k in range(MAX_DIGITS + 1)])
 _POW10_INT = np.array([10**k for k in range(MAX_DIGITS + 1)], dtype=np.int64)
 
 
-def read_columns(texts: Sequence[str], first: int, limit: int, codes: str) -> MoveColumns:
+def read_columns(
+    texts: Sequence[str], first: int, limit: int, codes: str, others: Mapping[str, int]
+) -> MoveColumns:
     """The plain moves among the commands ``texts`` (job indices from ``first``): G codes
     among ``codes`` (``"01"``), at most ``limit`` characters, read into columns by array
-    operations over their joined bytes (no Python loop per command)."""
+    operations over their joined bytes (no Python loop per command but a look-up of each
+    text in ``others``: commands whose text is one of its keys count as plain too, with
+    its value, 0-127, in :attr:`MoveRun.other`)."""
     n = len(texts)
     joined = "\n".join(texts) + "\n"
     if not joined.isascii() or joined.count("\n") != n:  # a line break inside a command
         return _none_plain(first, n)
+    other = np.array([others.get(text, -1) for text in texts] if others else [-1] * n, np.int8)
     data = np.frombuffer(joined.encode("ascii"), np.uint8)
     kind = _CLASS[data]
     ends = np.flatnonzero(kind == _END)
@@ -112,9 +124,10 @@ def read_columns(texts: Sequence[str], first: int, limit: int, codes: str) -> Mo
     plain &= (count <= 1).all(axis=1)  # a letter twice: the reader refuses it
     values = np.full((n, len(LETTERS)), np.nan)
     values[words.line, words.column] = words.values()
-    return MoveColumns(
-        first, plain, data[starts + 1] == ord("0"), values, (count == 1) & plain[:, None]
-    )
+    given = (count == 1) & plain[:, None]
+    g0 = plain & (data[starts + 1] == ord("0"))
+    other[plain] = -1  # a plain move is one, whatever ``others`` say
+    return MoveColumns(first, plain | (other >= 0), g0, values, given, other)
 
 
 def _heads(
@@ -173,8 +186,9 @@ class _Words:
 
 def _none_plain(first: int, n: int) -> MoveColumns:
     shape = (n, len(LETTERS))
+    nothing = np.zeros(n, bool)
     return MoveColumns(
-        first, np.zeros(n, bool), np.zeros(n, bool), np.full(shape, np.nan), np.zeros(shape, bool)
+        first, nothing, nothing, np.full(shape, np.nan), np.zeros(shape, bool), np.full(n, -1)
     )
 
 

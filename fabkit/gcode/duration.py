@@ -264,7 +264,8 @@ class Planner:
     def add_run(self, run: MoveRun) -> None:
         """The next commands of the job: a run of plain G0/G1 moves
         (:mod:`fabkit.gcode.columns`) on a Marlin-like firmware, planned exactly as
-        :meth:`add` of each would (the same operations on the same numbers, in columns)."""
+        :meth:`add` of each would (the same operations on the same numbers, in columns);
+        the run's other commands (:attr:`MoveRun.other`) are pin writes: nothing here."""
         walker = self.walker
         if self.kinematics.rapid_mm_s is not None or walker.inverse:
             raise ValueError("a run of plain moves is planned for Marlin-like firmwares only")
@@ -286,7 +287,9 @@ class Planner:
         self.positions.extend(logical)
         self.dwell_s.extend(np.zeros((len(run), 1)))
         walker.feed = None if math.isnan(feed[-1]) else float(feed[-1])
-        walker.motion = "G0" if run.g0[-1] else "G1"
+        motions = np.flatnonzero(run.other < 0)  # the others move nothing (M42)
+        if len(motions):
+            walker.motion = "G0" if run.g0[motions[-1]] else "G1"
         walker.position.logical = [None if math.isnan(v) else v for v in logical[-1].tolist()]
 
     def estimate(self) -> Estimate:

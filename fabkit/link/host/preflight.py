@@ -27,8 +27,9 @@ from fabkit.gcode.read import (
     GcodeError,
     extra_axes,
     firmware_reader,
+    strip_comment,
 )
-from fabkit.link.host.preflight_columns import MarlinRuns
+from fabkit.link.host.preflight_columns import MarlinRuns, switch_code
 from fabkit.link.host.preflight_grbl import GrblDialect
 from fabkit.link.host.preflight_marlin import MarlinDialect
 from fabkit.link.host.tracker import Tracker
@@ -100,15 +101,27 @@ class _Checker:
         self.runs = self._runs()
 
     def _runs(self) -> MarlinRuns | None:
-        """Runs of plain moves checked at once, unless GRBL's, or a flow line of the
-        profile is a G0/G1 (then a move may switch the flow, which only the per-command
-        path follows)."""
+        """Runs of plain moves (and the profile's own pin writes) checked at once, unless
+        GRBL's, or a flow line of the profile is a G0/G1 (then a move may switch the flow,
+        which only the per-command path follows)."""
         moves = {"G0", "G1"}
         lines = [*self.flow_off, *self.ink2_on, *self.ink2_off]
         if self.grbl or moves & self.flow_on_codes or any(moves & set(b.codes) for b in lines):
             return None
         assert isinstance(self.dialect, MarlinDialect)
         return MarlinRuns(self.dialect)
+
+    def apply(self, run: MoveRun) -> bool:
+        """Check ``run`` at once and apply it (:meth:`MarlinRuns.apply`); False, with
+        nothing changed, when the per-command path must take it."""
+        if self.runs is None:
+            return False
+        inks = self.runs.apply(run, self.inks_on)
+        if inks is None:
+            return False
+        self.inks_on = inks
+        self.tracker.flow_on = any(inks)
+        return True
 
     def _snippet(self, key: str) -> list[Block]:
         try:
@@ -147,15 +160,42 @@ class _Checker:
         when it shares a command with a flow-on line (a valve, coolant output, spindle or
         laser); a second ink's (the profile's ink2 lines) off and on when the block holds
         one of its lines. Material flows while either flows."""
-        if any(_holds(block, line) for line in self.ink2_off):
-            self.inks_on[1] = False
-        elif any(_holds(block, line) for line in self.ink2_on):
-            self.inks_on[1] = True
-        elif any(_holds(block, line) for line in self.flow_off):
-            self.inks_on[0] = False
-        elif not self.flow_on_codes.isdisjoint(block.codes):
-            self.inks_on[0] = True
+        switch = self._switch(block)
+        if switch is not None:
+            ink, on = switch
+            self.inks_on[ink] = on
         self.tracker.flow_on = any(self.inks_on)
+
+    def _switch(self, block: Block) -> tuple[int, bool] | None:
+        """The ink ``block`` turns on or off (0: the first, 1: the second) and how, or None
+        (:meth:`_flow`)."""
+        if any(_holds(block, line) for line in self.ink2_off):
+            return 1, False
+        if any(_holds(block, line) for line in self.ink2_on):
+            return 1, True
+        if any(_holds(block, line) for line in self.flow_off):
+            return 0, False
+        if not self.flow_on_codes.isdisjoint(block.codes):
+            return 0, True
+        return None
+
+    def pin_writes(self) -> dict[str, int]:
+        """The texts of the profile's own flow lines that are M42 pin writes (a valve),
+        as :class:`~fabkit.link.host.preflight_columns.MarlinRuns` takes them in a run:
+        text -> :func:`~fabkit.link.host.preflight_columns.switch_code` of what it does.
+        Each is checked here once: a pin write changes nothing but the flow."""
+        out = {}
+        for key in ("flow_on_gcode", "flow_off_gcode", "ink2_on_gcode", "ink2_off_gcode"):
+            for text in map(strip_comment, self.machine.render(key)):
+                try:
+                    self._check_text(text)
+                    block = self.read(text)
+                    if block.codes == ("M42",):
+                        self.dialect.run(text, block)
+                        out[text] = switch_code(self._switch(block))
+                except GcodeError:
+                    continue  # the per-command path refuses it in a job
+        return out
 
 
 def _holds(block: Block, line: Block) -> bool:
@@ -190,13 +230,14 @@ def check_job(
         _check_each(checker, job, source, also)
     else:
         codes = "1" if machine.flavour == "hyrel" else "01"  # Hyrel: F on G0 is for that move only
+        switches = checker.pin_writes()
         for first in range(0, len(job), CHUNK_COMMANDS):
             part = job[first : first + CHUNK_COMMANDS]
             texts = [command.text for command in part]
-            columns = read_columns(texts, first, MAX_MARLIN_CHARS, codes)
+            columns = read_columns(texts, first, MAX_MARLIN_CHARS, codes, switches)
             for start, stop, plain in columns.spans():
                 run = columns.run(start, stop) if plain and stop - start >= MIN_RUN else None
-                if run is not None and runs.apply(run):
+                if run is not None and checker.apply(run):
                     if also_run is not None:
                         also_run(run)
                 else:

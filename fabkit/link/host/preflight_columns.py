@@ -27,31 +27,41 @@ SHARE_MARGIN = 1e-9
 within which a run's axis speeds are left to the per-command path."""
 
 
+def switch_code(switch: tuple[int, bool] | None) -> int:
+    """A pin write's number in :attr:`MoveRun.other <fabkit.gcode.columns.MoveRun.other>`:
+    0 when it switches no ink, else 1 + 2 * ink + on (ink 0 or 1)."""
+    return 0 if switch is None else 1 + 2 * switch[0] + int(switch[1])
+
+
 class MarlinRuns:
-    """Runs of plain moves on ``dialect``'s state (its tracker's too)."""
+    """Runs of plain moves on ``dialect``'s state (its tracker's too), with the profile's
+    own pin writes among them (:attr:`MoveRun.other`: :func:`switch_code`)."""
 
     def __init__(self, dialect: MarlinDialect) -> None:
         self.d = dialect
         self.t = dialect.t
 
-    def apply(self, run: MoveRun) -> bool:
-        """Check ``run`` and apply it; False (nothing changed) when it is not certain to
-        pass: the per-command path must take it."""
+    def apply(self, run: MoveRun, inks: list[bool]) -> list[bool] | None:
+        """Check ``run`` and apply it from the inks' flow ``inks`` (the first, the second);
+        the inks' flow after it, or None (nothing changed) when it is not certain to pass:
+        the per-command path must take it."""
         d, t = self.d, self.t
         spans = [*t.pos, *d.shift]
         if any(s is None or s.lo != s.hi for s in spans):
-            return False
+            return None
         moving = run.given[:, :4].any(axis=1)
         feed = self._feed(run)
         ends = self._ends(run)
         extruded = self._extruded(run)
         if feed is None or ends is None or extruded is None or np.isnan(feed[moving]).any():
-            return False
+            return None
         de, e_after = extruded
-        if not self._inside(run, ends) or not self._fast_enough(ends, de, feed, moving):
-            return False
+        flows = _flows(run.other, inks)
+        flowing = flows[:, 0] | flows[:, 1]
+        if not self._inside(run, ends) or not self._fast_enough(ends, de, feed, moving, flowing):
+            return None
         self._commit(run, ends, e_after, int(moving.sum()))
-        return True
+        return [bool(flows[-1, 0]), bool(flows[-1, 1])]
 
     def _feed(self, run: MoveRun) -> np.ndarray | None:
         """(n,) mm/s after M220 (NaN: no feed yet), or None for an F the check refuses."""
@@ -110,16 +120,22 @@ class MarlinRuns:
         return True
 
     def _fast_enough(
-        self, ends: np.ndarray, de: np.ndarray, feed: np.ndarray, moving: np.ndarray
+        self,
+        ends: np.ndarray,
+        de: np.ndarray,
+        feed: np.ndarray,
+        moving: np.ndarray,
+        flowing: np.ndarray,
     ) -> bool:
-        """The feed within the print (material flows) or travel limit, each axis's share
-        within its own, with :data:`SHARE_MARGIN` for the shares (Tracker._speed)."""
+        """The feed within the print (E forward, or material flowing) or travel limit, each
+        axis's share within its own, with :data:`SHARE_MARGIN` for the shares
+        (Tracker._speed)."""
         t = self.t
         limits = t.machine.limits
         start = np.array([[s.lo for s in t.pos]])
         deltas = np.diff(np.concatenate((start, ends)), axis=0)[moving]
         de, mm_s = de[moving], feed[moving]
-        printing = (de > 0) | t.flow_on
+        printing = (de > 0) | flowing[moving]
         ceiling = np.where(printing, limits.print_mm_s, limits.travel_mm_s)
         if (mm_s > ceiling * (1 + 1e-9) + TOL_MM).any():
             return False
@@ -150,3 +166,14 @@ class MarlinRuns:
             seen = t.bounds[i]
             t.bounds[i] = [lo, hi] if seen is None else [min(seen[0], lo), max(seen[1], hi)]
         t.moves += moves
+
+
+def _flows(other: np.ndarray, inks: list[bool]) -> np.ndarray:
+    """(n, 2) bool: whether each ink flows after each command of a run (its pin writes:
+    ``other`` > 0, :func:`switch_code`), from ``inks``."""
+    out = np.empty((len(other), 2), dtype=bool)
+    for ink in (0, 1):
+        switches = (other > 0) & ((other - 1) // 2 == ink)
+        on = ((other[switches] - 1) % 2).astype(float)
+        out[:, ink] = filled(float(inks[ink]), switches, on) > 0
+    return out
