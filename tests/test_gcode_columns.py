@@ -213,6 +213,18 @@ def test_a_plain_move_reads_as_the_marlin_reader_reads_it(texts):
             assert math.copysign(1, value) == math.copysign(1, given[letter])
 
 
+@pytest.mark.parametrize(
+    ("texts", "plain"),
+    [
+        (["G1 X."], [False]),
+        (["G1 X.", "G1 Y-."], [False, False]),
+        (["G1 X+", "G1 X1"], [False, True]),
+    ],
+)
+def test_numbers_without_a_digit_are_not_plain(texts, plain):
+    assert read_columns(texts, 0, 80, "01", {}).plain.tolist() == plain
+
+
 def test_named_commands_count_as_plain():
     columns = read_columns(["G1 X1", "M42 P4 S255", "M42 P4  S255", "G1 Y2"], 0, 80, "01",
                            {"M42 P4 S255": 3, "G1 Y2": 5})  # fmt: skip

@@ -89,7 +89,6 @@ MAX_DIGITS = 15
 the point) is one correctly rounded division of two exact numbers: the very number
 ``float`` reads from the text."""
 _POW10 = np.array([10.0**k for k in range(MAX_DIGITS + 1)])
-_POW10_INT = np.array([10**k for k in range(MAX_DIGITS + 1)], dtype=np.int64)
 
 
 def read_columns(
@@ -104,11 +103,11 @@ def read_columns(
     joined = "\n".join(texts) + "\n"
     if not joined.isascii() or joined.count("\n") != n:  # a line break inside a command
         return _none_plain(first, n)
-    other = np.array([others.get(text, -1) for text in texts] if others else [-1] * n, np.int8)
     data = np.frombuffer(joined.encode("ascii"), np.uint8)
     kind = _CLASS[data]
     ends = np.flatnonzero(kind == _END)
     starts = np.concatenate(([0], ends[:-1] + 1))
+    other = _others(texts, data[starts], others)
     end = kind == _END
     line = np.cumsum(end, dtype=np.int32) - end  # each byte's line
     body = ~end  # the bytes after "G0" / "G1"
@@ -128,6 +127,16 @@ def read_columns(
     g0 = plain & (data[starts + 1] == ord("0"))
     other[plain] = -1  # a plain move is one, whatever ``others`` say
     return MoveColumns(first, plain | (other >= 0), g0, values, given, other)
+
+
+def _others(texts: Sequence[str], heads: np.ndarray, others: Mapping[str, int]) -> np.ndarray:
+    """(n,) int8: each text's value in ``others``, -1 for none (only texts whose first
+    character starts one of its keys are looked up)."""
+    other = np.full(len(texts), -1, dtype=np.int8)
+    firsts = np.frombuffer("".join({key[:1] for key in others}).encode("ascii"), np.uint8)
+    for k in np.flatnonzero(np.isin(heads, firsts)).tolist():
+        other[k] = others.get(texts[k], -1)
+    return other
 
 
 def _heads(
@@ -154,12 +163,14 @@ class _Words:
     most one point and at most :data:`MAX_DIGITS` digits."""
 
     def __init__(self, data: np.ndarray, kind: np.ndarray, line: np.ndarray, inside: np.ndarray):
-        letters = np.flatnonzero(inside & (kind == _LETTER))
+        kind = np.where(inside, kind, _OTHER)
+        is_letter = kind == _LETTER
+        letters = np.flatnonzero(is_letter)
         self.line, self.column = line[letters], _COLUMN[data[letters]]
-        word = np.cumsum(inside & (kind == _LETTER), dtype=np.int32) - 1  # each byte's word
-        self.digits = np.flatnonzero(inside & (kind == _DIGIT))
+        word = np.cumsum(is_letter, dtype=np.int32) - 1  # each byte's word
+        self.digits = np.flatnonzero(kind == _DIGIT)
         self.digit_word = word[self.digits]
-        dots = np.flatnonzero(inside & (kind == _DOT))
+        dots = np.flatnonzero(kind == _DOT)
         n = len(letters)
         self.count = np.bincount(self.digit_word, minlength=n)
         points = np.bincount(word[dots], minlength=n)
@@ -171,16 +182,16 @@ class _Words:
 
     def values(self) -> np.ndarray:
         """(words,) float64: each readable word's number, exactly as ``float`` reads it
-        (garbage for the others)."""
+        (garbage for the others): its digits as a whole number (each digit times a power
+        of ten, summed: exact below 2**53) over 10**(digits after its point)."""
         last = np.cumsum(self.count) - 1  # each word's last digit (index into digits)
+        if not len(self.digits):
+            return np.full(len(last), np.nan)
         place = np.clip(last[self.digit_word] - np.arange(len(self.digits)), 0, MAX_DIGITS)
-        digit = self.data[self.digits].astype(np.int64) - ord("0")
-        whole = np.bincount(
-            self.digit_word, weights=digit * _POW10_INT[place], minlength=len(self.count)
-        )
-        after = self.digits > self.point[self.digit_word]
-        fraction = np.bincount(self.digit_word, weights=after, minlength=len(self.count))
-        value = whole / _POW10[np.minimum(fraction.astype(np.int64), MAX_DIGITS)]
+        digit = self.data[self.digits] - float(ord("0"))
+        whole = np.bincount(self.digit_word, weights=digit * _POW10[place], minlength=len(last))
+        after = self.digits[np.maximum(last, 0)] - self.point  # last digit's place after "."
+        value = whole / _POW10[np.clip(after, 0, MAX_DIGITS)]
         return np.where(self.negative, -value, value)
 
 

@@ -88,13 +88,11 @@ def strip_comment(line: str) -> str:
 
 def commands_from_lines(lines: Iterable[str], first_line: int = 1) -> list[Command]:
     """The commands of ``lines`` (blank and comment-only lines skipped)."""
-    out = []
-    for number, line in enumerate(lines, start=first_line):
-        plain = ";" not in line and "(" not in line  # nothing to strip but blanks
-        text = line.strip() if plain else strip_comment(line)
-        if text:
-            out.append(Command(number, text))
-    return out
+    texts = (
+        line.strip() if ";" not in line and "(" not in line else strip_comment(line)
+        for line in lines
+    )  # nothing to strip but blanks without a comment
+    return [Command(number, text) for number, text in enumerate(texts, first_line) if text]
 
 
 def read_job(path: str | Path) -> list[Command]:
