@@ -56,7 +56,7 @@ class GcodeError(FabkitError):
     """A command the check refuses; the message lacks the file and line (added later)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Command:
     """One command of a job: its 1-based line in the file and its text (comments removed)."""
 
@@ -112,7 +112,7 @@ def read_job_bytes(path: str | Path) -> tuple[bytes, list[Command]]:
     except UnicodeDecodeError as exc:
         line = len(_LINE_END.findall(raw[: exc.start].decode("ascii"))) + 1
         raise FabkitError(f"{path}:{line}: non-ASCII byte in G-code") from None
-    lines = _LINE_END.split(text)
+    lines = text.split("\n") if "\r" not in text else _LINE_END.split(text)  # the same lines
     if len(lines) > MAX_JOB_LINES:
         raise FabkitError(f"{path}: more than {MAX_JOB_LINES} lines, the limit for a G-code file")
     long = _long_line(raw)
