@@ -104,20 +104,20 @@ def read_columns(
     if not joined.isascii() or joined.count("\n") != n:  # a line break inside a command
         return _none_plain(first, n)
     data = np.frombuffer(joined.encode("ascii"), np.uint8)
-    kind = _CLASS[data]
-    ends = np.flatnonzero(kind == _END)
+    kind = _CLASS.take(data)
+    end = kind == _END
+    ends = np.flatnonzero(end)
     starts = np.concatenate(([0], ends[:-1] + 1))
     other = _others(texts, data[starts], others)
-    end = kind == _END
     line = np.cumsum(end, dtype=np.int32) - end  # each byte's line
     body = ~end  # the bytes after "G0" / "G1"
     body[starts] = False
     body[np.minimum(starts + 1, ends)] = False
     plain = _heads(data, kind, starts, ends, limit, codes)
     pairs = kind[:-1] * np.int8(len(_FOLLOWS)) + kind[1:]
-    wrong = np.flatnonzero(body[:-1] & ~_FOLLOWS.ravel()[pairs])
+    wrong = np.flatnonzero(body[:-1] & ~_FOLLOWS.ravel().take(pairs))
     plain[line[wrong]] = False
-    words = _Words(data, kind, line, body & plain[line])
+    words = _Words(data, kind, line, body & plain.take(line))
     plain[words.line[~words.readable]] = False
     count = np.bincount(words.line * 5 + words.column, minlength=5 * n).reshape(n, 5)
     plain &= (count <= 1).all(axis=1)  # a letter twice: the reader refuses it
