@@ -36,12 +36,13 @@ tolerance, $12).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from fabkit.gcode.columns import MoveRun, accumulated, filled
 from fabkit.gcode.position import MOTION, Position
 from fabkit.gcode.read import Block, Command, GcodeError, firmware_reader
 from fabkit.machines import MachineProfile
@@ -80,18 +81,42 @@ class Kinematics:
         )
 
 
+class Positions(Sequence[tuple[float | None, ...]]):
+    """The logical X, Y, Z, E after each command of a job (mm): ``xyze`` (n, 4) float64,
+    NaN where unknown; item ``i`` is a tuple with None where unknown."""
+
+    def __init__(self, xyze: np.ndarray) -> None:
+        self.xyze = xyze
+
+    def __len__(self) -> int:
+        return len(self.xyze)
+
+    def __getitem__(self, index: int) -> tuple[float | None, ...]:  # type: ignore[override]
+        return tuple(None if math.isnan(v) else v for v in self.xyze[index].tolist())
+
+    def __iter__(self) -> Iterator[tuple[float | None, ...]]:
+        return (self[i] for i in range(len(self)))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Positions) and np.array_equal(
+            self.xyze, other.xyze, equal_nan=True
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
 @dataclass(frozen=True)
 class Estimate:
     """The planned time of a job (s).
 
     ``end_s[i]``: the motion clock when command ``i`` (of the job) has finished (its
     move, or its dwell); ``positions[i]``: the logical X, Y, Z, E after command ``i``
-    (None where unknown); ``waits``: commands whose time is not included; ``moves``: the
-    commands that move (as the pre-flight check counts them).
+    (None where unknown; :class:`Positions`); ``waits``: commands whose time is not
+    included; ``moves``: the commands that move (as the pre-flight check counts them).
     """
 
     end_s: tuple[float, ...]
-    positions: tuple[tuple[float | None, ...], ...]
+    positions: Positions
     waits: tuple[str, ...]
     moves: int = 0
 
@@ -202,27 +227,28 @@ def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
 
 class Planner:
     """:func:`estimate` one command at a time: :meth:`add` every command of a job as its
-    firmware read it, in order, then :meth:`estimate`. For a caller that reads each
-    command once for several purposes (``fabkit send``: the pre-flight check and the
-    plan, :func:`fabkit.link.host.job.prepare_job`)."""
+    firmware read it, in order (or a run of plain moves at once, :meth:`add_run`), then
+    :meth:`estimate`. For a caller that reads each command once for several purposes
+    (``fabkit send``: the pre-flight check and the plan,
+    :func:`fabkit.link.host.job.prepare_job`)."""
 
     def __init__(self, machine: MachineProfile) -> None:
         self.kinematics = Kinematics.of(machine)
         self.walker = _Walker(self.kinematics, machine.flavour)
         self.planned = _Moves()
-        self.dwell_s: list[float] = []
-        self.positions: list[tuple[float | None, ...]] = []
+        self.dwell_s = _Rows(1)  # s, per command
+        self.positions = _Rows(4)  # logical X, Y, Z, E after each command, NaN: unknown
         self.waits: list[str] = []
         self.segment, self.moves = 0, 0
 
     def add(self, block: Block) -> None:
         """The next command of the job, as its firmware read it (a refused one: an empty
         block, which moves nothing)."""
-        index = len(self.dwell_s)
+        index = self.dwell_s.count
         walker = self.walker
         deltas = walker.step(block)
-        self.positions.append(tuple(walker.position.logical))
-        self.dwell_s.append(0.0)
+        self.positions.append(walker.position.logical)
+        dwell = 0.0
         if deltas is not None:
             self.moves += 1
             self.planned.add(deltas, walker, block.values, self.kinematics, index, self.segment)
@@ -231,31 +257,123 @@ class Planner:
             self.waits += [code for code in stops if code in UNKNOWN_TIME]
             if "G4" in stops:
                 values = block.values
-                self.dwell_s[index] = values.get("P", 0.0) / 1000.0 + values.get("S", 0.0)
+                dwell = values.get("P", 0.0) / 1000.0 + values.get("S", 0.0)
             self.segment += 1  # the planner empties: the next move starts at rest
+        self.dwell_s.append((dwell,))
+
+    def add_run(self, run: MoveRun) -> None:
+        """The next commands of the job: a run of plain G0/G1 moves
+        (:mod:`fabkit.gcode.columns`) on a Marlin-like firmware, planned exactly as
+        :meth:`add` of each would (the same operations on the same numbers, in columns);
+        the run's other commands (:attr:`MoveRun.other`) are pin writes: nothing here."""
+        walker = self.walker
+        if self.kinematics.rapid_mm_s is not None or walker.inverse:
+            raise ValueError("a run of plain moves is planned for Marlin-like firmwares only")
+        index = self.dwell_s.count
+        feed = _run_feed(walker.feed, run)
+        logical = _run_logical(walker.position, run)
+        before = np.vstack((_nan_row(walker.position.logical), logical[:-1]))
+        deltas = logical - before
+        deltas[np.isnan(deltas)] = 0.0  # an end unknown: no travel counted
+        moving = run.given[:, :4].any(axis=1)
+        self.planned.add_run(
+            deltas[moving],
+            feed[moving],
+            index + np.flatnonzero(moving),
+            self.segment,
+            self.kinematics,
+        )
+        self.moves += int(moving.sum())
+        self.positions.extend(logical)
+        self.dwell_s.extend(np.zeros((len(run), 1)))
+        walker.feed = None if math.isnan(feed[-1]) else float(feed[-1])
+        motions = np.flatnonzero(run.other < 0)  # the others move nothing (M42)
+        if len(motions):
+            walker.motion = "G0" if run.g0[motions[-1]] else "G1"
+        walker.position.logical = [None if math.isnan(v) else v for v in logical[-1].tolist()]
 
     def estimate(self) -> Estimate:
         """The plan of every command added so far."""
-        finish = np.asarray(self.dwell_s)
-        planned = self.planned
-        np.add.at(finish, np.asarray(planned.index, dtype=int), planned.seconds(self.kinematics))
+        finish = self.dwell_s.array()[:, 0]
+        index, seconds = self.planned.seconds(self.kinematics)
+        np.add.at(finish, index, seconds)
         end_s = np.cumsum(finish).tolist()
-        return Estimate(tuple(end_s), tuple(self.positions), tuple(self.waits), self.moves)
+        return Estimate(
+            tuple(end_s), Positions(self.positions.array()), tuple(self.waits), self.moves
+        )
+
+
+def _nan_row(values: Sequence[float | None]) -> np.ndarray:
+    """(k,) float64: ``values`` with NaN for None."""
+    return np.array([math.nan if v is None else v for v in values])
+
+
+def _run_feed(feed: float | None, run: MoveRun) -> np.ndarray:
+    """(n,) mm/s (NaN: none yet): the walker's feed after each move of ``run``."""
+    f = run.values[:, 4]
+    given = run.given[:, 4] & (f > 0)
+    return filled(math.nan if feed is None else feed, given, f[given] / 60.0)
+
+
+def _run_logical(position: Position, run: MoveRun) -> np.ndarray:
+    """(n, 4) mm (NaN: unknown): the logical X, Y, Z, E after each move of ``run``, as
+    :meth:`Position.move` walks them (absolute: the value; relative: added in order)."""
+    start = _nan_row(position.logical)
+    out = np.empty((len(run), 4))
+    for i in range(4):
+        modes = position.modes
+        relative = modes.e_relative_or_marlin() if i == 3 else not modes.absolute
+        given = run.given[:, i]
+        new = run.values[given, i]
+        out[:, i] = filled(start[i], given, accumulated(start[i], new) if relative else new)
+    return out
+
+
+class _Rows:
+    """A table of ``width`` float64 columns filled one row at a time (a row of numbers or
+    None, for NaN) or many at once, kept as arrays: bounded memory for long jobs."""
+
+    FLUSH = 65536
+
+    def __init__(self, width: int) -> None:
+        self.width = width
+        self.count = 0
+        self.pending: list[Sequence[float | None]] = []
+        self.chunks: list[np.ndarray] = []
+
+    def append(self, row: Sequence[float | None]) -> None:
+        self.pending.append(tuple(row))
+        self.count += 1
+        if len(self.pending) >= self.FLUSH:
+            self._flush()
+
+    def extend(self, rows: np.ndarray) -> None:
+        """(k, width) rows."""
+        self._flush()
+        self.chunks.append(rows)
+        self.count += len(rows)
+
+    def array(self) -> np.ndarray:
+        """(count, width) float64."""
+        self._flush()
+        if not self.chunks:
+            return np.zeros((0, self.width))
+        return np.concatenate(self.chunks)
+
+    def _flush(self) -> None:
+        if self.pending:
+            self.chunks.append(np.array(self.pending, dtype=float).reshape(-1, self.width))
+            self.pending = []
 
 
 class _Moves:
-    """The moves of a job as the planner sees them (one entry per move of non-zero
+    """The moves of a job as the planner sees them (one row per move of non-zero
     length): X, Y, Z, E deltas (mm), length (mm, an arc's along the arc), feed (mm/s, or
-    1/s under G93), whether the feed is G93's inverse time, the command's index and the
-    planner segment (moves between two commands that empty the planner)."""
+    1/s under G93), whether the feed is G93's inverse time (1.0), the command's index and
+    the planner segment (moves between two commands that empty the planner)."""
 
     def __init__(self) -> None:
-        self.deltas: list[list[float]] = []
-        self.length: list[float] = []
-        self.feed: list[float] = []
-        self.inverse: list[bool] = []
-        self.index: list[int] = []
-        self.segment: list[int] = []
+        self.rows = _Rows(9)
 
     def add(
         self,
@@ -266,29 +384,48 @@ class _Moves:
         index: int,
         segment: int,
     ) -> None:
-        xyz = math.sqrt(sum(d * d for d in deltas[:3]))
+        dx, dy, dz = deltas[:3]
+        xyz = math.sqrt(dx * dx + dy * dy + dz * dz)  # one order on every Python (not sum())
         length = xyz if xyz > 0 else abs(deltas[3])
         if walker.motion in ("G2", "G3") and ("I" in values or "J" in values):
             length = _arc_length(deltas, values, walker.motion)
         if length <= 0:
             return
         rapid = walker.motion == "G0" and k.rapid_mm_s is not None
-        self.deltas.append(deltas)
-        self.length.append(length)
-        self.feed.append(k.rapid_mm_s if rapid else walker.feed or k.max_mm_s[0])
-        self.inverse.append(bool(walker.inverse and walker.feed and not rapid))
-        self.index.append(index)
-        self.segment.append(segment)
+        feed = k.rapid_mm_s if rapid else walker.feed or k.max_mm_s[0]
+        inverse = bool(walker.inverse and walker.feed and not rapid)
+        self.rows.append((*deltas, length, feed, float(inverse), index, segment))
 
-    def seconds(self, k: Kinematics) -> np.ndarray:
-        """(n,) s: each move's time, its entry and exit speeds planned by junction
-        deviation and a backward and a forward pass (module docstring)."""
-        if not self.length:
-            return np.zeros(0)
-        length = np.asarray(self.length)
-        unit = np.asarray(self.deltas, dtype=float) / length[:, None]
-        feed = np.asarray(self.feed)
-        nominal = np.where(self.inverse, feed * length, feed)  # G93: the move takes 60/F s
+    def add_run(
+        self, deltas: np.ndarray, feed: np.ndarray, index: np.ndarray, segment: int, k: Kinematics
+    ) -> None:
+        """Lines of a Marlin-like firmware at once, as :meth:`add` of each: ``deltas``
+        (m, 4) mm, ``feed`` (m,) mm/s (NaN: none yet), ``index`` (m,) their commands."""
+        xyz = np.sqrt(
+            deltas[:, 0] * deltas[:, 0] + deltas[:, 1] * deltas[:, 1] + deltas[:, 2] * deltas[:, 2]
+        )
+        length = np.where(xyz > 0, xyz, np.abs(deltas[:, 3]))
+        keep = length > 0
+        rows = np.empty((int(keep.sum()), 9))
+        rows[:, :4] = deltas[keep]
+        rows[:, 4] = length[keep]
+        rows[:, 5] = np.where(np.isnan(feed[keep]), k.max_mm_s[0], feed[keep])
+        rows[:, 6] = 0.0
+        rows[:, 7] = index[keep]
+        rows[:, 8] = segment
+        self.rows.extend(rows)
+
+    def seconds(self, k: Kinematics) -> tuple[np.ndarray, np.ndarray]:
+        """(n,) command indices and (n,) s: each move's time, its entry and exit speeds
+        planned by junction deviation and a backward and a forward pass (module
+        docstring)."""
+        rows = self.rows.array()
+        if not len(rows):
+            return np.zeros(0, dtype=int), np.zeros(0)
+        length = rows[:, 4]
+        unit = rows[:, :4] / length[:, None]
+        feed = rows[:, 5]
+        nominal = np.where(rows[:, 6] > 0, feed * length, feed)  # G93: the move takes 60/F s
         accel = np.full(len(length), math.inf)
         for axis in range(4):
             share = np.abs(unit[:, axis])
@@ -297,13 +434,14 @@ class _Moves:
             nominal = np.where(moving, np.minimum(nominal, k.max_mm_s[axis] / safe), nominal)
             if k.accel_mm_s2[axis] > 0:
                 accel = np.where(moving, np.minimum(accel, k.accel_mm_s2[axis] / safe), accel)
-        segment = np.asarray(self.segment)
+        segment = rows[:, 8]
         first = np.r_[True, segment[1:] != segment[:-1]]
         max_entry = np.r_[0.0, _junctions(unit, nominal, accel, k.junction_deviation_mm)]
         max_entry[first] = 0.0
         entry = _passes(length, accel, max_entry, first)
         exit_speed = np.r_[np.where(first[1:], 0.0, entry[1:]), 0.0]
-        return trapezoid_time(length, entry, exit_speed, nominal, accel)
+        seconds = trapezoid_time(length, entry, exit_speed, nominal, accel)
+        return rows[:, 7].astype(int), seconds
 
 
 def _arc_length(deltas: list[float], values: dict[str, float], code: str) -> float:
@@ -335,28 +473,75 @@ def _junctions(
     return np.where(cos_theta > 0.999999, np.minimum(MIN_JUNCTION_MM_S, limit), speed)
 
 
+MAX_SWEEPS = 64
+"""Array sweeps of a pass before it is run one move at a time instead (a long chain of
+moves each limited by the next, or the previous: a long ramp over short moves)."""
+
+
 def _passes(
     length: np.ndarray, accel: np.ndarray, max_entry: np.ndarray, first: np.ndarray
 ) -> np.ndarray:
     """Entry speeds (mm/s): each at most its junction's, reachable backward from the
-    next (at rest after a segment's last move) and forward from the previous."""
+    next (at rest after a segment's last move) and forward from the previous.
+
+    Each pass runs one move at a time (:func:`_passes_in_order`), and its result is the
+    only fixed point of ``entry = min(bound, reach(neighbour))``: array sweeps of that map
+    from the bound until nothing changes give the very same floats (each computed by the
+    same operations from the same neighbour), far faster when the chains are short."""
+    if np.isnan(length).any() or np.isnan(max_entry).any():
+        return _passes_in_order(length, accel, max_entry, first)
+    last = np.r_[first[1:], True]  # the move ends at rest: its segment's last
+    backward = _sweep(max_entry, lambda x: np.where(last, 0.0, np.r_[x[1:], 0.0]), length, accel)
+    if backward is None:
+        return _passes_in_order(length, accel, max_entry, first)
+    before = (np.r_[0.0, length[:-1]], np.r_[math.inf, accel[:-1]])
+    forward = _sweep(backward, lambda x: np.r_[0.0, x[:-1]], *before, skip=first)
+    return _passes_in_order(length, accel, max_entry, first) if forward is None else forward
+
+
+def _sweep(
+    bound: np.ndarray,
+    neighbour: Callable[[np.ndarray], np.ndarray],
+    length: np.ndarray,
+    accel: np.ndarray,
+    skip: np.ndarray | None = None,
+) -> np.ndarray | None:
+    """The fixed point of ``x = min(bound, reach(neighbour(x), length, accel))`` (``bound``
+    where ``skip``), or None when :data:`MAX_SWEEPS` sweeps do not reach it."""
+    free = np.isinf(accel)
+    twice = 2.0 * np.where(free, 0.0, accel) * length
+    x = bound
+    for _ in range(MAX_SWEEPS):
+        speed = neighbour(x)
+        reach = np.where(free, math.inf, np.sqrt(speed * speed + twice))
+        if skip is not None:
+            reach = np.where(skip, math.inf, reach)
+        new = np.minimum(bound, reach)
+        if np.array_equal(new, x):
+            return new
+        x = new
+    return None
+
+
+def _passes_in_order(
+    length: np.ndarray, accel: np.ndarray, max_entry: np.ndarray, first: np.ndarray
+) -> np.ndarray:
+    """:func:`_passes`, one move at a time."""
     lengths, accels, entry = length.tolist(), accel.tolist(), max_entry.tolist()
     starts = first.tolist()
+    sqrt, inf = math.sqrt, math.inf
     exit_speed = 0.0
-    for i in range(len(entry) - 1, -1, -1):
-        entry[i] = min(entry[i], _reach(exit_speed, lengths[i], accels[i]))
+    for i in range(len(entry) - 1, -1, -1):  # the speed reached over the move
+        a = accels[i]
+        reach = inf if a == inf else sqrt(exit_speed * exit_speed + 2.0 * a * lengths[i])
+        entry[i] = min(entry[i], reach)
         exit_speed = 0.0 if starts[i] else entry[i]
     for i in range(1, len(entry)):
         if not starts[i]:
-            entry[i] = min(entry[i], _reach(entry[i - 1], lengths[i - 1], accels[i - 1]))
+            a, speed = accels[i - 1], entry[i - 1]
+            reach = inf if a == inf else sqrt(speed * speed + 2.0 * a * lengths[i - 1])
+            entry[i] = min(entry[i], reach)
     return np.asarray(entry)
-
-
-def _reach(speed: float, length: float, accel: float) -> float:
-    """The speed reached from ``speed`` over ``length`` mm at ``accel`` mm/s^2."""
-    if math.isinf(accel):
-        return math.inf
-    return math.sqrt(speed * speed + 2.0 * accel * length)
 
 
 def trapezoid_time(

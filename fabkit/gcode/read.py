@@ -34,6 +34,8 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from fabkit.errors import FabkitError
 from fabkit.machines import MachineProfile
 
@@ -48,14 +50,13 @@ _PAREN_COMMENT = re.compile(r"\([^)]*\)")
 _WORD = re.compile(r"([A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))")
 _LINE_END = re.compile(r"\r\n|\r|\n")
 _LINE_END_BYTES = re.compile(rb"\r\n|\r|\n")
-_LONG_LINE = re.compile(rb"[^\r\n]{%d}" % (MAX_LINE_CHARS + 1))
 
 
 class GcodeError(FabkitError):
     """A command the check refuses; the message lacks the file and line (added later)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Command:
     """One command of a job: its 1-based line in the file and its text (comments removed)."""
 
@@ -87,12 +88,11 @@ def strip_comment(line: str) -> str:
 
 def commands_from_lines(lines: Iterable[str], first_line: int = 1) -> list[Command]:
     """The commands of ``lines`` (blank and comment-only lines skipped)."""
-    out = []
-    for number, line in enumerate(lines, start=first_line):
-        text = strip_comment(line)
-        if text:
-            out.append(Command(number, text))
-    return out
+    texts = (
+        line.strip() if ";" not in line and "(" not in line else strip_comment(line)
+        for line in lines
+    )  # nothing to strip but blanks without a comment
+    return [Command(number, text) for number, text in enumerate(texts, first_line) if text]
 
 
 def read_job(path: str | Path) -> list[Command]:
@@ -112,16 +112,27 @@ def read_job_bytes(path: str | Path) -> tuple[bytes, list[Command]]:
     except UnicodeDecodeError as exc:
         line = len(_LINE_END.findall(raw[: exc.start].decode("ascii"))) + 1
         raise FabkitError(f"{path}:{line}: non-ASCII byte in G-code") from None
-    lines = _LINE_END.split(text)
+    lines = text.split("\n") if "\r" not in text else _LINE_END.split(text)  # the same lines
     if len(lines) > MAX_JOB_LINES:
         raise FabkitError(f"{path}: more than {MAX_JOB_LINES} lines, the limit for a G-code file")
-    long = _LONG_LINE.search(raw)
+    long = _long_line(raw)
     if long is not None:
-        line = len(_LINE_END.findall(text[: long.start()])) + 1
+        line = len(_LINE_END.findall(text[:long])) + 1
         raise FabkitError(
             f"{path}:{line}: line longer than {MAX_LINE_CHARS} characters, the limit for G-code"
         )
     return raw, commands_from_lines(lines)
+
+
+def _long_line(raw: bytes) -> int | None:
+    """The offset of the first line of ``raw`` longer than :data:`MAX_LINE_CHARS` (its end
+    of line not counted), or None."""
+    data = np.frombuffer(raw, np.uint8)
+    breaks = np.flatnonzero((data == ord("\n")) | (data == ord("\r")))
+    starts = np.concatenate(([0], breaks + 1))
+    lengths = np.concatenate((breaks, [len(raw)])) - starts
+    long = np.flatnonzero(lengths > MAX_LINE_CHARS)
+    return int(starts[long[0]]) if len(long) else None
 
 
 def line_ends(raw: bytes) -> list[int]:

@@ -81,7 +81,7 @@ def prepare_job(path: str | Path, choice: MachineChoice) -> PreparedJob:
     and plan its duration; FabkitError at the first problem."""
     data, job = read_job_bytes(path)
     planner = Planner(choice.profile)  # fed each command as the check reads it: one reading
-    checked = check_job(job, choice.profile, source=str(path), also=planner.add)
+    checked = check_job(job, choice.profile, str(path), also=planner.add, also_run=planner.add_run)
     return PreparedJob(
         str(path), data, job, choice.profile, choice.note, checked, planner.estimate()
     )

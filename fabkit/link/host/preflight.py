@@ -20,13 +20,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.columns import MoveRun, read_columns
 from fabkit.gcode.read import (
     Block,
     Command,
     GcodeError,
     extra_axes,
     firmware_reader,
+    strip_comment,
 )
+from fabkit.link.host.preflight_columns import MarlinRuns, switch_code
 from fabkit.link.host.preflight_grbl import GrblDialect
 from fabkit.link.host.preflight_marlin import MarlinDialect
 from fabkit.link.host.tracker import Tracker
@@ -34,6 +37,10 @@ from fabkit.machines import GCODE_KEYS, MachineProfile
 
 MAX_MARLIN_CHARS = 80  # Marlin keeps 95 characters, of which "N<n> " and "*<xor>" take some
 MAX_GRBL_CHARS = 79  # GRBL's line buffer is 80 bytes
+CHUNK_COMMANDS = 65536
+"""Commands read into columns at a time (bounded memory on long jobs)."""
+MIN_RUN = 4
+"""Shorter runs of plain moves take the per-command path (cheaper than columns)."""
 _CONTROL = re.compile(r"[^\x20-\x7e]")
 
 
@@ -91,6 +98,30 @@ class _Checker:
             writes = [b for blocks in snippets.values() for b in blocks if b.codes == ("M42",)]
             trusted = {_normal(line) for key in GCODE_KEYS for line in machine.render(key)}
             self.dialect = MarlinDialect(self.tracker, machine.flavour, writes, trusted)
+        self.runs = self._runs()
+
+    def _runs(self) -> MarlinRuns | None:
+        """Runs of plain moves (and the profile's own pin writes) checked at once, unless
+        GRBL's, or a flow line of the profile is a G0/G1 (then a move may switch the flow,
+        which only the per-command path follows)."""
+        moves = {"G0", "G1"}
+        lines = [*self.flow_off, *self.ink2_on, *self.ink2_off]
+        if self.grbl or moves & self.flow_on_codes or any(moves & set(b.codes) for b in lines):
+            return None
+        assert isinstance(self.dialect, MarlinDialect)
+        return MarlinRuns(self.dialect)
+
+    def apply(self, run: MoveRun) -> bool:
+        """Check ``run`` at once and apply it (:meth:`MarlinRuns.apply`); False, with
+        nothing changed, when the per-command path must take it."""
+        if self.runs is None:
+            return False
+        inks = self.runs.apply(run, self.inks_on)
+        if inks is None:
+            return False
+        self.inks_on = inks
+        self.tracker.flow_on = any(inks)
+        return True
 
     def _snippet(self, key: str) -> list[Block]:
         try:
@@ -129,15 +160,42 @@ class _Checker:
         when it shares a command with a flow-on line (a valve, coolant output, spindle or
         laser); a second ink's (the profile's ink2 lines) off and on when the block holds
         one of its lines. Material flows while either flows."""
-        if any(_holds(block, line) for line in self.ink2_off):
-            self.inks_on[1] = False
-        elif any(_holds(block, line) for line in self.ink2_on):
-            self.inks_on[1] = True
-        elif any(_holds(block, line) for line in self.flow_off):
-            self.inks_on[0] = False
-        elif not self.flow_on_codes.isdisjoint(block.codes):
-            self.inks_on[0] = True
+        switch = self._switch(block)
+        if switch is not None:
+            ink, on = switch
+            self.inks_on[ink] = on
         self.tracker.flow_on = any(self.inks_on)
+
+    def _switch(self, block: Block) -> tuple[int, bool] | None:
+        """The ink ``block`` turns on or off (0: the first, 1: the second) and how, or None
+        (:meth:`_flow`)."""
+        if any(_holds(block, line) for line in self.ink2_off):
+            return 1, False
+        if any(_holds(block, line) for line in self.ink2_on):
+            return 1, True
+        if any(_holds(block, line) for line in self.flow_off):
+            return 0, False
+        if not self.flow_on_codes.isdisjoint(block.codes):
+            return 0, True
+        return None
+
+    def pin_writes(self) -> dict[str, int]:
+        """The texts of the profile's own flow lines that are M42 pin writes (a valve),
+        as :class:`~fabkit.link.host.preflight_columns.MarlinRuns` takes them in a run:
+        text -> :func:`~fabkit.link.host.preflight_columns.switch_code` of what it does.
+        Each is checked here once: a pin write changes nothing but the flow."""
+        out = {}
+        for key in ("flow_on_gcode", "flow_off_gcode", "ink2_on_gcode", "ink2_off_gcode"):
+            for text in map(strip_comment, self.machine.render(key)):
+                try:
+                    self._check_text(text)
+                    block = self.read(text)
+                    if block.codes == ("M42",):
+                        self.dialect.run(text, block)
+                        out[text] = switch_code(self._switch(block))
+                except GcodeError:
+                    continue  # the per-command path refuses it in a job
+        return out
 
 
 def _holds(block: Block, line: Block) -> bool:
@@ -152,18 +210,38 @@ def check_job(
     machine: MachineProfile,
     source: str = "job",
     also: Callable[[Block], None] | None = None,
+    also_run: Callable[[MoveRun], None] | None = None,
+    *,
+    fast: bool = True,
 ) -> JobCheck:
     """Walk ``job`` and refuse it (FabkitError naming ``source`` and the file line) at the
     first command the machine must not get; ``also`` gets every command checked, as the
-    firmware reads it (the duration's planner: the file is read once)."""
+    firmware reads it (the duration's planner: the file is read once).
+
+    On a Marlin-like firmware, runs of plain moves (:mod:`fabkit.gcode.columns`) are
+    checked at once (:mod:`fabkit.link.host.preflight_columns`) and handed to
+    ``also_run`` instead of ``also`` (without ``also_run`` when ``also`` is given, or with
+    ``fast=False``, every command goes through the per-command path); any run not certain
+    to pass goes through the per-command path, so that the outcome and every message are
+    the per-command path's."""
     checker = _Checker(machine)
-    for command in job:
-        try:
-            block = checker.check(command.text)
-        except GcodeError as exc:
-            raise FabkitError(f"{source}:{command.file_line}: {exc}") from None
-        if also is not None:
-            also(block)
+    runs = checker.runs if fast and (also is None or also_run is not None) else None
+    if runs is None:
+        _check_each(checker, job, source, also)
+    else:
+        codes = "1" if machine.flavour == "hyrel" else "01"  # Hyrel: F on G0 is for that move only
+        switches = checker.pin_writes()
+        for first in range(0, len(job), CHUNK_COMMANDS):
+            part = job[first : first + CHUNK_COMMANDS]
+            texts = [command.text for command in part]
+            columns = read_columns(texts, first, MAX_MARLIN_CHARS, codes, switches)
+            for start, stop, plain in columns.spans():
+                run = columns.run(start, stop) if plain and stop - start >= MIN_RUN else None
+                if run is not None and checker.apply(run):
+                    if also_run is not None:
+                        also_run(run)
+                else:
+                    _check_each(checker, part[start:stop], source, also)
     tracker = checker.tracker
     return JobCheck(
         source=source,
@@ -172,3 +250,19 @@ def check_job(
         moves=tracker.moves,
         bounds_mm=tuple(tuple(span) if span else None for span in tracker.bounds),
     )
+
+
+def _check_each(
+    checker: _Checker,
+    commands: Sequence[Command],
+    source: str,
+    also: Callable[[Block], None] | None,
+) -> None:
+    """The per-command path: check each of ``commands`` in turn."""
+    for command in commands:
+        try:
+            block = checker.check(command.text)
+        except GcodeError as exc:
+            raise FabkitError(f"{source}:{command.file_line}: {exc}") from None
+        if also is not None:
+            also(block)
