@@ -73,6 +73,20 @@ CHUNK = 50_000
 SEED = 0
 
 
+def area_samples(
+    corners: np.ndarray, areas: np.ndarray, count: int, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` points (count, 3) spread evenly by area over the triangles ``corners``
+    (F, 3, 3) of ``areas`` (F,; any common scale), and the triangle each lies on
+    (count,)."""
+    faces = rng.choice(len(corners), size=count, p=areas / areas.sum())
+    a, b = rng.random((2, count))
+    flip = a + b > 1
+    a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
+    c = corners[faces]
+    return c[:, 0] + a[:, None] * (c[:, 1] - c[:, 0]) + b[:, None] * (c[:, 2] - c[:, 0]), faces
+
+
 @dataclass(frozen=True, eq=False)
 class Surface:
     """A triangle mesh: ``vertices`` (V, 3), ``triangles`` (F, 3); ``samples`` (S, 3)
@@ -100,13 +114,7 @@ class Surface:
         corners = vertices[triangles]
         cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         areas = np.linalg.norm(cross, axis=1)
-        rng = np.random.default_rng(SEED)
-        faces = rng.choice(len(triangles), size=count, p=areas / areas.sum())
-        a, b = rng.random((2, count))
-        flip = a + b > 1
-        a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
-        c = corners[faces]
-        samples = c[:, 0] + a[:, None] * (c[:, 1] - c[:, 0]) + b[:, None] * (c[:, 2] - c[:, 0])
+        samples, faces = area_samples(corners, areas, count, np.random.default_rng(SEED))
         normals = cross[faces] / np.maximum(areas[faces], 1e-300)[:, None]
         coarse = cKDTree(samples[:COARSE_SAMPLES])  # a random choice too: samples are iid
         return cls(

@@ -24,6 +24,7 @@ from fabkit.errors import FabkitError
 from fabkit.files.npzfile import check_magnitude
 from fabkit.files.readfile import read_limited
 from fabkit.limits import SCAN_BYTES
+from fabkit.scan.align import area_samples
 
 SCAN_TYPES = ("ply", "stl", "obj", "off", "glb")
 """The file types a scan may be, by suffix."""
@@ -130,12 +131,7 @@ def _measured_points(vertices: np.ndarray, faces: np.ndarray, count: int) -> tup
             np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1
         )
         if areas.sum() > 0:
-            chosen = rng.choice(len(faces), size=count, p=areas / areas.sum())
-            a, b = rng.random((2, count))
-            flip = a + b > 1
-            a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
-            c = corners[chosen]
-            points = c[:, 0] + a[:, None] * (c[:, 1] - c[:, 0]) + b[:, None] * (c[:, 2] - c[:, 0])
+            points, _ = area_samples(corners, areas, count, rng)
             return points, f"{count} points spread evenly over its {len(faces)} triangles"
     if len(vertices) <= count:
         return vertices, f"all its {len(vertices)} points"
