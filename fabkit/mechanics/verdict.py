@@ -74,6 +74,13 @@ class StartEnd:
         }
 
 
+def distance_words(percent: float, mm: float | None, spec: str = ".2f") -> str:
+    """A distance as the verdicts write it: ``1.28 % (0.946 mm)``, a percentage of the
+    patch diameter and its length in mm (none where unknown)."""
+    text = f"{percent:{spec}} %"
+    return text if mm is None else f"{text} ({mm:.3g} mm)"
+
+
 @dataclass(frozen=True)
 class Shape:
     """What the sheet does under one target's stimulus: its RMS and max distance to the
@@ -181,8 +188,7 @@ class Shape:
 
     def _pct(self, share: float, spec: str = ".2f") -> str:
         """A share of the patch diameter as a percentage, and in mm when known."""
-        text = f"{100 * share:{spec}} %"
-        return text if self.diameter_mm is None else f"{text} ({self.mm(share):.3g} mm)"
+        return distance_words(100 * share, self.mm(share), spec)
 
     def miss(self) -> str:
         """A missed target in a few words: ``wavy (5.36 % RMS, mirror image from 3 of 6

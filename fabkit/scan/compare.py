@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fabkit.mechanics.verdict import FORM_TOLERANCE
+from fabkit.mechanics.verdict import FORM_TOLERANCE, distance_words
 from fabkit.scan.align import MIRROR, Motion, Surface, fit
 from fabkit.scan.read import Scan
 from fabkit.scan.targets import Target
@@ -186,7 +186,7 @@ class ScanVerdict:
 
     def _pct(self, mm: float, spec: str = ".2f") -> str:
         """A length as a percentage of the patch diameter, and in mm (``run``'s form)."""
-        return f"{100 * mm / self.diameter_mm:{spec}} % ({mm:.3g} mm)"
+        return distance_words(100 * mm / self.diameter_mm, mm, spec)
 
     def to_dict(self) -> dict:
         """The figures (docs/compare.schema.json's ``verdict``)."""
