@@ -144,8 +144,7 @@ def _printed(design: Design, args: argparse.Namespace) -> tuple[Part, float]:
     process = chosen_process(args)
     request = PartRequest(trim=args.trim)
     part = design_part(design, size, process, design.layers, request, args.thickness_mm)
-    thickness_mm = args.thickness_mm or design.layers * process.layer_height_mm
-    return part, thickness_mm / part.mm_per_unit
+    return part, part.rules.thickness  # the thickness the part was cut for
 
 
 def _this_start(report: Comparison, seed: str, mm_per_unit: float) -> Shape:
