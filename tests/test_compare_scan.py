@@ -5,8 +5,9 @@ The scans are made here from the meshes of the sheet as fabricated that a run wr
 as_fabricated/, whose sphere the run's verdict finds within 1.28 % of its target, up to
 its side): turned and moved at random, in m, with Gaussian noise of 0.2 mm and a fifth of
 the surface cut away; mirrored; another target's sheet. The verdict must be right on each
-and the pose found within 0.5 mm RMS of the truth where the surface has no continuous
-symmetry (a sphere cap slides on its sphere: within 1 mm). A chiral target (a surface no rotation
+and the pose found within 0.5 mm RMS of the truth, the sphere's sheet too (a cap slides
+on its sphere: only its outline and its small departures from the sphere hold it). A
+chiral target (a surface no rotation
 turns into its mirror image, made here) shows the mirror image named. Bad scans are
 refused in one line, writing nothing.
 """
@@ -36,7 +37,6 @@ pytestmark = pytest.mark.filterwarnings("error")  # a warning would be a second 
 RUN = ROOT / "tests" / "data" / "compare_run"
 NOISE_MM = 0.2
 POSE_MM = 0.5
-SLIDE_MM = 1.0
 
 
 def sheet(name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -150,10 +150,12 @@ def _pose_error(folder: Path, mesh: Mesh) -> float:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("surface", ["bump target", "bump sheet", "chiral target"])
+@pytest.mark.parametrize("surface", ["sphere sheet", "bump sheet", "bump target", "chiral target"])
 def test_the_pose_is_found_within_half_a_mm(tmp_path, surface):
-    """Surfaces with no continuous symmetry: the run's bump target and its sheet as
-    fabricated, the chiral saddle (over 8 other seeds: within 0.32, 0.29, 0.11 mm)."""
+    """The run's sheets as fabricated, the bump's target and the chiral saddle (over 9
+    seeds: within 0.19, 0.16, 0.30 and 0.13 mm). The sphere's sheet is a cap that slides
+    on its sphere: ICP's nearest samples stopped 0.22-0.70 mm short, the exact distances'
+    finish holds it."""
     name, source = surface.split()
     target = chiral_target() if name == "chiral" else run_target(RUN, name)
     mesh = target.mesh if source == "target" else target.sheet
@@ -161,13 +163,11 @@ def test_the_pose_is_found_within_half_a_mm(tmp_path, surface):
 
 
 @pytest.mark.slow
-def test_a_sphere_cap_is_fitted_as_well_as_the_truth_but_slides(tmp_path):
-    """A sphere cap slides on its sphere; only its outline holds a fit in place, and
-    little: the sheet as fabricated is placed within 1 mm (0.22-0.70 mm over 9 seeds).
-    The run's target cap is nearly symmetric under a half turn too, so its pose is not
-    one; its fit is as close to it as the truth, within 0.05 mm RMS."""
+def test_a_sphere_cap_target_is_fitted_as_well_as_the_truth(tmp_path):
+    """The run's target cap is exactly a sphere's and nearly symmetric under a half turn
+    too, so its pose is not one (3 of 9 seeds land 3-7.5 mm away, as close to it); its
+    fit is as close to it as the truth, within 0.05 mm RMS."""
     target = run_target(RUN, "sphere")
-    assert _pose_error(tmp_path, target.sheet) < SLIDE_MM
     scan, truth = posed_scan(tmp_path, target.mesh, seed=20)
     surface = Surface.of(target.mesh.vertices_mm, target.mesh.triangles)
     found = fit(scan.points_mm, surface, False).motion.apply(scan.vertices_mm)

@@ -17,7 +17,11 @@ image first, then a rotation and a translation) apart, in three stages:
    :data:`TRY_POINTS` points; each distinct pose they reach refined on
    :data:`FINE_POINTS` points (a nearly symmetric target has several, nearly as good),
    the best kept;
-3. that fit polished on :data:`POLISH_POINTS` points.
+3. that fit polished on :data:`POLISH_POINTS` points;
+4. then finished by Gauss-Newton on the exact distances of those points to the
+   triangles (:func:`finish`): ICP's nearest samples stop short along the directions a
+   surface barely holds (a cap sliding on its sphere), where the exact distance still
+   has a slope.
 
 Stages 2 and 3 fit every pair (:data:`FINE_TRIM`): a scan's points beyond the edge of a
 rotationally symmetric target are what hold the fit in place, so a scan must be cropped
@@ -47,6 +51,10 @@ COARSE_ITERATIONS = 10
 TRY_ITERATIONS = 10
 FINE_ITERATIONS = 30
 POLISH_ITERATIONS = 10
+FINISH_ITERATIONS = 20
+STRETCH = 3.0
+STRETCHES = 4
+"""A finishing step is tried :data:`STRETCH` times longer, at most this many times."""
 REFINED = 4
 """Global starts tried further (:data:`TRY_ITERATIONS` on :data:`TRY_POINTS` points), of
 each of the proper and the mirrored fits; the best is refined."""
@@ -238,7 +246,9 @@ def fit(points: np.ndarray, surface: Surface, mirrored: bool) -> Fit:
     fine = _subset(points, FINE_POINTS, rng)
     fits = [refine(fine, surface, found.motion) for found in _distinct(fits, coarse, surface)]
     found = min(fits, key=lambda found: found.trimmed_rms)
-    return refine(_subset(points, POLISH_POINTS, rng), surface, found.motion, POLISH_ITERATIONS)
+    polish = _subset(points, POLISH_POINTS, rng)
+    found = refine(polish, surface, found.motion, POLISH_ITERATIONS)
+    return finish(polish, surface, found.motion)
 
 
 def _distinct(fits: list[Fit], points: np.ndarray, surface: Surface) -> list[Fit]:
@@ -268,6 +278,40 @@ def refine(
         if np.linalg.norm(step[:3]) < 1e-6 and np.linalg.norm(step[3:]) < 1e-3 * surface.spacing:
             break
     return Fit(motion, _trimmed_rms(surface.plane_distances(motion.apply(points))))
+
+
+def finish(
+    points: np.ndarray, surface: Surface, start: Motion, iterations: int = FINISH_ITERATIONS
+) -> Fit:
+    """``start`` finished by Gauss-Newton on the exact distances of ``points`` (n, 3)
+    to ``surface``'s triangles: a distance's slope is the unit vector from the point's
+    nearest point to it (over a triangle its normal, beyond an edge away from that edge),
+    so this is point-to-plane ICP with no sampling in it. Each step is lengthened by
+    :data:`STRETCH` while that lowers the RMS distance (along a direction the surface
+    barely holds, the linear model's steps are short), and the finish ends when a step
+    does not lower it."""
+    motion, rms = start, _rms(surface.distances(start.apply(points)))
+    for _ in range(iterations):
+        moved = motion.apply(points)
+        offsets = moved - surface.closest(moved)
+        distances = np.linalg.norm(offsets, axis=1)
+        on = distances > 1e-9 * surface.spacing  # a point on the surface has no slope
+        slopes = offsets[on] / distances[on, None]
+        centre = moved.mean(0)
+        system = np.hstack([np.cross(moved[on] - centre, slopes), slopes])
+        step, *_ = np.linalg.lstsq(system, -distances[on], rcond=None)
+        moved_on = motion
+        for length in STRETCH ** np.arange(STRETCHES):
+            turn = _rotation(length * step[:3])
+            tried = motion.then(turn, centre - turn @ centre + length * step[3:])
+            tried_rms = _rms(surface.distances(tried.apply(points)))
+            if tried_rms >= rms:
+                break
+            moved_on, rms = tried, tried_rms
+        if moved_on is motion:
+            break
+        motion = moved_on
+    return Fit(motion, _trimmed_rms(surface.distances(motion.apply(points))))
 
 
 def _icp_step(moved: np.ndarray, surface: Surface, edge: float) -> np.ndarray:
@@ -409,6 +453,10 @@ def _subset(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndar
     if len(points) <= count:
         return points
     return points[np.sort(rng.choice(len(points), size=count, replace=False))]
+
+
+def _rms(distances: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(distances**2)))
 
 
 def _trimmed_rms(distances: np.ndarray) -> float:
