@@ -169,7 +169,7 @@ def test_a_reset_during_the_job_names_the_lines_it_may_have_dropped_and_resume_l
     assert ran == texts[: len(ran)]
     assert job[len(ran) - 1].file_line in range(first, last + 1)  # the reset fell in the range
     assert sum(first <= c.file_line <= last for c in job) <= 16 + 8  # planner + in flight
-    modes = job[:6]  # a reset sets the modes back to GRBL's defaults: G21 G90 G94 ... F1200
+    modes = list(job[:6])  # a reset sets the modes back to GRBL's defaults: G21 G90 G94 ... F1200
     rest = [c for c in job if c.file_line >= first]
     stream_job(port, modes + rest, load_machine("grbl_diw"), port_name=url, options=quick())
     again = executed(port.emulator)[len(ran) :]
@@ -190,7 +190,7 @@ def test_a_lost_connection_names_the_lines_in_flight_and_resume_runs_each_once()
     first = executed(port.emulator)
     resume = int(re.search(r"--resume-from (\d+)$", message).group(1))
     fresh = open_port("sim://grbl?time_scale=0&baud=0", 115200)
-    rest = job[:6] + [c for c in job if c.file_line >= resume]  # the modes, then the rest
+    rest = list(job[:6]) + [c for c in job if c.file_line >= resume]  # the modes, then the rest
     stream_job(fresh, rest, load_machine("grbl_diw"), options=quick())
     then = executed(fresh.emulator)[6:]
     assert resumed_once(first, then, job, message)

@@ -85,7 +85,7 @@ def test_a_job_completes_on_klipper_with_and_without_heaters(heaters):
 
 
 def test_a_move_klipper_refuses_stops_the_job_naming_its_file_line():
-    job = klipper_job(20)
+    job = list(klipper_job(20))
     job.insert(12, job[12].__class__(99, "G1 X300 Y10 F3000"))  # outside the envelope
     machine = load_machine("klipper_generic")
     with KlipperResponder() as klipper:

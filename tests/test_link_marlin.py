@@ -281,7 +281,7 @@ def test_a_silent_port_is_one_line_naming_the_baud_rate():
 
 
 def test_a_firmware_error_stops_the_job():
-    job = marlin_job(10)
+    job = list(marlin_job(10))
     job.insert(5, Command(99, "M112"))
     with pytest.raises(FabkitError, match=r"reported 'Error:Printer halted. kill\(\) called!'"):
         run_sim(FAST, job, "marlin_generic")

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import re
 import stat
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -64,6 +64,39 @@ class Command:
     text: str
 
 
+class Commands(Sequence[Command]):
+    """A job's commands held as two columns, ``texts`` and their 1-based ``file_lines``:
+    a :class:`Command` is made only when one is asked for (a million objects made up
+    front cost more than the reading)."""
+
+    __slots__ = ("texts", "file_lines")
+
+    def __init__(self, texts: list[str], file_lines: list[int]) -> None:
+        self.texts = texts
+        self.file_lines = file_lines
+
+    def __len__(self) -> int:
+        return len(self.texts)
+
+    def __getitem__(self, index):  # int -> Command, slice -> Commands
+        if isinstance(index, slice):
+            return Commands(self.texts[index], self.file_lines[index])
+        return Command(self.file_lines[index], self.texts[index])
+
+    def __iter__(self) -> Iterator[Command]:
+        return map(Command, self.file_lines, self.texts)
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, Commands):
+            return self.texts == other.texts and self.file_lines == other.file_lines
+        return isinstance(other, Sequence) and list(self) == list(other)
+
+    __hash__ = None  # type: ignore[assignment]  # mutable lists inside
+
+    def __repr__(self) -> str:
+        return f"Commands({len(self)} commands)"
+
+
 @dataclass(frozen=True)
 class Block:
     """One command as a firmware reads it.
@@ -86,23 +119,26 @@ def strip_comment(line: str) -> str:
     return _PAREN_COMMENT.sub("", line.split(";", 1)[0]).strip()
 
 
-def commands_from_lines(lines: Iterable[str], first_line: int = 1) -> list[Command]:
+def commands_from_lines(lines: Iterable[str], first_line: int = 1) -> Commands:
     """The commands of ``lines`` (blank and comment-only lines skipped)."""
-    texts = (
+    texts = [
         line.strip() if ";" not in line and "(" not in line else strip_comment(line)
         for line in lines
-    )  # nothing to strip but blanks without a comment
-    return [Command(number, text) for number, text in enumerate(texts, first_line) if text]
+    ]  # nothing to strip but blanks without a comment
+    if all(texts):
+        return Commands(texts, list(range(first_line, first_line + len(texts))))
+    numbers = [number for number, text in enumerate(texts, first_line) if text]
+    return Commands([text for text in texts if text], numbers)
 
 
-def read_job(path: str | Path) -> list[Command]:
+def read_job(path: str | Path) -> Commands:
     """Read a G-code file into commands (FabkitError, one line, for a file that is missing,
     not a regular file, not ASCII, or over :data:`MAX_JOB_BYTES`, :data:`MAX_JOB_LINES` or
     :data:`MAX_LINE_CHARS`: the size is checked before anything is read)."""
     return read_job_bytes(path)[1]
 
 
-def read_job_bytes(path: str | Path) -> tuple[bytes, list[Command]]:
+def read_job_bytes(path: str | Path) -> tuple[bytes, Commands]:
     """The bytes of a G-code file and its commands, read once (so that a printer host gets
     exactly the bytes that were checked); refused as by :func:`read_job`."""
     path = Path(path)

@@ -24,6 +24,7 @@ from fabkit.gcode.columns import MoveRun, read_columns
 from fabkit.gcode.read import (
     Block,
     Command,
+    Commands,
     GcodeError,
     extra_axes,
     firmware_reader,
@@ -233,7 +234,7 @@ def check_job(
         switches = checker.pin_writes()
         for first in range(0, len(job), CHUNK_COMMANDS):
             part = job[first : first + CHUNK_COMMANDS]
-            texts = [command.text for command in part]
+            texts = part.texts if isinstance(part, Commands) else [c.text for c in part]
             columns = read_columns(texts, first, MAX_MARLIN_CHARS, codes, switches)
             for start, stop, plain in columns.spans():
                 run = columns.run(start, stop) if plain and stop - start >= MIN_RUN else None
