@@ -1,11 +1,17 @@
 """The fast path of the pre-flight check and the duration plan (runs of plain moves read
 into columns, :mod:`fabkit.gcode.columns`) gives exactly the per-command path's results:
 the same JobCheck, the same Estimate (every float equal, sign of zero included) and, for a
-refused job, the same message naming the same line."""
+refused job, the same message naming the same line. The writers' plan of a file
+(:func:`~fabkit.gcode.duration.estimate`, which refuses nothing) is the per-command
+plan's too, and so is ``fabkit verify``'s reading of it
+(:func:`~fabkit.verify.read_gcode.read_gcode`: every deposited segment, the same
+floats)."""
 
 from __future__ import annotations
 
 import math
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,10 +20,11 @@ from hypothesis import strategies as st
 
 from fabkit.errors import FabkitError
 from fabkit.gcode.columns import LETTERS, read_columns
-from fabkit.gcode.duration import Planner, _passes, _passes_in_order
-from fabkit.gcode.read import commands_from_lines, read_marlin
+from fabkit.gcode.duration import Planner, _passes, _passes_in_order, estimate
+from fabkit.gcode.read import Block, GcodeError, commands_from_lines, firmware_reader, read_marlin
 from fabkit.link.host.preflight import check_job
 from fabkit.machines import load_machine
+from fabkit.verify.read_gcode import read_gcode
 from fabkit.writers.gcode import GcodeOptions, gcode_bytes
 from tests.test_writers_common import baromorph_toolpath, fig1_toolpath, reprap_machine
 
@@ -51,8 +58,51 @@ def _same_floats(a: np.ndarray, b: np.ndarray) -> bool:
     )
 
 
+def _each(text: str, read) -> Block:
+    try:
+        return read(text)
+    except GcodeError:
+        return Block(())
+
+
+def assert_same_estimate(lines: list[str], machine) -> None:
+    """:func:`estimate` plans ``lines`` as the per-command planner does."""
+    planner, read = Planner(machine), firmware_reader(machine)
+    for command in commands_from_lines(lines):
+        planner.add(_each(command.text, read))
+    slow, fast = planner.estimate(), estimate(commands_from_lines(lines), machine)
+    assert fast == slow
+    assert _same_floats(fast.end_s, slow.end_s)
+    assert _same_floats(fast.positions.xyze, slow.positions.xyze)
+
+
+PRINTED = ("start", "end", "feed", "volume", "pressure", "temperature", "mix", "ink", "road")
+
+
+def assert_same_reading(lines: list[str], machine) -> None:
+    """:func:`read_gcode` reads ``lines`` alike both ways (or refuses them alike)."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "job.gcode"
+        path.write_text("\n".join(lines) + "\n")
+        outcomes = []
+        for fast in (False, True):
+            try:
+                outcomes.append(read_gcode(path, machine, fast=fast))
+            except FabkitError as exc:
+                outcomes.append(str(exc))
+    slow, fast = outcomes
+    if isinstance(slow, str) or isinstance(fast, str):
+        assert fast == slow
+        return
+    for name in PRINTED:
+        assert _same_floats(getattr(fast, name), getattr(slow, name)), name
+    assert (fast.layers, fast.commands) == (slow.layers, slow.commands)
+
+
 def assert_same(lines: list[str], machine) -> int:
     """Both paths agree on ``lines``; the number of commands the fast path took at once."""
+    assert_same_estimate(lines, machine)
+    assert_same_reading(lines, machine)
     slow, slow_plan, _ = _outcome(lines, machine, fast=False)
     fast, fast_plan, runs = _outcome(lines, machine, fast=True)
     assert fast == slow

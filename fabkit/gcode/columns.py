@@ -89,6 +89,29 @@ MAX_DIGITS = 15
 the point) is one correctly rounded division of two exact numbers: the very number
 ``float`` reads from the text."""
 _POW10 = np.array([10.0**k for k in range(MAX_DIGITS + 1)])
+CHUNK_COMMANDS = 65536
+"""Commands read into columns at once (bounds the memory of a million-line job)."""
+MIN_RUN = 4
+"""Fewest consecutive plain commands taken as a run (fewer: the per-command path)."""
+
+
+def plain_codes(flavour: str) -> str:
+    """The G codes whose plain commands a run may hold on firmware ``flavour``: Hyrel
+    reads F on a G0 for that move only, so its G0s take the per-command path."""
+    return "1" if flavour == "hyrel" else "01"
+
+
+def job_spans(
+    texts: Sequence[str], limit: int, codes: str, others: Mapping[str, int]
+) -> Iterator[tuple[int, int, MoveRun | None]]:
+    """The job ``texts`` cut into ``(start, stop, run)`` (job indices): a run of at least
+    :data:`MIN_RUN` plain commands (:func:`read_columns`), or None where the per-command
+    path must read ``texts[start:stop]``; :data:`CHUNK_COMMANDS` at a time."""
+    for first in range(0, len(texts), CHUNK_COMMANDS):
+        columns = read_columns(texts[first : first + CHUNK_COMMANDS], first, limit, codes, others)
+        for start, stop, plain in columns.spans():
+            run = columns.run(start, stop) if plain and stop - start >= MIN_RUN else None
+            yield first + start, first + stop, run
 
 
 def read_columns(

@@ -42,9 +42,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from fabkit.gcode.columns import MoveRun, accumulated, filled
+from fabkit.gcode.columns import MoveRun, filled, job_spans, plain_codes
 from fabkit.gcode.position import MOTION, Position
-from fabkit.gcode.read import Block, Command, GcodeError, firmware_reader
+from fabkit.gcode.read import (
+    MAX_LINE_CHARS,
+    Block,
+    Command,
+    Commands,
+    GcodeError,
+    firmware_reader,
+)
 from fabkit.machines import MachineProfile
 from fabkit.progress import clock
 
@@ -213,16 +220,31 @@ class _Walker:
 def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
     """Plan ``job`` on ``machine`` (see the module docstring). Each command is read as the
     machine's firmware reads it (:func:`~fabkit.gcode.read.firmware_reader`); one it
-    refuses moves nothing (the pre-flight check names it)."""
+    refuses moves nothing (the pre-flight check names it). On a Marlin-like firmware, runs
+    of plain moves are read and planned as columns (:meth:`Planner.add_run`: the same
+    numbers)."""
     read = firmware_reader(machine)
     planner = Planner(machine)
-    for command in job:
+    texts = job.texts if isinstance(job, Commands) else [command.text for command in job]
+    if not planner.takes_runs:
+        _add_each(planner, read, texts)
+        return planner.estimate()
+    for start, stop, run in job_spans(texts, MAX_LINE_CHARS, plain_codes(machine.flavour), {}):
+        if run is not None and planner.takes_runs:
+            planner.add_run(run)
+        else:
+            _add_each(planner, read, texts[start:stop])
+    return planner.estimate()
+
+
+def _add_each(planner: Planner, read: Callable[[str], Block], texts: Sequence[str]) -> None:
+    """Each command of ``texts`` read and added to ``planner`` (a refused one: empty)."""
+    for text in texts:
         try:
-            block = read(command.text)
+            block = read(text)
         except GcodeError:
             block = Block(())
         planner.add(block)
-    return planner.estimate()
 
 
 class Planner:
@@ -240,6 +262,12 @@ class Planner:
         self.positions = _Rows(4)  # logical X, Y, Z, E after each command, NaN: unknown
         self.waits: list[str] = []
         self.segment, self.moves = 0, 0
+
+    @property
+    def takes_runs(self) -> bool:
+        """Whether :meth:`add_run` plans the next commands: on a Marlin-like firmware (no
+        rapid rate of its own), in units per minute (not inverse time)."""
+        return self.kinematics.rapid_mm_s is None and not self.walker.inverse
 
     def add(self, block: Block) -> None:
         """The next command of the job, as its firmware read it (a refused one: an empty
@@ -267,12 +295,13 @@ class Planner:
         :meth:`add` of each would (the same operations on the same numbers, in columns);
         the run's other commands (:attr:`MoveRun.other`) are pin writes: nothing here."""
         walker = self.walker
-        if self.kinematics.rapid_mm_s is not None or walker.inverse:
+        if not self.takes_runs:
             raise ValueError("a run of plain moves is planned for Marlin-like firmwares only")
         index = self.dwell_s.count
         feed = _run_feed(walker.feed, run)
-        logical = _run_logical(walker.position, run)
-        before = np.vstack((_nan_row(walker.position.logical), logical[:-1]))
+        start = _nan_row(walker.position.logical)
+        logical = walker.position.walk(run.given[:, :4], run.values[:, :4])
+        before = np.vstack((start, logical[:-1]))
         deltas = logical - before
         deltas[np.isnan(deltas)] = 0.0  # an end unknown: no travel counted
         moving = run.given[:, :4].any(axis=1)
@@ -290,7 +319,6 @@ class Planner:
         motions = np.flatnonzero(run.other < 0)  # the others move nothing (M42)
         if len(motions):
             walker.motion = "G0" if run.g0[motions[-1]] else "G1"
-        walker.position.logical = [None if math.isnan(v) else v for v in logical[-1].tolist()]
 
     def estimate(self) -> Estimate:
         """The plan of every command added so far."""
@@ -313,20 +341,6 @@ def _run_feed(feed: float | None, run: MoveRun) -> np.ndarray:
     f = run.values[:, 4]
     given = run.given[:, 4] & (f > 0)
     return filled(math.nan if feed is None else feed, given, f[given] / 60.0)
-
-
-def _run_logical(position: Position, run: MoveRun) -> np.ndarray:
-    """(n, 4) mm (NaN: unknown): the logical X, Y, Z, E after each move of ``run``, as
-    :meth:`Position.move` walks them (absolute: the value; relative: added in order)."""
-    start = _nan_row(position.logical)
-    out = np.empty((len(run), 4))
-    for i in range(4):
-        modes = position.modes
-        relative = modes.e_relative_or_marlin() if i == 3 else not modes.absolute
-        given = run.given[:, i]
-        new = run.values[given, i]
-        out[:, i] = filled(start[i], given, accumulated(start[i], new) if relative else new)
-    return out
 
 
 class _Rows:

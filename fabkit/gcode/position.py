@@ -24,6 +24,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+import numpy as np
+
+from fabkit.gcode.columns import accumulated, filled
 from fabkit.gcode.modes import DistanceModes
 
 AXES = "XYZE"
@@ -118,3 +121,19 @@ class Position:
                 values[axis] if not relative else None if here is None else here + values[axis]
             )
         return Move(start, tuple(self.logical), machine_start, self.machine())
+
+    def walk(self, given: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """Go through n moves at once (no mode or shift changing between them): their X,
+        Y, Z, E words ``values`` (n, 4) where ``given`` (n, 4); the logical X, Y, Z, E
+        after each (n, 4; NaN: unknown), the same numbers as :meth:`move` of each in turn
+        (absolute: the value; relative: added in order)."""
+        start = [np.nan if v is None else v for v in self.logical]
+        out = np.empty((len(given), 4))
+        for i in range(4):
+            relative = self.modes.e_relative_or_marlin() if i == 3 else not self.modes.absolute
+            new = values[given[:, i], i]
+            new = accumulated(start[i], new) if relative else new
+            out[:, i] = filled(start[i], given[:, i], new)
+        if len(out):
+            self.logical = [None if np.isnan(v) else v for v in out[-1].tolist()]
+        return out

@@ -26,15 +26,19 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from fabkit.errors import FabkitError
+from fabkit.gcode.columns import MoveRun, filled, job_spans, plain_codes
 from fabkit.gcode.position import Position
 from fabkit.gcode.read import (
+    MAX_LINE_CHARS,
     Block,
+    Command,
     GcodeError,
     firmware_reader,
     is_extended,
@@ -117,7 +121,12 @@ class _Machine:
         self.mix = math.nan
         self.depositing = False
         self.road = -1
-        self.rows: list[tuple] = []
+        self.rows: list[tuple] = []  # the rows since the last of ``chunks``
+        self.chunks: list[np.ndarray] = []  # (m, 13) rows, in the file's order
+        own = [*self.switches, *([_signature(self.pressure_block)] if self.pressure_block else [])]
+        self.moves_only_move = not any(sig[0] in (("G0",), ("G1",)) for sig in own)
+        """No switch or pressure line of the profile is a G0/G1 (then a plain move may be
+        one, which only the per-command path follows)."""
 
     def _switches(self) -> dict[tuple, tuple[str, bool]]:
         """The profile's material switch lines, by their reading (a line that is both an
@@ -145,6 +154,72 @@ class _Machine:
             handler = getattr(self, "_" + code.replace(".", "_"), None)
             if handler is not None:
                 handler(block)
+
+    def run_moves(self, run: MoveRun) -> bool:
+        """A run of plain G0/G1 moves at once (:mod:`fabkit.gcode.columns`), giving the
+        rows and state :meth:`run` of each would; False, with nothing changed, where the
+        per-command path must take it (GRBL; a profile whose switch or pressure line is a
+        plain move; material deposited from a position the file never set, which that
+        path names)."""
+        if self.grbl or not self.moves_only_move:
+            return False
+        position, saved = self.position, list(self.position.logical)
+        feed = filled(self.feed, run.given[:, 4], run.values[run.given[:, 4], 4] / 60.0)
+        moving = run.given[:, :4].any(axis=1)
+        before = np.array([np.nan if v is None else v for v in saved])
+        walked = position.walk(run.given[moving, :4], run.values[moving, :4])
+        logical_before = np.vstack((before, walked[:-1]))
+        shift = np.array([np.nan if v is None else v for v in position.shift])
+        old, new = logical_before[:, :3] + shift, walked[:, :3] + shift
+        delta_e = walked[:, 3] - logical_before[:, 3]
+        delta_e[np.isnan(delta_e)] = 0.0  # an end unknown: no E counted
+        moved = _differs(old[:, 0], new[:, 0]) | _differs(old[:, 1], new[:, 1])
+        on = self.on["first"] or self.on["second"]
+        flowing = delta_e > 0 if self.has_e else np.full(len(walked), on)
+        deposit = flowing & moved
+        if not np.isfinite(old[deposit]).all() or not np.isfinite(new[deposit]).all():
+            position.logical = saved
+            return False
+        ends = ~deposit & (((moved | _differs(old[:, 2], new[:, 2])) & ~flowing) | (delta_e < 0))
+        self.feed = float(feed[-1])
+        self._add_rows(old, new, feed[moving], delta_e, deposit, ends)
+        return True
+
+    def _add_rows(
+        self,
+        old: np.ndarray,
+        new: np.ndarray,
+        feed: np.ndarray,
+        delta_e: np.ndarray,
+        deposit: np.ndarray,
+        ends: np.ndarray,
+    ) -> None:
+        """The rows of a run's moves that deposit, numbered into roads as :meth:`_move`
+        numbers them: a road starts at a depositing move after a move that ended one (a
+        travel, a retraction) or at the first; other moves change nothing."""
+        events = deposit | ends
+        depositing = deposit[events]
+        starts = depositing & ~np.r_[self.depositing, depositing[:-1]]
+        roads = self.road + np.cumsum(starts)
+        if len(depositing):
+            self.depositing = bool(depositing[-1])
+            self.road = int(roads[-1])
+        volume = delta_e / self.e_per_mm3 if self.has_e else np.full(len(delta_e), np.nan)
+        rows = np.empty((int(deposit.sum()), 13))
+        rows[:, 0:3], rows[:, 3:6] = old[deposit], new[deposit]
+        rows[:, 6], rows[:, 7] = feed[deposit], volume[deposit]
+        rows[:, 8:11] = (self.pressure, self.temperature, self.mix)
+        rows[:, 11] = 1 if self.on["second"] else 0
+        rows[:, 12] = roads[depositing]
+        if self.rows:
+            self.chunks.append(np.array(self.rows, dtype=float).reshape(-1, 13))
+            self.rows = []
+        self.chunks.append(rows)
+
+    def table(self) -> np.ndarray:
+        """(n, 13) every depositing move's row, in the file's order."""
+        rows = np.array(self.rows, dtype=float).reshape(-1, 13)
+        return np.vstack([*self.chunks, rows])
 
     # -- motion ---------------------------------------------------------------------
 
@@ -214,6 +289,13 @@ class _Machine:
         )
 
 
+def _differs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`_differ` of each pair of ``a`` and ``b`` (n,)."""
+    unknown = np.isnan(a) | np.isnan(b)
+    with np.errstate(invalid="ignore"):
+        return np.where(unknown, np.isnan(a) != np.isnan(b), np.abs(a - b) > 1e-9)
+
+
 def _differ(a: float, b: float) -> bool:
     """Two coordinates differ (NaN = unknown differs from everything but NaN)."""
     if math.isnan(a) or math.isnan(b):
@@ -246,22 +328,24 @@ def e_per_mm3(machine: MachineProfile) -> float:
     return 4.0 / (math.pi * machine.tool.filament_diameter_mm**2)
 
 
-def read_gcode(path: str | Path, machine: MachineProfile) -> Printed:
-    """Read ``path`` as ``machine`` runs it (module docstring); one-line errors."""
+def read_gcode(path: str | Path, machine: MachineProfile, *, fast: bool = True) -> Printed:
+    """Read ``path`` as ``machine`` runs it (module docstring); one-line errors. On a
+    Marlin-like firmware, runs of plain moves are read as columns
+    (:mod:`fabkit.gcode.columns`; ``fast=False``: every command one at a time, the same
+    result)."""
     path = Path(path)
     commands = read_job(path)
     header = _header(path)
     found = next(filter(None, map(_E_PER_MM3.search, header)), None)
     state = _Machine(machine, float(found.group(1)) if found else None)
-    for command in commands:
-        text = command.text
-        try:
-            if machine.flavour == "klipper" and is_extended(text):
-                continue
-            state.run(state.read(text))
-        except GcodeError as exc:
-            raise FabkitError(f"{path}:{command.file_line}: {exc}") from None
-    rows = np.array(state.rows, dtype=float).reshape(-1, 13)
+    if fast and machine.flavour in _MARLIN_LIKE:
+        codes = plain_codes(machine.flavour)
+        for start, stop, run in job_spans(commands.texts, MAX_LINE_CHARS, codes, {}):
+            if run is None or not state.run_moves(run):
+                _run_each(state, commands[start:stop], path, machine.flavour)
+    else:
+        _run_each(state, commands, path, machine.flavour)
+    rows = state.table()
     start, end = rows[:, 0:3], rows[:, 3:6]
     heights = np.unique(np.round(start[:, 2], 6)) if len(rows) else np.zeros(0)
     return Printed(
@@ -278,6 +362,19 @@ def read_gcode(path: str | Path, machine: MachineProfile) -> Printed:
         placement=read_placement(header, path.name),
         commands=len(commands),
     )
+
+
+def _run_each(state: _Machine, commands: Sequence[Command], path: Path, flavour: str) -> None:
+    """The per-command path: each of ``commands`` read and run (one-line errors naming
+    the file line)."""
+    for command in commands:
+        text = command.text
+        try:
+            if flavour == "klipper" and is_extended(text):
+                continue
+            state.run(state.read(text))
+        except GcodeError as exc:
+            raise FabkitError(f"{path}:{command.file_line}: {exc}") from None
 
 
 def _header(path: Path) -> list[str]:

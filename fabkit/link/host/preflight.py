@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from fabkit.errors import FabkitError
-from fabkit.gcode.columns import MoveRun, read_columns
+from fabkit.gcode.columns import MoveRun, job_spans, plain_codes
 from fabkit.gcode.read import (
     Block,
     Command,
@@ -38,10 +38,6 @@ from fabkit.machines import GCODE_KEYS, MachineProfile
 
 MAX_MARLIN_CHARS = 80  # Marlin keeps 95 characters, of which "N<n> " and "*<xor>" take some
 MAX_GRBL_CHARS = 79  # GRBL's line buffer is 80 bytes
-CHUNK_COMMANDS = 65536
-"""Commands read into columns at a time (bounded memory on long jobs)."""
-MIN_RUN = 4
-"""Shorter runs of plain moves take the per-command path (cheaper than columns)."""
 _CONTROL = re.compile(r"[^\x20-\x7e]")
 
 
@@ -230,19 +226,14 @@ def check_job(
     if runs is None:
         _check_each(checker, job, source, also)
     else:
-        codes = "1" if machine.flavour == "hyrel" else "01"  # Hyrel: F on G0 is for that move only
-        switches = checker.pin_writes()
-        for first in range(0, len(job), CHUNK_COMMANDS):
-            part = job[first : first + CHUNK_COMMANDS]
-            texts = part.texts if isinstance(part, Commands) else [c.text for c in part]
-            columns = read_columns(texts, first, MAX_MARLIN_CHARS, codes, switches)
-            for start, stop, plain in columns.spans():
-                run = columns.run(start, stop) if plain and stop - start >= MIN_RUN else None
-                if run is not None and checker.apply(run):
-                    if also_run is not None:
-                        also_run(run)
-                else:
-                    _check_each(checker, part[start:stop], source, also)
+        codes, switches = plain_codes(machine.flavour), checker.pin_writes()
+        texts = job.texts if isinstance(job, Commands) else [command.text for command in job]
+        for start, stop, run in job_spans(texts, MAX_MARLIN_CHARS, codes, switches):
+            if run is not None and checker.apply(run):
+                if also_run is not None:
+                    also_run(run)
+            else:
+                _check_each(checker, job[start:stop], source, also)
     tracker = checker.tracker
     return JobCheck(
         source=source,
