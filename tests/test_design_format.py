@@ -51,7 +51,7 @@ def test_export_still_tells_a_design_from_a_toolpath(saved, run_cli, tmp_path):
         "--format",
         "laser",
         "--size",
-        "30",
+        "5",  # mm: a small mask set (at 30 mm, 2.5M pixels and 18 s)
         "--out",
         out,
     )

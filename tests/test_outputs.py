@@ -101,7 +101,8 @@ def test_a_run_with_another_machine_leaves_no_file_of_the_first(run_cli, tmp_pat
     out, spec = tmp_path / "out", EXAMPLES / "two_shapes.toml"
     assert run_cli("run", spec, "--out", out, *COARSE)[0] == 0
     assert {"sheet.gcode", "toolpath/toolpath.npz"} <= files(out) and (out / "as_designed").is_dir()
-    laser = ("--machine", "dmd_photoalign", "--no-simulate")  # it leaves no shapes of its own
+    # it leaves no shapes of its own; 5 mm: few pixels to write
+    laser = ("--machine", "dmd_photoalign", "--no-simulate", "--size", "5")
     code, _, err = run_cli("run", spec, "--out", out, *COARSE, *laser)
     assert code == 2 and "give --overwrite" in err
     assert run_cli("run", spec, "--out", out, *COARSE, *laser, "--overwrite")[0] == 0
@@ -119,7 +120,7 @@ def test_laser_export_into_its_earlier_folder(run_cli, tmp_path):
         "--diagonals", "30",
     )  # fmt: skip
     assert code == 0, err
-    args = ("export", design, "--machine", "dmd_photoalign", "--format", "laser", "--size", "20")
+    args = ("export", design, "--machine", "dmd_photoalign", "--format", "laser", "--size", "5")
     out = tmp_path / "laser"
     assert run_cli(*args, "-o", out)[0] == 0
     assert listed(out) == files(out) and "manifest.json" in files(out)
