@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import fcntl
+import io
 import os
 import tempfile
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -89,6 +93,35 @@ def run_cli(capsys):
         return code, captured.out, captured.err
 
     return run
+
+
+COARSE_RUN = ("--step", "0.1", "--diagonals", "30", "--size", "20")
+"""A coarse ``fabkit run`` of an example (a 20 mm part, verified): what the tests that
+read a run's whole output share (:func:`coarse_run`)."""
+
+
+@pytest.fixture(scope="session")
+def coarse_run(tmp_path_factory) -> Callable[[str], tuple[Path, str]]:
+    """``fabkit run examples/SPEC --out OUT`` with :data:`COARSE_RUN`, made once per test
+    session for every worker (in the session's temporary folder, which pytest-xdist's
+    workers share and pytest removes with old sessions; a lock file orders the workers):
+    ``(OUT, its stdout)``. Read it, never write into it."""
+    base = tmp_path_factory.getbasetemp()
+    shared = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "coarse-runs"
+    shared.mkdir(exist_ok=True)
+
+    def made(spec: str) -> tuple[Path, str]:
+        out, printed = shared / spec / "out", shared / f"{spec}.stdout"
+        with open(shared / f"{spec}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not printed.exists():
+                buffer = io.StringIO()
+                with contextlib.redirect_stdout(buffer):
+                    assert main(["run", str(EXAMPLES / spec), "--out", str(out), *COARSE_RUN]) == 0
+                printed.write_text(buffer.getvalue())
+        return out, printed.read_text()
+
+    return made
 
 
 LONGEST_FIRST = (

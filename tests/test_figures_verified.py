@@ -16,19 +16,15 @@ import re
 
 import pytest
 
-from tests.conftest import EXAMPLES
-
 pytestmark = pytest.mark.slow  # a coarse run with its verification per spec
-
-COARSE = ("--step", "0.1", "--diagonals", "30", "--size", "20")
 
 
 @pytest.fixture(scope="module", params=["two_shapes.toml", "three_shapes.toml"])
-def verified(tmp_path_factory, request):
+def verified(coarse_run, request):
     """The run's output, its files and the single commands' outputs on them."""
     from fabkit.cli import main
 
-    out = tmp_path_factory.mktemp("verified") / "out"
+    out, run = coarse_run(request.param)
 
     def stdout(*args) -> str:
         buffer = io.StringIO()
@@ -36,7 +32,6 @@ def verified(tmp_path_factory, request):
             assert main([str(a) for a in args]) == 0
         return buffer.getvalue()
 
-    run = stdout("run", EXAMPLES / request.param, "--out", out, *COARSE)
     design, gcode = out / "design.npz", out / "sheet.gcode"
     return {
         "run": run,

@@ -24,7 +24,7 @@ import pytest
 from PIL import Image
 
 from tests.browser import CHROMIUM, Browser
-from tests.conftest import EXAMPLES, validate_report
+from tests.conftest import validate_report
 
 if not CHROMIUM.exists():
     pytest.skip(
@@ -57,13 +57,9 @@ SPECS = {"Fig. 1": "two_shapes.toml", "Fig. 3": "three_shapes.toml"}
 
 
 @pytest.fixture(scope="module", params=sorted(SPECS))
-def seen(request, tmp_path_factory):
+def seen(request, coarse_run):
     """A coarse verified run of the figure, and what the browser shows of its report."""
-    from fabkit.cli import main
-
-    out = tmp_path_factory.mktemp("browser") / "out"
-    args = ["run", str(EXAMPLES / SPECS[request.param]), "--out", str(out), "--step", "0.1"]
-    assert main([*args, "--diagonals", "30", "--size", "20"]) == 0
+    out, _ = coarse_run(SPECS[request.param])
     with Browser() as browser:
         browser.open((out / "report.html").resolve().as_uri())
         shown = {
