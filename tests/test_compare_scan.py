@@ -318,3 +318,17 @@ BAD_SCANS = [
 @pytest.mark.parametrize("bad", BAD_SCANS)
 def test_a_bad_scan_is_refused_in_one_line_writing_nothing(bad, tmp_path, run_cli):
     assert_refused(bad, _bad_files(tmp_path), tmp_path, run_cli)
+
+
+def test_the_picture_shows_the_target_beside_the_scan():
+    from fabkit.plot.scan import scan_picture
+
+    target = run_target(RUN, "sphere").mesh
+    points = target.vertices_mm + np.random.default_rng(1).normal(
+        scale=0.5, size=(len(target.vertices_mm), 3)
+    )
+    distance = np.linalg.norm(points - target.vertices_mm, axis=1)
+    data = scan_picture(target.vertices_mm, target.triangles, points, distance, 0.8, 2.2, "t", "s")
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = (int.from_bytes(data[k : k + 4], "big") for k in (16, 20))
+    assert width > 2 * height * 0.9  # the target and the scan side by side

@@ -19,6 +19,7 @@ import threading
 import time
 from collections import deque
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -163,6 +164,7 @@ def block_text(kind: str, a: int, b: int) -> str:
     return f"G1  X{x:.6f}      Y{y:.6f}       Z1.000000           F1200.0000"
 
 
+@pytest.mark.slow
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     blocks=st.lists(_BLOCK, min_size=10, max_size=50),

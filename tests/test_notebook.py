@@ -12,6 +12,8 @@ import nbclient
 import nbformat
 import pytest
 
+from tests.conftest import coarse_design
+
 NOTEBOOK = Path(__file__).parents[1] / "examples" / "notebook.ipynb"
 PICTURE = '<img src="data:image/png;base64,'
 
@@ -51,3 +53,11 @@ def test_importing_fabkit_outside_a_notebook_loads_no_display_code():
     )
     shown = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert shown.stdout.split() == ["False", "False"]
+
+
+def test_a_design_shows_every_surface_with_its_stimulus_and_two_pictures():
+    from fabkit.plot.notebook import design_html
+
+    shown = design_html(coarse_design(diagonals=20))
+    assert "<td>sphere</td>" in shown and "<td>bump</td>" in shown and "<td>flat</td>" in shown
+    assert shown.count(PICTURE) == 2 and "1 layer</p>" in shown

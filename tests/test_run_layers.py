@@ -134,6 +134,7 @@ def test_the_verdict_as_fabricated_on_a_coarser_simulation_mesh(layered_run, run
     assert wavy["formed"] or f"{verb} farther than the limit ({', '.join(missed)})" in wavy["line"]
 
 
+@pytest.mark.slow
 def test_the_manifest_lists_every_file_once(layered_run):
     """A layered run writes design.npz twice (solved, then with its layers): its manifest
     (``.fabkit-files``, what --overwrite removes) lists it, like every file, once."""
@@ -145,6 +146,7 @@ def test_the_manifest_lists_every_file_once(layered_run):
     }
 
 
+@pytest.mark.slow
 def test_every_verdict_measures_a_target_against_one_patch_diameter(layered_run):
     """As designed, programmed by its metric alone and as fabricated (a mesh of the cells
     that were made), every percentage of one target is a share of one patch diameter:

@@ -94,6 +94,7 @@ def run(tmp_path_factory):
     return out, Counter(calls)
 
 
+@pytest.mark.slow
 def test_run_parses_once_computes_maps_once_and_reloads_nothing(run):
     out, calls = run
     once = {"spec reads": 1, "machine reads": 1}
@@ -101,6 +102,7 @@ def test_run_parses_once_computes_maps_once_and_reloads_nothing(run):
     assert (out / "design.npz").is_file() and (out / "sheet.gcode").is_file()
 
 
+@pytest.mark.slow
 def test_verify_and_toolpath_parse_the_embedded_spec_once(run, tmp_path, run_cli):
     out, _ = run
     verify = ("verify", out / "design.npz", out / "sheet.gcode", "--no-simulate")
@@ -172,6 +174,7 @@ def test_a_baromorph_run_reads_its_settings_once(tmp_path):
     assert counted == {"spec reads": 1, "machine reads": 1, "baromorph reads": 1}, calls
 
 
+@pytest.mark.slow
 def test_export_from_a_value_writes_what_export_from_the_file_writes(run, tmp_path):
     out, _ = run
     toolpath = load_toolpath(out / "toolpath" / "toolpath.npz")
