@@ -43,6 +43,8 @@ _ERR_NO_LINE_NO = "No Line Number with checksum, Last Line: "
 REPETIER_SKIP_LINES = 14  # Repetier's waitingForResend after a resend request (gcode.cpp)
 REPETIER_SEEN_LINES = 40  # a line number this close behind the last one is a repeat
 _STRTOL = re.compile(r"\s*([-+]?\d+)")
+_CODES: dict[str, str] = {}  # first word of a command -> its code (command_code)
+_CODES_KEPT = 256
 
 _MOVES = {"G0", "G1", "G2", "G3"}
 _SYNC = {"M400", "G28", "G29", "M84", "M18"}
@@ -57,9 +59,9 @@ KNOWN = _MOVES | _SYNC | _NO_EFFECT | {
 }  # fmt: skip
 
 
-def strtol(text: str) -> int:
-    """C ``strtol(text, nullptr, 10)``: the leading integer, 0 if none."""
-    match = _STRTOL.match(text)
+def strtol(text: str, start: int = 0) -> int:
+    """C ``strtol(text + start, nullptr, 10)``: the leading integer, 0 if none."""
+    match = _STRTOL.match(text, start)
     return int(match.group(1)) if match else 0
 
 
@@ -73,7 +75,7 @@ def strip_line_number(command: str) -> str:
 def clean_line(raw: bytes) -> str:
     """Marlin's ``process_stream_char``: ``;`` comments, ``\\`` escapes, backspace, and
     characters past MAX_CMD_SIZE - 1 dropped."""
-    if not any(c in raw for c in b";\\\x08"):
+    if b";" not in raw and b"\\" not in raw and b"\x08" not in raw:
         return raw[: MAX_CMD_SIZE - 1].decode("latin-1")
     out: list[str] = []
     escaped = False
@@ -93,6 +95,28 @@ def clean_line(raw: bytes) -> str:
             if len(out) >= MAX_CMD_SIZE - 1:
                 break
     return "".join(out)
+
+
+def command_code(text: str) -> str:
+    """:func:`~fabkit.gcode.read.code_of`, remembered by the text's first word: the code
+    depends on nothing else when neither of the text's first two characters is a blank
+    (its pattern then matches inside the first word, and the words it splits are the
+    same), so the few words a job starts its lines with are read once."""
+    head = text.partition(" ")[0]
+    code = _CODES.get(head)
+    if code is None:
+        code = code_of(text)
+        blank = len(head) < 2 or head[0].isspace() or head[1].isspace()
+        if not blank and len(_CODES) < _CODES_KEPT:
+            _CODES[head] = code
+    return code
+
+
+def parse(command: str) -> tuple[str, str, dict[str, float]]:
+    """A queued command as it runs: its text without line number and checksum, its code
+    (``G1``) and its words (letter -> number)."""
+    text = strip_line_number(command).split("*", 1)[0].rstrip()
+    return text, command_code(text), words(text)
 
 
 @dataclass
@@ -127,6 +151,9 @@ class MarlinFirmware(Firmware):
 
     def _start(self) -> None:
         self.dialect = self.dialect_of(self.config)
+        faults = self.config.faults
+        self.counting = faults.disconnect_after is not None or faults.reset_after is not None
+        """A fault counts the commands (``disconnect_after``, ``reset_after``)."""
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -136,7 +163,8 @@ class MarlinFirmware(Firmware):
         self.hotend = Heater(tau)
         self.bed = Heater(tau)
         self.last_n = 0
-        self.queue: deque[tuple[int | None, str]] = deque()
+        self.queue: deque[tuple[int | None, str, str, str, dict[str, float]]] = deque()
+        """Queued commands: line number, command as received, then as :func:`parse` reads it."""
         self.blocked: _Block | None = None
         self.waiting_for_resend = -1  # Repetier: lines still answered with "skip"
         self.acked = 0  # lines acknowledged when queued (Repetier)
@@ -230,13 +258,13 @@ class MarlinFirmware(Firmware):
             if command.startswith("M410"):
                 self.motion.clear(t)  # processed early, as Marlin does for unnumbered M410
             return self._queue(None, command, t)
-        npos = command
+        npos = 0
         m110 = "M110" in command
         if m110:
             second = command.find("N", 4)
             if second >= 0:
-                npos = command[second:]
-        gcode_n = strtol(npos[1:])
+                npos = second
+        gcode_n = strtol(command, npos + 1)
         star = command.rfind("*")
         if style == "repetier":
             return self._accept_repetier(command, gcode_n, star, m110, t)
@@ -250,7 +278,7 @@ class MarlinFirmware(Firmware):
         return self._queue(gcode_n, command, t)
 
     def _queue(self, n: int | None, command: str, t: float) -> bool:
-        self.queue.append((n, command))
+        self.queue.append((n, command, *parse(command)))
         if self.dialect.ack_on_queue:
             ok = f"ok {n}" if n is not None and self.dialect.ack_numbered else "ok"
             self.out.line(ok, t, n)
@@ -313,7 +341,7 @@ class MarlinFirmware(Firmware):
             return True
         if not command.startswith("N"):
             return self._queue(None, command, t)
-        n = strtol(command[1:])
+        n = strtol(command, 1)
         if "M110" in command:
             self.last_n = n
             self.out.line("ok", t)
@@ -333,18 +361,15 @@ class MarlinFirmware(Firmware):
         if missing or star >= 0 and not _checksum_ok(command, star):
             self.counters.rejected_lines += 1
             return True
-        n = strtol(command[1:]) if command.startswith("N") else None
-        self.queue.append((n, command))
+        n = strtol(command, 1) if command.startswith("N") else None
+        self.queue.append((n, command, *parse(command)))
         return True
 
     # -- executing -------------------------------------------------------------------------
 
     def _advance(self, t: float) -> bool:
         """Execute the queue head; False if it has to wait."""
-        n, command = self.queue[0]
-        text = strip_line_number(command).split("*", 1)[0].rstrip()
-        code = code_of(text)
-        values = words(text)
+        n, command, text, code, values = self.queue[0]
         wake = self._wake_time(code, values, t)
         if wake > t:
             if self.blocked is None:
@@ -462,6 +487,8 @@ class MarlinFirmware(Firmware):
         """``disconnect_after``: the line goes dead after that many acknowledged commands,
         and the machine runs exactly what it acknowledged (for a firmware that
         acknowledges when it queues, the queue is run first)."""
+        if not self.counting:
+            return
         faults = self.config.faults
         executed = self.counters.executed
         acked = self.acked if self.dialect.ack_on_queue else executed
@@ -479,4 +506,4 @@ class MarlinFirmware(Firmware):
 
 def _checksum_ok(command: str, star: int) -> bool:
     """The XOR of the bytes before ``*`` equals the number after it."""
-    return strtol(command[star + 1 :]) == marlin_checksum(command[:star].encode("latin-1"))
+    return strtol(command, star + 1) == marlin_checksum(command[:star].encode("latin-1"))

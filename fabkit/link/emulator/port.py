@@ -229,24 +229,29 @@ class Emulator:
     def advance(self, now: float) -> None:
         """Process every event up to ``now`` in time order."""
         fw, inp = self.firmware, self.input
+        reading = fw.reading
         while self._dead_at is None:
-            t_rt = inp.next_realtime_time()
+            t_rt = inp.rt_events[0][0] if inp.rt_events else INF
             t_fw = fw.next_time()
-            t_nl = inp.next_newline_time() if fw.reading else INF
-            t = min(t_rt, t_fw, t_nl)
+            t_nl = inp.next_newline_time() if reading else INF
+            t_line = t_fw if t_fw <= t_nl else t_nl
+            t = t_rt if t_rt <= t_line else t_line
             if t > now:
                 break
-            t = max(t, self._now)
+            if t < self._now:
+                t = self._now
             self._now = t
-            if not fw.reading:
+            if not reading:
                 inp.fill(t)
-            if t_rt <= min(t_fw, t_nl):
+            if t_rt <= t_line:
                 fw.realtime(inp.pop_realtime(), t)
             else:
                 fw.run(t)
-        if not fw.reading:
+            reading = fw.reading
+        if not reading:
             inp.fill(now)
-        self._now = max(self._now, now)
+        if now > self._now:
+            self._now = now
 
     def _corrupt(self, data: bytes) -> bytes:
         """Flip one bit in each complete line with probability ``faults.corrupt``."""

@@ -158,10 +158,10 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from fabkit.errors import FabkitError
-from fabkit.gcode.read import code_of, frame_marlin
+from fabkit.gcode.read import Command, Commands, code_of, frame_marlin
 from fabkit.link import answers
 from fabkit.link.answers import Answer, classify
 from fabkit.link.host.one_by_one import OneByOne
@@ -183,6 +183,11 @@ SYNC_EVERY_MAX = 800  # ... after probes that found no lost answer (each costs a
 SYNC_EVERY_MIN = 10  # ... after probes that did
 REGROW_LINES = 500  # clean lines before a byte window shrunk by an overflow grows again
 BACKWARD_LIMIT = 3  # requests in a row for a line proven accepted that mean a reset
+
+
+def job_texts(job: Sequence[Command]) -> list[str]:
+    """The commands' texts, in order (a :class:`Commands` holds them as they are)."""
+    return job.texts if isinstance(job, Commands) else [command.text for command in job]
 
 
 class Transmission:
@@ -212,8 +217,9 @@ class MarlinProtocol(Session):
         super().__init__(*args, **kwargs)
         self.firmware = answers.identify("", self.machine.flavour)
         self.rx_usable = self.serial.rx_buffer_bytes - 1
+        self.job_texts = job_texts(self.job)
         biggest_n = 10 ** len(str(2 * len(self.job) + 1000)) - 1
-        longest = max((len(c.text) for c in self.job), default=0)
+        longest = max(map(len, self.job_texts), default=0)
         self.longest_frame = len(frame_marlin(biggest_n, "x" * longest))
         self.probe_frame = len(frame_marlin(biggest_n, PROBE))
         self.job_window = self.rx_usable - 2 * self.probe_frame
@@ -442,12 +448,12 @@ class MarlinProtocol(Session):
         """The line that comes after every numbered one (text, origin): a wanted or
         periodic probe, the next job line, a safe-stop line or, after all of them, the
         final M105; None when the final M105 is numbered and no probe is wanted."""
-        job_left = self.job_next < len(self.job) and not self.aborting
+        job_left = self.job_next < len(self.job_texts) and not self.aborting
         periodic = job_left and self.firmware.drains and self.since_probe >= self.sync_every
         if self.probe_wanted or periodic:
             return PROBE, PROBE_LINE
         if job_left:
-            return self.job[self.job_next].text, self.job_next
+            return self.job_texts[self.job_next], self.job_next
         if self.tail:
             return self.tail[0], SAFE_STOP
         return (PROBE, PROBE_LINE) if self.final_probe is None else None
@@ -600,8 +606,7 @@ class MarlinProtocol(Session):
         if echo is not None:
             self.warnings.append(f"the machine did not know '{self.texts[sent.n]}'")
         self._grow()
-        self._progress()
-        self.show(self.done_lines, self.heating_note)
+        self.show(self._progress(), self.heating_note)
 
     def _paired(self) -> None:
         """An ``ok`` taken as a refusal's pair. With no line in flight predicted accepted,
@@ -864,11 +869,13 @@ class MarlinProtocol(Session):
             self.byte_cap = min(self.job_window, self.byte_cap + max(8, self.longest_frame // 2))
             self.clean_lines = 0
 
-    def _progress(self) -> None:
+    def _progress(self) -> int:
+        """The job lines done (:attr:`done_lines`), noting when that last changed."""
         done = self.done_lines
         if done != self.last_done:
             self.last_done = done
             self.last_progress_s = time.monotonic()
+        return done
 
     # -- silence ---------------------------------------------------------------------------
 
