@@ -43,6 +43,8 @@ _ERR_NO_LINE_NO = "No Line Number with checksum, Last Line: "
 REPETIER_SKIP_LINES = 14  # Repetier's waitingForResend after a resend request (gcode.cpp)
 REPETIER_SEEN_LINES = 40  # a line number this close behind the last one is a repeat
 _STRTOL = re.compile(r"\s*([-+]?\d+)")
+_FRAMED = re.compile(rb"N([0-9]+) ([^*;\\\x08]*)\*([0-9]+)")
+"""``N<n> <command>*<checksum>`` with nothing in it that :func:`clean_line` changes."""
 _CODES: dict[str, str] = {}  # first word of a command -> its code (command_code)
 _CODES_KEPT = 256
 
@@ -53,6 +55,7 @@ _NO_EFFECT = {
     "M117", "M118", "M201", "M203", "M204", "M205", "M220", "M221", "M300", "M999",
     "T0", "T1", "M110",
 }  # fmt: skip
+_ANSWERING = {"M112", "M105", "M109", "M190", "M114", "M115"}  # more than an ok
 KNOWN = _MOVES | _SYNC | _NO_EFFECT | {
     "G4", "G90", "G91", "G92", "M82", "M83", "M104", "M105", "M109", "M112", "M114",
     "M115", "M140", "M190", "M410",
@@ -112,11 +115,9 @@ def command_code(text: str) -> str:
     return code
 
 
-def parse(command: str) -> tuple[str, str, dict[str, float]]:
-    """A queued command as it runs: its text without line number and checksum, its code
-    (``G1``) and its words (letter -> number)."""
-    text = strip_line_number(command).split("*", 1)[0].rstrip()
-    return text, command_code(text), words(text)
+def command_text(command: str) -> str:
+    """The command as it runs: without line number and checksum."""
+    return strip_line_number(command).split("*", 1)[0].rstrip()
 
 
 @dataclass
@@ -164,7 +165,8 @@ class MarlinFirmware(Firmware):
         self.bed = Heater(tau)
         self.last_n = 0
         self.queue: deque[tuple[int | None, str, str, str, dict[str, float]]] = deque()
-        """Queued commands: line number, command as received, then as :func:`parse` reads it."""
+        """Queued commands: line number, command as received, its :func:`command_text`,
+        code and words."""
         self.blocked: _Block | None = None
         self.waiting_for_resend = -1  # Repetier: lines still answered with "skip"
         self.acked = 0  # lines acknowledged when queued (Repetier)
@@ -244,6 +246,8 @@ class MarlinFirmware(Firmware):
 
     def _accept(self, raw: bytes, t: float) -> bool:
         """Check one line and queue it; False after a line error that drained the ring."""
+        if self.dialect.line_error == "marlin" and self._accept_framed(raw, t):
+            return True
         command = clean_line(raw).lstrip(" ")
         if not command:
             return True
@@ -277,8 +281,25 @@ class MarlinFirmware(Firmware):
         self.last_n = gcode_n
         return self._queue(gcode_n, command, t)
 
-    def _queue(self, n: int | None, command: str, t: float) -> bool:
-        self.queue.append((n, command, *parse(command)))
+    def _accept_framed(self, raw: bytes, t: float) -> bool:
+        """The common line on Marlin and Prusa: ``N<next> <command>*<checksum>``, short
+        enough, that :func:`clean_line` leaves as it is and without ``M110``: checked and
+        queued as :meth:`_accept` would, in fewer steps. False (nothing done) for any
+        other line, a wrong number or checksum included: :meth:`_accept` reads it."""
+        framed = _FRAMED.fullmatch(raw)
+        if framed is None or len(raw) >= MAX_CMD_SIZE or b"M110" in framed[2]:
+            return False
+        n = int(framed[1])
+        if n != self.last_n + 1 or int(framed[3]) != marlin_checksum(raw[: framed.start(3) - 1]):
+            return False
+        self.last_n = n
+        text = framed[2].decode("latin-1").lstrip(" ").rstrip()
+        return self._queue(n, raw.decode("latin-1"), t, text)
+
+    def _queue(self, n: int | None, command: str, t: float, text: str | None = None) -> bool:
+        """Queue ``command`` (``text``: :func:`command_text` of it, if known)."""
+        text = command_text(command) if text is None else text
+        self.queue.append((n, command, text, command_code(text), words(text)))
         if self.dialect.ack_on_queue:
             ok = f"ok {n}" if n is not None and self.dialect.ack_numbered else "ok"
             self.out.line(ok, t, n)
@@ -362,7 +383,8 @@ class MarlinFirmware(Firmware):
             self.counters.rejected_lines += 1
             return True
         n = strtol(command, 1) if command.startswith("N") else None
-        self.queue.append((n, command, *parse(command)))
+        text = command_text(command)
+        self.queue.append((n, command, text, command_code(text), words(text)))
         return True
 
     # -- executing -------------------------------------------------------------------------
@@ -407,12 +429,12 @@ class MarlinFirmware(Firmware):
         self, n: int | None, command: str, text: str, code: str, values: dict[str, float], t: float
     ) -> None:
         motion = self.motion
-        if code not in KNOWN:
-            self._unknown(n, text, t)
-            return
         if code in _MOVES:
             arc = int(code[1]) if code in ("G2", "G3") else 0
             motion.move(values, t, rapid=False, arc=arc, tag=len(self.trace))
+        elif code not in KNOWN:
+            self._unknown(n, text, t)
+            return
         elif code in ("G90", "G91"):
             motion.absolute = motion.absolute_e = code == "G90"
         elif code in ("M82", "M83"):
@@ -450,6 +472,11 @@ class MarlinFirmware(Firmware):
     def _respond(self, n: int | None, code: str, t: float) -> None:
         """The answer to line ``n``, which ran ``code``."""
         out = self.out
+        if code not in _ANSWERING:  # most commands: just the ok
+            if not self.dialect.ack_on_queue:
+                out.line("ok", t, n)
+            self._faults(t)
+            return
         if code == "M112":
             out.line("Error:Printer halted. kill() called!", t)
             self.halted = True

@@ -15,6 +15,7 @@ from collections import deque
 from dataclasses import dataclass
 
 _AXES = "XYZE"
+_XYZ = tuple(enumerate("XYZ"))
 FIRST_MOVE_DELAY_S = 0.1  # Marlin's BLOCK_DELAY_FOR_1ST_MOVE: a first move waits for company
 
 
@@ -94,7 +95,8 @@ class Motion:
         return len(self.blocks)
 
     def full(self, t: float) -> bool:
-        return self.planned(t) >= self.depth
+        self._prune(t)
+        return len(self.blocks) >= self.depth
 
     def busy(self, t: float) -> bool:
         return self.planned(t) > 0
@@ -134,11 +136,12 @@ class Motion:
     def target(self, values: dict[str, float]) -> list[float]:
         """The position after a move with ``values`` (axis letter -> number)."""
         out = list(self.pos)
-        for i, axis in enumerate(_AXES):
+        for i, axis in _XYZ:
             if axis in values:
-                value = values[axis] * (self.unit_mm if axis != "E" else 1.0)
-                absolute = self.absolute_e if axis == "E" else self.absolute
-                out[i] = value if absolute else out[i] + value
+                value = values[axis] * self.unit_mm
+                out[i] = value if self.absolute else out[i] + value
+        if "E" in values:
+            out[3] = values["E"] if self.absolute_e else out[3] + values["E"]
         return out
 
     def move(
