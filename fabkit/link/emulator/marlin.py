@@ -23,6 +23,7 @@ from fabkit.link.emulator.dialects import DIALECTS, Dialect
 from fabkit.link.emulator.firmware import (
     INF,
     EmulatorConfig,
+    Faults,
     Firmware,
     Heater,
     TraceEntry,
@@ -155,6 +156,16 @@ class MarlinFirmware(Firmware):
         faults = self.config.faults
         self.counting = faults.disconnect_after is not None or faults.reset_after is not None
         """A fault counts the commands (``disconnect_after``, ``reset_after``)."""
+        dialect = self.dialect
+        self.direct = (
+            faults == Faults()
+            and dialect.line_error == "marlin"
+            and not dialect.ack_on_queue
+            and not dialect.idle_wait_s
+            and self.config.command_slots >= 1
+        )
+        """:meth:`take_move` may run a move line: no fault, Marlin's or Prusa's checks, ``ok``
+        after running, no idle ``wait``, a command queue."""
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -282,19 +293,48 @@ class MarlinFirmware(Firmware):
         return self._queue(gcode_n, command, t)
 
     def _accept_framed(self, raw: bytes, t: float) -> bool:
-        """The common line on Marlin and Prusa: ``N<next> <command>*<checksum>``, short
-        enough, that :func:`clean_line` leaves as it is and without ``M110``: checked and
-        queued as :meth:`_accept` would, in fewer steps. False (nothing done) for any
-        other line, a wrong number or checksum included: :meth:`_accept` reads it."""
+        """The common line on Marlin and Prusa, checked and queued as :meth:`_accept`
+        would, in fewer steps (:meth:`_framed`); False (nothing done) for any other line."""
+        framed = self._framed(raw)
+        if framed is None:
+            return False
+        self.last_n, text = framed
+        return self._queue(self.last_n, raw.decode("latin-1"), t, text)
+
+    def _framed(self, raw: bytes) -> tuple[int, str] | None:
+        """The number and text of ``N<next> <command>*<checksum>``, short enough, that
+        :func:`clean_line` leaves as it is, without ``M110`` and with the right number and
+        checksum; None for any other line (:meth:`_accept` reads it, errors included)."""
         framed = _FRAMED.fullmatch(raw)
         if framed is None or len(raw) >= MAX_CMD_SIZE or b"M110" in framed[2]:
-            return False
+            return None
         n = int(framed[1])
         if n != self.last_n + 1 or int(framed[3]) != marlin_checksum(raw[: framed.start(3) - 1]):
+            return None
+        return n, framed[2].decode("latin-1").lstrip(" ").rstrip()
+
+    def take_move(self, raw: bytes, t: float) -> bool:
+        """Run a line that arrived at ``t`` on its own, as :meth:`run` would, if it is a
+        G0/G1 that :meth:`_framed` accepts, the firmware is idle (reading, nothing queued)
+        and the planner has room: checked, queued, run and answered at once, the way
+        :meth:`run` does it then, step for step. False, with nothing done, otherwise.
+        Only for :attr:`direct` firmwares: no fault, ``ok`` after running, no ``wait``."""
+        if self.blocked is not None or self.halted or self.deaf or self.queue:
+            return False
+        framed = self._framed(raw)
+        if framed is None:
+            return False
+        n, text = framed
+        if command_code(text) not in ("G0", "G1") or self.motion.full(t):
             return False
         self.last_n = n
-        text = framed[2].decode("latin-1").lstrip(" ").rstrip()
-        return self._queue(n, raw.decode("latin-1"), t, text)
+        motion = self.motion
+        motion.move(words(text), t, rapid=False, tag=len(self.trace))
+        x, y, z, e = motion.pos
+        self.trace.append(TraceEntry(n, text, x, y, z, e, t))
+        self.counters.executed += 1
+        self.out.line("ok", t, n)
+        return True
 
     def _queue(self, n: int | None, command: str, t: float, text: str | None = None) -> bool:
         """Queue ``command`` (``text``: :func:`command_text` of it, if known)."""

@@ -191,6 +191,8 @@ class Emulator:
         self.firmware = firmware_class(
             config, self.input, self.output, self.trace, self.counters, self.rng, self._dead
         )
+        self.direct = not grbl and self.input.instant and self.firmware.direct
+        """A move line may skip the event loop (:meth:`_write_move`)."""
         self._now = now
         self._dead_at: float | None = None
         self.disconnected = False
@@ -202,10 +204,30 @@ class Emulator:
 
     def host_write(self, data: bytes, now: float) -> None:
         """The host writes ``data`` at ``now`` (lost if the line is dead)."""
+        if self.direct and self._write_move(data, now):
+            return
         self.advance(now)
         if self._dead_at is None:
             self.input.push(self._corrupt(data), now)
             self.advance(now)
+
+    def _write_move(self, data: bytes, now: float) -> bool:
+        """One move line written to an idle machine on an instant wire, with nothing due
+        by ``now`` (:attr:`direct`): the firmware runs it at once
+        (:meth:`MarlinFirmware.take_move`), which is all that :meth:`advance` would do
+        (catch up with ``now``, take the line as it arrives, run it, find nothing more).
+        False, with nothing done, for anything else."""
+        inp = self.input
+        complete = data.find(b"\n") == len(data) - 1 and b"\r" not in data
+        quiet = not (inp.pending or inp.chunks) and now >= inp.free_at
+        if not (complete and quiet) or self._dead_at is not None:
+            return False
+        t = max(self._now, now)
+        if not self.firmware.take_move(data[:-1], t):
+            return False
+        self._now = t
+        inp.free_at = now
+        return True
 
     def poll(self, now: float) -> bytes:
         """Run the machine up to ``now``; the bytes that reached the host by then."""

@@ -429,16 +429,18 @@ class MarlinProtocol(Session):
             if self.inflight_lines >= self.max_lines + (2 if probe else 0):
                 break
             frame = frame_marlin(n, text)
-            backlog = self.inflight_bytes + len(frame)
+            size = len(frame)
+            backlog = self.inflight_bytes + size
             if backlog > (self.rx_usable if probe else self.byte_cap):
                 break
             if n == len(self.texts):
                 self._number(text, origin)
-            self.inflight.append(Transmission(n, len(frame), n, backlog))
+            self.inflight.append(Transmission(n, size, n, backlog))
             self.inflight_bytes = backlog
             self.inflight_lines += 1
             self.transmissions += 1
-            self.highest_sent = max(self.highest_sent, n)
+            if n > self.highest_sent:
+                self.highest_sent = n
             self.cursor = n + 1
             if n in self.takers:
                 self.takers[n] += 1
@@ -579,7 +581,8 @@ class MarlinProtocol(Session):
 
     def _on_ok(self, answer: Answer) -> None:
         now = time.monotonic()
-        gap = now - max(self.last_ok_s, self.last_tx_s)  # the machine's pace, not our waits
+        last = self.last_ok_s if self.last_ok_s >= self.last_tx_s else self.last_tx_s
+        gap = now - last  # the machine's pace, not our waits
         self.ok_gap_s = 0.8 * self.ok_gap_s + 0.2 * gap
         self.last_ok_s = now
         echo, self.unknown_echo = self.unknown_echo, None
