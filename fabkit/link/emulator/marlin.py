@@ -175,9 +175,8 @@ class MarlinFirmware(Firmware):
         self.hotend = Heater(tau)
         self.bed = Heater(tau)
         self.last_n = 0
-        self.queue: deque[tuple[int | None, str, str, str, dict[str, float]]] = deque()
-        """Queued commands: line number, command as received, its :func:`command_text`,
-        code and words."""
+        self.queue: deque[tuple[int | None, str, str]] = deque()
+        """Queued commands: line number, command as received, its :func:`command_text`."""
         self.blocked: _Block | None = None
         self.waiting_for_resend = -1  # Repetier: lines still answered with "skip"
         self.acked = 0  # lines acknowledged when queued (Repetier)
@@ -325,7 +324,11 @@ class MarlinFirmware(Firmware):
         if framed is None:
             return False
         n, text = framed
-        if command_code(text) not in ("G0", "G1") or self.motion.full(t):
+        try:
+            code = command_code(text)
+        except ValueError:  # code_of("G+"): the general way fails where it always has
+            return False
+        if code not in ("G0", "G1") or self.motion.full(t):
             return False
         self.last_n = n
         motion = self.motion
@@ -338,8 +341,7 @@ class MarlinFirmware(Firmware):
 
     def _queue(self, n: int | None, command: str, t: float, text: str | None = None) -> bool:
         """Queue ``command`` (``text``: :func:`command_text` of it, if known)."""
-        text = command_text(command) if text is None else text
-        self.queue.append((n, command, text, command_code(text), words(text)))
+        self.queue.append((n, command, command_text(command) if text is None else text))
         if self.dialect.ack_on_queue:
             ok = f"ok {n}" if n is not None and self.dialect.ack_numbered else "ok"
             self.out.line(ok, t, n)
@@ -423,15 +425,16 @@ class MarlinFirmware(Firmware):
             self.counters.rejected_lines += 1
             return True
         n = strtol(command, 1) if command.startswith("N") else None
-        text = command_text(command)
-        self.queue.append((n, command, text, command_code(text), words(text)))
+        self.queue.append((n, command, command_text(command)))
         return True
 
     # -- executing -------------------------------------------------------------------------
 
     def _advance(self, t: float) -> bool:
         """Execute the queue head; False if it has to wait."""
-        n, command, text, code, values = self.queue[0]
+        n, command, text = self.queue[0]
+        code = command_code(text)
+        values = words(text)
         wake = self._wake_time(code, values, t)
         if wake > t:
             if self.blocked is None:

@@ -195,17 +195,19 @@ class Transmission:
 
     ``n``: its line number; ``size``: its bytes; ``expect``: the line the firmware is
     predicted to expect when it reads it (accepted if ``n == expect``); ``backlog``: the
-    unanswered bytes, itself included, when it was sent."""
+    unanswered bytes, itself included, when it was sent; ``accepted``: predicted accepted
+    (change ``expect`` only through :meth:`predict`, which keeps it)."""
 
-    __slots__ = ("n", "size", "expect", "backlog")
+    __slots__ = ("n", "size", "expect", "backlog", "accepted")
 
     def __init__(self, n: int, size: int, expect: int, backlog: int) -> None:
         self.n, self.size, self.expect, self.backlog = n, size, expect, backlog
+        self.accepted = n == expect
 
-    @property
-    def accepted(self) -> bool:
-        """Predicted accepted."""
-        return self.n == self.expect
+    def predict(self, expect: int) -> None:
+        """The firmware is now predicted to expect line ``expect`` when it reads this one."""
+        self.expect = expect
+        self.accepted = self.n == expect
 
 
 class MarlinProtocol(Session):
@@ -416,10 +418,11 @@ class MarlinProtocol(Session):
     def _fill(self) -> None:
         """Send from ``cursor`` while the window has room, one write per line; a line gets
         its number when it is first sent."""
+        texts, inflight, takers = self.texts, self.inflight, self.takers
         while not self.control.paused or self.aborting:
             n = self.cursor
-            if n < len(self.texts):
-                text, origin = self.texts[n], self.origin[n]
+            if n < len(texts):
+                text, origin = texts[n], self.origin[n]
             else:
                 following = self._following()
                 if following is None:
@@ -433,17 +436,17 @@ class MarlinProtocol(Session):
             backlog = self.inflight_bytes + size
             if backlog > (self.rx_usable if probe else self.byte_cap):
                 break
-            if n == len(self.texts):
+            if n == len(texts):
                 self._number(text, origin)
-            self.inflight.append(Transmission(n, size, n, backlog))
+            inflight.append(Transmission(n, size, n, backlog))
             self.inflight_bytes = backlog
             self.inflight_lines += 1
             self.transmissions += 1
             if n > self.highest_sent:
                 self.highest_sent = n
             self.cursor = n + 1
-            if n in self.takers:
-                self.takers[n] += 1
+            if n in takers:
+                takers[n] += 1
             self.write(frame)
 
     def _following(self) -> tuple[str, int] | None:
@@ -845,7 +848,7 @@ class MarlinProtocol(Session):
         expect = x
         lines = 0
         for sent in self.inflight:
-            sent.expect = expect
+            sent.predict(expect)
             if sent.n == expect:
                 expect += 1
                 lines += 1
