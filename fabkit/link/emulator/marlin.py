@@ -304,8 +304,10 @@ class MarlinFirmware(Firmware):
         """The number and text of ``N<next> <command>*<checksum>``, short enough, that
         :func:`clean_line` leaves as it is, without ``M110`` and with the right number and
         checksum; None for any other line (:meth:`_accept` reads it, errors included)."""
+        if len(raw) >= MAX_CMD_SIZE or b"M110" in raw:
+            return None
         framed = _FRAMED.fullmatch(raw)
-        if framed is None or len(raw) >= MAX_CMD_SIZE or b"M110" in framed[2]:
+        if framed is None:
             return None
         n = int(framed[1])
         if n != self.last_n + 1 or int(framed[3]) != marlin_checksum(raw[: framed.start(3) - 1]):

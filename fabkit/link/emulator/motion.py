@@ -162,7 +162,8 @@ class Motion:
         self.pos = end
         if length <= 0:
             return
-        self._prune(t)
+        if self.blocks:
+            self._prune(t)
         if self.at_feed:
             self._move_at_feed(start, end, length, (), feed, tag, t)
             return
