@@ -13,7 +13,8 @@ examples/two_shapes.toml --layers 2``, its G-code only: ``--no-verify``) and a r
 2. ``fabkit send --dry-run`` on the 1,000,000-line file in a process of its own: wall time
    and peak memory (targets <= 5 s, <= 1 GB);
 3. the emulator at ``time_scale=0`` (``sim://marlin?baud=0&time_scale=0``) on Fig. 1's
-   file, through the whole protocol: lines/s (target >= 50,000).
+   file, through the whole protocol: lines/s, the best of ``--repeat`` sends (target
+   >= 50,000).
 
     python benchmarks/gcode_read.py [--repeat 3] [--lines 1000000]
 """
@@ -120,14 +121,19 @@ def dry_run(path: Path) -> None:
     )
 
 
-def emulator(path: Path) -> None:
-    """Section 3: the whole file through the emulator's protocol at time_scale=0."""
-    report = send_file(path, "sim://marlin?baud=0&time_scale=0", show_progress=False)
+def emulator(path: Path, repeat: int) -> None:
+    """Section 3: the whole file through the emulator's protocol at time_scale=0, the best
+    of ``repeat`` sends (the send's own figure, from its handshake to the last ``ok``)."""
+    reports = [
+        send_file(path, "sim://marlin?baud=0&time_scale=0", show_progress=False)
+        for _ in range(repeat)
+    ]
+    report = min(reports, key=lambda r: r.elapsed_s)
     rate = report.lines_per_s
     print(
         f"3. emulator, sim://marlin?baud=0&time_scale=0: {report.job_lines:,} lines in "
-        f"{report.elapsed_s:.1f} s, {rate:,.0f} lines/s (target >= {EMULATOR_LINES_S:,.0f}: "
-        f"{verdict(rate >= EMULATOR_LINES_S)})"
+        f"{report.elapsed_s:.2f} s (best of {repeat}), {rate:,.0f} lines/s "
+        f"(target >= {EMULATOR_LINES_S:,.0f}: {verdict(rate >= EMULATOR_LINES_S)})"
     )
 
 
@@ -140,7 +146,7 @@ def main() -> None:
     big = raster_file(folder, args.lines)
     reading(fig1, args.repeat)
     dry_run(big)
-    emulator(fig1)
+    emulator(fig1, args.repeat)
 
 
 if __name__ == "__main__":

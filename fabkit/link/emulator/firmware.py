@@ -95,9 +95,21 @@ class Input:
     free_at: float = field(default=-INF, init=False)
     pending: bytearray = field(default_factory=bytearray, init=False)
     rt_events: deque[tuple[float, int]] = field(default_factory=deque, init=False)
+    instant: bool = field(default=False, init=False)
+    """Bytes arrive as they are written (no byte time, no latency, no real-time bytes to
+    pick off): a write behind an empty wire goes straight to ``pending``. Nothing reads the
+    ring before the emulator has caught up with the write's time, and by then every byte
+    of it has arrived: taking them on arrival or when looked at is the same."""
+
+    def __post_init__(self) -> None:
+        self.instant = self.byte_s == 0 and self.latency_s == 0 and not self.realtime
 
     def push(self, data: bytes, now: float) -> None:
         """The host writes ``data`` at ``now``; it reaches the machine byte by byte."""
+        if self.instant and not self.chunks and now >= self.free_at:
+            self.pending += data  # all in at ``now``: the next look takes it all at once
+            self.free_at = now
+            return
         start = max(now, self.free_at)
         self.free_at = start + len(data) * self.byte_s
         base = start + self.byte_s + self.latency_s
@@ -123,6 +135,8 @@ class Input:
         return max(0, min(len(data), k) - off)
 
     def _take_arrived(self, t: float) -> bytes:
+        if not self.chunks:
+            return b""
         taken = bytearray()
         while self.chunks:
             chunk = self.chunks[0]
@@ -156,6 +170,8 @@ class Input:
         """The next complete line (without its newline) arrived by ``t``, or None."""
         i = self.pending.find(b"\n")
         if i < 0:
+            if not self.chunks:
+                return None
             self.pending += self._take_arrived(t)
             i = self.pending.find(b"\n")
             if i < 0:
@@ -197,10 +213,18 @@ class Output:
     noise_lines: tuple[str, ...]
     items: deque[tuple[float, bytes]] = field(default_factory=deque, init=False)
     free_at: float = field(default=-INF, init=False)
+    faultless: bool = field(default=True, init=False)
+    """No fault hits a line (none configured): :meth:`line` draws no random number."""
+
+    def __post_init__(self) -> None:
+        self.faultless = not (self.faults.noise or self.faults.drop_ok or self.faults.garble)
 
     def line(self, text: str, t: float, answers: int | None = None) -> None:
         """Send one line at ``t``, subject to the injected faults; ``answers``: the number
         of the line this ``ok`` acknowledges, if it is one."""
+        if self.faultless:
+            self.raw(text.encode("latin-1") + self.eol, t)
+            return
         faults, rng = self.faults, self.rng
         if faults.noise and rng.random() < faults.noise:
             self.counters.spurious_lines += 1

@@ -23,6 +23,7 @@ from fabkit.link.emulator.dialects import DIALECTS, Dialect
 from fabkit.link.emulator.firmware import (
     INF,
     EmulatorConfig,
+    Faults,
     Firmware,
     Heater,
     TraceEntry,
@@ -43,6 +44,10 @@ _ERR_NO_LINE_NO = "No Line Number with checksum, Last Line: "
 REPETIER_SKIP_LINES = 14  # Repetier's waitingForResend after a resend request (gcode.cpp)
 REPETIER_SEEN_LINES = 40  # a line number this close behind the last one is a repeat
 _STRTOL = re.compile(r"\s*([-+]?\d+)")
+_FRAMED = re.compile(rb"N([0-9]+) ([^*;\\\x08]*)\*([0-9]+)")
+"""``N<n> <command>*<checksum>`` with nothing in it that :func:`clean_line` changes."""
+_CODES: dict[str, str] = {}  # first word of a command -> its code (command_code)
+_CODES_KEPT = 256
 
 _MOVES = {"G0", "G1", "G2", "G3"}
 _SYNC = {"M400", "G28", "G29", "M84", "M18"}
@@ -51,15 +56,16 @@ _NO_EFFECT = {
     "M117", "M118", "M201", "M203", "M204", "M205", "M220", "M221", "M300", "M999",
     "T0", "T1", "M110",
 }  # fmt: skip
+_ANSWERING = {"M112", "M105", "M109", "M190", "M114", "M115"}  # more than an ok
 KNOWN = _MOVES | _SYNC | _NO_EFFECT | {
     "G4", "G90", "G91", "G92", "M82", "M83", "M104", "M105", "M109", "M112", "M114",
     "M115", "M140", "M190", "M410",
 }  # fmt: skip
 
 
-def strtol(text: str) -> int:
-    """C ``strtol(text, nullptr, 10)``: the leading integer, 0 if none."""
-    match = _STRTOL.match(text)
+def strtol(text: str, start: int = 0) -> int:
+    """C ``strtol(text + start, nullptr, 10)``: the leading integer, 0 if none."""
+    match = _STRTOL.match(text, start)
     return int(match.group(1)) if match else 0
 
 
@@ -73,7 +79,7 @@ def strip_line_number(command: str) -> str:
 def clean_line(raw: bytes) -> str:
     """Marlin's ``process_stream_char``: ``;`` comments, ``\\`` escapes, backspace, and
     characters past MAX_CMD_SIZE - 1 dropped."""
-    if not any(c in raw for c in b";\\\x08"):
+    if b";" not in raw and b"\\" not in raw and b"\x08" not in raw:
         return raw[: MAX_CMD_SIZE - 1].decode("latin-1")
     out: list[str] = []
     escaped = False
@@ -93,6 +99,26 @@ def clean_line(raw: bytes) -> str:
             if len(out) >= MAX_CMD_SIZE - 1:
                 break
     return "".join(out)
+
+
+def command_code(text: str) -> str:
+    """:func:`~fabkit.gcode.read.code_of`, remembered by the text's first word: the code
+    depends on nothing else when neither of the text's first two characters is a blank
+    (its pattern then matches inside the first word, and the words it splits are the
+    same), so the few words a job starts its lines with are read once."""
+    head = text.partition(" ")[0]
+    code = _CODES.get(head)
+    if code is None:
+        code = code_of(text)
+        blank = len(head) < 2 or head[0].isspace() or head[1].isspace()
+        if not blank and len(_CODES) < _CODES_KEPT:
+            _CODES[head] = code
+    return code
+
+
+def command_text(command: str) -> str:
+    """The command as it runs: without line number and checksum."""
+    return strip_line_number(command).split("*", 1)[0].rstrip()
 
 
 @dataclass
@@ -127,6 +153,19 @@ class MarlinFirmware(Firmware):
 
     def _start(self) -> None:
         self.dialect = self.dialect_of(self.config)
+        faults = self.config.faults
+        self.counting = faults.disconnect_after is not None or faults.reset_after is not None
+        """A fault counts the commands (``disconnect_after``, ``reset_after``)."""
+        dialect = self.dialect
+        self.direct = (
+            faults == Faults()
+            and dialect.line_error == "marlin"
+            and not dialect.ack_on_queue
+            and not dialect.idle_wait_s
+            and self.config.command_slots >= 1
+        )
+        """:meth:`take_move` may run a move line: no fault, Marlin's or Prusa's checks, ``ok``
+        after running, no idle ``wait``, a command queue."""
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -136,7 +175,8 @@ class MarlinFirmware(Firmware):
         self.hotend = Heater(tau)
         self.bed = Heater(tau)
         self.last_n = 0
-        self.queue: deque[tuple[int | None, str]] = deque()
+        self.queue: deque[tuple[int | None, str, str]] = deque()
+        """Queued commands: line number, command as received, its :func:`command_text`."""
         self.blocked: _Block | None = None
         self.waiting_for_resend = -1  # Repetier: lines still answered with "skip"
         self.acked = 0  # lines acknowledged when queued (Repetier)
@@ -216,6 +256,8 @@ class MarlinFirmware(Firmware):
 
     def _accept(self, raw: bytes, t: float) -> bool:
         """Check one line and queue it; False after a line error that drained the ring."""
+        if self.dialect.line_error == "marlin" and self._accept_framed(raw, t):
+            return True
         command = clean_line(raw).lstrip(" ")
         if not command:
             return True
@@ -230,13 +272,13 @@ class MarlinFirmware(Firmware):
             if command.startswith("M410"):
                 self.motion.clear(t)  # processed early, as Marlin does for unnumbered M410
             return self._queue(None, command, t)
-        npos = command
+        npos = 0
         m110 = "M110" in command
         if m110:
             second = command.find("N", 4)
             if second >= 0:
-                npos = command[second:]
-        gcode_n = strtol(npos[1:])
+                npos = second
+        gcode_n = strtol(command, npos + 1)
         star = command.rfind("*")
         if style == "repetier":
             return self._accept_repetier(command, gcode_n, star, m110, t)
@@ -249,8 +291,59 @@ class MarlinFirmware(Firmware):
         self.last_n = gcode_n
         return self._queue(gcode_n, command, t)
 
-    def _queue(self, n: int | None, command: str, t: float) -> bool:
-        self.queue.append((n, command))
+    def _accept_framed(self, raw: bytes, t: float) -> bool:
+        """The common line on Marlin and Prusa, checked and queued as :meth:`_accept`
+        would, in fewer steps (:meth:`_framed`); False (nothing done) for any other line."""
+        framed = self._framed(raw)
+        if framed is None:
+            return False
+        self.last_n, text = framed
+        return self._queue(self.last_n, raw.decode("latin-1"), t, text)
+
+    def _framed(self, raw: bytes) -> tuple[int, str] | None:
+        """The number and text of ``N<next> <command>*<checksum>``, short enough, that
+        :func:`clean_line` leaves as it is, without ``M110`` and with the right number and
+        checksum; None for any other line (:meth:`_accept` reads it, errors included)."""
+        if len(raw) >= MAX_CMD_SIZE or b"M110" in raw:
+            return None
+        framed = _FRAMED.fullmatch(raw)
+        if framed is None:
+            return None
+        n = int(framed[1])
+        if n != self.last_n + 1 or int(framed[3]) != marlin_checksum(raw[: framed.start(3) - 1]):
+            return None
+        return n, framed[2].decode("latin-1").lstrip(" ").rstrip()
+
+    def take_move(self, raw: bytes, t: float) -> bool:
+        """Run a line that arrived at ``t`` on its own, as :meth:`run` would, if it is a
+        G0/G1 that :meth:`_framed` accepts, the firmware is idle (reading, nothing queued)
+        and the planner has room: checked, queued, run and answered at once, the way
+        :meth:`run` does it then, step for step. False, with nothing done, otherwise.
+        Only for :attr:`direct` firmwares: no fault, ``ok`` after running, no ``wait``."""
+        if self.blocked is not None or self.halted or self.deaf or self.queue:
+            return False
+        framed = self._framed(raw)
+        if framed is None:
+            return False
+        n, text = framed
+        try:
+            code = command_code(text)
+        except ValueError:  # code_of("G+"): the general way fails where it always has
+            return False
+        if code not in ("G0", "G1") or self.motion.full(t):
+            return False
+        self.last_n = n
+        motion = self.motion
+        motion.move(words(text), t, rapid=False, tag=len(self.trace))
+        x, y, z, e = motion.pos
+        self.trace.append(TraceEntry(n, text, x, y, z, e, t))
+        self.counters.executed += 1
+        self.out.line("ok", t, n)
+        return True
+
+    def _queue(self, n: int | None, command: str, t: float, text: str | None = None) -> bool:
+        """Queue ``command`` (``text``: :func:`command_text` of it, if known)."""
+        self.queue.append((n, command, command_text(command) if text is None else text))
         if self.dialect.ack_on_queue:
             ok = f"ok {n}" if n is not None and self.dialect.ack_numbered else "ok"
             self.out.line(ok, t, n)
@@ -313,7 +406,7 @@ class MarlinFirmware(Firmware):
             return True
         if not command.startswith("N"):
             return self._queue(None, command, t)
-        n = strtol(command[1:])
+        n = strtol(command, 1)
         if "M110" in command:
             self.last_n = n
             self.out.line("ok", t)
@@ -333,17 +426,16 @@ class MarlinFirmware(Firmware):
         if missing or star >= 0 and not _checksum_ok(command, star):
             self.counters.rejected_lines += 1
             return True
-        n = strtol(command[1:]) if command.startswith("N") else None
-        self.queue.append((n, command))
+        n = strtol(command, 1) if command.startswith("N") else None
+        self.queue.append((n, command, command_text(command)))
         return True
 
     # -- executing -------------------------------------------------------------------------
 
     def _advance(self, t: float) -> bool:
         """Execute the queue head; False if it has to wait."""
-        n, command = self.queue[0]
-        text = strip_line_number(command).split("*", 1)[0].rstrip()
-        code = code_of(text)
+        n, command, text = self.queue[0]
+        code = command_code(text)
         values = words(text)
         wake = self._wake_time(code, values, t)
         if wake > t:
@@ -382,12 +474,12 @@ class MarlinFirmware(Firmware):
         self, n: int | None, command: str, text: str, code: str, values: dict[str, float], t: float
     ) -> None:
         motion = self.motion
-        if code not in KNOWN:
-            self._unknown(n, text, t)
-            return
         if code in _MOVES:
             arc = int(code[1]) if code in ("G2", "G3") else 0
             motion.move(values, t, rapid=False, arc=arc, tag=len(self.trace))
+        elif code not in KNOWN:
+            self._unknown(n, text, t)
+            return
         elif code in ("G90", "G91"):
             motion.absolute = motion.absolute_e = code == "G90"
         elif code in ("M82", "M83"):
@@ -425,6 +517,11 @@ class MarlinFirmware(Firmware):
     def _respond(self, n: int | None, code: str, t: float) -> None:
         """The answer to line ``n``, which ran ``code``."""
         out = self.out
+        if code not in _ANSWERING:  # most commands: just the ok
+            if not self.dialect.ack_on_queue:
+                out.line("ok", t, n)
+            self._faults(t)
+            return
         if code == "M112":
             out.line("Error:Printer halted. kill() called!", t)
             self.halted = True
@@ -462,6 +559,8 @@ class MarlinFirmware(Firmware):
         """``disconnect_after``: the line goes dead after that many acknowledged commands,
         and the machine runs exactly what it acknowledged (for a firmware that
         acknowledges when it queues, the queue is run first)."""
+        if not self.counting:
+            return
         faults = self.config.faults
         executed = self.counters.executed
         acked = self.acked if self.dialect.ack_on_queue else executed
@@ -479,4 +578,4 @@ class MarlinFirmware(Firmware):
 
 def _checksum_ok(command: str, star: int) -> bool:
     """The XOR of the bytes before ``*`` equals the number after it."""
-    return strtol(command[star + 1 :]) == marlin_checksum(command[:star].encode("latin-1"))
+    return strtol(command, star + 1) == marlin_checksum(command[:star].encode("latin-1"))

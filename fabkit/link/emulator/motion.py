@@ -15,10 +15,11 @@ from collections import deque
 from dataclasses import dataclass
 
 _AXES = "XYZE"
+_XYZ = tuple(enumerate("XYZ"))
 FIRST_MOVE_DELAY_S = 0.1  # Marlin's BLOCK_DELAY_FOR_1ST_MOVE: a first move waits for company
 
 
-@dataclass
+@dataclass(slots=True)
 class _Block:
     """One planned move (mm, mm/s, mm/s^2, s): from ``start`` to ``end`` (X, Y, Z, E)
     along ``unit``; ``tag`` names the command that made it."""
@@ -78,6 +79,8 @@ class Motion:
         self.held_since: float | None = None
         self.finished: list[int | None] = []
         self.stopped_at: list[float] = list(self.pos)  # where the last block ended
+        self.at_feed = time_scale <= 0 or not any(a > 0 for a in accel_mm_s2)
+        """Every block runs at its feed from end to end: no time, or no accelerations."""
 
     def _prune(self, t: float) -> None:
         if self.held_since is None:
@@ -92,7 +95,8 @@ class Motion:
         return len(self.blocks)
 
     def full(self, t: float) -> bool:
-        return self.planned(t) >= self.depth
+        self._prune(t)
+        return len(self.blocks) >= self.depth
 
     def busy(self, t: float) -> bool:
         return self.planned(t) > 0
@@ -132,11 +136,12 @@ class Motion:
     def target(self, values: dict[str, float]) -> list[float]:
         """The position after a move with ``values`` (axis letter -> number)."""
         out = list(self.pos)
-        for i, axis in enumerate(_AXES):
+        for i, axis in _XYZ:
             if axis in values:
-                value = values[axis] * (self.unit_mm if axis != "E" else 1.0)
-                absolute = self.absolute_e if axis == "E" else self.absolute
-                out[i] = value if absolute else out[i] + value
+                value = values[axis] * self.unit_mm
+                out[i] = value if self.absolute else out[i] + value
+        if "E" in values:
+            out[3] = values["E"] if self.absolute_e else out[3] + values["E"]
         return out
 
     def move(
@@ -157,7 +162,11 @@ class Motion:
         self.pos = end
         if length <= 0:
             return
-        self._prune(t)
+        if self.blocks:
+            self._prune(t)
+        if self.at_feed:
+            self._move_at_feed(start, end, length, (), feed, tag, t)
+            return
         deltas = [b - a for a, b in zip(start, end, strict=True)]
         xyz = math.sqrt(sum(d * d for d in deltas[:3]))
         unit = tuple(d / (xyz or length) for d in deltas)
@@ -165,17 +174,37 @@ class Motion:
             (a / abs(u) for a, u in zip(self.accel_mm_s2, unit, strict=True) if a > 0 and u),
             default=math.inf,
         )
-        block = _Block(start, end, length, unit, feed, accel, 0.0, tag)
-        if self.time_scale <= 0 or math.isinf(accel):
-            begin = max(t, self.blocks[-1].end_t) if self.blocks else t
-            block.begin_t, block.end_t = begin, begin + length / feed * self.time_scale
-            block.entry = block.exit = feed
-            self.blocks.append(block)
+        if math.isinf(accel):  # none of its axes accelerates
+            self._move_at_feed(start, end, length, unit, feed, tag, t)
             return
+        block = _Block(start, end, length, unit, feed, accel, 0.0, tag)
         if self.blocks:
             block.max_entry = self._junction(self.blocks[-1], block)
         self.blocks.append(block)
         self._replan(t)
+
+    def _move_at_feed(
+        self,
+        start: list[float],
+        end: list[float],
+        length: float,
+        unit: tuple[float, ...],
+        feed: float,
+        tag: int | None,
+        t: float,
+    ) -> None:
+        """Plan a move at its feed (mm/s) from end to end (``accel`` inf; ``unit`` may be
+        empty where no junction is ever planned). One that ends by ``t`` behind an empty
+        planner (time scale 0) finishes now: any later look at the planner would prune it
+        first, as the firmware's clock never goes back."""
+        begin = max(t, self.blocks[-1].end_t) if self.blocks else t
+        end_t = begin + length / feed * self.time_scale
+        if end_t <= t and not self.blocks and self.held_since is None:
+            self.finished.append(tag)
+            self.stopped_at = list(end)
+            return
+        block = _Block(start, end, length, unit, feed, math.inf, 0.0, tag, feed, feed, begin, end_t)
+        self.blocks.append(block)
 
     def _junction(self, prev: _Block, block: _Block) -> float:
         """The highest speed at the junction (mm/s): junction deviation, as in Marlin and

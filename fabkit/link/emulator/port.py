@@ -191,6 +191,8 @@ class Emulator:
         self.firmware = firmware_class(
             config, self.input, self.output, self.trace, self.counters, self.rng, self._dead
         )
+        self.direct = not grbl and self.input.instant and self.firmware.direct
+        """A move line may skip the event loop (:meth:`_write_move`)."""
         self._now = now
         self._dead_at: float | None = None
         self.disconnected = False
@@ -202,10 +204,30 @@ class Emulator:
 
     def host_write(self, data: bytes, now: float) -> None:
         """The host writes ``data`` at ``now`` (lost if the line is dead)."""
+        if self.direct and self._write_move(data, now):
+            return
         self.advance(now)
         if self._dead_at is None:
             self.input.push(self._corrupt(data), now)
             self.advance(now)
+
+    def _write_move(self, data: bytes, now: float) -> bool:
+        """One move line written to an idle machine on an instant wire, with nothing due
+        by ``now`` (:attr:`direct`): the firmware runs it at once
+        (:meth:`MarlinFirmware.take_move`), which is all that :meth:`advance` would do
+        (catch up with ``now``, take the line as it arrives, run it, find nothing more).
+        False, with nothing done, for anything else."""
+        inp = self.input
+        complete = data.find(b"\n") == len(data) - 1 and b"\r" not in data
+        quiet = not (inp.pending or inp.chunks) and now >= inp.free_at
+        if not (complete and quiet) or self._dead_at is not None:
+            return False
+        t = max(self._now, now)
+        if not self.firmware.take_move(data[:-1], t):
+            return False
+        self._now = t
+        inp.free_at = now
+        return True
 
     def poll(self, now: float) -> bytes:
         """Run the machine up to ``now``; the bytes that reached the host by then."""
@@ -229,24 +251,29 @@ class Emulator:
     def advance(self, now: float) -> None:
         """Process every event up to ``now`` in time order."""
         fw, inp = self.firmware, self.input
+        reading = fw.reading
         while self._dead_at is None:
-            t_rt = inp.next_realtime_time()
+            t_rt = inp.rt_events[0][0] if inp.rt_events else INF
             t_fw = fw.next_time()
-            t_nl = inp.next_newline_time() if fw.reading else INF
-            t = min(t_rt, t_fw, t_nl)
+            t_nl = inp.next_newline_time() if reading else INF
+            t_line = t_fw if t_fw <= t_nl else t_nl
+            t = t_rt if t_rt <= t_line else t_line
             if t > now:
                 break
-            t = max(t, self._now)
+            if t < self._now:
+                t = self._now
             self._now = t
-            if not fw.reading:
+            if not reading:
                 inp.fill(t)
-            if t_rt <= min(t_fw, t_nl):
+            if t_rt <= t_line:
                 fw.realtime(inp.pop_realtime(), t)
             else:
                 fw.run(t)
-        if not fw.reading:
+            reading = fw.reading
+        if not reading:
             inp.fill(now)
-        self._now = max(self._now, now)
+        if now > self._now:
+            self._now = now
 
     def _corrupt(self, data: bytes) -> bytes:
         """Flip one bit in each complete line with probability ``faults.corrupt``."""

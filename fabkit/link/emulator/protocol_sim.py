@@ -55,7 +55,18 @@ class Serial(SerialBase):
         return len(self._rx)
 
     def read(self, size: int = 1) -> bytes:
-        """Up to ``size`` bytes, waiting at most ``timeout`` seconds (None: forever)."""
+        """Up to ``size`` bytes, waiting at most ``timeout`` seconds (None: forever); bytes
+        already received are returned without running the emulator."""
+        if not self.is_open:
+            raise PortNotOpenError()
+        if len(self._rx) < size:
+            self._wait(size)
+        data = bytes(self._rx[:size])
+        del self._rx[:size]
+        return data
+
+    def _wait(self, size: int) -> None:
+        """Run the emulator until ``size`` bytes are in, or ``timeout`` seconds passed."""
         deadline = None if self._timeout is None else time.monotonic() + self._timeout
         self._pump()
         while len(self._rx) < size:
@@ -68,9 +79,6 @@ class Serial(SerialBase):
             if wake > now:
                 time.sleep(wake - now)
             self._pump()
-        data = bytes(self._rx[:size])
-        del self._rx[:size]
-        return data
 
     def write(self, data: bytes) -> int:
         if not self.is_open:

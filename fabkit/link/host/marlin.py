@@ -158,10 +158,10 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from fabkit.errors import FabkitError
-from fabkit.gcode.read import code_of, frame_marlin
+from fabkit.gcode.read import Command, Commands, code_of, frame_marlin
 from fabkit.link import answers
 from fabkit.link.answers import Answer, classify
 from fabkit.link.host.one_by_one import OneByOne
@@ -185,22 +185,29 @@ REGROW_LINES = 500  # clean lines before a byte window shrunk by an overflow gro
 BACKWARD_LIMIT = 3  # requests in a row for a line proven accepted that mean a reset
 
 
+def job_texts(job: Sequence[Command]) -> list[str]:
+    """The commands' texts, in order (a :class:`Commands` holds them as they are)."""
+    return job.texts if isinstance(job, Commands) else [command.text for command in job]
+
+
 class Transmission:
     """One line written to the port and not yet answered.
 
     ``n``: its line number; ``size``: its bytes; ``expect``: the line the firmware is
     predicted to expect when it reads it (accepted if ``n == expect``); ``backlog``: the
-    unanswered bytes, itself included, when it was sent."""
+    unanswered bytes, itself included, when it was sent; ``accepted``: predicted accepted
+    (change ``expect`` only through :meth:`predict`, which keeps it)."""
 
-    __slots__ = ("n", "size", "expect", "backlog")
+    __slots__ = ("n", "size", "expect", "backlog", "accepted")
 
     def __init__(self, n: int, size: int, expect: int, backlog: int) -> None:
         self.n, self.size, self.expect, self.backlog = n, size, expect, backlog
+        self.accepted = n == expect
 
-    @property
-    def accepted(self) -> bool:
-        """Predicted accepted."""
-        return self.n == self.expect
+    def predict(self, expect: int) -> None:
+        """The firmware is now predicted to expect line ``expect`` when it reads this one."""
+        self.expect = expect
+        self.accepted = self.n == expect
 
 
 class MarlinProtocol(Session):
@@ -212,8 +219,9 @@ class MarlinProtocol(Session):
         super().__init__(*args, **kwargs)
         self.firmware = answers.identify("", self.machine.flavour)
         self.rx_usable = self.serial.rx_buffer_bytes - 1
+        self.job_texts = job_texts(self.job)
         biggest_n = 10 ** len(str(2 * len(self.job) + 1000)) - 1
-        longest = max((len(c.text) for c in self.job), default=0)
+        longest = max(map(len, self.job_texts), default=0)
         self.longest_frame = len(frame_marlin(biggest_n, "x" * longest))
         self.probe_frame = len(frame_marlin(biggest_n, PROBE))
         self.job_window = self.rx_usable - 2 * self.probe_frame
@@ -410,10 +418,11 @@ class MarlinProtocol(Session):
     def _fill(self) -> None:
         """Send from ``cursor`` while the window has room, one write per line; a line gets
         its number when it is first sent."""
+        texts, inflight, takers = self.texts, self.inflight, self.takers
         while not self.control.paused or self.aborting:
             n = self.cursor
-            if n < len(self.texts):
-                text, origin = self.texts[n], self.origin[n]
+            if n < len(texts):
+                text, origin = texts[n], self.origin[n]
             else:
                 following = self._following()
                 if following is None:
@@ -423,31 +432,33 @@ class MarlinProtocol(Session):
             if self.inflight_lines >= self.max_lines + (2 if probe else 0):
                 break
             frame = frame_marlin(n, text)
-            backlog = self.inflight_bytes + len(frame)
+            size = len(frame)
+            backlog = self.inflight_bytes + size
             if backlog > (self.rx_usable if probe else self.byte_cap):
                 break
-            if n == len(self.texts):
+            if n == len(texts):
                 self._number(text, origin)
-            self.inflight.append(Transmission(n, len(frame), n, backlog))
+            inflight.append(Transmission(n, size, n, backlog))
             self.inflight_bytes = backlog
             self.inflight_lines += 1
             self.transmissions += 1
-            self.highest_sent = max(self.highest_sent, n)
+            if n > self.highest_sent:
+                self.highest_sent = n
             self.cursor = n + 1
-            if n in self.takers:
-                self.takers[n] += 1
+            if n in takers:
+                takers[n] += 1
             self.write(frame)
 
     def _following(self) -> tuple[str, int] | None:
         """The line that comes after every numbered one (text, origin): a wanted or
         periodic probe, the next job line, a safe-stop line or, after all of them, the
         final M105; None when the final M105 is numbered and no probe is wanted."""
-        job_left = self.job_next < len(self.job) and not self.aborting
+        job_left = self.job_next < len(self.job_texts) and not self.aborting
         periodic = job_left and self.firmware.drains and self.since_probe >= self.sync_every
         if self.probe_wanted or periodic:
             return PROBE, PROBE_LINE
         if job_left:
-            return self.job[self.job_next].text, self.job_next
+            return self.job_texts[self.job_next], self.job_next
         if self.tail:
             return self.tail[0], SAFE_STOP
         return (PROBE, PROBE_LINE) if self.final_probe is None else None
@@ -573,7 +584,8 @@ class MarlinProtocol(Session):
 
     def _on_ok(self, answer: Answer) -> None:
         now = time.monotonic()
-        gap = now - max(self.last_ok_s, self.last_tx_s)  # the machine's pace, not our waits
+        last = self.last_ok_s if self.last_ok_s >= self.last_tx_s else self.last_tx_s
+        gap = now - last  # the machine's pace, not our waits
         self.ok_gap_s = 0.8 * self.ok_gap_s + 0.2 * gap
         self.last_ok_s = now
         echo, self.unknown_echo = self.unknown_echo, None
@@ -600,8 +612,7 @@ class MarlinProtocol(Session):
         if echo is not None:
             self.warnings.append(f"the machine did not know '{self.texts[sent.n]}'")
         self._grow()
-        self._progress()
-        self.show(self.done_lines, self.heating_note)
+        self.show(self._progress(), self.heating_note)
 
     def _paired(self) -> None:
         """An ``ok`` taken as a refusal's pair. With no line in flight predicted accepted,
@@ -837,7 +848,7 @@ class MarlinProtocol(Session):
         expect = x
         lines = 0
         for sent in self.inflight:
-            sent.expect = expect
+            sent.predict(expect)
             if sent.n == expect:
                 expect += 1
                 lines += 1
@@ -864,11 +875,13 @@ class MarlinProtocol(Session):
             self.byte_cap = min(self.job_window, self.byte_cap + max(8, self.longest_frame // 2))
             self.clean_lines = 0
 
-    def _progress(self) -> None:
+    def _progress(self) -> int:
+        """The job lines done (:attr:`done_lines`), noting when that last changed."""
         done = self.done_lines
         if done != self.last_done:
             self.last_done = done
             self.last_progress_s = time.monotonic()
+        return done
 
     # -- silence ---------------------------------------------------------------------------
 

@@ -306,10 +306,9 @@ class Session:
             i = self.rx.find(b"\n")
             if i < 0:
                 return None
-        raw = bytes(self.rx[:i])
+        line = self.rx[:i].decode("latin-1").strip()
         del self.rx[: i + 1]
         self.last_rx_s = time.monotonic()
-        line = raw.decode("latin-1").strip()
         if self.log is not None:
             self.log.write(f"{self.last_rx_s - self.t0:10.4f} << {_visible(line)}\n")
         return line
