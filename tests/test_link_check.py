@@ -518,7 +518,7 @@ def test_gcode_helpers():
     assert marlin_checksum(b"N0 M110 N0") == 125
     assert frame_marlin(0, "M110 N0") == b"N0 M110 N0*125\n"
     assert words("g1 x1.5 Y-2 e.5") == {"G": 1.0, "X": 1.5, "Y": -2.0, "E": 0.5}
-    codes = ["G1 X1", "G01", "G38.2 Z-1", "$H", "X5", "SET_LED", "PRINT_START", "m104 S1"]
+    codes = ["G1 X1", "G01", "G38.2 Z-1", "$H", "X5", "SET_LED", "PRINT_START", "m104 S1", "G+ X1"]
     assert [code_of(text) for text in codes] == [
-        "G1", "G1", "G38.2", "$H", "X", "SET_LED", "PRINT_START", "M104",
+        "G1", "G1", "G38.2", "$H", "X", "SET_LED", "PRINT_START", "M104", "G",
     ]  # fmt: skip

@@ -224,7 +224,7 @@ def code_of(text: str) -> str:
     letter, number = match.groups()
     if letter == "$":
         return "$" + text.strip()[1:2].upper()
-    if letter.upper() in "GMT" and number:
+    if letter.upper() in "GMT" and any(c.isdigit() for c in number):  # "G+": no number
         value = float(number)
         return f"{letter.upper()}{int(value)}" if value.is_integer() else f"{letter.upper()}{value}"
     head = text.split()[0].upper()
