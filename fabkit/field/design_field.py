@@ -196,18 +196,24 @@ class _DesignMesh:
         return results
 
 
+BUCKET = 0.5
+"""A locator's bucket side over the median triangle's (Fig. 1's field: 6.3 triangles
+tested per point at 1, 0.18 s for 150,000 points; 0.11 s at 0.5, the same answers)."""
+
+
 class TriangleLocator:
     """Find the first triangle (lowest index) of a planar mesh containing each query point.
 
-    Triangles are binned into a uniform grid of buckets about the median triangle
-    size; a query tests only the triangles of its bucket, vectorised over all points.
+    Triangles are binned into a uniform grid of buckets :data:`BUCKET` times the median
+    triangle size; a query tests only the triangles of its bucket, vectorised over all
+    points.
     """
 
     def __init__(self, points: np.ndarray, triangles: np.ndarray):
         self.points, self.triangles = points, triangles
         corners = points[triangles]  # (T, 3, 2)
         low, high = corners.min(axis=1), corners.max(axis=1)
-        size = float(np.median(np.max(high - low, axis=1))) or 1.0
+        size = BUCKET * float(np.median(np.max(high - low, axis=1))) or 1.0
         self.origin, self.size = low.min(axis=0), size
         self.shape = np.floor((high.max(axis=0) - self.origin) / size).astype(int) + 1
         i0, j0 = self._bucket(low).T
