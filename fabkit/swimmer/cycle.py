@@ -26,7 +26,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from matplotlib.tri import Triangulation
 
 from fabkit.errors import FabkitError
 from fabkit.mechanics.mesh import disc_mesh
@@ -130,6 +129,8 @@ def barycentric(
     A query outside the mesh takes the triangle with the nearest centroid (weights
     then extrapolate linearly).
     """
+    from matplotlib.tri import Triangulation  # matplotlib loads only for a swimmer
+
     finder = Triangulation(points[:, 0], points[:, 1], triangles).get_trifinder()
     host = np.asarray(finder(queries[:, 0], queries[:, 1]))
     outside = host < 0

@@ -20,7 +20,6 @@ from fabkit.machines import DEFAULT_MACHINE
 from fabkit.swimmer.spec import SwimmerSpec
 from fabkit.toolpath.model import save_toolpath
 from fabkit.toolpath.plan import PATTERNS, PlanSettings, plan_toolpath
-from fabkit.toolpath.preview import save_preview
 from fabkit.toolpath.process_file import machine_process
 from fabkit.writers.export import export
 
@@ -76,6 +75,8 @@ def fabricate(spec: SwimmerSpec, out: Path) -> Made:
     toolpath_file, preview_file = out / "toolpath.npz", out / "preview.png"
     gcode_file = out / "swimmer.gcode"
     save_toolpath(plan.toolpath, toolpath_file)
+    from fabkit.toolpath.preview import save_preview  # matplotlib: only when drawing
+
     save_preview(plan.toolpath, [f.outline for f in fields], [preview_file])
     written = export(toolpath_file, settings.machine, "gcode", gcode_file).summary
     printed = count * per_layer * process.layer_height_mm

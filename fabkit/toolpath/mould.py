@@ -16,15 +16,18 @@ is closed and manifold by construction; the result is checked with trimesh.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import manifold3d
 import numpy as np
 import shapely
-import trimesh
 
 from fabkit.errors import FabkitError
 from fabkit.files.atomic import atomic_path
 from fabkit.toolpath.baromorph import BaromorphSettings, ChannelLayout
+
+if TYPE_CHECKING:  # trimesh (and networkx under it) loads in 0.2 s: only a baromorph needs it
+    import trimesh
 
 POLARITY = (
     "mould = negative of the part: ribs are the channels, the rim holds the cast; the cast "
@@ -37,6 +40,8 @@ coincide (which would break the mesh when an STL reader merges close vertices)."
 
 def mould_mesh(layout: ChannelLayout, settings: BaromorphSettings) -> trimesh.Trimesh:
     """The mould of ``layout`` (mm, z up, cavity open at the top)."""
+    import trimesh
+
     plate_outline = layout.outline.buffer(settings.border_mm).simplify(SIMPLIFY_MM)
     ribs = layout.network.intersection(layout.outline).simplify(SIMPLIFY_MM)
     rim = plate_outline.difference(layout.outline).simplify(SIMPLIFY_MM)
