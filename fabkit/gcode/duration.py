@@ -480,8 +480,8 @@ def _junctions(
     no_xyz = ~before[:, :3].any(axis=1) | ~after[:, :3].any(axis=1)
     cos_theta = np.where(no_xyz, -np.einsum("ij,ij->i", before, after), cos_theta)
     limit = np.minimum(nominal[:-1], nominal[1:])
-    sin_half = np.sqrt(0.5 * (1.0 - np.maximum(cos_theta, -0.999999)))
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):  # cos > 1 by rounding: set below
+        sin_half = np.sqrt(0.5 * (1.0 - np.maximum(cos_theta, -0.999999)))
         v2 = accel[1:] * deviation_mm * sin_half / (1.0 - sin_half)
     speed = np.where(np.isinf(accel[1:]), limit, np.minimum(np.sqrt(v2), limit))
     return np.where(cos_theta > 0.999999, np.minimum(MIN_JUNCTION_MM_S, limit), speed)
