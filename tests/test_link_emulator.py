@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import serial
 
@@ -211,3 +213,14 @@ def test_repetier_says_wait_when_idle_and_skips_lines_it_has_seen():
     assert talk(m, frame_marlin(1, "G1 X1")) == ["skip 1", "ok"]  # a repeat: not run twice
     assert m.poll(1.5).decode().splitlines() == ["wait"]
     assert [e.command for e in m.trace] == ["G1 X1"]
+
+
+@pytest.mark.parametrize(
+    "url", ["sim://marlin?baud=0&time_scale=0", "sim://grbl?baud=0&time_scale=0"]
+)
+def test_polling_at_infinity_runs_everything_written_and_the_clock_stays_finite(url):
+    emulator = Emulator(config_from_url(url, 115200), now=0.0)
+    emulator.host_write(b"G1 X1 F600\n", 0.0)
+    assert emulator.poll(math.inf).rstrip().endswith(b"ok")  # the boot text, then the ok
+    emulator.host_write(b"G1 X2\n", 1.0)  # and it goes on from there
+    assert emulator.poll(2.0).strip() == b"ok"

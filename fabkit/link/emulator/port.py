@@ -258,7 +258,7 @@ class Emulator:
             t_nl = inp.next_newline_time() if reading else INF
             t_line = t_fw if t_fw <= t_nl else t_nl
             t = t_rt if t_rt <= t_line else t_line
-            if t > now:
+            if t > now or t == INF:  # nothing due, or nothing ever (``now`` may be inf)
                 break
             if t < self._now:
                 t = self._now
@@ -272,7 +272,7 @@ class Emulator:
             reading = fw.reading
         if not reading:
             inp.fill(now)
-        if now > self._now:
+        if self._now < now < INF:  # run to the end (inf): the clock stays at the last event
             self._now = now
 
     def _corrupt(self, data: bytes) -> bytes:
