@@ -17,6 +17,7 @@ files of slow tests do not count.
 from __future__ import annotations
 
 import ast
+import functools
 import subprocess
 import sys
 import time
@@ -30,14 +31,15 @@ BUDGET_S = 60.0
 REPORT = "quick subset: "
 
 
-def fabkit_modules(folder: Path = PACKAGE) -> set[str]:
+@functools.cache
+def fabkit_modules(folder: Path = PACKAGE) -> frozenset[str]:
     """Every module of the package (``fabkit.x.y``), packages' ``__init__`` as ``fabkit.x``
     (or of another folder of the repository, such as ``tests``)."""
     names = set()
     for path in folder.rglob("*.py"):
         parts = path.relative_to(ROOT).with_suffix("").parts
         names.add(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
-    return names
+    return frozenset(names)
 
 
 def _module_path(name: str) -> Path | None:
@@ -48,7 +50,8 @@ def _module_path(name: str) -> Path | None:
     return None
 
 
-def _imports(path: Path, top_level_only: bool) -> set[str]:
+@functools.cache
+def _imports(path: Path, top_level_only: bool) -> frozenset[str]:
     """fabkit modules named by the import statements of ``path`` (with their parents, which
     Python imports first); only those run at import time when ``top_level_only``."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
@@ -67,7 +70,7 @@ def _imports(path: Path, top_level_only: bool) -> set[str]:
     for name in found:
         parts = name.split(".")
         out.update(".".join(parts[:k]) for k in range(1, len(parts) + 1))
-    return out & known
+    return frozenset(out & known)
 
 
 def _runs_module(node: ast.AST) -> bool:

@@ -112,6 +112,7 @@ def formed(folder):
     return code, out, truth
 
 
+@pytest.mark.slow
 def test_a_scan_of_the_sheet_as_fabricated_forms_its_target(formed, capsys):
     code, out, truth = formed
     assert code == 0
@@ -184,6 +185,7 @@ def test_the_limit_is_the_runs():
     assert target.sheet_what == "as fabricated"
 
 
+@pytest.mark.slow
 def test_compare_json_follows_its_schema(formed):
     import jsonschema
 
@@ -193,6 +195,7 @@ def test_compare_json_follows_its_schema(formed):
     jsonschema.validate(figures, schema, cls=jsonschema.Draft202012Validator)
 
 
+@pytest.mark.slow
 def test_a_mirrored_scan_of_a_sphere_cap_is_formed_and_said_undecidable(tmp_path):
     vertices, triangles = sheet("sphere")
     turn, shift = pose(4)

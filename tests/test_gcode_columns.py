@@ -248,6 +248,7 @@ def command_texts(draw) -> str:
     return code + "".join(words)
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(texts=st.lists(command_texts(), min_size=1, max_size=12))
 def test_a_plain_move_reads_as_the_marlin_reader_reads_it(texts):

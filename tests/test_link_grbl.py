@@ -176,6 +176,7 @@ def test_a_reset_during_the_job_names_the_lines_it_may_have_dropped_and_resume_l
     assert again == [c.text for c in modes + rest]
 
 
+@pytest.mark.slow
 def test_a_lost_connection_names_the_lines_in_flight_and_resume_runs_each_once():
     # the line dies after 150 executed lines, with more in GRBL's ring: the message names
     # the lines sent and not answered (a GRBL whose cable was pulled runs them), and the

@@ -56,6 +56,7 @@ def test_the_worst_start_gives_the_figures_and_a_missed_one_comes_first():
     assert worst(ends[::2], 0.03).start == "saddle"  # both formed: the farther one
 
 
+@pytest.mark.slow
 def test_a_mirrored_start_of_a_sheet_without_natural_curvature_is_reflected_exactly(
     monkeypatch,
 ):

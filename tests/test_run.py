@@ -138,6 +138,7 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
     assert code == 2 and "DXF only" in err
 
 
+@pytest.mark.slow
 def test_a_run_not_simulated_says_so_first_and_last(run_cli, tmp_path):
     out = tmp_path / "quick"
     figures, text = run_ok(

@@ -184,6 +184,7 @@ def test_refuse_inconsistent_initial_data(fig1):
         solved(fig1, step=0.1, diagonals=5)
 
 
+@pytest.mark.slow
 def test_cli_solve_and_check(run_cli, tmp_path):
     out = tmp_path / "run" / "design.npz"
     code, text, _ = run_cli(
