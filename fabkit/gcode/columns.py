@@ -238,3 +238,41 @@ def accumulated(initial: float, steps: np.ndarray) -> np.ndarray:
     """(m,) float64: ``initial`` plus each prefix of ``steps``, added one at a time in order
     (as a loop of ``x += step`` rounds; NaN stays NaN)."""
     return np.cumsum(np.concatenate(([initial], steps)))[1:]
+
+
+class Rows:
+    """A table of ``width`` float64 columns filled one row at a time (a row of numbers or
+    None, for NaN) or many at once, kept as arrays: bounded memory for long jobs (a
+    per-command path and a run's columns writing one table in the job's order)."""
+
+    FLUSH = 65536
+
+    def __init__(self, width: int) -> None:
+        self.width = width
+        self.count = 0
+        self.pending: list[Sequence[float | None]] = []
+        self.chunks: list[np.ndarray] = []
+
+    def append(self, row: Sequence[float | None]) -> None:
+        self.pending.append(tuple(row))
+        self.count += 1
+        if len(self.pending) >= self.FLUSH:
+            self._flush()
+
+    def extend(self, rows: np.ndarray) -> None:
+        """(k, width) rows."""
+        self._flush()
+        self.chunks.append(rows)
+        self.count += len(rows)
+
+    def array(self) -> np.ndarray:
+        """(count, width) float64."""
+        self._flush()
+        if not self.chunks:
+            return np.zeros((0, self.width))
+        return np.concatenate(self.chunks)
+
+    def _flush(self) -> None:
+        if self.pending:
+            self.chunks.append(np.array(self.pending, dtype=float).reshape(-1, self.width))
+            self.pending = []

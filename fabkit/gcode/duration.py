@@ -42,15 +42,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from fabkit.gcode.columns import MoveRun, filled, job_spans, plain_codes
+from fabkit.gcode.columns import MoveRun, Rows, filled, job_spans, plain_codes
 from fabkit.gcode.position import MOTION, Position
 from fabkit.gcode.read import (
     MAX_LINE_CHARS,
     Block,
     Command,
-    Commands,
     GcodeError,
     firmware_reader,
+    job_texts,
 )
 from fabkit.machines import MachineProfile
 from fabkit.progress import clock
@@ -225,7 +225,7 @@ def estimate(job: Sequence[Command], machine: MachineProfile) -> Estimate:
     numbers)."""
     read = firmware_reader(machine)
     planner = Planner(machine)
-    texts = job.texts if isinstance(job, Commands) else [command.text for command in job]
+    texts = job_texts(job)
     if not planner.takes_runs:
         _add_each(planner, read, texts)
         return planner.estimate()
@@ -258,8 +258,8 @@ class Planner:
         self.kinematics = Kinematics.of(machine)
         self.walker = _Walker(self.kinematics, machine.flavour)
         self.planned = _Moves()
-        self.dwell_s = _Rows(1)  # s, per command
-        self.positions = _Rows(4)  # logical X, Y, Z, E after each command, NaN: unknown
+        self.dwell_s = Rows(1)  # s, per command
+        self.positions = Rows(4)  # logical X, Y, Z, E after each command, NaN: unknown
         self.waits: list[str] = []
         self.segment, self.moves = 0, 0
 
@@ -343,43 +343,6 @@ def _run_feed(feed: float | None, run: MoveRun) -> np.ndarray:
     return filled(math.nan if feed is None else feed, given, f[given] / 60.0)
 
 
-class _Rows:
-    """A table of ``width`` float64 columns filled one row at a time (a row of numbers or
-    None, for NaN) or many at once, kept as arrays: bounded memory for long jobs."""
-
-    FLUSH = 65536
-
-    def __init__(self, width: int) -> None:
-        self.width = width
-        self.count = 0
-        self.pending: list[Sequence[float | None]] = []
-        self.chunks: list[np.ndarray] = []
-
-    def append(self, row: Sequence[float | None]) -> None:
-        self.pending.append(tuple(row))
-        self.count += 1
-        if len(self.pending) >= self.FLUSH:
-            self._flush()
-
-    def extend(self, rows: np.ndarray) -> None:
-        """(k, width) rows."""
-        self._flush()
-        self.chunks.append(rows)
-        self.count += len(rows)
-
-    def array(self) -> np.ndarray:
-        """(count, width) float64."""
-        self._flush()
-        if not self.chunks:
-            return np.zeros((0, self.width))
-        return np.concatenate(self.chunks)
-
-    def _flush(self) -> None:
-        if self.pending:
-            self.chunks.append(np.array(self.pending, dtype=float).reshape(-1, self.width))
-            self.pending = []
-
-
 class _Moves:
     """The moves of a job as the planner sees them (one row per move of non-zero
     length): X, Y, Z, E deltas (mm), length (mm, an arc's along the arc), feed (mm/s, or
@@ -387,7 +350,7 @@ class _Moves:
     the planner segment (moves between two commands that empty the planner)."""
 
     def __init__(self) -> None:
-        self.rows = _Rows(9)
+        self.rows = Rows(9)
 
     def add(
         self,

@@ -97,6 +97,11 @@ class Commands(Sequence[Command]):
         return f"Commands({len(self)} commands)"
 
 
+def job_texts(job: Sequence[Command]) -> list[str]:
+    """The commands' texts, in order (a :class:`Commands` holds them as they are)."""
+    return job.texts if isinstance(job, Commands) else [command.text for command in job]
+
+
 @dataclass(frozen=True)
 class Block:
     """One command as a firmware reads it.

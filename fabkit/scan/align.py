@@ -290,7 +290,7 @@ def finish(
     :data:`STRETCH` while that lowers the RMS distance (along a direction the surface
     barely holds, the linear model's steps are short), and the finish ends when a step
     does not lower it."""
-    motion, rms = start, _rms(surface.distances(start.apply(points)))
+    motion, best = start, rms(surface.distances(start.apply(points)))
     for _ in range(iterations):
         moved = motion.apply(points)
         offsets = moved - surface.closest(moved)
@@ -304,10 +304,10 @@ def finish(
         for length in STRETCH ** np.arange(STRETCHES):
             turn = _rotation(length * step[:3])
             tried = motion.then(turn, centre - turn @ centre + length * step[3:])
-            tried_rms = _rms(surface.distances(tried.apply(points)))
-            if tried_rms >= rms:
+            tried_rms = rms(surface.distances(tried.apply(points)))
+            if tried_rms >= best:
                 break
-            moved_on, rms = tried, tried_rms
+            moved_on, best = tried, tried_rms
         if moved_on is motion:
             break
         motion = moved_on
@@ -455,8 +455,9 @@ def _subset(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndar
     return points[np.sort(rng.choice(len(points), size=count, replace=False))]
 
 
-def _rms(distances: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(distances**2)))
+def rms(values: np.ndarray) -> float:
+    """The root mean square of ``values`` (their units)."""
+    return float(np.sqrt(np.mean(values**2)))
 
 
 def _trimmed_rms(distances: np.ndarray) -> float:

@@ -33,6 +33,7 @@ from scipy.spatial import cKDTree
 
 from fabkit.mechanics.verdict import FORM_TOLERANCE, distance_words
 from fabkit.scan.align import MIRROR, Motion, Surface, fit
+from fabkit.scan.align import rms as rms_of
 from fabkit.scan.read import Scan
 from fabkit.scan.targets import Target
 
@@ -312,7 +313,7 @@ class _Measured:
 
     @property
     def rms(self) -> float:
-        return _rms(self.distances)
+        return rms_of(self.distances)
 
 
 @dataclass(frozen=True, eq=False)
@@ -340,7 +341,7 @@ class _SheetFit:
 
     @property
     def rms(self) -> float:
-        return _rms(self.point_distances)
+        return rms_of(self.point_distances)
 
 
 def self_mirror(surface: Surface) -> float:
@@ -348,7 +349,7 @@ def self_mirror(surface: Surface) -> float:
     surface by a rotation and translation: 0 for a surface congruent to its mirror."""
     mirror = surface.samples[:SELF_POINTS] * MIRROR
     found = fit(mirror, surface, mirrored=False)
-    return _rms(surface.distances(found.motion.apply(mirror)))
+    return rms_of(surface.distances(found.motion.apply(mirror)))
 
 
 def cover_radius(points: np.ndarray) -> float:
@@ -364,7 +365,3 @@ def coverage(surface: Surface, feet: np.ndarray, radius: float) -> float:
     has holes (not where it lies off the surface, which its distances say)."""
     distances, _ = cKDTree(feet).query(surface.samples, distance_upper_bound=radius)
     return float(np.mean(np.isfinite(distances)))
-
-
-def _rms(values: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(values**2)))

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from fabkit.errors import FabkitError
-from fabkit.gcode.columns import MoveRun, filled, job_spans, plain_codes
+from fabkit.gcode.columns import MoveRun, Rows, filled, job_spans, plain_codes
 from fabkit.gcode.position import Position
 from fabkit.gcode.read import (
     MAX_LINE_CHARS,
@@ -121,12 +121,11 @@ class _Machine:
         self.mix = math.nan
         self.depositing = False
         self.road = -1
-        self.rows: list[tuple] = []  # the rows since the last of ``chunks``
-        self.chunks: list[np.ndarray] = []  # (m, 13) rows, in the file's order
+        self.rows = Rows(13)  # every depositing move's row, in the file's order
+        # no switch or pressure line of the profile is a G0/G1 (then a plain move may be
+        # one, which only the per-command path follows)
         own = [*self.switches, *([_signature(self.pressure_block)] if self.pressure_block else [])]
         self.moves_only_move = not any(sig[0] in (("G0",), ("G1",)) for sig in own)
-        """No switch or pressure line of the profile is a G0/G1 (then a plain move may be
-        one, which only the per-command path follows)."""
 
     def _switches(self) -> dict[tuple, tuple[str, bool]]:
         """The profile's material switch lines, by their reading (a line that is both an
@@ -211,15 +210,7 @@ class _Machine:
         rows[:, 8:11] = (self.pressure, self.temperature, self.mix)
         rows[:, 11] = 1 if self.on["second"] else 0
         rows[:, 12] = roads[depositing]
-        if self.rows:
-            self.chunks.append(np.array(self.rows, dtype=float).reshape(-1, 13))
-            self.rows = []
-        self.chunks.append(rows)
-
-    def table(self) -> np.ndarray:
-        """(n, 13) every depositing move's row, in the file's order."""
-        rows = np.array(self.rows, dtype=float).reshape(-1, 13)
-        return np.vstack([*self.chunks, rows])
+        self.rows.extend(rows)
 
     # -- motion ---------------------------------------------------------------------
 
@@ -345,7 +336,7 @@ def read_gcode(path: str | Path, machine: MachineProfile, *, fast: bool = True) 
                 _run_each(state, commands[start:stop], path, machine.flavour)
     else:
         _run_each(state, commands, path, machine.flavour)
-    rows = state.table()
+    rows = state.rows.array()
     start, end = rows[:, 0:3], rows[:, 3:6]
     heights = np.unique(np.round(start[:, 2], 6)) if len(rows) else np.zeros(0)
     return Printed(

@@ -326,11 +326,7 @@ class MarlinFirmware(Firmware):
         if framed is None:
             return False
         n, text = framed
-        try:
-            code = command_code(text)
-        except ValueError:  # code_of("G+"): the general way fails where it always has
-            return False
-        if code not in ("G0", "G1") or self.motion.full(t):
+        if command_code(text) not in ("G0", "G1") or self.motion.full(t):
             return False
         self.last_n = n
         motion = self.motion

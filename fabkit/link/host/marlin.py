@@ -158,10 +158,10 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 from fabkit.errors import FabkitError
-from fabkit.gcode.read import Command, Commands, code_of, frame_marlin
+from fabkit.gcode.read import code_of, frame_marlin, job_texts
 from fabkit.link import answers
 from fabkit.link.answers import Answer, classify
 from fabkit.link.host.one_by_one import OneByOne
@@ -183,11 +183,6 @@ SYNC_EVERY_MAX = 800  # ... after probes that found no lost answer (each costs a
 SYNC_EVERY_MIN = 10  # ... after probes that did
 REGROW_LINES = 500  # clean lines before a byte window shrunk by an overflow grows again
 BACKWARD_LIMIT = 3  # requests in a row for a line proven accepted that mean a reset
-
-
-def job_texts(job: Sequence[Command]) -> list[str]:
-    """The commands' texts, in order (a :class:`Commands` holds them as they are)."""
-    return job.texts if isinstance(job, Commands) else [command.text for command in job]
 
 
 class Transmission:

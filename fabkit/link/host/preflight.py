@@ -24,10 +24,10 @@ from fabkit.gcode.columns import MoveRun, job_spans, plain_codes
 from fabkit.gcode.read import (
     Block,
     Command,
-    Commands,
     GcodeError,
     extra_axes,
     firmware_reader,
+    job_texts,
     strip_comment,
 )
 from fabkit.link.host.preflight_columns import MarlinRuns, switch_code
@@ -227,8 +227,7 @@ def check_job(
         _check_each(checker, job, source, also)
     else:
         codes, switches = plain_codes(machine.flavour), checker.pin_writes()
-        texts = job.texts if isinstance(job, Commands) else [command.text for command in job]
-        for start, stop, run in job_spans(texts, MAX_MARLIN_CHARS, codes, switches):
+        for start, stop, run in job_spans(job_texts(job), MAX_MARLIN_CHARS, codes, switches):
             if run is not None and checker.apply(run):
                 if also_run is not None:
                     also_run(run)
