@@ -19,7 +19,13 @@ from fabkit.errors import FabkitError
 from fabkit.field.part import DEFAULT_SIZE_MM, Part, PartRequest
 from fabkit.mechanics.compare import Comparison, compare
 from fabkit.mechanics.mesh import save_mesh
-from fabkit.mechanics.simulate import SEEDS, Settings, simulate_design, surface_index
+from fabkit.mechanics.simulate import (
+    SEEDS,
+    Settings,
+    ramp_words,
+    simulate_design,
+    surface_index,
+)
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, StartEnd
 from fabkit.progress import ProgressBar, add_progress
 
@@ -44,7 +50,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--poisson", type=float, default=0.5, help="Poisson ratio (default 0.5)")
     defaults = Settings()
     parser.add_argument(
-        "--steps", type=int, default=defaults.steps, help="ramp steps (default %(default)s)"
+        "--steps",
+        type=int,
+        default=defaults.steps,
+        help="ramp steps, the stimulus's share growing geometrically from --first-step to 1 "
+        "(default %(default)s)",
+    )
+    parser.add_argument(
+        "--first-step",
+        type=float,
+        default=defaults.first_step,
+        help="the stimulus's share at the first ramp step (default 1/256; 0.5 with --steps 2: "
+        "two equal halves)",
     )
     parser.add_argument(
         "--max-iterations",
@@ -83,7 +100,12 @@ def run(args: argparse.Namespace) -> int:
         raise FabkitError(f"--out {args.out}: mesh format must be one of {', '.join(MESH_FORMATS)}")
     design = Design.load(args.design)
     surface = surface_index(design, args.stimulus)
-    settings = Settings(steps=args.steps, seed=args.seed, max_iterations=args.max_iterations)
+    settings = Settings(
+        steps=args.steps,
+        first_step=args.first_step,
+        seed=args.seed,
+        max_iterations=args.max_iterations,
+    )
     part, thickness = _printed(design, args)
     bar = ProgressBar("simulating", force=args.progress)
     try:
@@ -106,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         save_mesh(args.out, mm, simulation.mesh.triangles)
     used = {
         "seed": settings.seed,
-        "path": f"flat sheet as made -> the stimulus, {settings.steps} ramp steps",
+        "path": f"flat sheet as made -> the stimulus, {ramp_words(settings)}",
         "solver": "damped Newton (exact Hessian, Levenberg-Marquardt)",
         "thickness_mm": thickness * part.mm_per_unit,
         "mm_per_unit": part.mm_per_unit,

@@ -341,6 +341,39 @@ def sheet_problem(
     )
 
 
+def turned_over(problem: SheetProblem, designed: Sequence[SheetFields]) -> SheetProblem:
+    """``problem``'s sheet with the print's error turned over: its metrics as made and under
+    the stimulus reflected about those of the ``designed`` layers (one per layer of the
+    sheet, bottom first) on the same mesh, 2 designed - made (the designed metric where
+    that is no metric). It stands for another print whose every error is this one's
+    negated: a side that the design programs holds on both, a side that the print's error
+    chose flips (:mod:`fabkit.mechanics.verdict`)."""
+    mesh, coarse = problem.mesh, problem.coarse
+    sampled = []
+    for layer in designed:
+        theta = np.asarray(layer.theta(mesh.points), dtype=float)
+        eps = np.asarray(layer.features(mesh.points), dtype=float)
+        sampled.append((theta, eps.reshape(-1, len(mesh.points))))
+
+    def reflected(made: np.ndarray, surface: int) -> np.ndarray:
+        stacked = np.stack([sheet_metrics(coarse, mesh, surface, t, e) for t, e in sampled])
+        own = stacked[0] if made.ndim == 3 else stacked
+        if own.shape != made.shape:
+            raise FabkitError(
+                f"turned over: {len(designed)} designed layers for a sheet of "
+                f"{1 if made.ndim == 3 else len(made)}"
+            )
+        mirror = 2 * own - made
+        metric = np.all(np.linalg.eigvalsh(mirror) > 0, axis=-1)
+        return np.where(metric[..., None, None], mirror, own)
+
+    return replace(
+        problem,
+        start_metrics=reflected(problem.start_metrics, 0),
+        metrics=reflected(problem.metrics, problem.surface),
+    )
+
+
 def patch_size(design: Design, surface: int, mesh: DesignMesh) -> float | None:
     """The diameter (design units) of target ``surface``'s patch over the design's
     ``mesh`` (the whole part, made or not) at the design's grid points; None when the

@@ -1,8 +1,9 @@
 """Forward simulation: the sheet's equilibrium shape for given reference metrics.
 
 :func:`simulate` takes a flat mesh and per-face reference metrics (one or more layers),
-ramps the metrics linearly from the flat sheet's (identity) to the target in a few
-steps, and at every step minimises the :class:`~fabkit.mechanics.shell.Shell` energy by
+ramps the metrics from the flat sheet's (identity) to the target along a continuation
+path (:func:`ramp`: from 1/256 of the way, each step twice the last), and at every step
+minimises the :class:`~fabkit.mechanics.shell.Shell` energy by
 Newton's method in two regimes. Projected Newton (the positive semi-definite Hessian
 model, its factorisation reused as a CG preconditioner, Armijo backtracking) while it
 converges fast; once it creeps (a full step more than half the full step before it),
@@ -19,6 +20,14 @@ projected Newton first; each simulation runs on one BLAS thread (several run sid
 side). The rigid motions are projected out of every
 system. The flat state is a symmetric stationary point, so the start is seeded with a
 small dome (or saddle) out of plane.
+
+The continuation decides which side a sheet takes as a slow actuation does. At the first
+small share of the stimulus the sheet relaxes to a near-flat state, whatever shape it
+started from, and it buckles later to the side its natural curvature favours (a layered
+sheet's programmed curvature, or a printed sheet's errors): any natural curvature,
+however small, wins over the start. Only a sheet without any (one layer, or equal layers)
+still takes its side from the start. In two equal steps, before stop 46, the start
+decided against natural curvatures up to a tenth of the target's (docs/layers.md).
 
 :func:`simulate_design` builds all of that from a design file at one of its stimuli.
 """
@@ -82,7 +91,10 @@ quadratic model predicted."""
 class Settings:
     """Solver settings.
 
-    ``steps``: ramp steps from the flat metric to the target; ``tolerance``: converged
+    ``steps``: ramp steps from the flat metric to the target, the stimulus's share growing
+    geometrically from ``first_step`` to 1 (:func:`ramp`; by default from 1/256, each
+    step twice the last; 2 steps from 0.5 are the equal halves used before stop 46);
+    ``tolerance``: converged
     when a full Newton step moves no vertex more than this times the mean edge length;
     ``ramp_tolerance``: the same for the intermediate ramp steps; ``max_iterations``:
     Newton iterations per ramp step (2000: a saddle-shaped target from a random start
@@ -95,7 +107,8 @@ class Settings:
     :data:`STARTS`; ``seed_height``: its height relative to the sheet's radius.
     """
 
-    steps: int = 2
+    steps: int = 9
+    first_step: float = 1 / 256
     tolerance: float = 1e-6
     ramp_tolerance: float = 1e-3
     max_iterations: int = 2000
@@ -144,6 +157,10 @@ def simulate(
         raise FabkitError(f"seed: expected one of {', '.join(SEEDS)}, got {settings.seed!r}")
     if settings.steps < 1:
         raise FabkitError("steps: at least one ramp step is needed")
+    if not 0 < settings.first_step <= 1:
+        raise FabkitError(
+            f"first step: expected a share of the stimulus in (0, 1], got {settings.first_step:g}"
+        )
     if settings.max_iterations < 1:
         raise FabkitError("max_iterations: at least one Newton iteration per step is needed")
     sheet = Sheet.build(points, triangles)
@@ -154,20 +171,41 @@ def simulate(
     scale = sheet.edge_length()
     total, converged, shell = 0, False, None
     with threadpool_limits(limits=1, user_api="blas"):  # factor.py: one core per simulation
-        for step in range(1, settings.steps + 1):
-            fraction = step / settings.steps
+        shares = ramp(settings)
+        for step, fraction in enumerate(shares, 1):
             metrics_now = (1 - fraction) * start + fraction * target
             shell = build_shell(sheet, metrics_now, thickness, poisson)
-            last = step == settings.steps
+            last = step == len(shares)
             tolerance = settings.tolerance if last else settings.ramp_tolerance
             x, iterations, converged = minimise(
                 shell, x, tolerance * scale, settings.max_iterations
             )
             total += iterations
             if progress is not None:
-                progress(step, settings.steps)
+                progress(step, len(shares))
     elapsed = time.perf_counter() - started
     return Simulation(x, shell.energy(x), total, converged, elapsed)
+
+
+def ramp(settings: Settings) -> np.ndarray:
+    """The stimulus's share at every ramp step (steps,): geometric from
+    ``settings.first_step`` to 1 (one step: the whole stimulus at once)."""
+    if settings.steps == 1:
+        return np.ones(1)
+    return np.geomspace(settings.first_step, 1.0, settings.steps)
+
+
+def ramp_words(settings: Settings) -> str:
+    """The ramp as the reports write it: ``9 ramp steps from 1/256 of the stimulus, each
+    2x the last``."""
+    shares = ramp(settings)
+    if len(shares) == 1:
+        return "1 ramp step"
+    growth = float(shares[1] / shares[0])
+    return (
+        f"{len(shares)} ramp steps from 1/{1 / shares[0]:.4g} of the stimulus, "
+        f"each {growth:.3g}x the last"
+    )
 
 
 def seeded(points: np.ndarray, settings: Settings) -> np.ndarray:

@@ -11,6 +11,17 @@ ended as the mirror image and each ended within ``tolerance`` RMS of the target 
 of the patch's diameter). Otherwise the verdict says which starts went where ("its side
 is not programmed: 3 of 6 starts end as its mirror image"); its figures are those of
 the worst start, with the spread of the RMS over all of them.
+
+The simulations follow the stimulus slowly (:func:`~fabkit.mechanics.simulate.ramp`), as
+a lab actuates a sheet: a sheet with any natural curvature then buckles to the side that
+curvature favours, whatever its start. A printed sheet's natural curvature is the one its
+layers were programmed with plus the print's errors, so a side can be chosen by the
+errors alone: Fig. 1 as fabricated, with nothing programmed, forms its sphere from all
+six starts. The verdict on a sheet as fabricated therefore runs every other start
+(dome-down, saddle-down, random-2) on the same sheet with the print's error turned over
+(:func:`~fabkit.mechanics.fabricated.turned_over`: another print whose every error is
+this one's negated). A side the design programs holds on both; a side the error chose
+flips, and the verdict says so.
 """
 
 from __future__ import annotations
@@ -26,7 +37,13 @@ from fabkit.design.design import Design
 from fabkit.field.part import Part
 from fabkit.mechanics import cache
 from fabkit.mechanics.compare import Comparison, FormedShape, compare, formed_shape
-from fabkit.mechanics.fabricated import SheetFields, SheetProblem, design_fields, sheet_problem
+from fabkit.mechanics.fabricated import (
+    SheetFields,
+    SheetProblem,
+    design_fields,
+    sheet_problem,
+    turned_over,
+)
 from fabkit.mechanics.simulate import (
     MIRRORED,
     STARTS,
@@ -47,18 +64,20 @@ TARGET_TRIANGLES = 800
 class StartEnd:
     """Where the simulation from one start (:data:`~fabkit.mechanics.simulate.STARTS`)
     ended: its RMS and max distance to the target (shares of the patch diameter),
-    whether that is the mirror image and whether it converged."""
+    whether that is the mirror image and whether it converged; ``turned`` whether it ran
+    on the sheet with the print's error turned over (module docstring)."""
 
     start: str
     rms: float
     max: float
     mirrored: bool
     converged: bool
+    turned: bool = False
 
     @classmethod
-    def of(cls, start: str, distance: Comparison) -> StartEnd:
+    def of(cls, start: str, distance: Comparison, turned: bool = False) -> StartEnd:
         """Where ``start`` ended, from its comparison with the target."""
-        return cls(start, distance.rms, distance.max, distance.mirrored, distance.converged)
+        return cls(start, distance.rms, distance.max, distance.mirrored, distance.converged, turned)
 
     def formed(self, tolerance: float) -> bool:
         return self.converged and not self.mirrored and self.rms <= tolerance
@@ -71,6 +90,7 @@ class StartEnd:
             "max_pct": 100 * self.max,
             "mirror_image": self.mirrored,
             "converged": self.converged,
+            "error_turned_over": self.turned,
         }
 
 
@@ -150,10 +170,17 @@ class Shape:
             ("{} of {} starts {} farther than the limit", "end", "ends", _far(self.tolerance)),
         )
         for text, several, one, holds in groups:
-            ends = [end.start for end in self.starts if holds(end)]
+            ends = [end for end in self.starts if holds(end)]
             if ends:
                 verb = one if len(ends) == 1 else several
-                parts.append(text.format(len(ends), count, verb) + f" ({', '.join(ends)})")
+                names = ", ".join(end.start for end in ends)
+                parts.append(text.format(len(ends), count, verb) + f" ({names})")
+        mirrored = [end for end in self.starts if _mirror(end)]
+        if mirrored and all(end.turned for end in mirrored):
+            parts[0] = parts[0].replace(
+                "its side is not programmed", "its side is the print's error's, not the design's"
+            )
+            parts[0] += ", each on the sheet with the print's error turned over"
         return "; ".join(parts)
 
     @classmethod
@@ -354,10 +381,13 @@ def target_shapes(
     mm_per_unit: float | None = None,
     starts: Sequence[str] = STARTS,
     progress: Callable[[int, int], None] | None = None,
+    designed: Sequence[SheetFields] | None = None,
 ) -> list[Shape]:
     """The sheet of ``layers`` under each of the ``surfaces``' stimuli from every one of
     ``starts``: per surface a :class:`Shape` with the worst start's figures and mesh
-    (``mm_per_unit`` given) and where every start ended. The simulations are spread over
+    (``mm_per_unit`` given) and where every start ended. ``designed`` (the layers as
+    designed, one per layer; a sheet as fabricated) runs every other start on the sheet
+    with the print's error turned over (module docstring). The simulations are spread over
     the cores (:func:`fabkit.background.parallel_map`); ``progress(done, total)`` counts
     them as they finish."""
     stride = stride or grid_stride(design)
@@ -366,18 +396,27 @@ def target_shapes(
         sheet_problem(design, list(layers), surface, thickness, part=part, stride=stride)
         for surface in surfaces
     ]
+    turned = [designed is not None and start in turned_starts(starts) for start in starts]
+    pairs = [(p, turned_over(p, designed) if designed is not None else p) for p in problems]
+    runs = [[pair[over] for over in turned] for pair in pairs]
     calls = [
         (p.mesh.points, p.mesh.triangles, p.metrics, p.thickness, p.poisson,
          replace(settings, seed=start), None, p.start_metrics)
-        for p in problems
-        for start in starts
+        for run in runs
+        for p, start in zip(run, starts, strict=True)
     ]  # fmt: skip
     results = _simulations(calls, progress)
     count = len(starts)
     return [
-        _shape(problem, starts, results[k * count : (k + 1) * count], tolerance, mm_per_unit)
-        for k, problem in enumerate(problems)
+        _shape(run, starts, turned, results[k * count : (k + 1) * count], tolerance, mm_per_unit)
+        for k, run in enumerate(runs)
     ]
+
+
+def turned_starts(starts: Sequence[str] = STARTS) -> tuple[str, ...]:
+    """The starts that a verdict on a sheet as fabricated runs with the print's error
+    turned over: every other one (dome-down, saddle-down, random-2)."""
+    return tuple(starts[1::2])
 
 
 WARM = ("fabkit.mechanics.simulate",)
@@ -434,20 +473,22 @@ def _symmetric(metrics: np.ndarray | None) -> bool:
 
 
 def _shape(
-    problem: SheetProblem,
+    problems: Sequence[SheetProblem],
     starts: Sequence[str],
+    turned: Sequence[bool],
     results: Sequence[Simulation],
     tolerance: float,
     mm_per_unit: float | None,
 ) -> Shape:
-    """The :class:`Shape` of one target from the simulations of its ``problem`` from each
-    of ``starts``."""
+    """The :class:`Shape` of one target from the simulations of its ``problems`` (one per
+    start, ``turned``: with the print's error turned over) from each of ``starts``."""
     ends, found = [], {}
-    for start, result in zip(starts, results, strict=True):
+    for problem, start, over, result in zip(problems, starts, turned, results, strict=True):
         simulation = problem.simulation(result)
         distance = compare(problem.coarse, simulation, problem.patch_size)
-        ends.append(StartEnd.of(start, distance))
+        ends.append(StartEnd.of(start, distance, over))
         found[start] = (simulation, distance)
+    problem = problems[0]
     simulation, distance = found[worst(ends, tolerance).start]
     if mm_per_unit is None:
         diameter_mm, mesh = None, None

@@ -24,7 +24,7 @@ from scipy import ndimage
 from fabkit.design.design import Design
 from fabkit.field.part import Part
 from fabkit.mechanics.fabricated import SheetFields, design_fields
-from fabkit.mechanics.simulate import STARTS, Settings
+from fabkit.mechanics.simulate import STARTS, Settings, ramp_words
 from fabkit.mechanics.verdict import (
     FORM_TOLERANCE,
     Shape,
@@ -32,6 +32,7 @@ from fabkit.mechanics.verdict import (
     embedded_targets,
     share_progress,
     target_shapes,
+    turned_starts,
 )
 from fabkit.process import Resolution
 from fabkit.verify.compare_fields import ComparedSheet, decode_features
@@ -77,7 +78,8 @@ def simulation_figures(
         "thickness_mm": thickness_mm,
         "layers": layers,
         "seed": ", ".join(STARTS),
-        "path": f"flat sheet as made -> each target's stimulus, {settings.steps} ramp steps",
+        "path": f"flat sheet as made -> each target's stimulus, {ramp_words(settings)}",
+        "error_turned_over": ", ".join(turned_starts()),
         "solver": "damped Newton (exact Hessian, Levenberg-Marquardt)",
     }
 
@@ -87,8 +89,9 @@ def simulation_note(figures: dict[str, Any]) -> str:
         f"simulated with the read-back fields averaged over a Gaussian of "
         f"{figures['smoothing_mm']:.3g} mm (road width {figures['road_width_mm']:.3g} mm, "
         f"sheet thickness {figures['thickness_mm']:.3g} mm: {figures['layers']} printed "
-        f"layer{'s' if figures['layers'] > 1 else ''}), from each start ({figures['seed']}), "
-        f"path {figures['path']}"
+        f"layer{'s' if figures['layers'] > 1 else ''}), from each start ({figures['seed']}; "
+        f"{figures['error_turned_over']} with the print's error turned over: a side the error "
+        f"chose flips there), path {figures['path']}"
     )
 
 
@@ -179,13 +182,12 @@ def simulate_targets(
     target (the worst start's) and the shape the sheet takes there
     (:func:`~fabkit.mechanics.verdict.target_shapes`, held to ``tolerance``)."""
     settings = Settings(max_iterations=max_iterations)
-    sheets = [fields]
-    if with_reference:
-        if design.layering is None:
-            own = [design_fields(design)] * len(fields)
-        else:
-            own = [design_fields(design.layer(k)) for k in range(design.layers)]
-        sheets.append([SheetFields(o.theta, o.features, fields[0].made) for o in own])
+    if design.layering is None:
+        own = [design_fields(design)] * len(fields)
+    else:
+        own = [design_fields(design.layer(k)) for k in range(design.layers)]
+    own = [SheetFields(o.theta, o.features, fields[0].made) for o in own]
+    sheets = [fields, own] if with_reference else [fields]
     surfaces = embedded_targets(design)
     found = [
         target_shapes(
@@ -199,6 +201,7 @@ def simulate_targets(
             settings=settings,
             mm_per_unit=mm_per_unit,
             progress=share_progress(progress, j, len(sheets)),
+            designed=own if j == 0 else None,
         )
         for j, sheet in enumerate(sheets)
     ]
