@@ -224,12 +224,15 @@ def layered(
     thickness: float,
     bounds: np.ndarray | None = None,
     weights: np.ndarray | None = None,
+    share: float = 1.0,
 ) -> tuple[Design, LayeringReport]:
     """``design`` made of ``count`` equal layers, ``thickness`` thick in all (design
     units), whose natural curvature at every target's stimulus is as near that target's
     second fundamental form as the material (and ``bounds``, (N, 2) eps ranges the
     features must keep) allows; ``weights`` (S,) weigh the targets (default 1 each; 0:
-    ask nothing for that target, but still bend it to no other side).
+    ask nothing for that target, but still bend it to no other side); ``share`` in
+    (0, 1] scales the layering's turn and slopes down (a natural curvature of that share
+    of it: enough to choose a side, less to distort a shape).
     Returns the layered design and how well it did (module docstring)."""
     if not isinstance(count, int) or not 2 <= count <= MAX_LAYERS:
         raise FabkitError(f"--layers {count}: expected 2 to {MAX_LAYERS} layers")
@@ -244,7 +247,12 @@ def layered(
     weights = np.ones(len(design.stimuli)) if weights is None else np.asarray(weights, float)
     system = _System.build(design, forms, count, weights)
     reach = (count - 1) / (2 * count) * thickness  # the outer layers' height
+    if not 0 < share <= 1:
+        raise FabkitError(
+            f"layers: the share of the curvature asked for must lie in (0, 1], got {share:g}"
+        )
     turn, slope, limited = system.solve(design.eps, reach, bounds)
+    turn, slope = share * turn, share * slope
     valid = design.valid
     layering = Layering(
         count, float(thickness), np.where(valid, turn, np.nan), np.where(valid, slope, np.nan)

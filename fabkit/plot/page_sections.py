@@ -268,8 +268,10 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
     blocks = (
         Paragraph(
             (
-                "The layers differ so that the sheet's natural curvature is that of the targets "
-                "the metric alone misses (docs/layers.md):",
+                "The layers differ so that the sheet's natural curvature is a share of every "
+                f"target's curvature: {100 * layers.get('share', 1.0):.0f} % of the first-order "
+                "layering, the largest share tried whose sheet as designed forms every target "
+                "(docs/layers.md):",
             )
         ),
         Table(

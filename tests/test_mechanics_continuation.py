@@ -1,0 +1,89 @@
+"""The continuation ramp, and the verdict on a sheet as fabricated with its print's error
+turned over: a side that the error chose is no programmed side."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fabkit.errors import FabkitError
+from fabkit.mechanics.fabricated import SheetFields, design_fields, sheet_problem, turned_over
+from fabkit.mechanics.simulate import STARTS, Settings, ramp, ramp_words, simulate
+from fabkit.mechanics.verdict import embedded_targets, target_shapes, turned_starts
+from tests.conftest import coarse_design
+
+
+def test_the_ramp_starts_at_a_small_share_and_doubles_to_the_whole_stimulus():
+    shares = ramp(Settings())
+    assert shares[0] == pytest.approx(1 / 256) and shares[-1] == 1.0
+    assert np.allclose(shares[1:] / shares[:-1], 2.0)
+    assert ramp_words(Settings()) == "9 ramp steps from 1/256 of the stimulus, each 2x the last"
+    assert np.allclose(ramp(Settings(steps=2, first_step=0.5)), [0.5, 1.0])  # equal halves
+    assert list(ramp(Settings(steps=1))) == [1.0]
+
+
+def test_a_first_step_outside_the_stimulus_is_a_one_line_error():
+    points = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    with pytest.raises(FabkitError, match=r"first step: expected a share .* got 0$"):
+        simulate(
+            points, np.array([[0, 1, 2]]), np.eye(2)[None], 0.1, settings=Settings(first_step=0)
+        )
+
+
+def _layers(design, delta: float) -> list[SheetFields]:
+    """The design's fields as two layers whose feature differs by 2 ``delta`` (the top
+    layer's the larger): a natural curvature the design did not ask for."""
+    own = design_fields(design)
+
+    def moved(sign: float) -> SheetFields:
+        return SheetFields(own.theta, lambda p: own.features(p) + sign * delta, own.made)
+
+    return [moved(-1.0), moved(1.0)]
+
+
+@pytest.fixture(scope="module")
+def fig1():
+    return coarse_design()
+
+
+def test_turning_the_error_over_reflects_the_metrics_about_the_design(fig1):
+    printed = _layers(fig1, 0.02)
+    thickness = 0.02
+    problem = sheet_problem(fig1, printed, 1, thickness, stride=2)
+    exact = turned_over(problem, [design_fields(fig1)] * 2)
+    designed = sheet_problem(fig1, [design_fields(fig1)] * 2, 1, thickness, stride=2)
+    assert np.allclose(exact.metrics + problem.metrics, 2 * designed.metrics)
+    assert np.allclose(exact.start_metrics + problem.start_metrics, 2 * designed.start_metrics)
+    same = turned_over(problem, printed)  # a print without error turns into itself
+    assert np.allclose(same.metrics, problem.metrics)
+
+
+@pytest.mark.slow
+def test_a_side_the_print_error_chose_flips_with_it_and_a_programmed_one_does_not(fig1):
+    # Fig. 1's design has one layer: its sides are not programmed. Printed in two layers
+    # whose feature differs a little, the sheet bends to the side that difference favours
+    # from every start (the continuation ramp erases the start). As fabricated, with that
+    # difference as the print's error, half the starts run with it turned over and end on
+    # the other side: the verdict says the side is the error's. With the same difference
+    # designed (programmed), turning the error over changes nothing: one side from all.
+    printed = _layers(fig1, 0.05)
+    thickness = 0.02
+    surfaces = embedded_targets(fig1)
+    error = target_shapes(fig1, printed, surfaces, thickness, designed=[design_fields(fig1)] * 2)
+    programmed = target_shapes(fig1, printed, surfaces, thickness, designed=printed)
+    turned = set(turned_starts())
+    assert turned == {"dome-down", "saddle-down", "random-2"}
+    for shape in error:
+        sides = {end.turned: {end.mirrored for end in shape.starts if end.turned == over}
+                 for over in (False, True) for end in shape.starts}  # fmt: skip
+        assert len(sides[False]) == 1 and len(sides[True]) == 1  # one side per sheet
+        assert sides[False] != sides[True]  # the two prints bend opposite ways
+        assert not shape.formed
+        assert "its side is the print's error's, not the design's" in shape.line() or (
+            "its side is not programmed" in shape.line()
+        )
+    for shape in programmed:
+        assert len({end.mirrored for end in shape.starts}) == 1  # one side from every start
+        assert {end.start for end in shape.starts if end.turned} == turned
+    assert any("the print's error's" in shape.line() for shape in error)
+    assert STARTS[0] not in turned
