@@ -387,18 +387,23 @@ def target_shapes(
     ``starts``: per surface a :class:`Shape` with the worst start's figures and mesh
     (``mm_per_unit`` given) and where every start ended. ``designed`` (the layers as
     designed, one per layer; a sheet as fabricated) runs every other start on the sheet
-    with the print's error turned over (module docstring). The simulations are spread over
-    the cores (:func:`fabkit.background.parallel_map`); ``progress(done, total)`` counts
-    them as they finish."""
+    with the print's error turned over (module docstring), where the sheet has a natural
+    curvature (layers that differ): one layer's error bends it to no side. The simulations
+    are spread over the cores (:func:`fabkit.background.parallel_map`);
+    ``progress(done, total)`` counts them as they finish."""
     stride = stride or grid_stride(design)
     settings = settings or Settings()
     problems = [
         sheet_problem(design, list(layers), surface, thickness, part=part, stride=stride)
         for surface in surfaces
     ]
-    turned = [designed is not None and start in turned_starts(starts) for start in starts]
-    pairs = [(p, turned_over(p, designed) if designed is not None else p) for p in problems]
-    runs = [[pair[over] for over in turned] for pair in pairs]
+    runs = []
+    for problem in problems:
+        if designed is None or _symmetric(problem.metrics):  # no natural curvature to turn
+            runs.append([problem] * len(starts))
+        else:
+            other = turned_over(problem, designed)
+            runs.append([other if s in turned_starts(starts) else problem for s in starts])
     calls = [
         (p.mesh.points, p.mesh.triangles, p.metrics, p.thickness, p.poisson,
          replace(settings, seed=start), None, p.start_metrics)
@@ -408,7 +413,7 @@ def target_shapes(
     results = _simulations(calls, progress)
     count = len(starts)
     return [
-        _shape(run, starts, turned, results[k * count : (k + 1) * count], tolerance, mm_per_unit)
+        _shape(run, starts, results[k * count : (k + 1) * count], tolerance, mm_per_unit)
         for k, run in enumerate(runs)
     ]
 
@@ -475,20 +480,20 @@ def _symmetric(metrics: np.ndarray | None) -> bool:
 def _shape(
     problems: Sequence[SheetProblem],
     starts: Sequence[str],
-    turned: Sequence[bool],
     results: Sequence[Simulation],
     tolerance: float,
     mm_per_unit: float | None,
 ) -> Shape:
     """The :class:`Shape` of one target from the simulations of its ``problems`` (one per
-    start, ``turned``: with the print's error turned over) from each of ``starts``."""
+    start: the sheet, or the sheet with the print's error turned over) from each of
+    ``starts``."""
     ends, found = [], {}
-    for problem, start, over, result in zip(problems, starts, turned, results, strict=True):
-        simulation = problem.simulation(result)
-        distance = compare(problem.coarse, simulation, problem.patch_size)
-        ends.append(StartEnd.of(start, distance, over))
-        found[start] = (simulation, distance)
     problem = problems[0]
+    for sheet, start, result in zip(problems, starts, results, strict=True):
+        simulation = sheet.simulation(result)
+        distance = compare(sheet.coarse, simulation, sheet.patch_size)
+        ends.append(StartEnd.of(start, distance, sheet is not problem))
+        found[start] = (simulation, distance)
     simulation, distance = found[worst(ends, tolerance).start]
     if mm_per_unit is None:
         diameter_mm, mesh = None, None

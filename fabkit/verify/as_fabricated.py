@@ -79,7 +79,7 @@ def simulation_figures(
         "layers": layers,
         "seed": ", ".join(STARTS),
         "path": f"flat sheet as made -> each target's stimulus, {ramp_words(settings)}",
-        "error_turned_over": ", ".join(turned_starts()),
+        "error_turned_over": ", ".join(turned_starts()) if layers > 1 else "",
         "solver": "damped Newton (exact Hessian, Levenberg-Marquardt)",
     }
 
@@ -89,10 +89,18 @@ def simulation_note(figures: dict[str, Any]) -> str:
         f"simulated with the read-back fields averaged over a Gaussian of "
         f"{figures['smoothing_mm']:.3g} mm (road width {figures['road_width_mm']:.3g} mm, "
         f"sheet thickness {figures['thickness_mm']:.3g} mm: {figures['layers']} printed "
-        f"layer{'s' if figures['layers'] > 1 else ''}), from each start ({figures['seed']}; "
-        f"{figures['error_turned_over']} with the print's error turned over: a side the error "
-        f"chose flips there), path {figures['path']}"
+        f"layer{'s' if figures['layers'] > 1 else ''}), from each start ({figures['seed']}"
+        f"{_turned_words(figures)}), path {figures['path']}"
     )
+
+
+def _turned_words(figures: dict[str, Any]) -> str:
+    """Which starts ran with the print's error turned over ("" for one layer: its error
+    bends the sheet to no side)."""
+    turned = figures.get("error_turned_over")
+    if not turned:
+        return ""
+    return f"; {turned} with the print's error turned over: a side the error chose flips there"
 
 
 def sheet_fields(
