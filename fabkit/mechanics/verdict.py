@@ -155,13 +155,18 @@ class Shape:
 
     def why(self) -> str:
         """Which starts went where, for a target not formed: ``its side is not programmed:
-        3 of 6 starts end as its mirror image (dome-down, saddle, random-2)``; starts that
-        did not converge, or ended farther than the limit, likewise."""
+        3 of 6 starts end as its mirror image (dome-down, saddle, random-2)`` (``its side is
+        the print's error's, not the design's: ...`` when every such start ran with the
+        print's error turned over); starts that did not converge, or ended farther than
+        the limit, likewise."""
         count = len(self.starts)
+        mirrored = [end for end in self.starts if _mirror(end)]
+        erred = bool(mirrored) and all(end.turned for end in mirrored)
+        side = "the print's error's, not the design's" if erred else "not programmed"
         parts = []
         groups = (  # the verb for several starts, then for one
             (
-                "its side is not programmed: {} of {} starts {} as its mirror image",
+                f"its side is {side}: {{}} of {{}} starts {{}} as its mirror image",
                 "end",
                 "ends",
                 _mirror,
@@ -170,16 +175,11 @@ class Shape:
             ("{} of {} starts {} farther than the limit", "end", "ends", _far(self.tolerance)),
         )
         for text, several, one, holds in groups:
-            ends = [end for end in self.starts if holds(end)]
+            ends = [end.start for end in self.starts if holds(end)]
             if ends:
                 verb = one if len(ends) == 1 else several
-                names = ", ".join(end.start for end in ends)
-                parts.append(text.format(len(ends), count, verb) + f" ({names})")
-        mirrored = [end for end in self.starts if _mirror(end)]
-        if mirrored and all(end.turned for end in mirrored):
-            parts[0] = parts[0].replace(
-                "its side is not programmed", "its side is the print's error's, not the design's"
-            )
+                parts.append(text.format(len(ends), count, verb) + f" ({', '.join(ends)})")
+        if erred:
             parts[0] += ", each on the sheet with the print's error turned over"
         return "; ".join(parts)
 
