@@ -64,7 +64,9 @@ EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 ALONG, ACROSS = 0.8, 0.8**-0.5
 
 
-def director_case(rings: int, field, seed: str, steps: int) -> tuple[float, object, int]:
+def director_case(
+    rings: int, field, seed: str, steps: int = Settings.steps
+) -> tuple[float, object, int]:
     points, triangles = disc_mesh(1.0, rings)
 
     def metric(p):
@@ -84,7 +86,7 @@ def validation() -> None:
         ("anticone", lambda p: p, "saddle", ACROSS / ALONG),
     )
     for name, field, seed, ratio in cases:
-        curvature, result, faces = director_case(20, field, seed, 2)
+        curvature, result, faces = director_case(20, field, seed)
         exact = 2 * np.pi * (1 - ratio)
         print(
             f"  {name:9} {faces} triangles, h/R 1e-3: integrated K {curvature:.5f}, exact "
@@ -200,7 +202,7 @@ def wavy_run(design, case: Case, start: str, metric: str) -> None:
             initial=case.target,
             start_metrics=metrics,
         )
-    elif start == "path":  # flat -> sphere -> face -> wavy, each leg ramped in 2 steps
+    elif start == "path":  # flat -> sphere -> face -> wavy, each leg along the slow ramp
         x, previous, iterations = seeded(mesh.points, settings), made, 0
         for stimulus in FIG3_PATH:
             leg = stimulus_metrics(design, mesh, np.array(stimulus))
