@@ -8,18 +8,24 @@ import pytest
 
 from fabkit.errors import FabkitError
 from fabkit.mechanics.fabricated import SheetFields, design_fields, sheet_problem, turned_over
-from fabkit.mechanics.simulate import STARTS, Settings, ramp, ramp_words, simulate
+from fabkit.mechanics.simulate import STARTS, Settings, curved, ramp, ramp_words, simulate
 from fabkit.mechanics.verdict import embedded_targets, target_shapes, turned_starts
 from tests.conftest import coarse_design
 
 
-def test_the_ramp_starts_at_a_small_share_and_doubles_to_the_whole_stimulus():
+def test_a_curved_sheet_is_ramped_slowly_and_a_flat_one_in_equal_steps():
     shares = ramp(Settings())
     assert shares[0] == pytest.approx(1 / 256) and shares[-1] == 1.0
     assert np.allclose(shares[1:] / shares[:-1], 2.0)
-    assert ramp_words(Settings()) == "9 ramp steps from 1/256 of the stimulus, each 2x the last"
-    assert np.allclose(ramp(Settings(steps=2, first_step=0.5)), [0.5, 1.0])  # equal halves
+    assert list(ramp(Settings(), natural=False)) == [0.5, 1.0]
+    assert ramp_words(Settings()) == (
+        "9 ramp steps from 1/256 of the stimulus, each 2x the last "
+        "(2 equal steps for a sheet without natural curvature)"
+    )
     assert list(ramp(Settings(steps=1))) == [1.0]
+    one = np.eye(2)[None].repeat(3, 0)
+    assert not curved(one) and not curved(np.stack([one, one]))
+    assert curved(np.stack([one, 1.01 * one]))
 
 
 def test_a_first_step_outside_the_stimulus_is_a_one_line_error():

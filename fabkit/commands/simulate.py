@@ -53,15 +53,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--steps",
         type=int,
         default=defaults.steps,
-        help="ramp steps, the stimulus's share growing geometrically from --first-step to 1 "
-        "(default %(default)s)",
+        help="ramp steps (default: 9 for a sheet with natural curvature, its share of the "
+        "stimulus growing geometrically from --first-step to 1; 2 equal steps without)",
     )
     parser.add_argument(
         "--first-step",
         type=float,
         default=defaults.first_step,
-        help="the stimulus's share at the first ramp step (default 1/256; 0.5 with --steps 2: "
-        "two equal halves)",
+        help="the stimulus's share at the first ramp step of a sheet with natural curvature "
+        "(default 1/256)",
     )
     parser.add_argument(
         "--max-iterations",

@@ -21,13 +21,15 @@ side). The rigid motions are projected out of every
 system. The flat state is a symmetric stationary point, so the start is seeded with a
 small dome (or saddle) out of plane.
 
-The continuation decides which side a sheet takes as a slow actuation does. At the first
-small share of the stimulus the sheet relaxes to a near-flat state, whatever shape it
-started from, and it buckles later to the side its natural curvature favours (a layered
-sheet's programmed curvature, or a printed sheet's errors): any natural curvature,
-however small, wins over the start. Only a sheet without any (one layer, or equal layers)
-still takes its side from the start. In two equal steps, before stop 46, the start
-decided against natural curvatures up to a tenth of the target's (docs/layers.md).
+The ramp follows the sheet. A sheet with a natural curvature (layers that differ) is
+ramped slowly, as a lab actuates it: at the first small share of the stimulus it relaxes
+to a near-flat state whatever shape it started from, and it buckles later to the side its
+natural curvature favours (a layered sheet's programmed curvature, or a print's errors);
+any natural curvature, however small, wins over the start. A sheet without one (one
+layer, or equal layers) has no side of its own: ramped slowly it would relax to flat to
+round-off, and round-off would pick its side and its shape (the same sheet read back by
+``run`` and by ``verify`` then ended 2.70 and 2.98 % from Fig. 1's bump); it is ramped
+in two equal steps, and its start decides, as before stop 46 (docs/layers.md).
 
 :func:`simulate_design` builds all of that from a design file at one of its stimuli.
 """
@@ -91,9 +93,10 @@ quadratic model predicted."""
 class Settings:
     """Solver settings.
 
-    ``steps``: ramp steps from the flat metric to the target, the stimulus's share growing
-    geometrically from ``first_step`` to 1 (:func:`ramp`; by default from 1/256, each
-    step twice the last; 2 steps from 0.5 are the equal halves used before stop 46);
+    ``steps``: ramp steps from the flat metric to the target (None: the sheet's own, 9
+    for a sheet with natural curvature, 2 without); the stimulus's share grows
+    geometrically from ``first_step`` to 1 on a sheet with natural curvature, in equal
+    steps on one without (:func:`ramp`);
     ``tolerance``: converged
     when a full Newton step moves no vertex more than this times the mean edge length;
     ``ramp_tolerance``: the same for the intermediate ramp steps; ``max_iterations``:
@@ -107,7 +110,7 @@ class Settings:
     :data:`STARTS`; ``seed_height``: its height relative to the sheet's radius.
     """
 
-    steps: int = 9
+    steps: int | None = None
     first_step: float = 1 / 256
     tolerance: float = 1e-6
     ramp_tolerance: float = 1e-3
@@ -155,7 +158,7 @@ def simulate(
     started = time.perf_counter()
     if settings.seed not in SEEDS:
         raise FabkitError(f"seed: expected one of {', '.join(SEEDS)}, got {settings.seed!r}")
-    if settings.steps < 1:
+    if settings.steps is not None and settings.steps < 1:
         raise FabkitError("steps: at least one ramp step is needed")
     if not 0 < settings.first_step <= 1:
         raise FabkitError(
@@ -171,7 +174,7 @@ def simulate(
     scale = sheet.edge_length()
     total, converged, shell = 0, False, None
     with threadpool_limits(limits=1, user_api="blas"):  # factor.py: one core per simulation
-        shares = ramp(settings)
+        shares = ramp(settings, curved(target))
         for step, fraction in enumerate(shares, 1):
             metrics_now = (1 - fraction) * start + fraction * target
             shell = build_shell(sheet, metrics_now, thickness, poisson)
@@ -187,24 +190,41 @@ def simulate(
     return Simulation(x, shell.energy(x), total, converged, elapsed)
 
 
-def ramp(settings: Settings) -> np.ndarray:
-    """The stimulus's share at every ramp step (steps,): geometric from
-    ``settings.first_step`` to 1 (one step: the whole stimulus at once)."""
-    if settings.steps == 1:
+SLOW_STEPS, EQUAL_STEPS = 9, 2
+"""Ramp steps by default: a sheet with natural curvature (slowly, from
+:attr:`Settings.first_step`), and one without (equal steps)."""
+
+
+def curved(metrics: np.ndarray) -> bool:
+    """Whether layers with the reference metrics ``metrics`` ((F, 2, 2) one layer, or
+    (L, F, 2, 2)) have a natural curvature: more than one layer, not all equal."""
+    return metrics.ndim == 4 and len(metrics) > 1 and not bool((metrics == metrics[:1]).all())
+
+
+def ramp(settings: Settings, natural: bool = True) -> np.ndarray:
+    """The stimulus's share at every ramp step (steps,) of a sheet with (``natural``) or
+    without a natural curvature (module docstring): geometric from
+    ``settings.first_step`` to 1, or equal steps (one step: the whole stimulus at
+    once)."""
+    steps = settings.steps or (SLOW_STEPS if natural else EQUAL_STEPS)
+    if steps == 1:
         return np.ones(1)
-    return np.geomspace(settings.first_step, 1.0, settings.steps)
+    if not natural:
+        return np.arange(1, steps + 1) / steps
+    return np.geomspace(settings.first_step, 1.0, steps)
 
 
 def ramp_words(settings: Settings) -> str:
-    """The ramp as the reports write it: ``9 ramp steps from 1/256 of the stimulus, each
-    2x the last``."""
+    """The ramps as the reports write them: ``9 ramp steps from 1/256 of the stimulus, each
+    2x the last (2 equal steps for a sheet without natural curvature)``."""
     shares = ramp(settings)
+    flat = len(ramp(settings, natural=False))
     if len(shares) == 1:
         return "1 ramp step"
     growth = float(shares[1] / shares[0])
     return (
-        f"{len(shares)} ramp steps from 1/{1 / shares[0]:.4g} of the stimulus, "
-        f"each {growth:.3g}x the last"
+        f"{len(shares)} ramp steps from 1/{1 / shares[0]:.4g} of the stimulus, each "
+        f"{growth:.3g}x the last ({flat} equal steps for a sheet without natural curvature)"
     )
 
 

@@ -49,6 +49,7 @@ from fabkit.mechanics.simulate import (
     STARTS,
     Settings,
     Simulation,
+    curved,
     default_thickness,
     mirrored,
 )
@@ -474,7 +475,7 @@ def _mirror_sources(calls: list[tuple]) -> dict[int, int]:
 
 def _symmetric(metrics: np.ndarray | None) -> bool:
     """Metrics of one layer, or of layers all equal: no natural curvature."""
-    return metrics is None or metrics.ndim == 3 or bool((metrics == metrics[:1]).all())
+    return metrics is None or not curved(metrics)
 
 
 def _shape(
