@@ -1,12 +1,13 @@
-"""fabkit run --layers: the layers form the target the metric misses; the verdict says which.
+"""fabkit run --layers: the layers program every target's side; the verdict says which forms.
 
 The paper's Fig. 3 sheet, programmed by its metric alone, buckles into the wavy sheet's
-mirror image or an isometric neighbour of it; two layers programmed with its curvature
-form it from every start, as designed and as fabricated (read back layer by layer from
-the G-code and simulated at the printed thickness). The sphere's and the face's shapes
-the metric alone reaches, but not their side: from some starts they end as their mirror
-images, and the verdict says so (issue 35 is to program those sides). The run's last
-line is that verdict (tests/test_solve_layers.py: one layer, --strict, solve --layers).
+mirror image or an isometric neighbour of it, and takes the sphere's and the face's
+mirror images from some starts. Two layers programmed with every target's curvature give
+every target its side from every start, as designed and as fabricated (read back layer by
+layer from the G-code and simulated at the printed thickness), three of the starts on the
+sheet with the print's error turned over; the sphere and the wavy sheet are formed, the
+face ends on its side but farther than the limit. The run's last line is that verdict
+(tests/test_solve_layers.py: one layer, --strict, solve --layers).
 """
 
 from __future__ import annotations
@@ -45,7 +46,18 @@ def test_two_layers_form_the_wavy_sheet_as_fabricated_from_every_start(layered_r
     for layer in verify["layers"]:  # issue 16's limits, every layer
         assert layer["director_mean_deg"] <= 3.0
         assert all(f["rms_pct"] <= 2.0 for f in layer["features"])
-    assert figures["layers"]["weights"] == {"sphere": 0.0, "face": 0.0, "wavy": 1.0}
+    assert figures["layers"]["weights"] == {"sphere": 1.0, "face": 1.0, "wavy": 1.0}
+    assert figures["layers"]["share"] == 1.0  # the whole layering forms Fig. 3 as designed
+    assert figures["as designed"]["formed"]
+    # every side programmed: no start ends as a mirror image, the print's error turned over
+    # or not, as designed and as fabricated; the sphere is formed as fabricated too
+    for verdict in (figures["as designed"], verify["verdict"]):
+        for target in verdict["targets"]:
+            assert not any(s["mirror_image"] for s in target["starts"]), target["line"]
+    turned = [s["start"] for s in wavy["starts"] if s["error_turned_over"]]
+    assert turned == ["dome-down", "saddle-down", "random-2"]
+    sphere = next(t for t in verify["verdict"]["targets"] if t["target"] == "sphere")
+    assert sphere["formed"]
     # its metric alone: from some start the wavy sheet's mirror image, from every start
     # farther than the limit; the layers: as designed, formed from all six, near it
     alone = next(t for t in figures["layers"]["metric alone"]["targets"] if t["target"] == "wavy")
@@ -107,29 +119,23 @@ def test_a_dxf_of_the_layered_toolpath_reads_back_layer_by_layer(layered_run, tm
 @pytest.mark.slow
 def test_the_verdict_as_fabricated_on_a_coarser_simulation_mesh(layered_run, run_cli):
     """The run simulates on about 800 triangles (every second grid line here); on every
-    third the sphere and the face get the same verdicts, with the same starts mirrored.
-    The wavy sheet does not quite: from the dome-down start it ends in a second stable
-    state, 4.16 % RMS from the target with an energy 5 % above the state the other five
-    starts reach (Nielsen's damping finds it; the damping before it, 2.20 %, did not;
-    with 4 or more ramp steps both reach the lower one). Its verdict hangs on the mesh
-    and the solver's path (docs/layers.md): this test holds what does not, and that the
-    verdict names the start that missed."""
+    third line every target still ends on its own side from every start and converges,
+    and the sphere is formed on both. The wavy sheet's "formed" hangs on the mesh: on the
+    coarser one the three starts with the print's error turned over end 3.25 % from it
+    (the others 2.43 %; on the run's mesh 2.50 and 1.87 %, docs/layers.md), and the
+    verdict names them."""
     figures = json.loads((layered_run / "report.json").read_text())
     default = {t["target"]: t for t in figures["verify"]["verdict"]["targets"]}
     design, gcode = layered_run / "design.npz", layered_run / "sheet.gcode"
     code, text, err = run_cli("verify", design, gcode, "--stride", "3", "--json")
     assert code == 0, err
     coarser = {t["target"]: t for t in json.loads(text)["verdict"]["targets"]}
-    for name in ("sphere", "face"):
-        assert coarser[name]["formed"] == default[name]["formed"], name
-        assert [s["mirror_image"] for s in coarser[name]["starts"]] == [
-            s["mirror_image"] for s in default[name]["starts"]
-        ], name
+    for target in coarser.values():
+        assert target["converged"] and not any(s["mirror_image"] for s in target["starts"])
+    assert coarser["sphere"]["formed"] and default["sphere"]["formed"]
     assert default["wavy"]["formed"]
     wavy = coarser["wavy"]
     missed = [s["start"] for s in wavy["starts"] if s["rms_pct"] > wavy["limit_pct"]]
-    assert wavy["formed_starts"] >= 5 and wavy["converged"]
-    assert all(not s["mirror_image"] for s in wavy["starts"])
     verb = "ends" if len(missed) == 1 else "end"
     assert wavy["formed"] or f"{verb} farther than the limit ({', '.join(missed)})" in wavy["line"]
 
