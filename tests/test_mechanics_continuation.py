@@ -16,10 +16,10 @@ from tests.conftest import coarse_design
 def test_a_curved_sheet_is_ramped_slowly_and_a_flat_one_in_equal_steps():
     shares = ramp(Settings())
     assert shares[0] == pytest.approx(1 / 256) and shares[-1] == 1.0
-    assert np.allclose(shares[1:] / shares[:-1], 2.0)
+    assert np.allclose(shares[1:] / shares[:-1], 4.0)
     assert list(ramp(Settings(), natural=False)) == [0.5, 1.0]
     assert ramp_words(Settings()) == (
-        "9 ramp steps from 1/256 of the stimulus, each 2x the last "
+        "5 ramp steps from 1/256 of the stimulus, each 4x the last "
         "(2 equal steps for a sheet without natural curvature)"
     )
     assert list(ramp(Settings(steps=1))) == [1.0]

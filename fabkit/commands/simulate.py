@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--steps",
         type=int,
         default=defaults.steps,
-        help="ramp steps (default: 9 for a sheet with natural curvature, its share of the "
+        help="ramp steps (default: 5 for a sheet with natural curvature, its share of the "
         "stimulus growing geometrically from --first-step to 1; 2 equal steps without)",
     )
     parser.add_argument(

@@ -2,7 +2,7 @@
 
 :func:`simulate` takes a flat mesh and per-face reference metrics (one or more layers),
 ramps the metrics from the flat sheet's (identity) to the target along a continuation
-path (:func:`ramp`: from 1/256 of the way, each step twice the last), and at every step
+path (:func:`ramp`: from 1/256 of the way, each step 4x the last), and at every step
 minimises the :class:`~fabkit.mechanics.shell.Shell` energy by
 Newton's method in two regimes. Projected Newton (the positive semi-definite Hessian
 model, its factorisation reused as a CG preconditioner, Armijo backtracking) while it
@@ -190,7 +190,7 @@ def simulate(
     return Simulation(x, shell.energy(x), total, converged, elapsed)
 
 
-SLOW_STEPS, EQUAL_STEPS = 9, 2
+SLOW_STEPS, EQUAL_STEPS = 5, 2
 """Ramp steps by default: a sheet with natural curvature (slowly, from
 :attr:`Settings.first_step`), and one without (equal steps)."""
 
@@ -215,8 +215,8 @@ def ramp(settings: Settings, natural: bool = True) -> np.ndarray:
 
 
 def ramp_words(settings: Settings) -> str:
-    """The ramps as the reports write them: ``9 ramp steps from 1/256 of the stimulus, each
-    2x the last (2 equal steps for a sheet without natural curvature)``."""
+    """The ramps as the reports write them: ``5 ramp steps from 1/256 of the stimulus, each
+    4x the last (2 equal steps for a sheet without natural curvature)``."""
     shares = ramp(settings)
     flat = len(ramp(settings, natural=False))
     if len(shares) == 1:
