@@ -61,6 +61,18 @@ class ProgressBar:
         before = self.after.finished if self.after is not None else None
         return max(self.made, before) if before is not None else self.made
 
+    def due(self, done: int, total: int, force: bool = False) -> bool:
+        """Whether ``bar(done, total, force=force)`` writes anything now: a caller called
+        for every line of a job makes its ``detail`` only then."""
+        if not self.enabled or total <= 0:
+            return False
+        fraction = min(done / total, 1.0)
+        if self.terminal:
+            quiet = time.perf_counter() - self.last_draw < self.interval_s
+            return not (quiet and fraction < 1 and not force)
+        step = int(fraction * STEPS)
+        return not ((step == self.last_step and not force) or (force and done == self.last_done))
+
     def __call__(self, done: int, total: int, detail: str = "", force: bool = False) -> None:
         """Show ``done`` of ``total`` (``force``: now, whatever the interval or step)."""
         if not self.enabled or total <= 0:
@@ -69,12 +81,12 @@ class ProgressBar:
         now = time.perf_counter()
         if fraction >= 1 and self.finished is None:
             self.finished = now
+        if not self.due(done, total, force):
+            return  # the ETA is worked out only for what is written
         elapsed = now - self.started
         eta = self._eta(done, fraction, elapsed)
         tail = f"  {detail}" if detail else ""
         if self.terminal:
-            if now - self.last_draw < self.interval_s and fraction < 1 and not force:
-                return
             self.last_draw = now
             filled = int(round(self.width * fraction))
             bar = "#" * filled + "." * (self.width - filled)
@@ -85,10 +97,7 @@ class ProgressBar:
             if not self.drawn:  # done: the next bar starts on a line of its own
                 self.stream.write("\n")
         else:
-            step = int(fraction * STEPS)
-            if (step == self.last_step and not force) or (force and done == self.last_done):
-                return
-            self.last_step, self.last_done = step, done
+            self.last_step, self.last_done = int(fraction * STEPS), done
             self.stream.write(
                 f"{self.label}: {done}/{total} ({100 * fraction:.0f}%), "
                 f"{elapsed:.0f} s, ETA {seconds(eta)}{tail}\n"

@@ -10,7 +10,13 @@ import re
 
 import pytest
 
-from fabkit.gcode.read import code_of, frame_marlin
+from fabkit.gcode.read import (
+    code_of,
+    frame_marlin,
+    frame_summed,
+    marlin_checksum,
+    text_checksums,
+)
 from fabkit.link.emulator.marlin import command_code
 from fabkit.link.emulator.port import Emulator, config_from_url
 
@@ -184,3 +190,15 @@ def test_command_codes_of_random_texts_are_code_of():
     for _ in range(3000):
         text = "".join(rng.choice(alphabet) for _ in range(rng.randrange(1, 8)))
         assert command_code(text) == code_of(text), text
+
+
+def test_a_job_line_framed_from_its_text_checksum_is_frame_marlin():
+    rng = random.Random(36)
+    texts = ["", "G1 X1", "M105", *(f"G1 X{rng.uniform(-99, 99):.3f} F{k}" for k in range(300))]
+    texts += ["".join(rng.choice("GMXYZEF0123456789 .-;*\t") for _ in range(rng.randrange(60)))]
+    sums = text_checksums(texts)
+    assert sums == [marlin_checksum(text.encode("ascii")) for text in texts]
+    for n, (text, text_sum) in enumerate(zip(texts, sums, strict=True)):
+        number = rng.choice([n, 10 * n + 7, 10**6 + n])
+        assert frame_summed(number, text, text_sum) == frame_marlin(number, text)
+    assert text_checksums(["G1 X1", "G1 Y\u00b52"]) is None  # not ASCII: framed line by line

@@ -101,3 +101,23 @@ def test_verify_progress_counts_every_simulation_when_asked(tmp_path, run_cli):
     done, total = zip(*((int(a), int(b)) for a, b in counts), strict=True)
     assert done[-1] == total[0] and len(set(total)) == 1 and list(done) == sorted(done)
     assert "simulating" not in out_text
+
+
+@pytest.mark.parametrize("stream_type", [io.StringIO, Terminal])
+@pytest.mark.parametrize("interval_s", [0.0, 3600.0])
+def test_a_caller_that_asks_due_first_writes_what_calling_every_time_writes(
+    stream_type, interval_s
+):
+    # a send calls the bar for every line: it makes the line's detail only when due
+    streams = []
+    for gated in (False, True):
+        stream = stream_type()
+        bar = ProgressBar(
+            "job", stream, force=True, eta_s=lambda d, e: 99.0 - d, interval_s=interval_s
+        )
+        for done in [*range(0, 41), 40, 40]:
+            if not gated or bar.due(done, 40, force=done == 20):
+                bar(done, 40, f"line {done}", force=done == 20)
+        bar.close()
+        streams.append(stream.getvalue())
+    assert streams[0] == streams[1] and "line 40" in streams[0]

@@ -250,6 +250,26 @@ def frame_marlin(number: int, text: str) -> bytes:
     return payload + b"*%d\n" % marlin_checksum(payload)
 
 
+def text_checksums(texts: Sequence[str]) -> list[int] | None:
+    """:func:`marlin_checksum` of each text's bytes, all at once (numpy: the XOR of a text
+    is that of two prefixes of the joined texts); None if a text is not ASCII."""
+    joined = "".join(texts)
+    if not joined.isascii():
+        return None
+    data = np.frombuffer(joined.encode("ascii"), np.uint8)
+    lengths = np.fromiter(map(len, texts), np.int64, len(texts))
+    ends = np.cumsum(lengths)
+    prefixes = np.concatenate(([0], np.bitwise_xor.accumulate(data)))  # XOR of data[:i]
+    return (prefixes[ends] ^ prefixes[ends - lengths]).tolist()
+
+
+def frame_summed(number: int, text: str, text_sum: int) -> bytes:
+    """:func:`frame_marlin` of an ASCII ``text`` whose checksum is ``text_sum`` (from
+    :func:`text_checksums`): only the ``N<number> `` head is summed here."""
+    head = b"N%d " % number
+    return b"%s%s*%d\n" % (head, text.encode("ascii"), marlin_checksum(head) ^ text_sum)
+
+
 # -- GRBL ----------------------------------------------------------------------------------
 
 GRBL_G = frozenset({

@@ -50,6 +50,7 @@ _CODES: dict[str, str] = {}  # first word of a command -> its code (command_code
 _CODES_KEPT = 256
 
 _MOVES = {"G0", "G1", "G2", "G3"}
+_STRAIGHT = ("G0", "G1")
 _SYNC = {"M400", "G28", "G29", "M84", "M18"}
 _NO_EFFECT = {
     "G21", "M17", "M106", "M107", "M42", "M3", "M4", "M5", "M7", "M8", "M9",
@@ -166,6 +167,8 @@ class MarlinFirmware(Firmware):
         )
         """:meth:`take_move` may run a move line: no fault, Marlin's or Prusa's checks, ``ok``
         after running, no idle ``wait``, a command queue."""
+        self.ok_bytes = b"ok" + dialect.eol
+        """The ``ok`` line as :meth:`take_move` sends it."""
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -326,15 +329,15 @@ class MarlinFirmware(Firmware):
         if framed is None:
             return False
         n, text = framed
-        if command_code(text) not in ("G0", "G1") or self.motion.full(t):
+        motion = self.motion
+        if command_code(text) not in _STRAIGHT or motion.blocks and motion.full(t):
             return False
         self.last_n = n
-        motion = self.motion
         motion.move(words(text), t, rapid=False, tag=len(self.trace))
         x, y, z, e = motion.pos
         self.trace.append(TraceEntry(n, text, x, y, z, e, t))
         self.counters.executed += 1
-        self.out.line("ok", t, n)
+        self.out.raw(self.ok_bytes, t)  # out.line("ok", ...) on a faultless output
         return True
 
     def _queue(self, n: int | None, command: str, t: float, text: str | None = None) -> bool:

@@ -161,7 +161,7 @@ from collections import deque
 from collections.abc import Callable
 
 from fabkit.errors import FabkitError
-from fabkit.gcode.read import code_of, frame_marlin, job_texts
+from fabkit.gcode.read import code_of, frame_marlin, frame_summed, job_texts, text_checksums
 from fabkit.link import answers
 from fabkit.link.answers import Answer, classify
 from fabkit.link.host.one_by_one import OneByOne
@@ -215,6 +215,7 @@ class MarlinProtocol(Session):
         self.firmware = answers.identify("", self.machine.flavour)
         self.rx_usable = self.serial.rx_buffer_bytes - 1
         self.job_texts = job_texts(self.job)
+        self.job_sums = text_checksums(self.job_texts)  # None: a text is not ASCII
         biggest_n = 10 ** len(str(2 * len(self.job) + 1000)) - 1
         longest = max(map(len, self.job_texts), default=0)
         self.longest_frame = len(frame_marlin(biggest_n, "x" * longest))
@@ -327,7 +328,8 @@ class MarlinProtocol(Session):
                 deadline = time.monotonic() + self.options.finish_s
             if deadline is not None and time.monotonic() > deadline:
                 break
-            self.check_pending_error()
+            if self.pending_error is not None:
+                self.check_pending_error()
             send()
             line = self.read_line()
             if line is None:
@@ -426,7 +428,10 @@ class MarlinProtocol(Session):
             probe = origin in (PROBE_LINE, HOUSEKEEPING)
             if self.inflight_lines >= self.max_lines + (2 if probe else 0):
                 break
-            frame = frame_marlin(n, text)
+            if origin >= 0 and self.job_sums is not None:
+                frame = frame_summed(n, text, self.job_sums[origin])
+            else:
+                frame = frame_marlin(n, text)
             size = len(frame)
             backlog = self.inflight_bytes + size
             if backlog > (self.rx_usable if probe else self.byte_cap):

@@ -401,6 +401,8 @@ class Session:
         self.unrun.setdefault(index, UnrunLine(command.file_line, command.text, why, shared))
 
     def show(self, done: int, note: str = "", *, force: bool = False) -> None:
-        if self.progress is not None:
+        """``done`` job lines on the progress bar (with where the job is and ``note``),
+        when the bar writes now."""
+        if self.progress is not None and self.progress.due(done, len(self.job), force):
             where = f"file line {self.file_line_after(done)}" + (f"  {note}" if note else "")
             self.progress(done, len(self.job), where, force=force)
