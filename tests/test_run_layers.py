@@ -122,7 +122,7 @@ def test_the_verdict_as_fabricated_on_a_coarser_simulation_mesh(layered_run, run
     third line every target still ends on its own side from every start and converges,
     and the sphere is formed on both. The wavy sheet's "formed" hangs on the mesh: on the
     coarser one the three starts with the print's error turned over end 3.25 % from it
-    (the others 2.43 %; on the run's mesh 2.50 and 1.87 %, docs/layers.md), and the
+    (the others 2.43 %; on the run's mesh 2.50 and 1.68 %, docs/layers.md), and the
     verdict names them."""
     figures = json.loads((layered_run / "report.json").read_text())
     default = {t["target"]: t for t in figures["verify"]["verdict"]["targets"]}
