@@ -796,12 +796,6 @@ CASES = [
     ),
     case("run {spec} --out {out} --layers 0", "expected 1 to 64 layers", id="run-layers-zero"),
     case(
-        "run {spec} --out {out} --layers 2 --no-simulate",
-        "--no-simulate with --layers 2",
-        "the layers program the targets the sheet misses in the simulations",
-        id="run-layers-not-simulated",
-    ),
-    case(
         "run {spec} --out {out} --strict --no-simulate",
         "--no-simulate with --strict",
         id="run-strict-not-simulated",

@@ -84,9 +84,8 @@ def test_example_runs(command, run_cli, tmp_path):
     name = args[0]
     if name == "run":  # fabkit verify runs in its own example below and in test_verify; the
         # verdicts on the examples' shapes, in tests/test_run_layers.py and test_verify.py
-        # (a layered design needs its simulations: they choose the layers' curvature)
-        args += [*COARSE_SOLVE, "--no-verify"]
-        args += [] if "--layers" in args else ["--no-simulate"]
+        # (and the layers' share chosen by simulation there: not simulated, the whole one)
+        args += [*COARSE_SOLVE, "--no-verify", "--no-simulate"]
     if name == "swimmer":
         args[args.index(str(EXAMPLES / "swimmer.toml"))] = coarse_swimmer(tmp_path)
         args += ["--stations", "2"]

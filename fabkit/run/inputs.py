@@ -130,14 +130,10 @@ def check_inputs(options: RunOptions, machine: MachineProfile) -> RunInputs:
         raise FabkitError(f"--size {options.size_mm:g}: expected a positive finite number")
     if not 1 <= options.layers <= MAX_LAYERS:
         raise FabkitError(f"--layers {options.layers}: expected 1 to {MAX_LAYERS} layers")
-    if not options.simulate and (options.layers > 1 or options.strict):
-        given, why = (
-            (f"--layers {options.layers}", "the layers program the targets the sheet misses")
-            if options.layers > 1
-            else ("--strict", "it judges the shapes the sheet takes")
-        )
+    if not options.simulate and options.strict:
         raise FabkitError(
-            f"--no-simulate with {given}: {why} in the simulations; leave one of the two out"
+            "--no-simulate with --strict: it judges the shapes the sheet takes in the "
+            "simulations; leave one of the two out"
         )
     if not (math.isfinite(options.form_tolerance) and 0 < options.form_tolerance < 1):
         raise FabkitError(

@@ -70,7 +70,7 @@ from fabkit.run.inputs import (
     machine_name,
     with_defaults,
 )
-from fabkit.run.solve import NOT_SIMULATED, solve_stage
+from fabkit.run.solve import NOT_JUDGED_LAYERS, NOT_SIMULATED, solve_stage
 
 WORKER_MODULES = ("fabkit.plot.design", "fabkit.toolpath.preview", "fabkit.plot.shapes")
 """What the worker imports while the run solves: the drawings it will be given."""
@@ -161,7 +161,9 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
 
 
 def _not_simulated(options: RunOptions) -> str:
-    return "" if options.simulate else NOT_SIMULATED
+    if options.simulate:
+        return ""
+    return NOT_SIMULATED + (f"; {NOT_JUDGED_LAYERS}" if options.layers > 1 else "")
 
 
 def _verdict(final: Verdict | None, verdicts: list[dict[str, Any]]) -> dict[str, Any]:

@@ -37,6 +37,11 @@ NOT_SIMULATED = (
     "residuals and the machine file are checked"
 )
 """What a run without simulations says first and last, where the verdict would be."""
+NOT_JUDGED_LAYERS = (
+    "the layers carry every target's curvature, the whole first-order layering, not judged "
+    "(its share is chosen by simulations)"
+)
+"""What a layered run without simulations says of its layers, first and where it layers."""
 
 
 @dataclass(frozen=True)
@@ -78,7 +83,7 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
         request = LayerRequest(
             options.layers, inputs.process, part, options.ignore_features, options.form_tolerance
         )
-        made = layer_design(design, request, say)
+        made = layer_design(design, request, say, simulate=options.simulate)
         design, layering, verdict = made.design, made.figures, made.as_designed
         design.save(Path(options.out) / "design.npz")
     if not options.simulate:
@@ -126,19 +131,24 @@ class Layered:
 
     design: Design
     figures: dict[str, Any]
-    metric_alone: Verdict
-    as_designed: Verdict
+    metric_alone: Verdict | None
+    as_designed: Verdict | None
 
 
 def layer_design(
-    design: Design, request: LayerRequest, say: Callable[[str], None] = print
+    design: Design,
+    request: LayerRequest,
+    say: Callable[[str], None] = print,
+    *,
+    simulate: bool = True,
 ) -> Layered:
     """The design made of ``request.layers`` layers programmed with every target's
     curvature (``fabkit run --layers``, ``fabkit solve --layers``): the first-order
     layering scaled by the largest of :data:`SHARES` whose sheet as designed forms every
     target from every start (simulated at the layers' thickness; else the share that
     forms the most), and the figures of how well. The sheet programmed by its metric
-    alone is simulated too, for the report."""
+    alone is simulated too, for the report. Without ``simulate`` (``run --no-simulate``)
+    nothing is simulated: the whole layering, not judged, and the run says so."""
     process, part = request.process, request.part
     thickness = request.layers * process.layer_height_mm / part.mm_per_unit
     names = design_features(design)
@@ -149,6 +159,11 @@ def layer_design(
             sheet, thickness, tolerance=request.tolerance, part=part, mm_per_unit=part.mm_per_unit
         )
 
+    if not simulate:
+        unjudged, report = layered(design, request.layers, thickness, bounds)
+        say(f"      {request.layers} layers of {process.layer_height_mm:g} mm: {NOT_JUDGED_LAYERS}")
+        figures = {"metric alone": None, "share": 1.0, "shares_tried": {}, **report.to_dict()}
+        return Layered(unjudged, figures, None, None)
     alone = judged(design)
     say(f"      {alone.headline().replace('as designed', 'programmed by its metric alone')}")
     say(
