@@ -58,11 +58,8 @@ def test_two_layers_form_the_wavy_sheet_as_fabricated_from_every_start(layered_r
     assert turned == ["dome-down", "saddle-down", "random-2"]
     sphere = next(t for t in verify["verdict"]["targets"] if t["target"] == "sphere")
     assert sphere["formed"]
-    # its metric alone: from some start the wavy sheet's mirror image, from every start
-    # farther than the limit; the layers: as designed, formed from all six, near it
-    alone = next(t for t in figures["layers"]["metric alone"]["targets"] if t["target"] == "wavy")
-    assert any(s["mirror_image"] for s in alone["starts"])
-    assert all(s["rms_pct"] > alone["limit_pct"] for s in alone["starts"])
+    # the layers: as designed, formed from all six, near it (its metric alone misses it,
+    # docs/layers.md)
     designed = next(t for t in figures["as designed"]["targets"] if t["target"] == "wavy")
     assert designed["formed"] and designed["formed_starts"] == 6 and designed["rms_pct"] < 1.5
     # the layers keep the design's mean metric at nearly every point (second order)
@@ -154,14 +151,13 @@ def test_the_manifest_lists_every_file_once(layered_run):
 
 @pytest.mark.slow
 def test_every_verdict_measures_a_target_against_one_patch_diameter(layered_run):
-    """As designed, programmed by its metric alone and as fabricated (a mesh of the cells
+    """As designed and as fabricated (a mesh of the cells
     that were made), every percentage of one target is a share of one patch diameter:
     the target's patch over the whole part (issue 37: the bump's was 80.1 mm as designed
     and 78.1 mm as fabricated)."""
     figures = json.loads((layered_run / "report.json").read_text())
     verdicts = [
         figures["as designed"],
-        figures["layers"]["metric alone"],
         figures["verify"]["verdict"],
     ]
     for name in ("sphere", "face", "wavy"):

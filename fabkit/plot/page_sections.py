@@ -242,17 +242,9 @@ def _removed_label(step: str, part: Mapping[str, Any], unit: str) -> str:
 def _layers_section(figures: Mapping[str, Any]) -> Section:
     """How much of each target's curvature the layers program."""
     layers = figures["layers"]
-    alone = {t["target"]: t for t in (layers["metric alone"] or {}).get("targets", ())}
     rows = tuple(
         (
             name,
-            (
-                f"{'formed' if alone[name]['formed'] else 'NOT formed'}, "
-                f"{alone[name]['rms_pct']:.2f} % RMS"
-                + (", mirror image" if alone[name]["mirror_image"] else "")
-                if name in alone
-                else "not simulated"
-            ),
             "yes" if weight > 0 else "no",
             f"{100 * max(0.0, layers['curvature_matched'][name]):.0f} %",
             f"{100 * layers['right_side'][name]:.0f} %",
@@ -281,7 +273,6 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
         Table(
             (
                 "target",
-                "programmed by its metric alone",
                 "curvature asked for",
                 "of its curvature programmed",
                 "of its points bent to its own side",

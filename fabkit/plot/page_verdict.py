@@ -34,9 +34,6 @@ def verdict_section(figures: Mapping[str, Any]) -> Section:
     if final["what"] == "as fabricated":
         designed = figures["as designed"]
         blocks.append(Paragraph((_compared("As designed", designed),)))
-    alone = (figures.get("layers") or {}).get("metric alone")
-    if alone:
-        blocks.append(Paragraph((_compared("Programmed by its metric alone", alone),)))
     blocks.extend(_machine_file_sentences(figures))
     blocks.append(Paragraph(_warnings(figures)))
     return Section("Verdict", tuple(blocks))

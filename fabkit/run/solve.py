@@ -125,13 +125,11 @@ of the print's error."""
 
 @dataclass(frozen=True)
 class Layered:
-    """A layered design, the figures of its layering (report.json's ``layers``), the
-    verdict on the sheet programmed by its metric alone (equal layers) and the one on
-    the layered sheet as designed."""
+    """A layered design, the figures of its layering (report.json's ``layers``) and the
+    verdict on the layered sheet as designed (None: not simulated)."""
 
     design: Design
     figures: dict[str, Any]
-    metric_alone: Verdict | None
     as_designed: Verdict | None
 
 
@@ -147,8 +145,9 @@ def layer_design(
     layering scaled by the largest of :data:`SHARES` whose sheet as designed forms every
     target from every start (simulated at the layers' thickness; else the share that
     forms the most), and the figures of how well. The sheet programmed by its metric
-    alone is simulated too, for the report. Without ``simulate`` (``run --no-simulate``)
-    nothing is simulated: the whole layering, not judged, and the run says so."""
+    alone is no longer simulated (stop 46: the layering no longer depends on it; its
+    figures are in docs/layers.md). Without ``simulate`` (``run --no-simulate``) nothing
+    is simulated: the whole layering, not judged, and the run says so."""
     process, part = request.process, request.part
     thickness = request.layers * process.layer_height_mm / part.mm_per_unit
     names = design_features(design)
@@ -163,9 +162,7 @@ def layer_design(
         unjudged, report = layered(design, request.layers, thickness, bounds)
         say(f"      {request.layers} layers of {process.layer_height_mm:g} mm: {NOT_JUDGED_LAYERS}")
         figures = {"metric alone": None, "share": 1.0, "shares_tried": {}, **report.to_dict()}
-        return Layered(unjudged, figures, None, None)
-    alone = judged(design)
-    say(f"      {alone.headline().replace('as designed', 'programmed by its metric alone')}")
+        return Layered(unjudged, figures, None)
     say(
         f"      {request.layers} layers of {process.layer_height_mm:g} mm, programmed with "
         "every target's curvature (a share of the first-order layering; docs/layers.md):"
@@ -185,12 +182,12 @@ def layer_design(
     for line in report.lines():
         say(f"        {line}")
     figures = {
-        "metric alone": alone.to_dict(),
+        "metric alone": None,
         "share": share,
         "shares_tried": {f"{s:g}": v.headline() for s, _, _, v in tried},
         **report.to_dict(),
     }
-    return Layered(chosen, figures, alone, verdict)
+    return Layered(chosen, figures, verdict)
 
 
 def design_part(
