@@ -236,6 +236,10 @@ def layered(
     Returns the layered design and how well it did (module docstring)."""
     if not isinstance(count, int) or not 2 <= count <= MAX_LAYERS:
         raise FabkitError(f"--layers {count}: expected 2 to {MAX_LAYERS} layers")
+    if not 0 < share <= 1:
+        raise FabkitError(
+            f"layers: the share of the curvature asked for must lie in (0, 1], got {share:g}"
+        )
     if not (np.isfinite(thickness) and thickness > 0):
         raise FabkitError(f"layers: the sheet's thickness must be positive, got {thickness:g}")
     forms = second_forms(design)
@@ -247,10 +251,6 @@ def layered(
     weights = np.ones(len(design.stimuli)) if weights is None else np.asarray(weights, float)
     system = _System.build(design, forms, count, weights)
     reach = (count - 1) / (2 * count) * thickness  # the outer layers' height
-    if not 0 < share <= 1:
-        raise FabkitError(
-            f"layers: the share of the curvature asked for must lie in (0, 1], got {share:g}"
-        )
     turn, slope, limited = system.solve(design.eps, reach, bounds)
     turn, slope = share * turn, share * slope
     valid = design.valid

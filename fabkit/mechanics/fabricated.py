@@ -308,19 +308,11 @@ def sheet_problem(
     if thickness is None:
         thickness = default_thickness(design)
 
-    def sample(mesh: DesignMesh) -> list[tuple[np.ndarray, np.ndarray]]:
-        sampled = []
-        for layer in layers:
-            theta = np.asarray(layer.theta(mesh.points), dtype=float)
-            eps = np.asarray(layer.features(mesh.points), dtype=float)
-            sampled.append((theta, eps.reshape(-1, len(mesh.points))))
-        return sampled
-
-    sampled = sample(mesh)
+    sampled = _sampled(layers, mesh)
     ok = np.logical_and.reduce([_metric_faces(coarse, mesh, t, e) for t, e in sampled])
     if not ok.all():
         mesh = _faces(mesh, ok)
-        sampled = sample(mesh)
+        sampled = _sampled(layers, mesh)
 
     def metrics_at(s: int) -> np.ndarray:
         stacked = np.stack([sheet_metrics(coarse, mesh, s, t, e) for t, e in sampled])
@@ -341,6 +333,18 @@ def sheet_problem(
     )
 
 
+def _sampled(
+    layers: Sequence[SheetFields], mesh: DesignMesh
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every layer's director angles (V,) and features (N, V) at the mesh's vertices."""
+    sampled = []
+    for layer in layers:
+        theta = np.asarray(layer.theta(mesh.points), dtype=float)
+        eps = np.asarray(layer.features(mesh.points), dtype=float)
+        sampled.append((theta, eps.reshape(-1, len(mesh.points))))
+    return sampled
+
+
 def turned_over(problem: SheetProblem, designed: Sequence[SheetFields]) -> SheetProblem:
     """``problem``'s sheet with the print's error turned over: its metrics as made and under
     the stimulus reflected about those of the ``designed`` layers (one per layer of the
@@ -349,11 +353,7 @@ def turned_over(problem: SheetProblem, designed: Sequence[SheetFields]) -> Sheet
     negated: a side that the design programs holds on both, a side that the print's error
     chose flips (:mod:`fabkit.mechanics.verdict`)."""
     mesh, coarse = problem.mesh, problem.coarse
-    sampled = []
-    for layer in designed:
-        theta = np.asarray(layer.theta(mesh.points), dtype=float)
-        eps = np.asarray(layer.features(mesh.points), dtype=float)
-        sampled.append((theta, eps.reshape(-1, len(mesh.points))))
+    sampled = _sampled(designed, mesh)
 
     def reflected(made: np.ndarray, surface: int) -> np.ndarray:
         stacked = np.stack([sheet_metrics(coarse, mesh, surface, t, e) for t, e in sampled])

@@ -93,8 +93,9 @@ quadratic model predicted."""
 class Settings:
     """Solver settings.
 
-    ``steps``: ramp steps from the flat metric to the target (None: the sheet's own, 9
-    for a sheet with natural curvature, 2 without); the stimulus's share grows
+    ``steps``: ramp steps from the flat metric to the target (None: the sheet's own,
+    :data:`SLOW_STEPS` for a sheet with natural curvature, :data:`EQUAL_STEPS` without);
+    the stimulus's share grows
     geometrically from ``first_step`` to 1 on a sheet with natural curvature, in equal
     steps on one without (:func:`ramp`);
     ``tolerance``: converged

@@ -398,13 +398,13 @@ def target_shapes(
         sheet_problem(design, list(layers), surface, thickness, part=part, stride=stride)
         for surface in surfaces
     ]
-    runs = []
+    runs, turned = [], turned_starts(starts)
     for problem in problems:
         if designed is None or _symmetric(problem.metrics):  # no natural curvature to turn
             runs.append([problem] * len(starts))
         else:
             other = turned_over(problem, designed)
-            runs.append([other if s in turned_starts(starts) else problem for s in starts])
+            runs.append([other if s in turned else problem for s in starts])
     calls = [
         (p.mesh.points, p.mesh.triangles, p.metrics, p.thickness, p.poisson,
          replace(settings, seed=start), None, p.start_metrics)

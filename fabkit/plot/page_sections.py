@@ -266,8 +266,13 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
             (
                 "The layers differ so that the sheet's natural curvature is a share of every "
                 f"target's curvature: {100 * layers.get('share', 1.0):.0f} % of the first-order "
-                "layering, the largest share tried whose sheet as designed forms every target "
-                "(docs/layers.md):",
+                + (
+                    "layering, the largest share tried whose sheet as designed forms every "
+                    "target (docs/layers.md):"
+                    if layers.get("shares_tried")
+                    else "layering, not judged: no share was tried without simulations "
+                    "(docs/layers.md):"
+                ),
             )
         ),
         Table(
