@@ -16,6 +16,10 @@ def run() -> None:
     # down, each time walking every object a run made (0.6 s after ``fabkit run``). The
     # process ends anyway: freeze them first (exit handlers still run, files are closed).
     atexit.register(gc.freeze)
+    # A stage's line reaches a pipe or a log as it is printed (`fabkit run | tee log`), not
+    # at the next 8 kB: the progress is what a reader of the log waits for.
+    if hasattr(sys.stdout, "reconfigure"):
+        sys.stdout.reconfigure(line_buffering=True)
     try:
         from fabkit.cli import main
 

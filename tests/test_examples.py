@@ -1,12 +1,13 @@
 """Every command in examples/README.md runs, on coarse grids, and writes its files.
 
 The commands are read from the README's ``sh`` blocks, so the page and this test cannot
-drift apart. ``fabkit run`` gets ``--step 0.1 --diagonals 30`` appended (a coarse solver
-grid) and ``--no-verify`` (the ``fabkit verify`` example reads a run back, simulations
-included); the swimmer runs on a copy of its spec with small meshes and two stations per leg
-(as in tests/test_swimmer.py). ``fabkit compare`` reads the run of the README's main
-command (``out/``, two layers, verified and simulated: too slow here) from its stored
-copy, tests/data/compare_run. Outputs go to the test's folder, never to ``out/``.
+drift apart. ``fabkit run`` gets ``--step 0.1 --diagonals 30 --size 20`` appended (a
+coarse solver grid and a small part: the last --size given counts), ``--no-verify`` and
+``--no-simulate`` (the ``fabkit verify`` example reads a run back, simulations included);
+the swimmer runs on a copy of its spec with small meshes and two stations per leg (as in
+tests/test_swimmer.py). ``fabkit compare`` reads the run of the README's main command
+(``out/``, two layers, verified and simulated: too slow here) from its stored copy,
+tests/data/compare_run. Outputs go to the test's folder, never to ``out/``.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import pytest
 from tests.conftest import EXAMPLES, ROOT
 
 README = EXAMPLES / "README.md"
-COARSE_SOLVE = ["--step", "0.1", "--diagonals", "30"]
+COARSE_SOLVE = ["--step", "0.1", "--diagonals", "30", "--size", "20"]
 
 
 def example_commands() -> list[str]:
