@@ -1,9 +1,10 @@
 """Fig. 1's run, today against an earlier revision, in one run.
 
 ``fabkit run examples/two_shapes.toml --out OUT --send "sim://marlin?baud=0&time_scale=0"``
-(the README's main command without ``--layers 2``, which earlier revisions do not know)
-runs as ``python -m fabkit`` in a fresh process (interpreter start included), from a
-folder outside the repository, alternately with this checkout's code and with the code
+(the README's main command in one layer, as earlier revisions print it: today's code gets
+``--layers 1``, which they do not know, since it prints two layers when not told) runs
+as ``python -m fabkit`` in a fresh process (interpreter start included), from a folder
+outside the repository, alternately with this checkout's code and with the code
 of ``--base`` (checked out into a temporary git worktree and put first on PYTHONPATH),
 ``-n`` times each, after one untimed run of each (it fills the caches both would have on
 a second run: compiled solver kernels, the operating system's file cache). Alternating
@@ -32,12 +33,15 @@ BASE = "16092b9"
 """The last commit before issue 20's values-between-stages work."""
 GOALS = {"16092b9": "<= 60 %, issue 20", "a86dfed": "<= 45 %, issue 36"}
 """The ratio each base was given as a goal."""
+ONE_LAYER = ("--layers", "1")
+"""Today's option for the one layer the bases print."""
 
 
-def timed_run(code: Path, out: Path) -> float:
-    """Wall time (s) of the README command with the package at ``code``."""
+def timed_run(code: Path, out: Path, layers: tuple[str, ...] = ()) -> float:
+    """Wall time (s) of the README command with the package at ``code`` (``layers``: the
+    option that asks for one layer, where the code knows it)."""
     command = [sys.executable, "-m", "fabkit", "run", str(SPEC), "--out", str(out)]
-    command += ["--send", SEND]
+    command += ["--send", SEND, *layers]
     env = {**os.environ, "PYTHONPATH": str(code)}
     started = time.perf_counter()
     subprocess.run(command, cwd=out.parent, env=env, check=True, capture_output=True)
@@ -56,12 +60,13 @@ def main() -> None:
             check=True,
         )
         try:
-            for name, code in (("base", base), ("today", ROOT)):
-                timed_run(code, Path(folder) / f"out-{name}-warm")
+            runs = (("base", base, ()), ("today", ROOT, ONE_LAYER))
+            for name, code, layers in runs:
+                timed_run(code, Path(folder) / f"out-{name}-warm", layers)
             times: dict[str, list[float]] = {"base": [], "today": []}
             for k in range(args.n):
-                for name, code in (("base", base), ("today", ROOT)):
-                    seconds = timed_run(code, Path(folder) / f"out-{name}-{k}")
+                for name, code, layers in runs:
+                    seconds = timed_run(code, Path(folder) / f"out-{name}-{k}", layers)
                     times[name].append(seconds)
                     print(f"  {name:<6} run {k + 1}: {seconds:.2f} s", flush=True)
         finally:

@@ -35,10 +35,10 @@ ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "tests" / "data"
 TOOLPATHS = DATA / "toolpaths"
 HASHES = DATA / "gcode_sha256.json"
-COARSE = ["--step", "0.1", "--diagonals", "30", "--no-verify"]
-"""``fabkit run`` settings of the stored toolpaths: a coarse solve and no read-back (the
-guard needs only the toolpath); each example adds a small ``--size`` (mm) to keep the
-stored files small (a few hundred KB in all)."""
+COARSE = ["--step", "0.1", "--diagonals", "30", "--no-verify", "--layers", "1"]
+"""``fabkit run`` settings of the stored toolpaths: a coarse solve, no read-back (the
+guard needs only the toolpath) and one layer (the swimmer prints two); each example
+adds a small ``--size`` (mm) to keep the stored files small (a few hundred KB in all)."""
 
 
 @dataclass(frozen=True)

@@ -803,7 +803,7 @@ CASES = [
     case(
         "run {spec} --out {out} --layers 2 --machine dmd_photoalign",
         "make one layer",
-        "laser writer dmd_photoalign",
+        "laser writers such as dmd_photoalign",
         id="run-layers-laser-writer",
     ),
     case(

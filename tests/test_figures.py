@@ -25,7 +25,7 @@ COARSE = ("--step", "0.1", "--diagonals", "30")
 
 @pytest.fixture(scope="module")
 def made(tmp_path_factory):
-    """Every file and every command's output, from one coarse run."""
+    """Every file and every command's output, from one coarse run in one layer."""
     import contextlib
     import io
 
@@ -49,6 +49,8 @@ def made(tmp_path_factory):
             *COARSE,
             "--size",
             "20",
+            "--layers",
+            "1",
             "--no-verify",
             "--send",
             "sim://marlin?baud=0&time_scale=0",

@@ -70,9 +70,9 @@ def opened_share(region: shapely.Geometry, radius: float) -> float:
 
 @pytest.fixture(scope="module", params=sorted(FIGURES))
 def run(request, tmp_path_factory):
-    """A figure through ``fabkit run`` (no verification, no simulation: test_verify and
-    test_run_layers cover them), its printed lines, and the part rebuilt from the design
-    as the run cut it."""
+    """A figure through ``fabkit run`` in one layer (no verification, no simulation:
+    test_verify and test_run_layers cover them), its printed lines, and the part rebuilt
+    from the design as the run cut it."""
     out = tmp_path_factory.mktemp(request.param) / "run"
     lines: list[str] = []
     report = run_pipeline(
@@ -82,6 +82,7 @@ def run(request, tmp_path_factory):
             machine=MACHINE,
             verify=False,
             simulate=False,
+            layers=1,
         ),
         say=lines.append,
     )

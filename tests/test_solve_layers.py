@@ -28,7 +28,8 @@ def test_strict_fails_a_run_whose_sheet_misses_a_target(tmp_path, capsys):
 
     out = tmp_path / "one"
     coarse = ["--step", "0.1", "--diagonals", "30"]
-    code = main(["run", str(TWO), "--out", str(out), *coarse, "--no-verify", "--strict"])
+    one = ["--layers", "1", "--no-verify", "--strict"]
+    code = main(["run", str(TWO), "--out", str(out), *coarse, *one])
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert code == 1
     assert last.startswith("done: the sheet as designed does NOT form ")

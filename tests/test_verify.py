@@ -331,13 +331,13 @@ def test_joint_channel_through_the_planner_and_the_gcode(tmp_path):
 
 @pytest.fixture(scope="module")
 def fig1_run(tmp_path_factory):
-    """Fig. 1 on a coarse grid, a part 18 mm long (what --size 40 made before --size was
-    the part's longest side), verified by the run itself."""
+    """Fig. 1 on a coarse grid in one layer, a part 18 mm long (what --size 40 made before
+    --size was the part's longest side), verified by the run itself."""
     from fabkit.cli import main
 
     out = tmp_path_factory.mktemp("fig1") / "run"
     spec = ROOT / "examples" / "two_shapes.toml"
-    arguments = ["run", str(spec), "--out", str(out), "--size", "18"]
+    arguments = ["run", str(spec), "--out", str(out), "--size", "18", "--layers", "1"]
     assert main([*arguments, "--step", "0.1", "--diagonals", "60"]) == 0
     return out
 

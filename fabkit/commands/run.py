@@ -86,10 +86,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--layers",
         type=int,
-        default=1,
-        help="print the sheet in this many layers (>= 2), their differences programmed "
-        "with each target's curvature so that the sheet takes the target, not a mirror "
-        "image or a neighbour (default 1)",
+        default=None,
+        help="print the sheet in this many layers, their differences programmed with each "
+        "target's curvature so that the sheet takes the target, not a mirror image or a "
+        "neighbour; 1 prints one layer, which programs no target's side (default: 2 on a "
+        "printer, as the run's first line says; 1 for laser writers and baromorphs)",
     )
     verdict_arguments(
         parser, "exit 1 when the sheet (as designed or as fabricated) does not form every target"

@@ -113,6 +113,13 @@ class Design:
         self.__dict__["problem"] = spec  # what the cached property would store
         return self
 
+    def with_layering(self, layering: Layering | None) -> Design:
+        """This design in the given layers, its spec not parsed again when it was."""
+        layered = replace(self, layering=layering)
+        if "problem" in self.__dict__:
+            layered.knowing(self.problem)
+        return layered
+
     @property
     def step(self) -> float:
         """Grid step in u and v (design units)."""

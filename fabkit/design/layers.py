@@ -58,7 +58,7 @@ one-sided); an intrinsic target (metric only) asks for no curvature.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -257,7 +257,7 @@ def layered(
     layering = Layering(
         count, float(thickness), np.where(valid, turn, np.nan), np.where(valid, slope, np.nan)
     )
-    result = replace(design, layering=layering)
+    result = design.with_layering(layering)
     return result, system.report(design, result, turn, slope, limited)
 
 
@@ -528,7 +528,7 @@ def _room(eps: np.ndarray, bounds: np.ndarray, reach: float, slope: np.ndarray) 
         room = np.where(
             slope >= 0, np.minimum(high - eps, eps - low), np.minimum(eps - low, high - eps)
         )
-    return np.clip(np.nan_to_num(room), 0.0, None) / reach
+    return np.clip(np.nan_to_num(room, nan=0.0, posinf=np.inf), 0.0, None) / reach  # inf: unbounded
 
 
 def _metric_errors(design: Design, layered: Design) -> np.ndarray:

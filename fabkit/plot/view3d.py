@@ -30,7 +30,7 @@ def shapes_3d(verdict: Verdict) -> tuple[Shape3D, ...]:
     for shape in verdict.shapes:
         if shape.mesh is None:
             continue
-        words = f"{shape.target}: formed" if shape.formed else f"NOT formed: {shape.miss()}"
+        words = f"formed: {shape.target}" if shape.formed else f"NOT formed: {shape.miss()}"
         title = f"{words}; the sheet {verdict.what} (the worst start), coloured by its distance"
         mesh = shape.mesh
         out.append(

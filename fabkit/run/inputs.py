@@ -49,11 +49,13 @@ class RunOptions:
     files an earlier run wrote into ``out`` (else such a folder is refused).
     ``part_request`` cuts the part (:class:`fabkit.field.part.PartRequest`). ``layers``
     (>= 2) prints the sheet in that many layers programmed with each target's curvature
-    (:mod:`fabkit.design.layers`); every target is simulated, as designed and as
+    (:mod:`fabkit.design.layers`); None lets the run choose (:func:`with_defaults`:
+    :data:`AUTO_LAYERS` on a printer, one where the route makes one; ``layers_chosen``
+    then True). Every target is simulated, as designed and as
     fabricated, and held to ``form_tolerance`` (RMS, a share of the patch diameter);
     ``strict`` makes a target not formed an error (the run's exit code). ``simulate``
-    False skips those simulations: no verdict on the shapes (refused with ``layers`` > 1
-    or ``strict``, which need one).
+    False skips those simulations: no verdict on the shapes (refused with ``strict``,
+    which needs one).
     ``send`` is a port, a pyserial URL or a printer host's URL
     (:mod:`fabkit.link.host.web`), whose API key is ``api_key``, else the first line of
     ``api_key_file``, else the environment's FABKIT_API_KEY; the key is never shown nor
@@ -77,7 +79,8 @@ class RunOptions:
     verify: bool = True
     overwrite: bool = False
     part_request: PartRequest = PartRequest()
-    layers: int = 1
+    layers: int | None = None
+    layers_chosen: bool = False
     strict: bool = False
     form_tolerance: float = FORM_TOLERANCE
     simulate: bool = True
@@ -155,8 +158,8 @@ def check_inputs(options: RunOptions, machine: MachineProfile) -> RunInputs:
         raise FabkitError(
             f"{options.machine} is a laser writer: use --format laser (or no --format)"
         )
-    if options.layers > 1 and (options.baromorph or machine.kind == LASER_WRITER):
-        what = "a baromorph's channels" if options.baromorph else f"laser writer {machine.name}"
+    what = one_layer_route(options, machine)
+    if options.layers > 1 and what:
         raise FabkitError(
             f"--layers {options.layers}: {what} make one layer; print a layered sheet on a "
             "printer (fabkit machines lists them)"
@@ -197,8 +200,42 @@ def machine_name(options: RunOptions) -> str:
     return options.machine or (BAROMORPH_MACHINE if options.baromorph else DEFAULT_MACHINE)
 
 
+AUTO_LAYERS = 2
+"""The layers a printed run makes when none are asked for: the fewest that program a
+natural curvature, and so each target's side. A sheet of one layer has none: whatever
+its metric, a target and its mirror image are equally its shapes, and it takes the one
+its start favours (docs/layers.md)."""
+
+
+def one_layer_route(options: RunOptions, machine: MachineProfile) -> str:
+    """What makes a run's sheet one layer whatever is asked ("" when it can be layered)."""
+    if options.baromorph:
+        return "a baromorph's channels"
+    if machine.kind == LASER_WRITER:
+        return f"laser writers such as {machine.name}"
+    return ""
+
+
+def layers_notice(options: RunOptions, inputs: RunInputs) -> str:
+    """The run's first line on the layers it chose itself ("" when --layers was given)."""
+    if not options.layers_chosen:
+        return ""
+    route = one_layer_route(options, inputs.machine)
+    if route:
+        return (
+            f"ONE LAYER: {route} make one layer, so no target's side is programmed: the "
+            "sheet takes each target or its mirror image, as it happens to start"
+        )
+    return (
+        f"LAYERS CHOSEN: {options.layers} layers of {inputs.process.layer_height_mm:g} mm "
+        "(no --layers), programmed with every target's side, which one layer cannot "
+        "program (--layers 1 prints one)"
+    )
+
+
 def with_defaults(options: RunOptions, machine: MachineProfile) -> RunOptions:
-    """Fill in the machine and the formats that suit the route (see :class:`RunOptions`)."""
+    """Fill in the machine, the formats that suit the route and the layers (see
+    :class:`RunOptions`)."""
     formats = options.formats
     if not formats:
         if options.baromorph:
@@ -207,4 +244,13 @@ def with_defaults(options: RunOptions, machine: MachineProfile) -> RunOptions:
             formats = ("laser",)
         else:
             formats = ("gcode",)
-    return replace(options, machine=machine_name(options), formats=tuple(formats))
+    layers = options.layers
+    if layers is None:
+        layers = 1 if one_layer_route(options, machine) else AUTO_LAYERS
+    return replace(
+        options,
+        machine=machine_name(options),
+        formats=tuple(formats),
+        layers=layers,
+        layers_chosen=options.layers is None,
+    )

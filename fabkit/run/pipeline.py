@@ -67,6 +67,7 @@ from fabkit.run.inputs import (
     RunOptions,
     check_inputs,
     ignored_notice,
+    layers_notice,
     machine_name,
     with_defaults,
 )
@@ -100,7 +101,8 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
     run, and written at the report (also when a later stage fails).
     """
     out = Path(options.out)
-    notice = "; ".join(n for n in (ignored_notice(options), _not_simulated(options)) if n)
+    notices = (ignored_notice(options), _not_simulated(options), layers_notice(options, inputs))
+    notice = "; ".join(n for n in notices if n)
     if notice:
         say(f"      {notice}")
     with worker(warm=WORKER_MODULES) as background:

@@ -20,10 +20,12 @@ from fabkit.writers.gcode_rows import (
     COL_X,
     COL_Y,
     COL_Z,
+    F_SCALE,
     ROW_G0,
     ROW_G1,
     ROW_M104,
     ROW_PRESSURE,
+    XYZ_SCALE,
     Paths,
     Rows,
 )
@@ -45,7 +47,7 @@ class Kinematics:
     def of(cls, rows: Rows) -> Kinematics:
         index = np.flatnonzero(rows.motion())
         position = rows.values[index][:, [COL_X, COL_Y, COL_Z]]
-        step = np.diff(position, axis=0, prepend=np.full((1, 3), np.nan))
+        step = _steps(position)
         return cls(
             rows=index,
             position=position,
@@ -57,17 +59,35 @@ class Kinematics:
 
 def slow_travels(rows: Rows, machine: MachineProfile) -> Rows:
     """Travel (G0) rows with their feed lowered so that no axis exceeds its limit (a layer
-    change moves Z, whose limit is low); print feeds are never changed."""
+    change moves Z, whose limit is low); print feeds are never changed. The cap holds on
+    the positions as planned (the writer's own check) and as written (rounded: the file's
+    reader, ``fabkit send``'s pre-flight check), and the feed is rounded down to the
+    written step: rounded to nearest, a layer change of Fig. 3 came out 10.009 mm/s in Z
+    against a limit of 10."""
     kin = Kinematics.of(rows)
     travel = rows.prefix[kin.rows] == ROW_G0
-    with np.errstate(invalid="ignore", divide="ignore"):
-        share = np.abs(kin.step) / kin.length[:, None]
-        limits = np.array([machine.limits.axis_mm_s(name) for name in "xyz"])
-        cap = np.nan_to_num(np.min(limits / share, axis=1), nan=np.inf)
-    feed = np.where(travel, np.minimum(kin.speed, cap), kin.speed) * 60.0
+    written = np.rint(kin.position * XYZ_SCALE) / XYZ_SCALE
+    limits = np.array([machine.limits.axis_mm_s(name) for name in "xyz"])
+    cap = np.minimum(_axis_cap(kin.step, limits), _axis_cap(_steps(written), limits))
+    cap_mm_min = np.floor(cap * 60.0 * F_SCALE) / F_SCALE
+    feed = kin.speed * 60.0
+    feed = np.where(travel & (feed > cap_mm_min), cap_mm_min, feed)
     values = rows.values.copy()
     values[kin.rows, COL_F] = feed
     return replace(rows, values=values)
+
+
+def _steps(position: np.ndarray) -> np.ndarray:
+    """(K, 3) displacement of every motion row from the one before (NaN first)."""
+    return np.diff(position, axis=0, prepend=np.full((1, 3), np.nan))
+
+
+def _axis_cap(step: np.ndarray, limits: np.ndarray) -> np.ndarray:
+    """(K,) the highest feed (mm/s) at which no axis of ``step`` (K, 3) exceeds its
+    limit (``limits`` (3,) mm/s); inf for a move of no length."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = np.abs(step) / np.linalg.norm(step, axis=1)[:, None]
+        return np.nan_to_num(np.min(limits / share, axis=1), nan=np.inf)
 
 
 def check_rows(
