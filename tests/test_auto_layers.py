@@ -12,7 +12,7 @@ import pytest
 from fabkit.design.design import Design
 from tests.conftest import EXAMPLES
 
-QUICK = ("--step", "0.1", "--diagonals", "30", "--size", "20", "--no-verify", "--no-simulate")
+QUICK = ("--step", "0.1", "--diagonals", "30", "--size", "12", "--no-verify", "--no-simulate")
 CHOSEN = "LAYERS CHOSEN: 2 layers of 0.3 mm (no --layers)"
 
 

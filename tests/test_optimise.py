@@ -189,7 +189,8 @@ def test_a_search_writes_a_best_spec_that_fabkit_run_accepts(spec_file, tmp_path
         table = tomllib.load(handle)
     best = summary["best"]["parameters"]
     assert table["initial"]["eps"] == [best["initial.eps[0]"]]
-    code, text, err = run_cli("run", out, "--out", tmp_path / "run", "--no-verify")
+    quick = ("--no-verify", "--no-simulate", "--size", "20")  # the spec is what is tested
+    code, text, err = run_cli("run", out, "--out", tmp_path / "run", *quick)
     assert code == 0, err
     design = Design.load(tmp_path / "run" / "design.npz")
     assert flat_cell_area(design) == pytest.approx(summary["best"]["value"], rel=0.01)

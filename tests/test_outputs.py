@@ -99,7 +99,7 @@ def test_a_users_file_is_never_touched(run_cli, tmp_path):
 def test_a_run_with_another_machine_leaves_no_file_of_the_first(run_cli, tmp_path):
     """The issue's case: G-code run, then a laser-writer run into the same --out."""
     out, spec = tmp_path / "out", EXAMPLES / "two_shapes.toml"
-    assert run_cli("run", spec, "--out", out, *COARSE)[0] == 0
+    assert run_cli("run", spec, "--out", out, *COARSE, "--layers", "1")[0] == 0
     assert {"sheet.gcode", "toolpath/toolpath.npz"} <= files(out) and (out / "as_designed").is_dir()
     # it leaves no shapes of its own; 5 mm: few pixels to write
     laser = ("--machine", "dmd_photoalign", "--no-simulate", "--size", "5")

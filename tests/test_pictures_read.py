@@ -80,6 +80,7 @@ def test_every_picture_reads_at_the_size_the_report_shows_it(spec, tmp_path, mon
     monkeypatch.setattr("fabkit.run.pipeline.worker", _here)
     monkeypatch.setattr(Figure, "savefig", watched)
     args = ["run", str(EXAMPLES / spec), "--out", str(tmp_path / "out"), "--step", "0.1"]
+    args += ["--layers", "1"]  # the same pictures as two layers, without choosing a share
     assert main([*args, "--diagonals", "30", "--size", "20"]) == 0
     assert len(seen) >= 6  # design, eps, surfaces, residuals, preview, a shape per target
     for picture in seen:

@@ -142,8 +142,9 @@ def test_run_baromorph_writes_channels_dxf_and_mould(run_cli, tmp_path):
 def test_a_run_not_simulated_says_so_first_and_last(run_cli, tmp_path):
     out = tmp_path / "quick"
     figures, text = run_ok(
-        run_cli, "two_shapes.toml", out, "--no-simulate", "--step", "0.1", "--diagonals", "30"
-    )
+        run_cli, "two_shapes.toml", out, "--no-simulate", "--step", "0.1", "--diagonals", "30",
+        "--size", "20",
+    )  # fmt: skip
     lines = text.strip().splitlines()
     assert lines[0].strip().startswith("NOT SIMULATED (--no-simulate): no verdict on the shapes")
     assert lines[-1].startswith("done: NOT SIMULATED (--no-simulate)")

@@ -31,7 +31,7 @@ from fabkit.toolpath.model import load_toolpath
 from fabkit.writers.export import Exported, export, write_machine_file
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
-COARSE = ("--step", "0.1", "--diagonals", "30")
+COARSE = ("--step", "0.1", "--diagonals", "30", "--size", "20")
 
 
 @contextlib.contextmanager
@@ -110,7 +110,7 @@ def test_verify_and_toolpath_parse_the_embedded_spec_once(run, tmp_path, run_cli
         code, _, err = run_cli(*verify, "--machine", "marlin_diw_pneumatic")
     assert code == 0, err
     assert calls == {"spec parses": 1, "design loads": 1, "machine reads": 1}, calls
-    toolpath = ("toolpath", out / "design.npz", "--size", "60", "--out", tmp_path / "tp")
+    toolpath = ("toolpath", out / "design.npz", "--size", "20", "--out", tmp_path / "tp")
     with counting() as calls:
         assert run_cli(*toolpath)[0] == 0
     assert calls == {"spec parses": 1, "design loads": 1, "machine reads": 1}, calls
@@ -142,7 +142,7 @@ def test_every_command_reads_each_file_once(run, tmp_path, run_cli):
             {"machine reads": 1, "process reads": 1},
         ),
         "toolpath with a process": (
-            ("toolpath", design, "--size", "60", "--process", process, "--out", tmp_path / "t"),
+            ("toolpath", design, "--size", "20", "--process", process, "--out", tmp_path / "t"),
             {"machine reads": 1, "process reads": 1},
         ),
         "channels": (
