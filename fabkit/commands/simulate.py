@@ -20,7 +20,9 @@ from fabkit.field.part import DEFAULT_SIZE_MM, Part, PartRequest
 from fabkit.mechanics.compare import Comparison, compare
 from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.simulate import (
+    EQUAL_STEPS,
     SEEDS,
+    SLOW_STEPS,
     Settings,
     ramp_words,
     simulate_design,
@@ -53,8 +55,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--steps",
         type=int,
         default=defaults.steps,
-        help="ramp steps (default: 5 for a sheet with natural curvature, its share of the "
-        "stimulus growing geometrically from --first-step to 1; 2 equal steps without)",
+        help=f"ramp steps (default: {SLOW_STEPS} for a sheet with natural curvature, its "
+        "share of the stimulus growing geometrically from --first-step to 1; "
+        f"{EQUAL_STEPS} equal steps without)",
     )
     parser.add_argument(
         "--first-step",

@@ -39,6 +39,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -114,11 +115,16 @@ class Design:
         return self
 
     def with_layering(self, layering: Layering | None) -> Design:
-        """This design in the given layers, its spec not parsed again when it was."""
-        layered = replace(self, layering=layering)
+        """This design in the given layers."""
+        return self._derived(layering=layering)
+
+    def _derived(self, **changes: Any) -> Design:
+        """This design with ``changes`` (dataclass fields), carrying the parsed spec when
+        it was parsed already, so that it is not parsed again."""
+        derived = replace(self, **changes)
         if "problem" in self.__dict__:
-            layered.knowing(self.problem)
-        return layered
+            derived.knowing(self.problem)
+        return derived
 
     @property
     def step(self) -> float:
@@ -140,10 +146,7 @@ class Design:
         )
         n = self.n.copy()
         n[0] = turned
-        layer = replace(self, n=n, eps=self.eps + z * layering.slope, layering=None)
-        if "problem" in self.__dict__:  # the spec parsed already: not again
-            layer.knowing(self.problem)
-        return layer
+        return self._derived(n=n, eps=self.eps + z * layering.slope, layering=None)
 
     @property
     def layers(self) -> int:
