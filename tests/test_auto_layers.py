@@ -12,7 +12,8 @@ import pytest
 from fabkit.design.design import Design
 from tests.conftest import EXAMPLES
 
-QUICK = ("--step", "0.1", "--diagonals", "30", "--size", "12", "--no-verify", "--no-simulate")
+QUICK = ("--step", "0.1", "--diagonals", "30", "--size", "12", "--no-verify", "--no-simulate",
+         "--no-pictures")  # fmt: skip
 CHOSEN = "LAYERS CHOSEN: 2 layers of 0.3 mm (no --layers)"
 
 

@@ -52,6 +52,7 @@ def made(tmp_path_factory):
             "--layers",
             "1",
             "--no-verify",
+            "--no-pictures",
             "--send",
             "sim://marlin?baud=0&time_scale=0",
         )  # fmt: skip

@@ -243,7 +243,8 @@ def test_run_send_prints_the_sheet_and_reports_without_the_key(octoprint, host, 
     out = tmp_path / "out"
     spec = Path(__file__).parent.parent / "examples" / "two_shapes.toml"
     args = ["run", str(spec), "--out", str(out), "--step", "0.1", "--diagonals", "30",
-            "--size", "20", "--send", host, "--api-key-file", str(key)]  # fmt: skip
+            "--size", "20", "--send", host, "--api-key-file", str(key),
+            "--no-pictures"]  # fmt: skip
     assert main(args) == 0
     printed = capsys.readouterr()
     job = octoprint.job()

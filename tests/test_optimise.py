@@ -189,7 +189,7 @@ def test_a_search_writes_a_best_spec_that_fabkit_run_accepts(spec_file, tmp_path
         table = tomllib.load(handle)
     best = summary["best"]["parameters"]
     assert table["initial"]["eps"] == [best["initial.eps[0]"]]
-    quick = ("--no-verify", "--no-simulate", "--size", "20")  # the spec is what is tested
+    quick = ("--no-verify", "--no-simulate", "--no-pictures", "--size", "20")  # the spec: tested
     code, text, err = run_cli("run", out, "--out", tmp_path / "run", *quick)
     assert code == 0, err
     design = Design.load(tmp_path / "run" / "design.npz")

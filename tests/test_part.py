@@ -83,6 +83,7 @@ def run(request, tmp_path_factory):
             verify=False,
             simulate=False,
             layers=1,
+            pictures=False,
         ),
         say=lines.append,
     )

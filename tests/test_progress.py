@@ -90,7 +90,7 @@ def test_simulate_progress_when_asked(tmp_path, run_cli):
 def test_verify_progress_counts_every_simulation_when_asked(tmp_path, run_cli):
     out = tmp_path / "out"
     spec = EXAMPLES / "two_shapes.toml"
-    coarse = ("--step", "0.1", "--diagonals", "20", "--size", "20", "--no-verify")
+    coarse = ("--step", "0.1", "--diagonals", "20", "--size", "20", "--no-verify", "--no-pictures")
     assert run_cli("run", spec, "--out", out, *coarse)[0] == 0
     args = ("verify", out / "design.npz", out / "sheet.gcode", "--stride", "3")
     code, quiet_out, quiet_err = run_cli(*args, "--max-iterations", "10")

@@ -103,6 +103,7 @@ def test_the_channels_read_back_does_not_hang_on_the_size(run_cli, tmp_path, siz
     # skipped cuts that end on a turned wall (a channel's round end, a junction): only
     # the default 60 mm read 1.5 %
     baromorph = ("--baromorph", EXAMPLES / "baromorph_channels.toml", "--no-simulate")
+    baromorph += ("--no-pictures",)
     figures, _ = run_ok(run_cli, "baromorph.toml", tmp_path / "out", "--size", size, *baromorph)
     (width,) = figures["verify"]["features"]
     assert width["rms_pct"] < 2.5 and width["p95_pct"] < 5.0
@@ -143,7 +144,7 @@ def test_a_run_not_simulated_says_so_first_and_last(run_cli, tmp_path):
     out = tmp_path / "quick"
     figures, text = run_ok(
         run_cli, "two_shapes.toml", out, "--no-simulate", "--step", "0.1", "--diagonals", "30",
-        "--size", "20",
+        "--size", "20", "--no-pictures",
     )  # fmt: skip
     lines = text.strip().splitlines()
     assert lines[0].strip().startswith("NOT SIMULATED (--no-simulate): no verdict on the shapes")
@@ -155,4 +156,20 @@ def test_a_run_not_simulated_says_so_first_and_last(run_cli, tmp_path):
     assert not (out / "as_designed").exists() and not (out / "as_fabricated").exists()
     body = (out / "report.html").read_text().split("<body>", 1)[1]
     assert body.lstrip().startswith('<p class="notice">NOT SIMULATED (--no-simulate)')
+    validate_report(figures)
+
+
+@pytest.mark.slow
+def test_a_run_without_pictures_writes_every_other_file_and_says_so(coarse_run):
+    """``--no-pictures`` (the shared coarse run of Fig. 1, verified and simulated): no PNG
+    anywhere, the shapes' meshes without a picture, the report says why it has none."""
+    out, text = coarse_run("two_shapes.toml")
+    assert "[2/7] no pictures (--no-pictures); patch meshes" in text
+    assert list(out.rglob("*.png")) == [] and list(out.rglob("*.svg")) == []
+    figures = json.loads((out / "report.json").read_text())
+    for shape in figures["shapes"]["targets"]:
+        assert "picture" not in shape and (out / shape["mesh"]).is_file()
+    assert (out / "toolpath" / "toolpath.npz").is_file() and (out / "sheet.gcode").is_file()
+    page = (out / "report.html").read_text()
+    assert "<img" not in page and "No pictures drawn (fabkit run --no-pictures)." in page
     validate_report(figures)

@@ -31,7 +31,7 @@ def layered_run(folder, request):
     from fabkit.cli import main
 
     out = folder / "three_layered"
-    code = main(["run", str(THREE), "--layers", "2", "--out", str(out)])
+    code = main(["run", str(THREE), "--layers", "2", "--out", str(out), "--no-pictures"])
     assert code == 0
     return out
 

@@ -28,7 +28,7 @@ def test_strict_fails_a_run_whose_sheet_misses_a_target(tmp_path, capsys):
 
     out = tmp_path / "one"
     coarse = ["--step", "0.1", "--diagonals", "30"]
-    one = ["--layers", "1", "--no-verify", "--strict"]
+    one = ["--layers", "1", "--no-verify", "--strict", "--no-pictures"]
     code = main(["run", str(TWO), "--out", str(out), *coarse, *one])
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert code == 1

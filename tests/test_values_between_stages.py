@@ -167,6 +167,7 @@ def test_every_command_reads_each_file_once(run, tmp_path, run_cli):
 def test_a_baromorph_run_reads_its_settings_once(tmp_path):
     out = tmp_path / "out"
     argv = ["run", str(EXAMPLES / "baromorph.toml"), "--out", str(out), *COARSE, "--size", "60"]
+    argv += ["--no-pictures"]
     argv += ["--baromorph", str(EXAMPLES / "baromorph_channels.toml"), "--no-simulate"]
     with counting() as calls, contextlib.redirect_stdout(io.StringIO()):
         assert main(argv) == 0

@@ -338,6 +338,7 @@ def fig1_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("fig1") / "run"
     spec = ROOT / "examples" / "two_shapes.toml"
     arguments = ["run", str(spec), "--out", str(out), "--size", "18", "--layers", "1"]
+    arguments += ["--no-pictures"]
     assert main([*arguments, "--step", "0.1", "--diagonals", "60"]) == 0
     return out
 
@@ -362,7 +363,7 @@ def test_an_ignored_feature_is_the_reports_first_line(run_cli, tmp_path):
     spec = ROOT / "examples" / "three_shapes.toml"
     code, text, err = run_cli(
         "run", spec, "--out", out, "--ignore-feature", "eps2",
-        "--step", "0.1", "--diagonals", "30", "--size", "20",
+        "--step", "0.1", "--diagonals", "30", "--size", "20", "--no-pictures",
     )  # fmt: skip
     assert code == 0, err
     assert text.splitlines()[0].strip().startswith("NOT ENCODED: feature eps2 left out")

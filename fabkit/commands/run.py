@@ -70,6 +70,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="do not read the machine file back and check it (fabkit verify)",
     )
     parser.add_argument(
+        "--no-pictures",
+        action="store_false",
+        dest="pictures",
+        help="draw no pictures (pictures/, the toolpath preview, each target's picture of the "
+        "shape the sheet takes): every file and figure else, sooner, for sweeps and scripts",
+    )
+    parser.add_argument(
         "--no-simulate",
         action="store_false",
         dest="simulate",

@@ -39,7 +39,7 @@ from fabkit.plot.page_verdict import verdict_section
 def run_page(
     figures: Mapping[str, Any],
     pictures: Sequence[tuple[str, Path]],
-    preview: tuple[str, Path],
+    preview: tuple[str, Path] | None,
     folder: Path,
     shapes: tuple[Shape3D, ...] = (),
 ) -> Page:
@@ -112,7 +112,8 @@ def _shapes_section(
             "the target (mm), after the best rotation and translation; the colour bar marks "
             f"its RMS distance and the limit.{mirror}"
         )
-        blocks.append(Figure(folder / shape["picture"], caption))
+        if "picture" in shape:  # none with --no-pictures
+            blocks.append(Figure(folder / shape["picture"], caption))
     if shapes_3d:
         blocks.append(
             View3D(
@@ -167,7 +168,8 @@ def _design_section(figures: Mapping[str, Any], pictures: Sequence[tuple[str, Pa
                 tuple((as_spans(reason), str(count)) for reason, count in stops.items()),
             )
         )
-    blocks += [*_check_blocks(figures["check"]), *_figures(pictures)]
+    drawn = _figures(pictures) or [Paragraph(("No pictures drawn (fabkit run --no-pictures).",))]
+    blocks += [*_check_blocks(figures["check"]), *drawn]
     return Section("The design", tuple(blocks))
 
 
@@ -302,14 +304,15 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
     return Section("Layers", blocks)
 
 
-def _fabrication_section(figures: Mapping[str, Any], preview: tuple[str, Path]) -> Section:
-    """What the machine makes: print lines, channels or an exposure pattern."""
-    picture = Figure(preview[1], preview[0])
+def _fabrication_section(figures: Mapping[str, Any], preview: tuple[str, Path] | None) -> Section:
+    """What the machine makes: print lines, channels or an exposure pattern (``preview``
+    None: no picture of it, ``--no-pictures``)."""
+    picture = (Figure(preview[1], preview[0]),) if preview is not None else ()
     if "toolpath quality" in figures:
-        return Section("Print lines", (*_print_lines(figures), picture))
+        return Section("Print lines", (*_print_lines(figures), *picture))
     if "mould" in figures:
-        return Section("Baromorph channels", (*_channels(figures), picture))
-    return Section("Photoalignment pattern", (picture,))
+        return Section("Baromorph channels", (*_channels(figures), *picture))
+    return Section("Photoalignment pattern", picture)
 
 
 def _print_lines(figures: Mapping[str, Any]) -> list[Block]:

@@ -39,13 +39,20 @@ class Drawings:
     """Pictures the worker draws while the run goes on, and how each is written: all are
     written together, when the run reaches its report or when a later stage fails."""
 
-    def __init__(self, background: Worker) -> None:
+    def __init__(self, background: Worker | None) -> None:
         self._background = background
         self._pending: list[tuple[AsyncResult, Callable[[Any], Any]]] = []
 
+    @property
+    def on(self) -> bool:
+        """Whether pictures are drawn (no worker: ``fabkit run --no-pictures``)."""
+        return self._background is not None
+
     def draw(self, function: str, args: tuple[Any, ...], write: Callable[[Any], Any]) -> None:
-        """Have ``function`` (``"module:name"``) draw from ``args``; ``write`` its result."""
-        self._pending.append((self._background.start(function, *args), write))
+        """Have ``function`` (``"module:name"``) draw from ``args``; ``write`` its result
+        (nothing when the pictures are off)."""
+        if self._background is not None:
+            self._pending.append((self._background.start(function, *args), write))
 
     def write(self) -> None:
         """Wait for every drawing and write it."""
@@ -142,14 +149,15 @@ def _shapes(run: Run, verdict: Verdict) -> dict[str, Any]:
                 "target": shape.target,
                 "mesh": f"{folder}/{shape.target}.ply",
                 "target_mesh": f"{folder}/{shape.target}_target.ply",
-                "picture": f"{folder}/{shape.target}.png",
+                **({"picture": f"{folder}/{shape.target}.png"} if run.drawings.on else {}),
             }
         )
-    run.drawings.draw(
-        "fabkit.plot.shapes:shape_pictures",
-        (verdict.what, shown),
-        partial(_write_files, [run.out / t["picture"] for t in targets]),
-    )
+    if run.drawings.on:
+        run.drawings.draw(
+            "fabkit.plot.shapes:shape_pictures",
+            (verdict.what, shown),
+            partial(_write_files, [run.out / t["picture"] for t in targets]),
+        )
     return {"what": verdict.what, "folder": folder, "targets": targets}
 
 
@@ -208,12 +216,12 @@ def _send(path: Path, options: RunOptions, machine: MachineProfile) -> SendRepor
 
 @dataclass(frozen=True)
 class _Fabricated:
-    """Key figures of the fabrication stages, their preview (caption, PNG) and the first
-    machine file's figures (``file`` in the output folder, ``format``, and the writer's
-    :attr:`~fabkit.writers.export.Exported.figures`)."""
+    """Key figures of the fabrication stages, their preview (caption, PNG; None when the
+    pictures are off) and the first machine file's figures (``file`` in the output folder,
+    ``format``, and the writer's :attr:`~fabkit.writers.export.Exported.figures`)."""
 
     figures: dict[str, Any]
-    picture: tuple[str, Path]
+    picture: tuple[str, Path] | None
     machine_file: dict[str, Any]
 
 
@@ -254,7 +262,8 @@ def _print_lines(run: Run) -> _Fabricated:
     first = options.formats[0]
     machine_file = {"file": FORMAT_FILES[first], "format": first, **written[first].figures}
     caption = "Print lines coloured by the encoded parameter (travels thin)"
-    return _Fabricated(figures, (caption, out / "toolpath" / "preview.png"), machine_file)
+    preview = (caption, out / "toolpath" / "preview.png") if run.drawings.on else None
+    return _Fabricated(figures, preview, machine_file)
 
 
 def _laser_patterns(run: Run) -> _Fabricated:

@@ -45,7 +45,8 @@ class RunOptions:
     ``formats`` None: DXF for baromorph channels, laser patterns on a laser writer, else
     G-code. ``machine`` None: laser_cutter for baromorph channels, else a pneumatic DIW.
     ``ignore_features`` are left out of the machine file on purpose; ``verify`` reads the
-    machine file back and checks it (:mod:`fabkit.verify`). ``overwrite`` replaces the
+    machine file back and checks it (:mod:`fabkit.verify`); ``pictures`` False draws
+    none (the design's, the toolpath preview, the shapes'). ``overwrite`` replaces the
     files an earlier run wrote into ``out`` (else such a folder is refused).
     ``part_request`` cuts the part (:class:`fabkit.field.part.PartRequest`). ``layers``
     (>= 2) prints the sheet in that many layers programmed with each target's curvature
@@ -77,6 +78,7 @@ class RunOptions:
     mesh_format: str = "ply"
     ignore_features: tuple[str, ...] = ()
     verify: bool = True
+    pictures: bool = True
     overwrite: bool = False
     part_request: PartRequest = PartRequest()
     layers: int | None = None

@@ -27,7 +27,8 @@ Files in the output folder:
 
 ================== ==============================================================
 design.npz/.json   the design and its solve summary (``fabkit solve``)
-pictures/          flat sheet, eps, actuated surfaces, residual maps (PNG)
+pictures/          flat sheet, eps, actuated surfaces, residual maps (PNG; none with
+                   ``--no-pictures``, nor the toolpath preview nor as_fabricated/'s PNG)
 patches/           each actuated patch as a mesh (PLY, or ``--mesh-format``)
 toolpath/          toolpath.npz, quality.json, preview.png/svg (``fabkit toolpath``)
 sheet.gcode        machine file(s), one per ``--format`` (``fabkit export``)
@@ -45,7 +46,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from contextlib import suppress
+from contextlib import nullcontext, suppress
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -105,10 +106,11 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
     notice = "; ".join(n for n in notices if n)
     if notice:
         say(f"      {notice}")
-    with worker(warm=WORKER_MODULES) as background:
+    with worker(warm=WORKER_MODULES) if options.pictures else nullcontext() as background:
         drawings = Drawings(background)
         solved = solve_stage(options, inputs, say)
-        say("[2/7] drawing pictures and patch meshes")
+        drawing = "drawing pictures and" if options.pictures else "no pictures (--no-pictures);"
+        say(f"[2/7] {drawing} patch meshes")
         design = solved.design
         drawings.draw(
             "fabkit.plot:draw_design",
@@ -126,6 +128,7 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
             raise
         drawings.write()
     pictures = [(caption, out / "pictures" / name) for name, caption in DESIGN_PICTURES]
+    pictures = pictures if options.pictures else []
 
     say("[7/7] writing report.html and report.json")
     verification = made.verification.to_dict() if made.verification is not None else None
