@@ -194,6 +194,8 @@ def residual_maps(scene: Scene) -> bytes:
         len(maps),
         figsize=(width, height),
         squeeze=False,
+        sharex=True,  # tick labels on the outer panels only: most of the drawing's time
+        sharey=True,
         gridspec_kw={
             "left": 0.95 / width,
             "right": 1 - 1.75 / width,
@@ -227,7 +229,8 @@ def residual_maps(scene: Scene) -> bytes:
             panel.tick_params(labelsize=text)
             panel.set_xlabel("u" if row == len(RESIDUALS) - 1 else "", fontsize=text)
             panel.set_ylabel("v" if column == 0 else "", fontsize=text)
-            _zoom(panel, design, np.isfinite(surface.maps[key]))
+    finite = [np.isfinite(surface.maps[key]) for surface in maps for key in RESIDUALS]
+    _zoom(axes[0, 0], design, np.logical_or.reduce(finite))  # every panel: axes shared
     bar = figure.colorbar(image, cax=figure.add_axes((1 - 1.45 / width, 0.12, 0.12 / width, 0.76)))
     bar.ax.tick_params(labelsize=text)
     bar.set_label(
