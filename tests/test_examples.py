@@ -4,6 +4,7 @@ The commands are read from the README's ``sh`` blocks, so the page and this test
 drift apart. ``fabkit run`` gets ``--step 0.1 --diagonals 30 --size 20`` appended (a
 coarse solver grid and a small part: the last --size given counts), ``--no-verify`` and
 ``--no-simulate`` (the ``fabkit verify`` example reads a run back, simulations included);
+a spec's first run draws the pictures, later runs of the same spec add ``--no-pictures``;
 the swimmer runs on a copy of its spec with small meshes and two stations per leg (as in
 tests/test_swimmer.py). ``fabkit compare`` reads the run of the README's main command
 (``out/``, two layers, verified and simulated: too slow here) from its stored copy,
@@ -49,6 +50,15 @@ def coarse_swimmer(folder) -> str:
     return str(path)
 
 
+def draws_pictures(command: str) -> bool:
+    """Whether the run ``command`` is the page's first of its spec: it draws the pictures,
+    the later ones of the same spec (another process, machine or layer count) add
+    ``--no-pictures``; tests/test_pictures_read.py looks at them."""
+    spec = shlex.split(command)[2]
+    runs = [c for c in example_commands() if c.startswith("fabkit run")]
+    return next(c for c in runs if shlex.split(c)[2] == spec) == command
+
+
 RUNS: dict[str, str] = {}
 """Output folders of the run examples already made in this session, by README folder."""
 
@@ -87,6 +97,8 @@ def test_example_runs(command, run_cli, tmp_path):
         # verdicts on the examples' shapes, in tests/test_run_layers.py and test_verify.py
         # (and the layers' share chosen by simulation there: not simulated, the whole one)
         args += [*COARSE_SOLVE, "--no-verify", "--no-simulate"]
+        if not draws_pictures(command):
+            args += ["--no-pictures"]
     if name == "swimmer":
         args[args.index(str(EXAMPLES / "swimmer.toml"))] = coarse_swimmer(tmp_path)
         args += ["--stations", "2"]
