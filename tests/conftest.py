@@ -95,9 +95,9 @@ def run_cli(capsys):
     return run
 
 
-COARSE_RUN = ("--step", "0.1", "--diagonals", "30", "--size", "20", "--no-pictures")
-"""A coarse ``fabkit run`` of an example (a 20 mm part, verified, no pictures): what the
-tests that read a run's figures share (:func:`coarse_run`)."""
+COARSE_RUN = ("--step", "0.1", "--diagonals", "30", "--size", "20")
+"""A coarse ``fabkit run`` of an example (a 20 mm part, verified): what the tests that
+read a run's whole output share (:func:`coarse_run`)."""
 
 
 @pytest.fixture(scope="session")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import EXAMPLES, validate_report
+from tests.conftest import COARSE_RUN, EXAMPLES, validate_report
 
 
 def run_ok(run_cli, spec: str, out: Path, *options) -> tuple[dict, str]:
@@ -160,16 +160,25 @@ def test_a_run_not_simulated_says_so_first_and_last(run_cli, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_run_without_pictures_writes_every_other_file_and_says_so(coarse_run):
-    """``--no-pictures`` (the shared coarse run of Fig. 1, verified and simulated): no PNG
-    anywhere, the shapes' meshes without a picture, the report says why it has none."""
-    out, text = coarse_run("two_shapes.toml")
+def test_a_run_without_pictures_writes_every_other_file_and_says_so(coarse_run, run_cli, tmp_path):
+    """``--no-pictures`` on the shared coarse run of Fig. 1 (verified and simulated: its
+    simulations kept): no PNG anywhere, the same figures but the pictures' names, the
+    shapes' meshes, and the report says why it has no picture."""
+    drawn, _ = coarse_run("two_shapes.toml")
+    out = tmp_path / "out"
+    figures, text = run_ok(run_cli, "two_shapes.toml", out, *COARSE_RUN, "--no-pictures")
     assert "[2/7] no pictures (--no-pictures); patch meshes" in text
     assert list(out.rglob("*.png")) == [] and list(out.rglob("*.svg")) == []
-    figures = json.loads((out / "report.json").read_text())
+    assert list(drawn.rglob("*.png"))  # the same run with pictures draws them
+    expected = json.loads((drawn / "report.json").read_text())
+    for shape in expected["shapes"]["targets"]:
+        del shape["picture"]
+    same = ("verdict", "verdicts", "as designed", "check", "part", "layers", "shapes")
+    for key in (*same, "channels", "toolpath quality"):
+        assert figures[key] == expected[key], key
     for shape in figures["shapes"]["targets"]:
-        assert "picture" not in shape and (out / shape["mesh"]).is_file()
-    assert (out / "toolpath" / "toolpath.npz").is_file() and (out / "sheet.gcode").is_file()
+        assert (out / shape["mesh"]).is_file()
+    assert figures["verify"]["verdict"] == expected["verify"]["verdict"]
     page = (out / "report.html").read_text()
     assert "<img" not in page and "No pictures drawn (fabkit run --no-pictures)." in page
     validate_report(figures)
