@@ -15,10 +15,12 @@ matplotlib at all). The worker is
 - started at once, importing ``warm`` (the modules its work needs) while the caller
   goes on, so the work starts without that delay;
 - deaf to Ctrl-C: the terminal sends the interrupt to both processes, and the caller
-  alone answers it (one line, exit 130). The worker starts with SIGINT ignored (an
-  ignored signal stays ignored in a process its creator starts), so not even an
-  interrupt during its own start-up reaches it; the caller ignores Ctrl-C only while it
-  starts the worker (milliseconds). Leaving the ``with`` block by an exception
+  alone answers it (one line, exit 130). The caller holds SIGINT back (blocks it) while
+  it starts a worker, and the worker starts with it held (a process inherits the mask of
+  the thread that starts it), until :func:`_start` ignores it; so an interrupt during
+  the worker's start-up never reaches the worker, and one that comes while the caller
+  starts it reaches the caller when it is done (ignoring it there instead lost a Ctrl-C
+  that came in those milliseconds: the run went on). Leaving the ``with`` block by an exception
   terminates the worker (else it is kept for the next block). Its work writes no file
   (the caller writes what it returns), so a terminated worker leaves nothing
   half-written.
@@ -89,7 +91,7 @@ def worker(warm: tuple[str, ...] = ()) -> Iterator[Worker]:
     interrupted command goes on."""
     global _WORKER
     if _WORKER is None:
-        with _sigint_ignored(), _main_hidden():
+        with _sigint_held(), _main_hidden():
             _WORKER = _Pool(1, _start, (warm,), context=multiprocessing.get_context("spawn"))
         atexit.register(_terminate_worker)
     try:
@@ -121,17 +123,14 @@ def _main_hidden() -> Iterator[None]:
 
 
 @contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """Ignore SIGINT in the block (signal handlers can only be set in the main thread;
-    elsewhere the worker's :func:`_start` ignores it, once it runs)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+def _sigint_held() -> Iterator[None]:
+    """Block SIGINT in the calling thread for the block: processes started in it start
+    with SIGINT blocked, and a SIGINT that came meanwhile is delivered at its end."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 _POOL: Pool | None = None
@@ -169,7 +168,7 @@ def _pool(workers: int, warm: tuple[str, ...]) -> Pool:
     """The pool of :func:`parallel_map`, started at its first use."""
     global _POOL
     if _POOL is None:
-        with _sigint_ignored(), _main_hidden():
+        with _sigint_held(), _main_hidden():
             _POOL = _Pool(workers, _start, (warm,), context=multiprocessing.get_context("spawn"))
         atexit.register(_POOL.terminate)
     return _POOL
@@ -194,7 +193,9 @@ def _call(function: str, args: tuple[Any, ...]) -> Any:
 
 
 def _start(warm: tuple[str, ...]) -> None:
-    """The worker's start: ignore SIGINT, import ``warm`` (module names)."""
+    """The worker's start: ignore SIGINT (held since it was started: :func:`_sigint_held`;
+    one that came meanwhile is dropped), import ``warm`` (module names)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     for name in warm:
         importlib.import_module(name)

@@ -77,3 +77,32 @@ def test_a_worker_stops_at_once_while_a_large_task_waits_for_it(tmp_path):
     )
     assert done.returncode == 0, done.stderr
     assert float(done.stdout.split()[2]) < 5.0
+
+
+def test_a_ctrl_c_while_workers_start_is_answered_after_and_never_reaches_them(tmp_path):
+    # the caller once ignored SIGINT while it started a worker: a Ctrl-C that came in
+    # those milliseconds was lost and the run went on (tests/test_interrupt.py, under load)
+    script = tmp_path / "held.py"
+    script.write_text(
+        textwrap.dedent(
+            """
+            import os, signal
+            from fabkit.background import _sigint_held, worker
+            try:
+                with _sigint_held():
+                    os.kill(os.getpid(), signal.SIGINT)  # held: nothing happens here
+                    print("held", flush=True)
+            except KeyboardInterrupt:
+                print("answered after", flush=True)
+            with worker() as background:
+                pid = background.start("os:getpid").get()
+                os.kill(pid, signal.SIGINT)  # the worker ignores it and goes on
+                print("worker", background.start("math:hypot", 3, 4).get(), flush=True)
+            """
+        )
+    )
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=60, cwd=tmp_path
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["held", "answered after", "worker 5.0"]
