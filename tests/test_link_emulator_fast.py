@@ -30,6 +30,9 @@ _JOB = [
     "M105",
     "G1 X10 Y10 F3000",
     "G0 X20 Y5",
+    "G1 X22 Y6.5 E2",
+    "G1 X+23 Y.5 F900",
+    "G0 Z1.",
     "g1 x21 y6",
     "G2 X30 Y5 I5 J0",
     "G1  X31   Y8 E1.5",
@@ -78,24 +81,31 @@ def _write(emulator: Emulator, rng: random.Random, n: int, text: str, t: float) 
     emulator.host_write(frame, t)
 
 
-def _run(emulator: Emulator, seed: str, step_s: float) -> list[object]:
+def _run(emulator: Emulator, seed: str, step_s: float, joined: float = 0.0) -> list[object]:
     """Send the job three times over at a fake clock, following resend requests, polling as
-    a host does; everything the emulator said and did."""
-    rng = random.Random(seed)
+    a host does, two lines in one write with probability ``joined``; everything the
+    emulator said and did."""
+    rng, joins = random.Random(seed), random.Random(seed + " joins")
     texts = {0: "M110 N0"}
     job = iter(_JOB * 3)
     seen: list[object] = []
     n, t = 0, 0.0
     for _ in range(400):
-        if n not in texts:
-            texts[n] = next(job, "")
-            if not texts[n]:
-                break
-        _write(emulator, rng, n, texts[n], t)
+        lines = 2 if joins.random() < joined else 1
+        for k in range(n, n + lines):
+            if k not in texts:
+                texts[k] = next(job, "")
+        if not texts[n]:
+            break
+        if lines == 2 and texts[n + 1]:
+            emulator.host_write(frame_marlin(n, texts[n]) + frame_marlin(n + 1, texts[n + 1]), t)
+        else:
+            lines = 1
+            _write(emulator, rng, n, texts[n], t)
         out = emulator.poll(t)
         seen.append((t, out, emulator.next_time()))
         asked = _RESEND.findall(out)
-        n = int(asked[-1]) if asked else n + 1
+        n = int(asked[-1]) if asked else n + lines
         t += step_s
         if rng.random() < 0.2 and emulator.next_time() < float("inf"):
             t = max(t, emulator.next_time())  # let a waiting command finish
@@ -103,24 +113,24 @@ def _run(emulator: Emulator, seed: str, step_s: float) -> list[object]:
     return [seen, trace, dataclasses.asdict(emulator.counters), emulator.firmware.motion.pos]
 
 
-@pytest.mark.parametrize(
-    "options",
-    [
-        "baud=0&time_scale=0",
-        "baud=0&time_scale=0&dialect=marlin-2.0",
-        "baud=0&time_scale=0&dialect=prusa&slots=1",
-        "baud=0&time_scale=0&drain=0",
-        "baud=0&time_scale=1&accel=1000&heat_tau_s=0.05",
-        "baud=0&time_scale=1&planner=2",
-        "baud=0&time_scale=0&corrupt=0.05&drop_ok=0.05&garble=0.02&noise=0.02",
-        "baud=0&time_scale=0&reset_after=40",
-        "baud=0&time_scale=0&disconnect_after=50",
-        "baud=0&time_scale=0&dialect=repetier",
-        "baud=0&time_scale=0&dialect=smoothieware",
-        "baud=0&time_scale=0&ack_on_queue=1",
-        "time_scale=0&latency_ms=1",
-    ],
-)
+_OPTIONS = [
+    "baud=0&time_scale=0",
+    "baud=0&time_scale=0&dialect=marlin-2.0",
+    "baud=0&time_scale=0&dialect=prusa&slots=1",
+    "baud=0&time_scale=0&drain=0",
+    "baud=0&time_scale=1&accel=1000&heat_tau_s=0.05",
+    "baud=0&time_scale=1&planner=2",
+    "baud=0&time_scale=0&corrupt=0.05&drop_ok=0.05&garble=0.02&noise=0.02",
+    "baud=0&time_scale=0&reset_after=40",
+    "baud=0&time_scale=0&disconnect_after=50",
+    "baud=0&time_scale=0&dialect=repetier",
+    "baud=0&time_scale=0&dialect=smoothieware",
+    "baud=0&time_scale=0&ack_on_queue=1",
+    "time_scale=0&latency_ms=1",
+]
+
+
+@pytest.mark.parametrize("options", _OPTIONS)
 @pytest.mark.parametrize("step_s", [0.0, 0.001])
 def test_the_fast_paths_answer_trace_and_count_as_the_general_path(options, step_s):
     url = f"sim://marlin?{options}"
@@ -128,6 +138,58 @@ def test_the_fast_paths_answer_trace_and_count_as_the_general_path(options, step
     general = _run(_general(Emulator(config_from_url(url, 115200))), options, step_s)
     assert fast == general
     assert len(fast[1]) > 10  # the job ran
+
+
+@pytest.mark.parametrize("options", [options for options in _OPTIONS if "baud=0" in options])
+@pytest.mark.parametrize("step_s", [0.0, 0.001])
+def test_lines_written_together_answer_trace_and_count_as_on_the_general_path(options, step_s):
+    # the firmware reads lines that arrive together before it runs the first
+    url = f"sim://marlin?{options}"
+    fast = _run(Emulator(config_from_url(url, 115200)), options, step_s, joined=0.3)
+    general = _run(_general(Emulator(config_from_url(url, 115200))), options, step_s, 0.3)
+    assert fast == general
+    assert len(fast[1]) > 10  # the job ran
+
+
+def _pairs(emulator: Emulator, seed: int, step_s: float) -> list[object]:
+    """Two move lines in each write, the second now and then one the firmware refuses (a
+    bad checksum, a wrong number) or no move; everything the emulator said and did."""
+    rng = random.Random(seed)
+    seen: list[object] = []
+    emulator.host_write(frame_marlin(0, "M110 N0"), 0.0)
+    n, t = 1, 0.0
+    for k in range(150):
+        second = f"G1 X{k % 3}.5 Y{k % 4}"
+        roll = rng.random()
+        if roll < 0.15:
+            second = frame_marlin(n + 1, second).replace(b"*", b"*1", 1)
+        elif roll < 0.3:
+            second = frame_marlin(n + 2, second)
+        else:
+            second = frame_marlin(n + 1, "M400" if roll < 0.4 else second)
+        emulator.host_write(frame_marlin(n, f"G1 X{k % 7} Y{k % 5} F{600 + k}") + second, t)
+        out = emulator.poll(t)
+        seen.append((t, out, emulator.next_time()))
+        asked = _RESEND.findall(out)
+        n = int(asked[-1]) if asked else n + 2
+        t = max(t + step_s, min(emulator.next_time(), t + 0.01))
+    trace = [dataclasses.astuple(entry) for entry in emulator.trace]
+    return [seen, trace, dataclasses.asdict(emulator.counters), emulator.firmware.motion.pos]
+
+
+@pytest.mark.parametrize(
+    "options",
+    ["baud=0&time_scale=0", "baud=0&time_scale=0.02&planner=3", "baud=0&time_scale=0&slots=1"],
+)
+@pytest.mark.parametrize("step_s", [0.0, 0.001])
+def test_two_moves_in_one_write_answer_as_on_the_general_path(options, step_s):
+    # the firmware reads both lines before it runs the first: a refused second line is
+    # answered before the first one's ok, and a full planner holds both
+    url = f"sim://marlin?{options}"
+    fast = _pairs(Emulator(config_from_url(url, 115200)), 3, step_s)
+    general = _pairs(_general(Emulator(config_from_url(url, 115200))), 3, step_s)
+    assert fast == general
+    assert len(fast[1]) > 150  # the job ran
 
 
 def test_a_send_through_the_fast_paths_runs_the_job_exactly():

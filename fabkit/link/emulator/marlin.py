@@ -46,11 +46,20 @@ REPETIER_SEEN_LINES = 40  # a line number this close behind the last one is a re
 _STRTOL = re.compile(r"\s*([-+]?\d+)")
 _FRAMED = re.compile(rb"N([0-9]+) ([^*;\\\x08]*)\*([0-9]+)")
 """``N<n> <command>*<checksum>`` with nothing in it that :func:`clean_line` changes."""
+_NUMBER = rb"[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)"  # as fabkit.gcode.read.words reads one
+_MOVE_LINE = re.compile(
+    rb"^(?=[^\n]{0,%d}\n)(N([0-9]+) (G[01](?: [XYZEF]%s)*))\*([0-9]+)\n"
+    % (MAX_CMD_SIZE - 1, _NUMBER),
+    re.MULTILINE,
+)
+"""A whole line ``N<n> G0|G1 X.. Y.. F..*<checksum>``: :meth:`MarlinFirmware._framed` takes
+it as it is (short enough, nothing :func:`clean_line` changes), its code is G0 or G1 and
+:func:`~fabkit.gcode.read.words` reads its text as upper-case letters, each with the number
+after it (groups: what is summed, the number, the text, the checksum)."""
 _CODES: dict[str, str] = {}  # first word of a command -> its code (command_code)
 _CODES_KEPT = 256
 
 _MOVES = {"G0", "G1", "G2", "G3"}
-_STRAIGHT = ("G0", "G1")
 _SYNC = {"M400", "G28", "G29", "M84", "M18"}
 _NO_EFFECT = {
     "G21", "M17", "M106", "M107", "M42", "M3", "M4", "M5", "M7", "M8", "M9",
@@ -165,10 +174,10 @@ class MarlinFirmware(Firmware):
             and not dialect.idle_wait_s
             and self.config.command_slots >= 1
         )
-        """:meth:`take_move` may run a move line: no fault, Marlin's or Prusa's checks, ``ok``
-        after running, no idle ``wait``, a command queue."""
+        """:meth:`take_moves` may run move lines: no fault, Marlin's or Prusa's checks,
+        ``ok`` after running, no idle ``wait``, a command queue."""
         self.ok_bytes = b"ok" + dialect.eol
-        """The ``ok`` line as :meth:`take_move` sends it."""
+        """The ``ok`` line as :meth:`take_moves` sends it."""
         self._reset_state()
 
     def _reset_state(self) -> None:
@@ -317,28 +326,49 @@ class MarlinFirmware(Firmware):
             return None
         return n, framed[2].decode("latin-1").lstrip(" ").rstrip()
 
-    def take_move(self, raw: bytes, t: float) -> bool:
-        """Run a line that arrived at ``t`` on its own, as :meth:`run` would, if it is a
-        G0/G1 that :meth:`_framed` accepts, the firmware is idle (reading, nothing queued)
-        and the planner has room: checked, queued, run and answered at once, the way
-        :meth:`run` does it then, step for step. False, with nothing done, otherwise.
-        Only for :attr:`direct` firmwares: no fault, ``ok`` after running, no ``wait``."""
+    def take_moves(self, data: bytes, t: float) -> bool:
+        """Run the lines of ``data`` (each ending in a newline, no other byte), which all
+        arrived at ``t``, as :meth:`run` would, if every one is a framed move with the next
+        number and the right checksum (:meth:`_moves`), the firmware is idle (reading,
+        nothing queued) and the planner has room for them all: checked, queued, run and
+        answered at once, the way :meth:`run` does it then, step for step (it reads up to
+        ``command_slots`` of them ahead of the one it runs, but reading a good line says
+        nothing, so the answers and the trace come out the same). False, with nothing
+        done, otherwise. Only for :attr:`direct` firmwares: no fault, ``ok`` after
+        running, no ``wait``."""
         if self.blocked is not None or self.halted or self.deaf or self.queue:
             return False
-        framed = self._framed(raw)
-        if framed is None:
-            return False
-        n, text = framed
+        moves = self._moves(data)
         motion = self.motion
-        if command_code(text) not in _STRAIGHT or motion.blocks and motion.full(t):
+        if moves is None or motion.blocks and motion.planned(t) + len(moves) > motion.depth:
             return False
+        trace, n = self.trace, self.last_n
+        for text, values in moves:
+            n += 1
+            motion.move(values, t, rapid=False, tag=len(trace))
+            x, y, z, e = motion.pos
+            trace.append(TraceEntry(n, text, x, y, z, e, t))
         self.last_n = n
-        motion.move(words(text), t, rapid=False, tag=len(self.trace))
-        x, y, z, e = motion.pos
-        self.trace.append(TraceEntry(n, text, x, y, z, e, t))
-        self.counters.executed += 1
-        self.out.raw(self.ok_bytes, t)  # out.line("ok", ...) on a faultless output
+        self.counters.executed += len(moves)
+        self.out.raw(self.ok_bytes * len(moves), t)  # out.line("ok", ...) on a faultless output
         return True
+
+    def _moves(self, data: bytes) -> list[tuple[str, dict[str, float]]] | None:
+        """The text and :func:`~fabkit.gcode.read.words` of each line of ``data`` if every
+        one is a :data:`_MOVE_LINE` that carries the next number after ``last_n`` (in
+        order) and the right checksum; None otherwise."""
+        lines = _MOVE_LINE.findall(data)
+        if len(lines) != data.count(b"\n") or not data.endswith(b"\n"):
+            return None
+        n = self.last_n
+        moves = []
+        for summed, number, body, checksum in lines:
+            n += 1
+            if int(number) != n or int(checksum) != marlin_checksum(summed):
+                return None
+            text = body.decode("latin-1")
+            moves.append((text, {word[0]: float(word[1:]) for word in text.split(" ")}))
+        return moves
 
     def _queue(self, n: int | None, command: str, t: float, text: str | None = None) -> bool:
         """Queue ``command`` (``text``: :func:`command_text` of it, if known)."""

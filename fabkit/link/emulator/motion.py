@@ -156,12 +156,12 @@ class Motion:
         """Plan a move (call only when not ``full``); updates the position."""
         if "F" in values and values["F"] > 0:
             self.feed_mm_s = values["F"] * self.unit_mm / 60.0
-        start, end = list(self.pos), self.target(values)
+        start, end = self.pos, self.target(values)  # a pos list is never changed once replaced
         length = _arc_length(start, end, values, arc) if arc else _distance(start, end)
-        feed = self.rapid_mm_s if rapid or not self.feed_mm_s else self.feed_mm_s
         self.pos = end
         if length <= 0:
             return
+        feed = self.rapid_mm_s if rapid or not self.feed_mm_s else self.feed_mm_s
         if self.blocks:
             self._prune(t)
         if self.at_feed:
@@ -312,7 +312,8 @@ def _distance_at(block: _Block, tau: float) -> float:
 
 
 def _distance(a: list[float], b: list[float]) -> float:
-    d = math.dist(a[:3], b[:3])
+    """The XYZ distance of ``a`` and ``b`` (``math.dist`` of their first three), else E's."""
+    d = math.hypot(b[0] - a[0], b[1] - a[1], b[2] - a[2])
     return d if d > 0 else abs(a[3] - b[3])
 
 

@@ -192,7 +192,7 @@ class Emulator:
             config, self.input, self.output, self.trace, self.counters, self.rng, self._dead
         )
         self.direct = not grbl and self.input.instant and self.firmware.direct
-        """A move line may skip the event loop (:meth:`_write_move`)."""
+        """Move lines may skip the event loop (:meth:`_write_moves`)."""
         self._now = now
         self._dead_at: float | None = None
         self.disconnected = False
@@ -204,26 +204,24 @@ class Emulator:
 
     def host_write(self, data: bytes, now: float) -> None:
         """The host writes ``data`` at ``now`` (lost if the line is dead)."""
-        if self.direct and self._write_move(data, now):
+        if self.direct and self._write_moves(data, now):
             return
         self.advance(now)
         if self._dead_at is None:
             self.input.push(self._corrupt(data), now)
             self.advance(now)
 
-    def _write_move(self, data: bytes, now: float) -> bool:
-        """One move line written to an idle machine on an instant wire, with nothing due
-        by ``now`` (:attr:`direct`): the firmware runs it at once
-        (:meth:`MarlinFirmware.take_move`), which is all that :meth:`advance` would do
-        (catch up with ``now``, take the line as it arrives, run it, find nothing more).
-        False, with nothing done, for anything else."""
+    def _write_moves(self, data: bytes, now: float) -> bool:
+        """Whole move lines written to an idle machine on an instant wire, with nothing due
+        by ``now`` (:attr:`direct`): the firmware runs them at once
+        (:meth:`MarlinFirmware.take_moves`), which is all that :meth:`advance` would do
+        (catch up with ``now``, take the lines as they arrive, run them, find nothing
+        more). False, with nothing done, for anything else."""
         inp = self.input
-        complete = data.find(b"\n") == len(data) - 1 and b"\r" not in data
-        quiet = not (inp.pending or inp.chunks) and now >= inp.free_at
-        if not (complete and quiet) or self._dead_at is not None:
+        if inp.pending or inp.chunks or now < inp.free_at or self._dead_at is not None:
             return False
-        t = max(self._now, now)
-        if not self.firmware.take_move(data[:-1], t):
+        t = self._now if self._now > now else now
+        if not self.firmware.take_moves(data, t):
             return False
         self._now = t
         inp.free_at = now
