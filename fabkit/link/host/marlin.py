@@ -322,8 +322,9 @@ class MarlinProtocol(Session):
         safe stop, which then has ``options.finish_s`` to be confirmed; returns whether the
         stream ended ``done`` (False: the safe stop was not confirmed in time)."""
         deadline = None
+        control, read_line = self.control, self.read_line
         while not done():
-            if self.control.aborted and not self.aborting:
+            if control.aborted and not self.aborting:
                 self.begin_abort()
                 deadline = time.monotonic() + self.options.finish_s
             if deadline is not None and time.monotonic() > deadline:
@@ -331,7 +332,7 @@ class MarlinProtocol(Session):
             if self.pending_error is not None:
                 self.check_pending_error()
             send()
-            line = self.read_line()
+            line = read_line()
             if line is None:
                 on_silence()
             else:
@@ -415,8 +416,10 @@ class MarlinProtocol(Session):
     def _fill(self) -> None:
         """Send from ``cursor`` while the window has room, one write per line; a line gets
         its number when it is first sent."""
-        texts, inflight, takers = self.texts, self.inflight, self.takers
-        while not self.control.paused or self.aborting:
+        if self.control.paused and not self.aborting:
+            return
+        texts, inflight, takers, sums = self.texts, self.inflight, self.takers, self.job_sums
+        while True:
             n = self.cursor
             if n < len(texts):
                 text, origin = texts[n], self.origin[n]
@@ -428,8 +431,8 @@ class MarlinProtocol(Session):
             probe = origin in (PROBE_LINE, HOUSEKEEPING)
             if self.inflight_lines >= self.max_lines + (2 if probe else 0):
                 break
-            if origin >= 0 and self.job_sums is not None:
-                frame = frame_summed(n, text, self.job_sums[origin])
+            if origin >= 0 and sums is not None:
+                frame = frame_summed(n, text, sums[origin])
             else:
                 frame = frame_marlin(n, text)
             size = len(frame)
@@ -583,7 +586,7 @@ class MarlinProtocol(Session):
             )
 
     def _on_ok(self, answer: Answer) -> None:
-        now = time.monotonic()
+        now = self.last_rx_s  # when it was read
         last = self.last_ok_s if self.last_ok_s >= self.last_tx_s else self.last_tx_s
         gap = now - last  # the machine's pace, not our waits
         self.ok_gap_s = 0.8 * self.ok_gap_s + 0.2 * gap
