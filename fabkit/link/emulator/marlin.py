@@ -327,7 +327,7 @@ class MarlinFirmware(Firmware):
         return n, framed[2].decode("latin-1").lstrip(" ").rstrip()
 
     def take_moves(self, data: bytes, t: float) -> bool:
-        """Run the lines of ``data`` (each ending in a newline, no other byte), which all
+        """Run the lines of ``data`` (whole lines only, each ending in a newline), which all
         arrived at ``t``, as :meth:`run` would, if every one is a framed move with the next
         number and the right checksum (:meth:`_moves`), the firmware is idle (reading,
         nothing queued) and the planner has room for them all: checked, queued, run and
