@@ -60,12 +60,16 @@ def runs_the_file(emulator: Emulator, job: list[Command]) -> bool:
 def resumed_once(first: list[str], then: list[str], job: list[Command], message: str) -> bool:
     """A job lost and resumed as the message said ran the file once: ``first`` (what ran
     before the loss) then ``then`` (what ran from the printed ``--resume-from`` on) is
-    the file, but for lines the message names as sent and not acknowledged, which may
-    have run in both."""
+    the file, but for lines the message names as sent and not acknowledged, or as dropped
+    by a reset, which may have run in both."""
     resume = int(re.search(r"--resume-from (\d+)$", message).group(1))
     start = next(i for i, c in enumerate(job) if c.file_line >= resume)
     texts = [c.text for c in job]
-    ambiguous = re.search(r"file lines? (\d+)(?:-(\d+))? (?:was|were) sent but not", message)
+    ambiguous = re.search(
+        r"file lines? (\d+)(?:-(\d+))? (?:(?:was|were) sent but not|\(acknowledged or sent "
+        r"last\) may or may not)",
+        message,
+    )
     end = start
     if ambiguous:
         last = int(ambiguous.group(2) or ambiguous.group(1))

@@ -263,7 +263,8 @@ class GrblProtocol(Session):
         elif line.startswith("<"):
             self.last_status = line
         elif line.startswith("Grbl"):
-            raise self._reset_error()
+            drops = "GRBL's planned moves and its receive buffer"
+            raise self.reset_error(self.acked, self.sent, self.serial.planner_depth, drops)
 
     def _pop(self) -> _Sent | None:
         """Retire the oldest line in flight (None if there is none)."""
@@ -364,21 +365,6 @@ class GrblProtocol(Session):
         parts = [f"{refused} refused too"] if refused else []
         parts += [f"{lost} unconfirmed (answer lost)"] if lost else []
         return "ran but " + " and ".join(parts)
-
-    def _reset_error(self) -> FabkitError:
-        """The machine reset in the middle of the job: it dropped its planned moves and
-        its receive ring, so the acknowledged lines still planned may not have run."""
-        reason = "the machine reset during the job"
-        first = max(0, self.acked - self.serial.planner_depth)
-        if first >= self.sent:
-            return self.lost(self.acked, reason)
-        start, end = self.job[first].file_line, self.job[self.sent - 1].file_line
-        return FabkitError(
-            f"lost the connection to {self.port_name} ({reason}); a reset drops GRBL's "
-            f"planned moves and its receive buffer, so file lines {start}-{end} (acknowledged "
-            f"or sent last) may or may not have run, and continuing from {start} may run "
-            f"some of them twice; look at the part, then continue with --resume-from {start}"
-        )
 
     def _abort(self, detail: str) -> None:
         """Hold, read where the tool stopped, reset, send the safe-stop snippet; raise

@@ -182,6 +182,10 @@ SYNC_EVERY = 200  # most job lines between probes on draining firmwares at first
 SYNC_EVERY_MAX = 800  # ... after probes that found no lost answer (each costs a line)
 SYNC_EVERY_MIN = 10  # ... after probes that did
 REGROW_LINES = 500  # clean lines before a byte window shrunk by an overflow grows again
+QUEUED_COMMANDS = 4
+"""Acknowledged commands a firmware may hold besides its planned moves: Marlin's command
+queue (``BUFSIZE``, 4 by default in Configuration_adv.h); Repetier acknowledges a line as
+it queues it. A reset drops them with the planner."""
 BACKWARD_LIMIT = 3  # requests in a row for a line proven accepted that mean a reset
 
 
@@ -535,7 +539,9 @@ class MarlinProtocol(Session):
         elif kind == answers.OVERFLOW:
             self._on_overflow(answer)
         elif kind == answers.START:
-            raise self.lost(self.done_lines, "the machine reset during the job")
+            held = self.serial.planner_depth + QUEUED_COMMANDS
+            drops = "the firmware's planned moves and queued commands"
+            raise self.reset_error(self.done_lines, self.sent_lines, held, drops)
         elif kind == answers.UNKNOWN_COMMAND:
             self.unknown_echo = answer.text
         elif kind == answers.WAIT and self.inflight:

@@ -347,6 +347,23 @@ class Session:
             f"--resume-from {first}"
         )
 
+    def reset_error(self, acked: int, sent: int, held: int, drops: str) -> FabkitError:
+        """The one-line error for a machine that reset after ``acked`` job lines were
+        acknowledged and ``sent`` written: a reset drops what it held (``drops``, in
+        words), up to ``held`` acknowledged lines, so those and the ones sent after them
+        may or may not have run; the resume line is the first of them."""
+        reason = "the machine reset during the job"
+        first = max(0, acked - held)
+        if first >= sent:
+            return self.lost(acked, reason)
+        start, end = self.job[first].file_line, self.job[sent - 1].file_line
+        return FabkitError(
+            f"lost the connection to {self.port_name} ({reason}); a reset drops {drops}, "
+            f"so file lines {start}-{end} (acknowledged or sent last) may or may not have "
+            f"run, and continuing from {start} may run some of them twice; look at the "
+            f"part, then continue with --resume-from {start}"
+        )
+
     def aborted_error(self, done: int, detail: str) -> FabkitError:
         last = self.file_line_after(done)
         return FabkitError(
