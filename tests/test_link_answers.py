@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 import time
 
 import pytest
@@ -21,11 +20,10 @@ from fabkit.link.host.session import LinkControl, LinkOptions, Session
 from fabkit.machines import load_machine
 from tests.test_link_responders import LatencyResponder
 from tests.test_link_support import (
-    executed,
+    lost_and_resumed,
     marlin_job,
     names_the_lost_oks,
     quick,
-    resumed_once,
     run_sim,
     runs_the_file,
 )
@@ -74,20 +72,9 @@ def test_lost_and_resumed_the_file_runs_once_in_every_dialect(dialect, fault):
     # nothing, and repeats nothing but lines the message names as perhaps run
     if fault == "reset_after" and dialect == "reprapfirmware":
         pytest.skip("a Duet's USB port goes when it resets (a lost connection, tested above)")
-    job = marlin_job(1200)
     url = f"{FAST}&corrupt=0.01&drop_ok=0.002&seed=3&{fault}=600&dialect={dialect}"
-    port = open_port(url, 115200)
-    with pytest.raises(FabkitError) as caught:
-        stream_job(port, job, load_machine("marlin_generic"), options=quick())
-    message = str(caught.value)
-    assert "\n" not in message
-    port.emulator.poll(time.monotonic() + 600)
-    first = executed(port.emulator)
-    resume = int(re.search(r"--resume-from (\d+)$", message).group(1))
-    _, emulator = run_sim(
-        f"{FAST}&dialect={dialect}", [c for c in job if c.file_line >= resume], "marlin_generic"
-    )
-    assert resumed_once(first, executed(emulator), job, message), message
+    resumed, message = lost_and_resumed(url, f"{FAST}&dialect={dialect}", marlin_job(1200))
+    assert resumed, message
 
 
 @pytest.mark.slow

@@ -6,7 +6,6 @@ import contextlib
 import io
 import re
 import threading
-import time
 from dataclasses import replace
 
 import pytest
@@ -26,11 +25,11 @@ from fabkit.machines import load_machine
 from fabkit.progress import ProgressBar
 from tests.test_link_support import (
     executed,
+    lost_and_resumed,
     marlin_job,
     names_the_lost_oks,
     numbers_are_contiguous,
     quick,
-    resumed_once,
     run_sim,
     runs_the_file,
 )
@@ -215,20 +214,10 @@ def test_a_reset_while_moves_are_planned_resumes_from_the_first_that_may_not_hav
     # at a real pace the machine holds acknowledged lines when it resets (its planner, and
     # Repetier acknowledges a line as it queues it): resuming after the last acknowledged
     # one skipped them (found by a helper session on reset-repetier at time_scale=0.01)
-    job = marlin_job(1200)
     url = f"sim://marlin?time_scale=0.01&baud=0&reset_after=600&dialect={dialect}"
-    port = open_port(url, 115200)
-    with pytest.raises(FabkitError) as caught:
-        stream_job(port, job, load_machine("marlin_generic"), options=quick())
-    message = str(caught.value)
+    resumed, message = lost_and_resumed(url, f"{FAST}&dialect={dialect}", marlin_job(1200))
     assert "a reset drops the firmware's planned moves and queued commands" in message
-    port.emulator.poll(time.monotonic() + 600)
-    first = executed(port.emulator)
-    resume = int(re.search(r"--resume-from (\d+)$", message).group(1))
-    _, emulator = run_sim(
-        f"{FAST}&dialect={dialect}", [c for c in job if c.file_line >= resume], "marlin_generic"
-    )
-    assert resumed_once(first, executed(emulator), job, message), message
+    assert resumed, message
 
 
 def test_abort_sends_the_safe_stop_and_names_the_line_the_machine_stopped_in():

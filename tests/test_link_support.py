@@ -6,6 +6,7 @@ import random
 import re
 import time
 
+from fabkit.errors import FabkitError
 from fabkit.gcode.read import Command, commands_from_lines
 from fabkit.link.emulator.port import Emulator
 from fabkit.link.host.ports import open_port
@@ -75,6 +76,26 @@ def resumed_once(first: list[str], then: list[str], job: list[Command], message:
         last = int(ambiguous.group(2) or ambiguous.group(1))
         end = max(i + 1 for i, c in enumerate(job) if c.file_line <= last)
     return then == texts[start:] and any(first == texts[:i] for i in range(start, end + 1))
+
+
+def lost_and_resumed(url: str, again: str, job: list[Command]) -> tuple[bool, str]:
+    """Stream ``job`` to ``url`` (marlin_generic) until the link is lost, let that machine
+    finish what it holds, then send the lines from the message's ``--resume-from`` to a
+    fresh ``again``: whether the two ran the file once (:func:`resumed_once`), and the
+    one-line message."""
+    port = open_port(url, 115200)
+    try:
+        stream_job(port, job, load_machine("marlin_generic"), options=quick())
+    except FabkitError as error:
+        message = str(error)
+    else:
+        raise AssertionError(f"{url}: the job was not lost")
+    assert "\n" not in message
+    port.emulator.poll(time.monotonic() + 600)
+    first = executed(port.emulator)
+    resume = int(re.search(r"--resume-from (\d+)$", message).group(1))
+    _, emulator = run_sim(again, [c for c in job if c.file_line >= resume], "marlin_generic")
+    return resumed_once(first, executed(emulator), job, message), message
 
 
 def numbers_are_contiguous(emulator: Emulator) -> bool:
