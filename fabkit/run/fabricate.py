@@ -149,10 +149,11 @@ def _shapes(run: Run, verdict: Verdict) -> dict[str, Any]:
                 "target": shape.target,
                 "mesh": f"{folder}/{shape.target}.ply",
                 "target_mesh": f"{folder}/{shape.target}_target.ply",
-                **({"picture": f"{folder}/{shape.target}.png"} if run.drawings.on else {}),
             }
         )
-    if run.drawings.on:
+    if run.drawings.on:  # a picture per target, named where it will be written
+        for target in targets:
+            target["picture"] = f"{folder}/{target['target']}.png"
         run.drawings.draw(
             "fabkit.plot.shapes:shape_pictures",
             (verdict.what, shown),

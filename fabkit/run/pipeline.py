@@ -127,8 +127,8 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
                 drawings.write()
             raise
         drawings.write()
-    pictures = [(caption, out / "pictures" / name) for name, caption in DESIGN_PICTURES]
-    pictures = pictures if options.pictures else []
+    drawn = DESIGN_PICTURES if options.pictures else ()
+    pictures = [(caption, out / "pictures" / name) for name, caption in drawn]
 
     say("[7/7] writing report.html and report.json")
     verification = made.verification.to_dict() if made.verification is not None else None
