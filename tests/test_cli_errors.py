@@ -801,6 +801,16 @@ CASES = [
         id="run-strict-not-simulated",
     ),
     case(
+        "run {spec} --out {out} --refine --no-simulate",
+        "--refine with --no-simulate",
+        id="run-refine-not-simulated",
+    ),
+    case(
+        "run {spec} --out {out} --refine --layers 1",
+        "--refine with --layers 1: it refines the differences between layers",
+        id="run-refine-one-layer",
+    ),
+    case(
         "run {spec} --out {out} --layers 2 --machine dmd_photoalign",
         "make one layer",
         "laser writers such as dmd_photoalign",

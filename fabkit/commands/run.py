@@ -99,6 +99,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "neighbour; 1 prints one layer, which programs no target's side (default: 2 on a "
         "printer, as the run's first line says; 1 for laser writers and baromorphs)",
     )
+    parser.add_argument(
+        "--refine",
+        action="store_true",
+        help="refine the layers against the simulation (adjoint gradients, every target, "
+        "about 30-140 s more): the sheet as designed comes nearer every target; "
+        "docs/layers.md says what it does and does not do as fabricated",
+    )
     verdict_arguments(
         parser, "exit 1 when the sheet (as designed or as fabricated) does not form every target"
     )

@@ -261,6 +261,31 @@ def layered(
     return result, system.report(design, result, turn, slope, limited)
 
 
+def layering_report(
+    design: Design,
+    layered: Design,
+    bounds: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+) -> LayeringReport:
+    """The figures of ``layered``'s own layering (the first-order one, or one refined
+    against the simulation) against ``design``'s targets, as :func:`layered` gives them;
+    a feature counts as limited where a layer reaches ``bounds``."""
+    layering = layered.layering
+    if layering is None:
+        raise FabkitError("layers: the design has no layers to report on")
+    weights = np.ones(len(design.stimuli)) if weights is None else np.asarray(weights, float)
+    system = _System.build(design, second_forms(design), layering.count, weights)
+    turn, slope = np.nan_to_num(layering.turn), np.nan_to_num(layering.slope)
+    limited = np.zeros(len(slope))
+    if bounds is not None:
+        reach = (layering.count - 1) / (2 * layering.count) * layering.thickness
+        room = slope_room(design.eps, np.asarray(bounds, dtype=float), reach, slope)
+        valid = np.isfinite(design.eps).all(axis=0)
+        at_bound = (np.abs(slope) >= room - TINY) & (room < np.inf) & valid & (slope != 0)
+        limited = at_bound.sum(axis=(1, 2)) / max(int(valid.sum()), 1)
+    return system.report(design, layered, turn, slope, limited)
+
+
 def second_forms(design: Design) -> np.ndarray:
     """(S, 3, nu, nv) second fundamental forms (II_uu, II_uv, II_vv) of every surface at
     the design's grid points, in material coordinates (u, v), with the surface's normal
@@ -372,7 +397,7 @@ class _System:
                 continue
             if bounds is None:
                 break
-            room = _room(eps, np.asarray(bounds, dtype=float), reach, slope)
+            room = slope_room(eps, np.asarray(bounds, dtype=float), reach, slope)
             over = free & (np.abs(slope) > room)
             if not over.any():
                 break
@@ -380,7 +405,7 @@ class _System:
             free &= ~over
         valid = np.isfinite(eps).all(axis=0)
         if bounds is not None:
-            room = _room(eps, np.asarray(bounds, dtype=float), reach, slope)
+            room = slope_room(eps, np.asarray(bounds, dtype=float), reach, slope)
             limited = ((np.abs(slope) >= room - TINY) & (room < np.inf) & valid).sum(
                 axis=(1, 2)
             ) / max(int(valid.sum()), 1)
@@ -519,7 +544,7 @@ def _norm(parts: np.ndarray) -> float:
     return float(np.sqrt(np.sum(parts[0] ** 2 + 2 * parts[1] ** 2 + parts[2] ** 2)))
 
 
-def _room(eps: np.ndarray, bounds: np.ndarray, reach: float, slope: np.ndarray) -> np.ndarray:
+def slope_room(eps: np.ndarray, bounds: np.ndarray, reach: float, slope: np.ndarray) -> np.ndarray:
     """(N, nu, nv) the largest |slope| keeping every layer's features within ``bounds``."""
     if bounds.shape != (eps.shape[0], 2):
         raise FabkitError(f"layers: expected bounds for {eps.shape[0]} features (low, high)")

@@ -169,6 +169,61 @@ def _edge_lengths(
     return 0.5 * (speed[0] + speed[1])
 
 
+FEATURE_STEP = 1e-6
+"""Central-difference step of a feature in the material law's stretches."""
+
+
+def sheet_metrics_gradient(
+    design: Design,
+    mesh: DesignMesh,
+    surface: int,
+    theta: np.ndarray,
+    eps: np.ndarray,
+    metric_gradient: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The gradient of a quantity J through :func:`sheet_metrics`: given dJ/dm (F, 3)
+    (components a11, a12, a22 of each face's metric, a12 both off-diagonal places), dJ/d
+    ``theta`` (V,) and dJ/d ``eps`` (N, V) at the mesh's vertices. Exact but for the
+    material law's derivative in the features (a central difference)."""
+    corners = mesh.points[mesh.triangles]
+    edges = corners[:, [2, 0, 1]] - corners[:, [1, 2, 0]]
+    x, y = edges[..., 0], edges[..., 1]
+    system = np.stack([x * x, 2 * x * y, y * y], -1)  # (F, 3 edges, 3 components)
+    lengths = _edge_lengths(design, mesh, surface, theta, eps)
+    per_square = np.linalg.solve(np.swapaxes(system, 1, 2), metric_gradient[..., None])[..., 0]
+    per_length = 2 * lengths * per_square  # dJ/dl (F, 3)
+
+    lambda1, lambda2 = _stretches(design, surface, eps)
+    along = np.column_stack([np.cos(theta), np.sin(theta)])
+    across = np.column_stack([-along[:, 1], along[:, 0]])
+    jacobian = _flat_jacobian(design, mesh)
+    start, end = mesh.triangles[:, [1, 2, 0]], mesh.triangles[:, [2, 0, 1]]
+    steps = design.step / mesh.refine * (mesh.grid[end] - mesh.grid[start])
+    d_theta = np.zeros(len(theta))
+    d_lambda = np.zeros((2, len(theta)))
+    for ends in (start, end):
+        flat = np.einsum("feij,fej->fei", jacobian[ends], steps)  # J s: the flat-sheet step
+        a = np.einsum("fei,fei->fe", along[ends], flat)
+        b = np.einsum("fei,fei->fe", across[ends], flat)
+        l1, l2 = lambda1[ends], lambda2[ends]
+        speed = np.sqrt((l1 * a) ** 2 + (l2 * b) ** 2)
+        weight = 0.5 * per_length / np.maximum(speed, np.finfo(float).tiny)
+        np.add.at(d_theta, ends, weight * (l1**2 - l2**2) * a * b)
+        np.add.at(d_lambda[0], ends, weight * l1 * a * a)
+        np.add.at(d_lambda[1], ends, weight * l2 * b * b)
+    d_eps = np.zeros_like(eps, dtype=float)
+    for i in range(len(eps)):
+        change = np.zeros_like(eps, dtype=float)
+        change[i] = FEATURE_STEP
+        up, down = (
+            _stretches(design, surface, eps + change),
+            _stretches(design, surface, eps - change),
+        )
+        for k in range(2):
+            d_eps[i] += d_lambda[k] * (up[k] - down[k]) / (2 * FEATURE_STEP)
+    return d_theta, d_eps
+
+
 MIN_STRETCH_RATIO = float(np.sqrt(np.finfo(float).eps))
 """Smallest ratio of the smaller stretch to the larger that still makes a metric in double
 precision (1.5e-8): below it the squared length across the director is lost in the

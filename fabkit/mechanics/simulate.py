@@ -267,16 +267,24 @@ def _random_bump(x: np.ndarray, y: np.ndarray, seed: int) -> np.ndarray:
 
 
 def minimise(
-    shell: Shell, x: np.ndarray, step_tolerance: float, max_iterations: int
+    shell: Shell,
+    x: np.ndarray,
+    step_tolerance: float,
+    max_iterations: int,
+    exact: bool = False,
 ) -> tuple[np.ndarray, int, bool]:
     """Projected Newton from x (V, 3) while it converges fast; damped exact Newton once it
     creeps (full steps shrinking by less than :data:`CREEP` per iteration), with a
-    projected Newton step wherever a damped step fails (module docstring).
+    projected Newton step wherever a damped step fails (module docstring). ``exact``:
+    exact Newton from the first iteration, its damping starting at the least that counts
+    as a full step (x near an equilibrium already).
 
     Stops when a full (undamped) Newton step moves no vertex more than ``step_tolerance``
     (design units); returns the positions, the iterations used and whether that happened.
     """
-    energy, damping, exact, previous = shell.energy(x), Damping(), False, math.inf
+    energy, damping, previous = shell.energy(x), Damping(), math.inf
+    if exact:  # near an equilibrium: a full step is likely to be taken
+        damping.mu = DAMPING_CONVERGED
     projected = NewtonSystem()
     for iteration in range(1, max_iterations + 1):
         gradient = shell.gradient(x).ravel()

@@ -241,6 +241,38 @@ def _removed_label(step: str, part: Mapping[str, Any], unit: str) -> str:
     return words.get(step, f"removed: {step}")
 
 
+def _layers_words(layers: Mapping[str, Any]) -> str:
+    """How the layers were chosen, in a sentence ending with a colon (the table follows)."""
+    refinement = layers.get("refinement")
+    if layers.get("refined") and refinement:
+        changes = ", ".join(
+            f"{name} {before:.2f} -> {after:.2f} %"
+            for name, before, after in zip(
+                refinement["targets"],
+                refinement["rms_pct_before"],
+                refinement["rms_pct_after"],
+                strict=True,
+            )
+        )
+        return (
+            "The layers differ so that the sheet's natural curvature selects every target: "
+            "the first-order layering refined against the simulation "
+            f"({refinement['simulations']} simulations; RMS from the dome start: {changes}; "
+            "docs/layers.md). What the refined layers program:"
+        )
+    share = f"{100 * layers.get('share', 1.0):.0f} % of the first-order layering"
+    if layers.get("shares_tried"):
+        return (
+            "The layers differ so that the sheet's natural curvature is a share of every "
+            f"target's curvature: {share}, not refined (the refined layers formed fewer "
+            "targets as designed; docs/layers.md):"
+        )
+    return (
+        "The layers differ so that the sheet's natural curvature is a share of every "
+        f"target's curvature: {share}, not judged: nothing was simulated (docs/layers.md):"
+    )
+
+
 def _layers_section(figures: Mapping[str, Any]) -> Section:
     """How much of each target's curvature the layers program."""
     layers = figures["layers"]
@@ -264,19 +296,7 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
         Paragraph((f"{name}: {why}.",)) for name, why in layers.get("why", {}).items() if why
     )
     blocks = (
-        Paragraph(
-            (
-                "The layers differ so that the sheet's natural curvature is a share of every "
-                f"target's curvature: {100 * layers.get('share', 1.0):.0f} % of the first-order "
-                + (
-                    "layering, the largest share tried whose sheet as designed forms every "
-                    "target (docs/layers.md):"
-                    if layers.get("shares_tried")
-                    else "layering, not judged: no share was tried without simulations "
-                    "(docs/layers.md):"
-                ),
-            )
-        ),
+        Paragraph((_layers_words(layers),)),
         Table(
             (
                 "target",

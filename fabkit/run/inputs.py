@@ -52,7 +52,8 @@ class RunOptions:
     (>= 2) prints the sheet in that many layers programmed with each target's curvature
     (:mod:`fabkit.design.layers`); None lets the run choose (:func:`with_defaults`:
     :data:`AUTO_LAYERS` on a printer, one where the route makes one; ``layers_chosen``
-    then True). Every target is simulated, as designed and as
+    then True); ``refine`` refines those layers against the simulation
+    (:mod:`fabkit.mechanics.refine`). Every target is simulated, as designed and as
     fabricated, and held to ``form_tolerance`` (RMS, a share of the patch diameter);
     ``strict`` makes a target not formed an error (the run's exit code). ``simulate``
     False skips those simulations: no verdict on the shapes (refused with ``strict``,
@@ -83,6 +84,7 @@ class RunOptions:
     part_request: PartRequest = PartRequest()
     layers: int | None = None
     layers_chosen: bool = False
+    refine: bool = False
     strict: bool = False
     form_tolerance: float = FORM_TOLERANCE
     simulate: bool = True
@@ -139,6 +141,16 @@ def check_inputs(options: RunOptions, machine: MachineProfile) -> RunInputs:
         raise FabkitError(
             "--no-simulate with --strict: it judges the shapes the sheet takes in the "
             "simulations; leave one of the two out"
+        )
+    if options.refine and not options.simulate:
+        raise FabkitError(
+            "--refine with --no-simulate: the layers are refined against the simulations; "
+            "leave one of the two out"
+        )
+    if options.refine and options.layers < 2:
+        raise FabkitError(
+            f"--refine with --layers {options.layers}: it refines the differences between "
+            "layers; print two or more (--layers 2, a printer's default)"
         )
     if not (math.isfinite(options.form_tolerance) and 0 < options.form_tolerance < 1):
         raise FabkitError(

@@ -16,7 +16,7 @@ from typing import Any
 
 from fabkit.design.check import CheckReport, ResidualMaps
 from fabkit.design.design import Design
-from fabkit.design.layers import layered
+from fabkit.design.layers import layered, layering_report
 from fabkit.design.summary import checked_points, solve_to_file
 from fabkit.field.design_field import feature_names as design_features
 from fabkit.field.part import (
@@ -28,6 +28,7 @@ from fabkit.field.part import (
     solved_region,
 )
 from fabkit.figures import AREA_UNIT
+from fabkit.mechanics.refine import refine_layering
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict, design_verdict
 from fabkit.process import Process
 from fabkit.run.inputs import RunInputs, RunOptions
@@ -81,7 +82,12 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
     layering, verdict = None, None
     if options.layers > 1:
         request = LayerRequest(
-            options.layers, inputs.process, part, options.ignore_features, options.form_tolerance
+            options.layers,
+            inputs.process,
+            part,
+            options.ignore_features,
+            options.form_tolerance,
+            options.refine,
         )
         made = layer_design(design, request, say, simulate=options.simulate)
         design, layering, verdict = made.design, made.figures, made.as_designed
@@ -106,13 +112,16 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
 class LayerRequest:
     """A layered sheet asked for: ``layers`` of the ``process``'s layer height on the
     ``part`` (its scale sets the thickness in design units), features within the ranges
-    their channels encode (``ignore_features`` left out), targets held to ``tolerance``."""
+    their channels encode (``ignore_features`` left out), targets held to ``tolerance``;
+    ``refine``: the first-order layering refined against the simulation first
+    (:mod:`fabkit.mechanics.refine`, ``--refine``)."""
 
     layers: int
     process: Process
     part: Part
     ignore_features: tuple[str, ...] = ()
     tolerance: float = FORM_TOLERANCE
+    refine: bool = False
 
 
 SHARES = (1.0, 0.1)
@@ -161,30 +170,52 @@ def layer_design(
     if not simulate:
         unjudged, report = layered(design, request.layers, thickness, bounds)
         say(f"      {request.layers} layers of {process.layer_height_mm:g} mm: {NOT_JUDGED_LAYERS}")
-        figures = {"metric alone": None, "share": 1.0, "shares_tried": {}, **report.to_dict()}
+        figures = {
+            "metric alone": None,
+            "share": 1.0,
+            "refined": False,
+            "refinement": None,
+            "shares_tried": {},
+            **report.to_dict(),
+        }
         return Layered(unjudged, figures, None)
+    how = (
+        "the first-order layering refined against the simulation"
+        if request.refine
+        else "a share of the first-order layering"
+    )
     say(
         f"      {request.layers} layers of {process.layer_height_mm:g} mm, programmed with "
-        "every target's curvature (a share of the first-order layering; docs/layers.md):"
+        f"every target's curvature ({how}; docs/layers.md):"
     )
-    tried = []
-    for share in SHARES:
+    tried, refinement = [], None
+    if request.refine:
+        whole, _ = layered(design, request.layers, thickness, bounds)
+        refinement = refine_layering(whole, bounds, part)
+        say(f"        {refinement.summary()}")
+        verdict = judged(refinement.design)
+        say(f"        refined: {verdict.headline()}")
+        report = layering_report(design, refinement.design, bounds)
+        tried.append(("refined", 1.0, refinement.design, report, verdict))
+    for share in () if tried and tried[0][4].formed else SHARES:
         candidate, report = layered(design, request.layers, thickness, bounds, share=share)
         verdict = judged(candidate)
-        tried.append((share, candidate, report, verdict))
-        say(f"        {share:.0%}: {verdict.headline()}")
+        tried.append((f"{share:g}", share, candidate, report, verdict))
+        say(f"        {share:.0%}{', not refined' if request.refine else ''}: {verdict.headline()}")
         if verdict.formed:
             break
-    share, chosen, report, verdict = max(
-        tried, key=lambda t: (sum(s.formed for s in t[3].shapes), t[0])
+    label, share, chosen, report, verdict = max(
+        tried, key=lambda t: (sum(s.formed for s in t[4].shapes), t[0] == "refined", t[1])
     )
-    say(f"      chosen: {share:.0%} of the layering")
+    say(f"      chosen: {'refined' if label == 'refined' else f'{share:.0%} of the layering'}")
     for line in report.lines():
         say(f"        {line}")
     figures = {
         "metric alone": None,
         "share": share,
-        "shares_tried": {f"{s:g}": v.headline() for s, _, _, v in tried},
+        "refined": label == "refined",
+        "refinement": None if refinement is None else refinement.to_dict(),
+        "shares_tried": {t[0]: t[4].headline() for t in tried},
         **report.to_dict(),
     }
     return Layered(chosen, figures, verdict)
