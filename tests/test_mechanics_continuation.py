@@ -8,7 +8,15 @@ import pytest
 
 from fabkit.errors import FabkitError
 from fabkit.mechanics.fabricated import SheetFields, design_fields, sheet_problem, turned_over
-from fabkit.mechanics.simulate import STARTS, Settings, curved, ramp, ramp_words, simulate
+from fabkit.mechanics.simulate import (
+    STARTS,
+    Settings,
+    curved,
+    ramp,
+    ramp_part,
+    ramp_words,
+    simulate,
+)
 from fabkit.mechanics.verdict import embedded_targets, target_shapes, turned_starts
 from tests.conftest import coarse_design
 
@@ -94,3 +102,41 @@ def test_a_side_the_print_error_chose_flips_with_it_and_a_programmed_one_does_no
     assert not sphere.starts[0].mirrored  # the error favours the sphere's own side
     assert "its side is the print's error's, not the design's: 3 of 6 starts end" in sphere.line()
     assert STARTS[0] not in turned
+
+
+def test_a_ramp_run_in_parts_is_the_ramp_bit_for_bit(fig1):
+    problem = sheet_problem(fig1, _layers(fig1, 0.005), 1, 0.02, stride=2)
+    mesh = problem.mesh
+    args = (mesh.points, mesh.triangles, problem.metrics, 0.02, 0.5, Settings(seed="saddle"))
+    whole = simulate(*args, start_metrics=problem.start_metrics)
+    first = ramp_part(*args, None, problem.start_metrics, 0, 1)
+    rest = ramp_part(*args, first.positions, problem.start_metrics, 1, None)
+    assert np.array_equal(rest.positions, whole.positions)
+    assert first.iterations + rest.iterations == whole.iterations
+
+
+def test_starts_that_relax_alike_share_the_rest_of_the_ramp(fig1, monkeypatch):
+    """Every start of a layered sheet relaxes to one state at the first ramp step; the
+    rest runs once per group of starts (of a sheet: the error turned over is another),
+    its lead's result that of a whole ramp from its start."""
+    from fabkit.mechanics import verdict
+
+    found = []
+    group = verdict._groups
+    monkeypatch.setattr(verdict, "_groups", lambda *args: found.append(group(*args)) or found[-1])
+    monkeypatch.setenv("FABKIT_CACHE", "off")
+    printed = _layers(fig1, 0.005)
+    shapes = target_shapes(fig1, printed, [1], 0.02, designed=[design_fields(fig1)] * 2)
+    (groups,) = found
+    turned = [k for k, s in enumerate(STARTS) if s in turned_starts()]
+    assert sorted(groups.values()) == sorted([[k for k in range(6) if k not in turned], turned])
+    problem = sheet_problem(fig1, printed, 1, 0.02, stride=verdict.grid_stride(fig1))
+    mesh = problem.mesh
+    lead = simulate(
+        mesh.points, mesh.triangles, problem.metrics, 0.02, 0.5, Settings(),
+        start_metrics=problem.start_metrics,
+    )  # fmt: skip
+    (shape,) = shapes
+    assert shape.starts[0].rms == pytest.approx(
+        verdict.compare(problem.coarse, problem.simulation(lead), problem.patch_size).rms, abs=1e-12
+    )

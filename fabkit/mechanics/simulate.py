@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -146,6 +146,7 @@ def simulate(
     initial: np.ndarray | None = None,
     start_metrics: np.ndarray | None = None,
     progress: Callable[[int, int], None] | None = None,
+    shares: Sequence[float] | None = None,
 ) -> Simulation:
     """Equilibrium of a sheet with reference metrics ``metrics``.
 
@@ -154,7 +155,10 @@ def simulate(
     coordinates; ``thickness`` H (design units). The ramp starts from ``start_metrics``
     (default identity: the sheet as made) at ``initial`` positions (V, 3) (default: the
     flat sheet plus the seed); pass the previous state and its metrics to follow a
-    stimulus path. ``progress(done, total)`` is called after each ramp step.
+    stimulus path. ``progress(done, total)`` is called after each ramp step. ``shares``:
+    the ramp steps to take (default :func:`ramp`'s), e.g. its first alone, then the rest
+    from where that ended: the same steps, the same result, bit for bit
+    (:func:`ramp_part`).
     """
     started = time.perf_counter()
     if settings.seed not in SEEDS:
@@ -175,7 +179,7 @@ def simulate(
     scale = sheet.edge_length()
     total, converged, shell = 0, False, None
     with threadpool_limits(limits=1, user_api="blas"):  # factor.py: one core per simulation
-        shares = ramp(settings, curved(target))
+        shares = ramp(settings, curved(target)) if shares is None else np.asarray(shares)
         for step, fraction in enumerate(shares, 1):
             metrics_now = (1 - fraction) * start + fraction * target
             shell = build_shell(sheet, metrics_now, thickness, poisson)
@@ -194,6 +198,36 @@ def simulate(
 SLOW_STEPS, EQUAL_STEPS = 5, 2
 """Ramp steps by default: a sheet with natural curvature (slowly, from
 :attr:`Settings.first_step`), and one without (equal steps)."""
+
+
+def ramp_part(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    metrics: np.ndarray,
+    thickness: float,
+    poisson: float,
+    settings: Settings,
+    initial: np.ndarray | None,
+    start_metrics: np.ndarray | None,
+    first: int,
+    last: int | None,
+) -> Simulation:
+    """:func:`simulate` through ramp steps ``first`` to ``last`` (0-based, ``last``
+    excluded; None: to the end) of the sheet's own ramp, from ``initial`` (None: the
+    seeded flat sheet): positional arguments, for a pool of workers."""
+    target = np.asarray(metrics, dtype=float)
+    shares = ramp(settings, curved(target[None] if target.ndim == 3 else target))
+    return simulate(
+        points,
+        triangles,
+        metrics,
+        thickness,
+        poisson,
+        settings,
+        initial,
+        start_metrics,
+        shares=shares[first:last],
+    )
 
 
 def curved(metrics: np.ndarray) -> bool:

@@ -52,6 +52,7 @@ from fabkit.mechanics.simulate import (
     curved,
     default_thickness,
     mirrored,
+    ramp,
 )
 
 FORM_TOLERANCE = 0.03
@@ -436,7 +437,8 @@ def _simulations(
     those kept in the cache (:mod:`fabkit.mechanics.cache`) read; a start that mirrors
     another of the same sheet, where the sheet has no natural curvature, reflected from
     it (:func:`~fabkit.mechanics.simulate.mirrored`: exact, the energy is symmetric); the
-    others computed over the cores and kept."""
+    others computed over the cores (:func:`_computed`: starts that relax alike share the
+    rest of their ramp) and kept."""
     names = [cache.simulation_key(*call[:6], call[7]) for call in calls]
     results = [cache.load(name) for name in names]
     mirrors = _mirror_sources(calls)
@@ -449,15 +451,101 @@ def _simulations(
 
     if done:
         advance(0, len(missing))  # those read or reflected count as done
-    computed = parallel_map(
-        "fabkit.mechanics.simulate:simulate", [calls[k] for k in missing], WARM, advance
-    )
+    computed = _computed([calls[k] for k in missing], advance)
     for k, result in zip(missing, computed, strict=True):
         cache.store(names[k], result)
         results[k] = result
     for k, source in mirrors.items():
         results[k] = results[k] or mirrored(results[source])
     return results
+
+
+RAMP_PART = "fabkit.mechanics.simulate:ramp_part"
+MERGE = 0.01
+"""Starts of one sheet with a natural curvature whose states after the first ramp step
+lie within this share of the mean flat edge of each other (after the best proper rigid
+motion) share the rest of the ramp: from the same state the same steps give the same
+result. On such a sheet every start relaxes to near flat at the first small share of the
+stimulus (module docstring of :mod:`fabkit.mechanics.simulate`), which takes a tenth of
+a simulation; the rest of the ramp, where the sheet buckles, is then run once, not six
+times."""
+
+
+def _computed(calls: list[tuple], advance: Callable[[int, int], None]) -> list[Simulation]:
+    """:func:`~fabkit.mechanics.simulate.simulate` on each of ``calls`` over the cores.
+    A start of a sheet with a natural curvature runs its first ramp step alone; the rest
+    of the ramp runs once for every group of its sheet's starts that reached the same state
+    (:data:`MERGE`), and each start of a group gets its result (its own first step's
+    iterations added). ``advance(done, total)`` counts the calls whose result is known."""
+    split = [_rampable(call) for call in calls]
+    first = [(*call, 0, 1 if part else None) for call, part in zip(calls, split, strict=True)]
+    whole_done = np.cumsum([not part for part in split])
+
+    def first_progress(finished: int, _total: int) -> None:
+        advance(int(whole_done[finished - 1]), len(calls))
+
+    starts = parallel_map(RAMP_PART, first, WARM, first_progress)
+    groups = _groups(calls, starts, split)
+    rest = [(*calls[lead][:6], starts[lead].positions, calls[lead][7], 1, None) for lead in groups]
+    settled = int(whole_done[-1]) if len(calls) else 0
+    sizes = np.cumsum([len(members) for members in groups.values()])
+
+    def rest_progress(finished: int, _total: int) -> None:
+        advance(settled + int(sizes[finished - 1]), len(calls))
+
+    ends = parallel_map(RAMP_PART, rest, WARM, rest_progress)
+    results = [start if not part else None for start, part in zip(starts, split, strict=True)]
+    for end, members in zip(ends, groups.values(), strict=True):
+        for k in members:
+            results[k] = Simulation(
+                end.positions,
+                end.energy,
+                starts[k].iterations + end.iterations,
+                end.converged,
+                starts[k].seconds + end.seconds,
+            )
+    return results
+
+
+def _rampable(call: tuple) -> bool:
+    """Whether a call is a ramp of several steps from a seeded start on a sheet with a
+    natural curvature (its first step is run alone, :func:`_computed`)."""
+    metrics, settings, initial = np.asarray(call[2]), call[5], call[6]
+    natural = curved(metrics[None] if metrics.ndim == 3 else metrics)
+    return natural and initial is None and len(ramp(settings, natural)) > 1
+
+
+def _groups(
+    calls: list[tuple], starts: list[Simulation], split: list[bool]
+) -> dict[int, list[int]]:
+    """The calls ramped in parts grouped by sheet and by the state their first step
+    reached (:data:`MERGE`): the first call of each group (its lead) -> its members."""
+    groups: dict[int, list[int]] = {}
+    for k, call in enumerate(calls):
+        if not split[k]:
+            continue
+        points, triangles = np.asarray(call[0]), np.asarray(call[1])
+        corners = points[triangles]
+        edge = float(np.mean(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=-1)))
+        for lead, members in groups.items():
+            other = calls[lead]
+            same_sheet = other[2] is call[2] and other[7] is call[7] and other[0] is call[0]
+            if same_sheet and _apart(starts[k].positions, starts[lead].positions) <= MERGE * edge:
+                members.append(k)
+                break
+        else:
+            groups[k] = [k]
+    return groups
+
+
+def _apart(a: np.ndarray, b: np.ndarray) -> float:
+    """The largest distance between corresponding points of ``a`` and ``b`` (V, 3) after
+    the proper rigid motion that best fits ``a`` to ``b``."""
+    centred_a, centred_b = a - a.mean(0), b - b.mean(0)
+    left, _, right = np.linalg.svd(centred_a.T @ centred_b)
+    sign = np.sign(np.linalg.det(left @ right)) or 1.0
+    rotation = left @ np.diag([1.0, 1.0, sign]) @ right
+    return float(np.max(np.linalg.norm(centred_a @ rotation - centred_b, axis=1)))
 
 
 def _mirror_sources(calls: list[tuple]) -> dict[int, int]:

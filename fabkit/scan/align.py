@@ -290,28 +290,32 @@ def finish(
     :data:`STRETCH` while that lowers the RMS distance (along a direction the surface
     barely holds, the linear model's steps are short), and the finish ends when a step
     does not lower it."""
-    motion, best = start, rms(surface.distances(start.apply(points)))
+    motion = start
+    moved = motion.apply(points)
+    nearest = surface.closest(moved)
+    best = rms(np.linalg.norm(nearest - moved, axis=1))
     for _ in range(iterations):
-        moved = motion.apply(points)
-        offsets = moved - surface.closest(moved)
+        offsets = moved - nearest
         distances = np.linalg.norm(offsets, axis=1)
         on = distances > 1e-9 * surface.spacing  # a point on the surface has no slope
         slopes = offsets[on] / distances[on, None]
         centre = moved.mean(0)
         system = np.hstack([np.cross(moved[on] - centre, slopes), slopes])
         step, *_ = np.linalg.lstsq(system, -distances[on], rcond=None)
-        moved_on = motion
+        taken = None
         for length in STRETCH ** np.arange(STRETCHES):
             turn = _rotation(length * step[:3])
             tried = motion.then(turn, centre - turn @ centre + length * step[3:])
-            tried_rms = rms(surface.distances(tried.apply(points)))
+            tried_moved = tried.apply(points)
+            tried_nearest = surface.closest(tried_moved)
+            tried_rms = rms(np.linalg.norm(tried_nearest - tried_moved, axis=1))
             if tried_rms >= best:
                 break
-            moved_on, best = tried, tried_rms
-        if moved_on is motion:
+            taken, best = (tried, tried_moved, tried_nearest), tried_rms
+        if taken is None:
             break
-        motion = moved_on
-    return Fit(motion, _trimmed_rms(surface.distances(motion.apply(points))))
+        motion, moved, nearest = taken  # the step taken's nearest points serve the next
+    return Fit(motion, _trimmed_rms(np.linalg.norm(nearest - moved, axis=1)))
 
 
 def _icp_step(moved: np.ndarray, surface: Surface, edge: float) -> np.ndarray:
