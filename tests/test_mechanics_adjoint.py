@@ -10,6 +10,7 @@ import pytest
 from fabkit.design.layers import layered
 from fabkit.mechanics.adjoint import aligned_distance, metric_gradient
 from fabkit.mechanics.fabricated import (
+    SheetFields,
     design_fields,
     sheet_metrics,
     sheet_metrics_gradient,
@@ -19,7 +20,7 @@ from fabkit.mechanics.mesh import design_mesh
 from fabkit.mechanics.refine import refine_layering
 from fabkit.mechanics.shell import Sheet, build_shell
 from fabkit.mechanics.simulate import Settings, minimise
-from fabkit.mechanics.verdict import design_verdict
+from fabkit.mechanics.verdict import design_verdict, target_shapes
 from tests.conftest import coarse_design
 
 UNBOUNDED = np.array([[-np.inf, np.inf]])
@@ -127,3 +128,30 @@ def test_refining_brings_the_farthest_target_nearer_from_every_start(layered_fig
     for shape, rms in zip(after.shapes, refined.after, strict=True):
         assert [end.rms for end in shape.starts] == pytest.approx([rms] * 6, abs=0.002)
     assert refined.before == pytest.approx([s.rms for s in before.shapes], abs=1e-6)
+
+
+@pytest.mark.slow
+def test_refined_as_printed_the_sheet_forms_with_its_error_and_with_it_turned_over(layered_fig1):
+    """A print that turns every layer's director by a smooth few degrees: refined with
+    that error in the loop, the sheet printed with the same error is nearer its targets,
+    judged as a print is (the error added, and turned over); the figures reported are the
+    worse of the two."""
+
+    def printed(design, k: int) -> SheetFields:
+        own = design_fields(design.layer(k))
+        return SheetFields(
+            lambda p: own.theta(p) + 0.05 * np.sin(3 * p[:, 0] + k), own.features, own.made
+        )
+
+    def judged(design):
+        made = [printed(design, k) for k in range(2)]
+        designed = [design_fields(design.layer(k)) for k in range(2)]
+        return target_shapes(design, made, [1, 2], 0.02, stride=1, designed=designed)
+
+    refined = refine_layering(
+        layered_fig1, UNBOUNDED, stride=1, fabricated=[printed(layered_fig1, k) for k in (0, 1)]
+    )
+    before, after = judged(layered_fig1), judged(refined.design)
+    assert max(s.rms for s in after) < 0.9 * max(s.rms for s in before)
+    assert refined.before == pytest.approx([s.rms for s in before], abs=0.002)
+    assert refined.after == pytest.approx([s.rms for s in after], abs=0.002)

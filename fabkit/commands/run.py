@@ -102,9 +102,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--refine",
         action="store_true",
-        help="refine the layers against the simulation (adjoint gradients, every target, "
-        "about 30-140 s more): the sheet as designed comes nearer every target; "
-        "docs/layers.md says what it does and does not do as fabricated",
+        help="refine the layers against the simulation (adjoint gradients, every target), "
+        "as designed, then as printed (the sheet printed and read back in memory, the print's "
+        "error in the loop); minutes more (docs/layers.md)",
     )
     verdict_arguments(
         parser, "exit 1 when the sheet (as designed or as fabricated) does not form every target"

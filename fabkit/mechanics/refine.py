@@ -34,7 +34,8 @@ What is refined is then judged as everything else, from every start
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import minimize
@@ -46,6 +47,7 @@ from fabkit.errors import FabkitError
 from fabkit.field.part import Part
 from fabkit.mechanics.adjoint import aligned_distance, energy_gradient, metric_gradient
 from fabkit.mechanics.fabricated import (
+    SheetFields,
     design_fields,
     sheet_metrics,
     sheet_metrics_gradient,
@@ -134,10 +136,15 @@ def refine_layering(
     stride: int | None = None,
     evaluations: int = EVALUATIONS,
     degree: int = DEGREE,
+    fabricated: Sequence[SheetFields] | None = None,
 ) -> Refined:
     """``design`` (layered) with its turn and slopes corrected to bring every embedded
     target's simulated shape nearer (module docstring); ``bounds`` (N, 2) the features'
-    ranges, the sheet simulated on ``part`` at grid ``stride`` (default: the verdict's)."""
+    ranges, the sheet simulated on ``part`` at grid ``stride`` (default: the verdict's).
+    ``fabricated``: the layers of a print of ``design`` as read back (bottom first): the
+    sheet is then refined as printed, its print's error added and turned over (both must
+    form every target, as the verdict on a printed sheet asks), that error taken to stay
+    what it was when the design changes a little."""
     started = time.perf_counter()
     layering = design.layering
     if layering is None:
@@ -149,10 +156,10 @@ def refine_layering(
         sheet_problem(design, fields, s, layering.thickness, part=part, stride=stride)
         for s in surfaces
     ]
-    model = _Model.build(design, problems, bounds, degree)
+    model = _Model.build(design, problems, bounds, degree, fabricated)
     c = np.zeros(model.size)
     states = model.ramped(c)
-    first = model.distances(states)
+    first = model.worst(states)
     verified, radius, simulations = model.objective(c, states), RADIUS, 1
     with threadpool_limits(limits=1, user_api="blas"):  # as every simulation
         for _ in range(ROUNDS):
@@ -168,11 +175,11 @@ def refine_layering(
             else:
                 radius /= 4
     chosen = c
-    after = model.distances(states)
+    after = model.worst(states)
     refined = design.with_layering(model.layering(chosen))
     names = tuple(p.name for p in problems)
     seconds = time.perf_counter() - started
-    return Refined(refined, names, first, after, simulations * len(problems), seconds)
+    return Refined(refined, names, first, after, simulations * len(model.cases), seconds)
 
 
 def _descend(
@@ -234,10 +241,19 @@ class _Model:
     heights: np.ndarray
     bounds: np.ndarray
     spread: float
+    error: tuple | None = None
+    cases: list = field(default_factory=list)
     sides: list = field(default_factory=list)
 
     @classmethod
-    def build(cls, design: Design, problems: list, bounds: np.ndarray, degree: int) -> _Model:
+    def build(
+        cls,
+        design: Design,
+        problems: list,
+        bounds: np.ndarray,
+        degree: int,
+        fabricated: Sequence[SheetFields] | None = None,
+    ) -> _Model:
         first = problems[0]
         mesh, coarse = first.mesh, first.coarse
         layering = design.layering
@@ -269,11 +285,45 @@ class _Model:
             np.asarray(bounds, dtype=float),
             float(layering.heights[-1] - layering.heights[0]),
         )
-        layers = model._layers(np.zeros(model.size))
-        for problem, target in zip(problems, targets, strict=True):
-            side, _ = model.side(problem, model._metrics(layers, problem), target)
+        if fabricated is not None:
+            model = replace(model, error=_error(design, mesh, fabricated))
+        modes = ("designed",) if model.error is None else ("printed", "turned")
+        model.cases.extend((p, mode) for mode in modes for p in range(len(problems)))
+        for problem, target, mode in model._each():
+            metrics = model._case_metrics(np.zeros(model.size), problem, mode)
+            side, _ = model.side(problem, metrics, target)
             model.sides.append((min(side, 0.0), max(abs(side), SIDE_FLOOR)))
         return model
+
+    def _each(self) -> list[tuple]:
+        """Every case simulated: (problem, its target points, its mode: ``designed``, or
+        ``printed`` (the print's error added) and ``turned`` (that error turned over)."""
+        return [(self.problems[p], self.targets[p], mode) for p, mode in self.cases]
+
+    def _parts(self, c: np.ndarray, mode: str) -> list[tuple[float, list]]:
+        """The layers whose metrics make a case's, with their weights: the designed
+        layers; the printed ones (the error added); or, turned over as the verdict turns
+        a print's error (:func:`~fabkit.mechanics.fabricated.turned_over`), twice the
+        designed metrics less the printed ones."""
+        if mode == "designed":
+            return [(1.0, self._layers(c))]
+        printed = self._layers(c, self.error)
+        return [(1.0, printed)] if mode == "printed" else [(2.0, self._layers(c)), (-1.0, printed)]
+
+    def _case_metrics(self, c: np.ndarray, problem, mode: str, surface: int | None = None):
+        """A case's per-layer metrics (L, F, 2, 2) under ``surface``'s stimulus (default:
+        the problem's target's); a turned-over metric that is no metric is the designed
+        one, as in the verdict."""
+        surface = problem.surface if surface is None else surface
+        parts = [
+            (weight, self._metrics(layers, problem, surface))
+            for weight, layers in self._parts(c, mode)
+        ]
+        metrics = sum(weight * m for weight, m in parts)
+        if mode == "turned":
+            ok = np.all(np.linalg.eigvalsh(metrics) > 0, axis=-1)
+            metrics = np.where(ok[..., None, None], metrics, parts[0][1])
+        return metrics
 
     @property
     def size(self) -> int:
@@ -291,15 +341,19 @@ class _Model:
         """(1 + N, V) corrections of the turn and slopes at the vertices (per unit height)."""
         return (c.reshape(-1, self.basis.shape[1]) @ self.basis.T) * self.units
 
-    def _layers(self, c: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Every layer's angle (V,) and features (N, V) at the vertices."""
+    def _layers(self, c: np.ndarray, error: tuple | None = None) -> list[tuple]:
+        """Every layer's angle (V,) and features (N, V) at the vertices, with the print's
+        ``error`` (angles (L, V), features (L, N, V)) added."""
         change = self._corrections(c)
         turn, slope = self.turn + change[0], self.slope + change[1:]
-        return [(self.theta + z * turn, self.eps + z * slope) for z in self.heights]
+        layers = [(self.theta + z * turn, self.eps + z * slope) for z in self.heights]
+        if error is None:
+            return layers
+        return [(t + error[0][k], e + error[1][k]) for k, (t, e) in enumerate(layers)]
 
-    def _metrics(self, layers, problem) -> np.ndarray:
+    def _metrics(self, layers, problem, surface: int) -> np.ndarray:
         mesh, coarse = problem.mesh, problem.coarse
-        return np.stack([sheet_metrics(coarse, mesh, problem.surface, t, e) for t, e in layers])
+        return np.stack([sheet_metrics(coarse, mesh, surface, t, e) for t, e in layers])
 
     def _penalty(self, c: np.ndarray) -> tuple[float, np.ndarray]:
         """The bound violations' squared sum and its gradient in c."""
@@ -326,12 +380,12 @@ class _Model:
 
     def evaluate(self, c: np.ndarray, states: list) -> tuple[float, np.ndarray, list]:
         """The objective, its gradient and the equilibria reached from ``states``."""
-        layers = self._layers(c)
         value, gradient = self._penalty(c)
         reached = []
-        tasks = zip(self.problems, self.targets, states, self.sides, strict=True)
-        for problem, target, state, bound in tasks:
-            metrics = self._metrics(layers, problem)
+        for (problem, target, mode), state, bound in zip(
+            self._each(), states, self.sides, strict=True
+        ):
+            metrics = self._case_metrics(c, problem, mode)
             shell = build_shell(self.sheet, metrics, problem.thickness, problem.poisson)
             tolerance = Settings().tolerance * self.sheet.edge_length()
             x, _, _ = minimise(shell, state, tolerance, Settings().max_iterations, exact=True)
@@ -349,12 +403,13 @@ class _Model:
                 2 * share / TOLERANCE**2 * distance.gradient,
             )
             per_vertex = np.zeros((1 + len(self.eps), len(self.theta)))
-            for z, (t, e), d_m in zip(self.heights, layers, d_metric, strict=True):
-                d_theta, d_eps = sheet_metrics_gradient(
-                    problem.coarse, problem.mesh, problem.surface, t, e, d_m
-                )
-                per_vertex[0] += z * d_theta
-                per_vertex[1:] += z * d_eps
+            for weight, layers in self._parts(c, mode):
+                for z, (t, e), d_m in zip(self.heights, layers, d_metric, strict=True):
+                    d_theta, d_eps = sheet_metrics_gradient(
+                        problem.coarse, problem.mesh, problem.surface, t, e, weight * d_m
+                    )
+                    per_vertex[0] += z * d_theta
+                    per_vertex[1:] += z * d_eps
             gradient = gradient + self._chain(per_vertex)
         return value, gradient, reached
 
@@ -381,38 +436,45 @@ class _Model:
         return SIDE_PENALTY * excess**2, SIDE_PENALTY * 2 * excess / scale * gradient
 
     def distances(self, states: list) -> tuple[float, ...]:
-        """RMS distance per target (shares of the patch) at the equilibria ``states``."""
+        """RMS distance per case (shares of the patch) at the equilibria ``states``."""
         return tuple(
             aligned_distance(x, target, p.patch_size).rms
-            for p, target, x in zip(self.problems, self.targets, states, strict=True)
+            for (p, target, _), x in zip(self._each(), states, strict=True)
         )
+
+    def worst(self, states: list) -> tuple[float, ...]:
+        """RMS distance per target, the worst over the print's errors."""
+        worst = np.zeros(len(self.problems))
+        for (p, _), rms in zip(self.cases, self.distances(states), strict=True):
+            worst[p] = max(worst[p], rms)
+        return tuple(float(r) for r in worst)
 
     def objective(self, c: np.ndarray, states: list) -> float:
         """The objective at ``c`` with the sheet at ``states`` (no equilibrium sought)."""
-        layers = self._layers(c)
         value = self._penalty(c)[0] + sum((r / TOLERANCE) ** 4 for r in self.distances(states))
-        for problem, target, bound in zip(self.problems, self.targets, self.sides, strict=True):
-            value += self._side_penalty(problem, self._metrics(layers, problem), target, bound)[0]
+        for (problem, target, mode), bound in zip(self._each(), self.sides, strict=True):
+            metrics = self._case_metrics(c, problem, mode)
+            value += self._side_penalty(problem, metrics, target, bound)[0]
         return value
 
     def ramped(self, c: np.ndarray) -> list:
         """The equilibria (V, 3) under every target's stimulus at ``c``, each simulated as
         a verdict's from the dome start, along the slow ramp from the flat sheet as made."""
-        layers = self._layers(c)
-        mesh, coarse = self.problems[0].mesh, self.problems[0].coarse
-        made = np.stack([sheet_metrics(coarse, mesh, 0, t, e) for t, e in layers])
-        return [
-            simulate(
-                mesh.points,
-                mesh.triangles,
-                self._metrics(layers, problem),
-                problem.thickness,
-                problem.poisson,
-                Settings(),
-                start_metrics=made,
-            ).positions
-            for problem in self.problems
-        ]
+        mesh = self.problems[0].mesh
+        ends = []
+        for problem, _, mode in self._each():
+            ends.append(
+                simulate(
+                    mesh.points,
+                    mesh.triangles,
+                    self._case_metrics(c, problem, mode),
+                    problem.thickness,
+                    problem.poisson,
+                    Settings(),
+                    start_metrics=self._case_metrics(c, problem, mode, surface=0),
+                ).positions
+            )
+        return ends
 
     def layering(self, c: np.ndarray) -> Layering:
         """The design's layering with the corrections ``c`` on its whole grid."""
@@ -435,3 +497,20 @@ def _polynomials(points: np.ndarray, degree: int) -> np.ndarray:
     return np.stack(
         [x**i * y ** (total - i) for total in range(degree + 1) for i in range(total + 1)], -1
     )
+
+
+def _error(
+    design: Design, mesh, fabricated: Sequence[SheetFields]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The print's error at the mesh's vertices: the read-back layers' director angles
+    (L, V) and features (L, N, V) less the designed layers'."""
+    count = design.layering.count
+    if len(fabricated) != count:
+        raise FabkitError(f"refine: {len(fabricated)} layers read back for a sheet of {count}")
+    d_theta, d_eps = [], []
+    for k, made in enumerate(fabricated):
+        own = design_fields(design.layer(k))
+        turn = made.theta(mesh.points) - own.theta(mesh.points)
+        d_theta.append((turn + np.pi / 2) % np.pi - np.pi / 2)  # a director is mod pi
+        d_eps.append(made.features(mesh.points) - own.features(mesh.points))
+    return np.array(d_theta), np.array(d_eps)

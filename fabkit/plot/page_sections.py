@@ -241,24 +241,36 @@ def _removed_label(step: str, part: Mapping[str, Any], unit: str) -> str:
     return words.get(step, f"removed: {step}")
 
 
+def _changes(refinement: Mapping[str, Any]) -> str:
+    """``sphere 0.65 -> 0.33 %, bump 5.17 -> 0.28 %``: a refinement's RMS per target."""
+    return ", ".join(
+        f"{name} {before:.2f} -> {after:.2f} %"
+        for name, before, after in zip(
+            refinement["targets"],
+            refinement["rms_pct_before"],
+            refinement["rms_pct_after"],
+            strict=True,
+        )
+    )
+
+
 def _layers_words(layers: Mapping[str, Any]) -> str:
     """How the layers were chosen, in a sentence ending with a colon (the table follows)."""
     refinement = layers.get("refinement")
     if layers.get("refined") and refinement:
-        changes = ", ".join(
-            f"{name} {before:.2f} -> {after:.2f} %"
-            for name, before, after in zip(
-                refinement["targets"],
-                refinement["rms_pct_before"],
-                refinement["rms_pct_after"],
-                strict=True,
-            )
+        printed = layers.get("printed_refinement")
+        then = (
+            f" Then refined as printed, the print's error read back and in the loop "
+            f"({printed['simulations']} simulations; the worse of the error and the error "
+            f"turned over: {_changes(printed)})."
+            if printed
+            else ""
         )
         return (
             "The layers differ so that the sheet's natural curvature selects every target: "
             "the first-order layering refined against the simulation "
-            f"({refinement['simulations']} simulations; RMS from the dome start: {changes}; "
-            "docs/layers.md). What the refined layers program:"
+            f"({refinement['simulations']} simulations; RMS from the dome start: "
+            f"{_changes(refinement)}; docs/layers.md).{then} What the refined layers program:"
         )
     share = f"{100 * layers.get('share', 1.0):.0f} % of the first-order layering"
     if layers.get("shares_tried"):

@@ -25,7 +25,7 @@ from fabkit.mechanics.mesh import save_mesh
 from fabkit.mechanics.verdict import Verdict
 from fabkit.run.inputs import FORMAT_FILES, LASER_WRITER, RunInputs, RunOptions
 from fabkit.run.solve import Solved
-from fabkit.toolpath.job import ChannelJob, ToolpathJob, run_channel_job, run_job
+from fabkit.toolpath.job import ChannelJob, JobResult, ToolpathJob, run_channel_job, run_job
 from fabkit.writers.dxf import layout_layers, write_dxf
 from fabkit.writers.export import ExportOptions, describe_dxf, write_machine_file
 
@@ -226,12 +226,11 @@ class _Fabricated:
     machine_file: dict[str, Any]
 
 
-def _print_lines(run: Run) -> _Fabricated:
-    """Print lines along the director, then the machine files (from the toolpath in
-    memory; toolpath.npz is a side output, its preview drawn by the worker)."""
-    options, out, say, solved = run.options, run.out, run.say, run.solved
-    say(f"[3/7] planning print lines for {options.machine} at {options.size_mm:g} mm")
-    job = run_job(
+def plan_print(run: Run, out: Path) -> JobResult:
+    """The run's print lines planned from its solved design, toolpath.npz written into
+    ``out``/toolpath (no preview)."""
+    options, solved = run.options, run.solved
+    return run_job(
         ToolpathJob(
             inputs=(str(out / "design.npz"),),
             process=run.inputs.process,
@@ -243,6 +242,14 @@ def _print_lines(run: Run) -> _Fabricated:
             preview=False,
         )
     )
+
+
+def _print_lines(run: Run) -> _Fabricated:
+    """Print lines along the director, then the machine files (from the toolpath in
+    memory; toolpath.npz is a side output, its preview drawn by the worker)."""
+    options, out, say = run.options, run.out, run.say
+    say(f"[3/7] planning print lines for {options.machine} at {options.size_mm:g} mm")
+    job = plan_print(run, out)
     run.drawings.draw(
         "fabkit.toolpath.preview:preview_images",
         (job.plan.toolpath, list(job.outlines)),

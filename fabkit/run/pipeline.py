@@ -72,6 +72,7 @@ from fabkit.run.inputs import (
     machine_name,
     with_defaults,
 )
+from fabkit.run.printed import refine_as_printed
 from fabkit.run.solve import NOT_JUDGED_LAYERS, NOT_SIMULATED, solve_stage
 
 WORKER_MODULES = ("fabkit.plot.design", "fabkit.toolpath.preview", "fabkit.plot.shapes")
@@ -109,6 +110,8 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
     with worker(warm=WORKER_MODULES) if options.pictures else nullcontext() as background:
         drawings = Drawings(background)
         solved = solve_stage(options, inputs, say)
+        if options.refine and solved.design.layering is not None:
+            solved = refine_as_printed(Run(options, inputs, solved, drawings, say))
         drawing = "drawing pictures and" if options.pictures else "no pictures (--no-pictures);"
         say(f"[2/7] {drawing} patch meshes")
         design = solved.design

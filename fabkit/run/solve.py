@@ -175,6 +175,7 @@ def layer_design(
             "share": 1.0,
             "refined": False,
             "refinement": None,
+            "printed_refinement": None,
             "shares_tried": {},
             **report.to_dict(),
         }
@@ -208,6 +209,11 @@ def layer_design(
         tried, key=lambda t: (sum(s.formed for s in t[4].shapes), t[0] == "refined", t[1])
     )
     say(f"      chosen: {'refined' if label == 'refined' else f'{share:.0%} of the layering'}")
+    if label == "refined":
+        say(
+            "        what the refined layers program, by the first-order measures (the "
+            "refinement aims at the simulated shapes, not at them):"
+        )
     for line in report.lines():
         say(f"        {line}")
     figures = {
@@ -215,6 +221,7 @@ def layer_design(
         "share": share,
         "refined": label == "refined",
         "refinement": None if refinement is None else refinement.to_dict(),
+        "printed_refinement": None,
         "shares_tried": {t[0]: t[4].headline() for t in tried},
         **report.to_dict(),
     }

@@ -40,6 +40,7 @@ from fabkit.field.flat import FlatField
 from fabkit.field.part import MIN_WIDTH_PITCHES, MIN_WIDTH_ROADS, Part, PartOptions, PartRequest
 from fabkit.files.tomlfile import real
 from fabkit.machines import DEFAULT_MACHINE, MachineProfile
+from fabkit.mechanics.fabricated import SheetFields
 from fabkit.mechanics.simulate import Settings
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict
 from fabkit.process import Encode, Process, Resolution
@@ -218,6 +219,77 @@ class Verification:
         return "\n".join([self.table(), *block])
 
 
+@dataclass(frozen=True)
+class Reading:
+    """A machine file read back against its design, before any simulation: the file's
+    ``kind``, the machine ``choice``, the ``process`` and how it encodes each feature
+    (``resolution``), every printed layer's ``readbacks`` and the heights they lie at
+    (mm), its ``placement``, the printed ``thickness_mm``, the design's ``flat`` field
+    on the part, every layer compared with its own designed layer (``sheets``,
+    ``readings``) and the design's feature ``names``."""
+
+    design: Design
+    kind: str
+    choice: MachineChoice
+    process: Process
+    resolution: Resolution
+    readbacks: list[Readback]
+    placement: Placement
+    heights: list[float]
+    thickness_mm: float
+    flat: FlatField
+    sheets: list[ComparedSheet]
+    readings: list[Any]
+    names: tuple[str, ...]
+
+    def fields(self, options: VerifyOptions) -> list[SheetFields]:
+        """Every printed layer's director and features as functions of flat-sheet points
+        (design units), averaged as the simulations take them (:func:`sheet_fields`)."""
+        smoothing = _smoothing_mm(options, self.readbacks[0], self.thickness_mm)
+        scale = float(self.flat.mm_per_unit)
+        return [
+            sheet_fields(r, self.resolution, sheet, scale, self.names, smoothing)
+            for r, sheet in zip(self.readbacks, self.sheets, strict=True)
+        ]
+
+
+def read_back(
+    design_path: str | Path,
+    machine_file: str | Path,
+    options: VerifyOptions,
+    design: Design | None = None,
+) -> Reading:
+    """Read ``machine_file`` back and compare every printed layer with its designed one
+    (:func:`verify`'s reading, without its simulations); ``design``: the design in
+    ``design_path``, loaded already."""
+    _check_options(options)
+    design = Design.load(design_path) if design is None else design
+    names = feature_names(design, str(design_path))
+    machine_file = Path(machine_file)
+    if not machine_file.exists():
+        raise FabkitError(f"machine file '{machine_file}' does not exist")
+    kind = "channels" if options.baromorph else _kind(machine_file)
+    choice = _machine(options, machine_file, kind)
+    process = _process(options, choice.profile)
+    resolution = process.resolve(names, options.ignore_features)
+    readbacks, placement, heights = _read(
+        machine_file, kind, choice.profile, process, resolution, options
+    )
+    thickness_mm = _printed_thickness(options, process, kind, len(readbacks), heights)
+    cut = _part_options(options, process, thickness_mm)
+    flat = _flat_field(design, str(design_path), options, placement, cut)
+    designed = layer_fields(design, flat, str(design_path), len(readbacks))
+    sheets = [ComparedSheet.of(r, f) for r, f in zip(readbacks, designed, strict=True)]
+    readings = [
+        feature_errors(r, resolution, sheet, design, names)
+        for r, sheet in zip(readbacks, sheets, strict=True)
+    ]
+    return Reading(
+        design, kind, choice, process, resolution, readbacks, placement, heights,
+        thickness_mm, flat, sheets, readings, names,
+    )  # fmt: skip
+
+
 def verify(
     design_path: str | Path,
     machine_file: str | Path,
@@ -230,52 +302,30 @@ def verify(
     ``progress(done, total)`` follows the simulations: ramp steps over every target;
     ``design``: the design in ``design_path``, loaded already (``fabkit run``)."""
     started = time.perf_counter()
-    _check_options(options)
-    design = Design.load(design_path) if design is None else design
-    names = feature_names(design, str(design_path))
-    machine_file = Path(machine_file)
-    if not machine_file.exists():
-        raise FabkitError(f"machine file '{machine_file}' does not exist")
-    kind = "channels" if options.baromorph else _kind(machine_file)
-    choice = _machine(options, machine_file, kind)
-    machine = choice.profile
-    process = _process(options, machine)
-    resolution = process.resolve(names, options.ignore_features)
-    readbacks, placement, heights = _read(machine_file, kind, machine, process, resolution, options)
-    layers = len(readbacks)
-    thickness_mm = _printed_thickness(options, process, kind, layers, heights)
-    cut = _part_options(options, process, thickness_mm)
-    flat = _flat_field(design, str(design_path), options, placement, cut)
+    reading = read_back(design_path, machine_file, options, design)
+    design, machine, process = reading.design, reading.choice.profile, reading.process
+    readbacks, sheets, readings = reading.readbacks, reading.sheets, reading.readings
+    layers, thickness_mm, flat = len(readbacks), reading.thickness_mm, reading.flat
     scale = float(flat.mm_per_unit)
-    designed = layer_fields(design, flat, str(design_path), layers)
-    sheets = [ComparedSheet.of(r, f) for r, f in zip(readbacks, designed, strict=True)]
-    readings = [
-        feature_errors(r, resolution, sheet, design, names)
-        for r, sheet in zip(readbacks, sheets, strict=True)
-    ]
     features, sheet = readings[0], sheets[0]
     notes = list(dict.fromkeys(note for r in readbacks for note in r.notes))
     missing = sorted({f.feature for reading in readings for f in reading if f.cells == 0})
     if missing:
         notes.append(f"not read back (the file carries no value for it): {', '.join(missing)}")
-    if choice.against_the_file:
-        notes.append(f"read as machine {machine.name} reads it, but the file names {choice.named}")
+    if reading.choice.against_the_file:
+        named = reading.choice.named
+        notes.append(f"read as machine {machine.name} reads it, but the file names {named}")
     targets: tuple[TargetDistance, ...] = ()
     shapes: tuple[Shape, ...] = ()
     simulation: dict[str, Any] = {}
     if not options.simulate:
         notes.append("not simulated (--no-simulate)")
-    elif resolution.ignored or missing:
+    elif reading.resolution.ignored or missing:
         notes.append("not simulated: a feature of the design is not in the machine file")
     else:
-        smoothing = _smoothing_mm(options, readbacks[0], thickness_mm)
-        fields = [
-            sheet_fields(r, resolution, sheet, scale, names, smoothing)
-            for r, sheet in zip(readbacks, sheets, strict=True)
-        ]
         targets, shapes = simulate_targets(
             design,
-            fields,
+            reading.fields(options),
             flat.part,
             thickness_mm,
             scale,
@@ -285,14 +335,15 @@ def verify(
             tolerance=options.form_tolerance,
             progress=progress,
         )
+        smoothing = _smoothing_mm(options, readbacks[0], thickness_mm)
         simulation = simulation_figures(smoothing, readbacks[0], thickness_mm, layers)
         notes.append(simulation_note(simulation))
     return Verification(
         file=str(machine_file),
-        kind=kind,
+        kind=reading.kind,
         machine=machine.name,
         process=process.source,
-        placement=placement.source,
+        placement=reading.placement.source,
         cell_mm=readbacks[0].cell_mm,
         empty_fraction=sheet.empty,
         mean_overlap=sheet.overlap,
@@ -300,14 +351,16 @@ def verify(
         director_p95_deg=sheet.director_p95,
         features=tuple(features),
         targets=targets,
-        ignored=resolution.ignored,
+        ignored=reading.resolution.ignored,
         notes=tuple(notes),
         seconds=time.perf_counter() - started,
         extra={"part": _part_figures(flat.part)} if flat.part is not None else {},
         simulation=simulation,
         layers=layer_readings(sheets, readings, design.layers) if layers > 1 else (),
         verdict=fabricated_verdict(shapes, layers, thickness_mm),
-        thickness_notice="" if kind == "channels" else thickness_notice(process, heights),
+        thickness_notice=""
+        if reading.kind == "channels"
+        else thickness_notice(process, reading.heights),
     )
 
 
