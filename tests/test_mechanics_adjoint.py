@@ -117,9 +117,9 @@ def test_the_metrics_gradient_through_the_material_law_is_exact(fig1):
 
 @pytest.mark.slow
 def test_refining_brings_the_farthest_target_nearer_from_every_start(layered_fig1):
-    before = design_verdict(layered_fig1, stride=1)
-    refined = refine_layering(layered_fig1, UNBOUNDED, stride=1)
-    after = design_verdict(refined.design, stride=1)
+    before = design_verdict(layered_fig1, stride=2)
+    refined = refine_layering(layered_fig1, UNBOUNDED, stride=2)
+    after = design_verdict(refined.design, stride=2)
     worst_before = max(s.rms for s in before.shapes)
     assert worst_before > 0.06  # the bump, the first-order layering's miss
     assert max(s.rms for s in after.shapes) < 0.8 * worst_before, after.lines()
