@@ -125,28 +125,33 @@ def coarse_run(tmp_path_factory) -> Callable[[str], tuple[Path, str]]:
 
 
 LONGEST_FIRST = (
-    "test_run_layers.py",
-    "test_packaging.py",
     "test_examples.py",
+    "test_run_layers.py",
     "test_run.py",
+    "test_compare_scan.py",
+    "test_mechanics_adjoint.py",
+    "test_packaging.py",
+    "test_link_marlin.py",
+    "test_gcode_columns.py",
     "test_report_browser.py",
     "test_pictures_read.py",
     "test_link_resend_property.py",
-    "test_solve_layers.py",
-    "test_values_between_stages.py",
-    "test_link_grbl_buffer.py",
-    "test_interrupt.py",
-    "test_link_marlin.py",
-    "test_outputs.py",
     "test_optimise.py",
+    "test_link_grbl_buffer.py",
+    "test_swimmer.py",
+    "test_outputs.py",
+    "test_values_between_stages.py",
+    "test_link_octoprint.py",
+    "test_solve_layers.py",
+    "test_interrupt.py",
     "test_verify.py",
-    "test_compare_scan.py",
     "test_optimise_dask.py",
     "test_notebook.py",
 )
-"""The test files that take longest (``pytest --durations=0`` summed per file: 80-130 s
-for test_run_layers.py, the Fig. 3 run in two layers, and test_packaging.py, the README's
-command from a wheel, down to about 15 s), longest first. pytest-xdist hands whole files
+"""The test files that take longest (``pytest --durations=0`` summed per file, stop 49:
+125 s for test_examples.py, 65-73 s for test_run_layers.py, test_run.py,
+test_compare_scan.py, test_mechanics_adjoint.py and test_packaging.py, down to about
+15 s), longest first. pytest-xdist hands whole files
 to its workers in collection order (``--dist loadfile --no-loadscope-reorder``,
 pyproject.toml): these start first, so that no long file starts last on one worker while
 the other has nothing left to do."""

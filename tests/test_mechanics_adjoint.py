@@ -148,9 +148,8 @@ def test_refined_as_printed_the_sheet_forms_with_its_error_and_with_it_turned_ov
         designed = [design_fields(design.layer(k)) for k in range(2)]
         return target_shapes(design, made, [1, 2], 0.02, stride=1, designed=designed)
 
-    refined = refine_layering(
-        layered_fig1, UNBOUNDED, stride=1, fabricated=[printed(layered_fig1, k) for k in (0, 1)]
-    )
+    made = [printed(layered_fig1, k) for k in (0, 1)]
+    refined = refine_layering(layered_fig1, UNBOUNDED, stride=1, fabricated=made)
     before, after = judged(layered_fig1), judged(refined.design)
     assert max(s.rms for s in after) < 0.9 * max(s.rms for s in before)
     assert refined.before == pytest.approx([s.rms for s in before], abs=0.002)
