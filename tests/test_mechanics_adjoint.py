@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from fabkit.design.layers import layered
+from fabkit.mechanics import refine
 from fabkit.mechanics.adjoint import aligned_distance, metric_gradient
 from fabkit.mechanics.fabricated import (
     SheetFields,
@@ -131,7 +132,9 @@ def test_refining_brings_the_farthest_target_nearer_from_every_start(layered_fig
 
 
 @pytest.mark.slow
-def test_refined_as_printed_the_sheet_forms_with_its_error_and_with_it_turned_over(layered_fig1):
+def test_refined_as_printed_the_sheet_forms_with_its_error_and_with_it_turned_over(
+    layered_fig1, monkeypatch
+):
     """A print that turns every layer's director by a smooth few degrees: refined with
     that error in the loop, the sheet printed with the same error is nearer its targets,
     judged as a print is (the error added, and turned over); the figures reported are the
@@ -149,6 +152,7 @@ def test_refined_as_printed_the_sheet_forms_with_its_error_and_with_it_turned_ov
         return target_shapes(design, made, [1, 2], 0.02, stride=1, designed=designed)
 
     made = [printed(layered_fig1, k) for k in (0, 1)]
+    monkeypatch.setattr(refine, "ROUNDS", 2)  # 0.81 of the worst RMS, as 4 rounds give 0.82
     refined = refine_layering(layered_fig1, UNBOUNDED, stride=1, fabricated=made)
     before, after = judged(layered_fig1), judged(refined.design)
     assert max(s.rms for s in after) < 0.9 * max(s.rms for s in before)
