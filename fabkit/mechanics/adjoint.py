@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sparse
 
+from fabkit.mechanics.compare import proper_rotation
 from fabkit.mechanics.factor import factorise
 from fabkit.mechanics.shell import Sheet, build_shell
 from fabkit.mechanics.simulate import SHIFT, rigid_modes
@@ -60,12 +61,8 @@ class Distance:
 def aligned_distance(points: np.ndarray, target: np.ndarray, size: float) -> Distance:
     """The squared RMS distance, as a share of ``size`` (design units), from ``points``
     (V, 3) to ``target`` (V, 3) after the best proper rigid motion, with its gradient."""
-    source_mean, target_mean = points.mean(0), target.mean(0)
-    covariance = (points - source_mean).T @ (target - target_mean)
-    left, _, right = np.linalg.svd(covariance)
-    sign = np.sign(np.linalg.det(left @ right)) or 1.0
-    rotation = left @ np.diag([1.0, 1.0, sign]) @ right
-    residual = (points - source_mean) @ rotation + target_mean - target
+    rotation = proper_rotation(points, target)
+    residual = (points - points.mean(0)) @ rotation + target.mean(0) - target
     scale = 1.0 / (len(points) * size**2)
     value = scale * float(np.sum(residual**2))
     return Distance(value, 2 * scale * residual @ rotation.T)

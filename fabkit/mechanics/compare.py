@@ -56,14 +56,20 @@ def _kabsch(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     return _rigid_motion(source, target)(source)
 
 
+def proper_rotation(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The proper rotation R (3, 3) that, with the centroids matched, best fits ``source``
+    (n, 3) to ``target`` (n, 3) in RMS: (source - its mean) @ R + target's mean (Kabsch)."""
+    covariance = (source - source.mean(0)).T @ (target - target.mean(0))
+    left, _, right = np.linalg.svd(covariance)
+    sign = np.sign(np.linalg.det(left @ right)) or 1.0
+    return left @ np.diag([1.0, 1.0, sign]) @ right
+
+
 def _rigid_motion(source: np.ndarray, target: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     """The proper rotation and translation that minimise the RMS distance from ``source``
     (n, 3) to ``target`` (n, 3), as a function moving any points (m, 3)."""
     source_mean, target_mean = source.mean(0), target.mean(0)
-    covariance = (source - source_mean).T @ (target - target_mean)
-    left, _, right = np.linalg.svd(covariance)
-    sign = np.sign(np.linalg.det(left @ right)) or 1.0
-    rotation = left @ np.diag([1.0, 1.0, sign]) @ right
+    rotation = proper_rotation(source, target)
     return lambda points: (points - source_mean) @ rotation + target_mean
 
 

@@ -35,7 +35,7 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.part import Part
 from fabkit.mechanics.mesh import DesignMesh, counter_clockwise, design_mesh
-from fabkit.mechanics.metric import metric_from_lengths
+from fabkit.mechanics.metric import length_system, metric_from_lengths
 from fabkit.mechanics.simulate import (
     DesignSimulation,
     Settings,
@@ -185,10 +185,7 @@ def sheet_metrics_gradient(
     (components a11, a12, a22 of each face's metric, a12 both off-diagonal places), dJ/d
     ``theta`` (V,) and dJ/d ``eps`` (N, V) at the mesh's vertices. Exact but for the
     material law's derivative in the features (a central difference)."""
-    corners = mesh.points[mesh.triangles]
-    edges = corners[:, [2, 0, 1]] - corners[:, [1, 2, 0]]
-    x, y = edges[..., 0], edges[..., 1]
-    system = np.stack([x * x, 2 * x * y, y * y], -1)  # (F, 3 edges, 3 components)
+    system = length_system(mesh.points, mesh.triangles)
     lengths = _edge_lengths(design, mesh, surface, theta, eps)
     per_square = np.linalg.solve(np.swapaxes(system, 1, 2), metric_gradient[..., None])[..., 0]
     per_length = 2 * lengths * per_square  # dJ/dl (F, 3)

@@ -85,6 +85,14 @@ def grid_edge_lengths(
     return 0.5 * (speed[0] + speed[1])
 
 
+def length_system(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(F, 3, 3): row i maps a face's metric (a11, a12, a22) to the squared length of its
+    edge i, e_i^T a e_i (edge i opposite vertex i)."""
+    _, vectors = face_edges(points, triangles)
+    x, y = vectors[..., 0], vectors[..., 1]
+    return np.stack([x * x, 2 * x * y, y * y], -1)
+
+
 def metric_from_lengths(
     points: np.ndarray, triangles: np.ndarray, lengths: np.ndarray
 ) -> np.ndarray:
@@ -93,9 +101,7 @@ def metric_from_lengths(
     Raises :class:`FabkitError` when some face's lengths break the triangle inequality
     (the mesh is too coarse for the metric's variation there).
     """
-    _, vectors = face_edges(points, triangles)
-    x, y = vectors[..., 0], vectors[..., 1]
-    system = np.stack([x * x, 2 * x * y, y * y], -1)
+    system = length_system(points, triangles)
     a11, a12, a22 = np.moveaxis(np.linalg.solve(system, (lengths**2)[..., None])[..., 0], -1, 0)
     metric = np.stack([np.stack([a11, a12], -1), np.stack([a12, a22], -1)], -2)
     bad = np.count_nonzero(~(np.linalg.eigvalsh(metric)[:, 0] > 0))

@@ -215,8 +215,7 @@ def ramp_part(
     """:func:`simulate` through ramp steps ``first`` to ``last`` (0-based, ``last``
     excluded; None: to the end) of the sheet's own ramp, from ``initial`` (None: the
     seeded flat sheet): positional arguments, for a pool of workers."""
-    target = np.asarray(metrics, dtype=float)
-    shares = ramp(settings, curved(target[None] if target.ndim == 3 else target))
+    shares = ramp(settings, curved(np.asarray(metrics)))
     return simulate(
         points,
         triangles,

@@ -36,7 +36,13 @@ from fabkit.background import parallel_map
 from fabkit.design.design import Design
 from fabkit.field.part import Part
 from fabkit.mechanics import cache
-from fabkit.mechanics.compare import Comparison, FormedShape, compare, formed_shape
+from fabkit.mechanics.compare import (
+    Comparison,
+    FormedShape,
+    compare,
+    formed_shape,
+    proper_rotation,
+)
 from fabkit.mechanics.fabricated import (
     SheetFields,
     SheetProblem,
@@ -44,6 +50,7 @@ from fabkit.mechanics.fabricated import (
     sheet_problem,
     turned_over,
 )
+from fabkit.mechanics.metric import face_edges
 from fabkit.mechanics.simulate import (
     MIRRORED,
     STARTS,
@@ -510,8 +517,8 @@ def _computed(calls: list[tuple], advance: Callable[[int, int], None]) -> list[S
 def _rampable(call: tuple) -> bool:
     """Whether a call is a ramp of several steps from a seeded start on a sheet with a
     natural curvature (its first step is run alone, :func:`_computed`)."""
-    metrics, settings, initial = np.asarray(call[2]), call[5], call[6]
-    natural = curved(metrics[None] if metrics.ndim == 3 else metrics)
+    natural = curved(np.asarray(call[2]))
+    settings, initial = call[5], call[6]
     return natural and initial is None and len(ramp(settings, natural)) > 1
 
 
@@ -524,9 +531,7 @@ def _groups(
     for k, call in enumerate(calls):
         if not split[k]:
             continue
-        points, triangles = np.asarray(call[0]), np.asarray(call[1])
-        corners = points[triangles]
-        edge = float(np.mean(np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=-1)))
+        edge = float(np.mean(np.linalg.norm(face_edges(call[0], call[1])[1], axis=-1)))
         for lead, members in groups.items():
             other = calls[lead]
             same_sheet = other[2] is call[2] and other[7] is call[7] and other[0] is call[0]
@@ -541,11 +546,8 @@ def _groups(
 def _apart(a: np.ndarray, b: np.ndarray) -> float:
     """The largest distance between corresponding points of ``a`` and ``b`` (V, 3) after
     the proper rigid motion that best fits ``a`` to ``b``."""
-    centred_a, centred_b = a - a.mean(0), b - b.mean(0)
-    left, _, right = np.linalg.svd(centred_a.T @ centred_b)
-    sign = np.sign(np.linalg.det(left @ right)) or 1.0
-    rotation = left @ np.diag([1.0, 1.0, sign]) @ right
-    return float(np.max(np.linalg.norm(centred_a @ rotation - centred_b, axis=1)))
+    moved = (a - a.mean(0)) @ proper_rotation(a, b) + b.mean(0)
+    return float(np.max(np.linalg.norm(moved - b, axis=1)))
 
 
 def _mirror_sources(calls: list[tuple]) -> dict[int, int]:
