@@ -100,20 +100,28 @@ def metric_gradient(
     return -_by_component(metrics, paired)
 
 
-def energy_gradient(
-    sheet: Sheet, metrics: np.ndarray, thickness: float, poisson: float, positions: np.ndarray
-) -> tuple[float, np.ndarray]:
-    """The energy of ``sheet`` held at ``positions`` (V, 3) under ``metrics`` (F, 2, 2) or
-    (L, F, 2, 2), and its derivative in the metrics (L, F, 3) (components as
-    :func:`metric_gradient`'s), the positions fixed."""
+def energy_difference(
+    sheet: Sheet,
+    metrics: np.ndarray,
+    thickness: float,
+    poisson: float,
+    held: np.ndarray,
+    other: np.ndarray,
+    gradient: bool = False,
+) -> tuple[float, np.ndarray | None]:
+    """The energy of ``sheet`` held at positions ``held`` (V, 3) less that held at ``other``
+    (V, 3), under ``metrics`` (F, 2, 2) or (L, F, 2, 2); with ``gradient``, also its
+    derivative in the metrics (L, F, 3) (components as :func:`metric_gradient`'s), the
+    positions fixed (else None: a twelfth of the shells built)."""
     metrics = np.asarray(metrics, dtype=float)
     metrics = metrics[None] if metrics.ndim == 3 else metrics
-    energy = build_shell(sheet, metrics, thickness, poisson).energy(positions)
 
     def faces(trial: np.ndarray) -> np.ndarray:
-        return build_shell(sheet, trial, thickness, poisson).face_energy(positions)
+        shell = build_shell(sheet, trial, thickness, poisson)
+        return shell.face_energy(held) - shell.face_energy(other)
 
-    return energy, _by_component(metrics, faces)
+    value = float(faces(metrics).sum())
+    return value, (_by_component(metrics, faces) if gradient else None)
 
 
 def _by_component(metrics: np.ndarray, per_face) -> np.ndarray:

@@ -25,7 +25,10 @@ ramp from the flat sheet reaches. So the descent (L-BFGS-B, every equilibrium fo
 from the best so far) runs in rounds of :data:`EVALUATIONS` within a trust radius, and a
 round is kept only if the sheet simulated as a verdict simulates it (the ramp from the
 dome start) is nearer every target by the objective; the radius doubles after a round
-kept and shrinks after one refused.
+kept and shrinks after one refused. A trial whose equilibrium cannot be followed within
+:data:`FOLLOW_ITERATIONS` (the sheet snaps far away) is refused like one with no metric:
+the descent steps shorter. Every case of an evaluation (a target, as designed or with the
+print's error) is followed in a worker of its own (:func:`follow`, over the cores).
 
 What is refined is then judged as everything else, from every start
 (:func:`~fabkit.mechanics.verdict.design_verdict`).
@@ -33,6 +36,7 @@ What is refined is then judged as everything else, from every start
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -41,11 +45,12 @@ import numpy as np
 from scipy.optimize import minimize
 from threadpoolctl import threadpool_limits
 
+from fabkit.background import parallel_map
 from fabkit.design.design import Design, Layering
 from fabkit.design.layers import slope_room
 from fabkit.errors import FabkitError
 from fabkit.field.part import Part
-from fabkit.mechanics.adjoint import aligned_distance, energy_gradient, metric_gradient
+from fabkit.mechanics.adjoint import aligned_distance, energy_difference, metric_gradient
 from fabkit.mechanics.fabricated import (
     SheetFields,
     design_fields,
@@ -54,15 +59,24 @@ from fabkit.mechanics.fabricated import (
     sheet_problem,
 )
 from fabkit.mechanics.shell import Sheet, build_shell
-from fabkit.mechanics.simulate import Settings, minimise, simulate
-from fabkit.mechanics.verdict import FORM_TOLERANCE, embedded_targets, grid_stride
+from fabkit.mechanics.simulate import Settings, minimise
+from fabkit.mechanics.verdict import FORM_TOLERANCE, RAMP_PART, embedded_targets, grid_stride
 
+FOLLOW = "fabkit.mechanics.refine:follow"
+"""The worker function that follows one case (:func:`follow`)."""
+WARM = ("fabkit.mechanics.refine",)
+"""What a worker imports before its first case."""
 DEGREE = 4
 """Largest total degree of the correction polynomials (15 terms per field)."""
 MAX_TURN = 0.35
 """Largest director turn (rad) of any layer from the design's director."""
 EVALUATIONS = 10
 """Most evaluations (a followed equilibrium of every target) per round of descent."""
+FOLLOW_ITERATIONS = 40
+"""Most Newton iterations to follow an equilibrium to a trial's metrics. A trial that
+makes the sheet snap far away needs hundreds (L-BFGS-B's first step of a round, 180-410
+on Fig. 1: three quarters of a round's time); it is refused, and the descent tries a
+shorter step. A followed step converges in 4-19."""
 ROUNDS = 4
 """Rounds of descent. Each ends with every target simulated along the ramp from the
 dome start (as a verdict does), and is kept only if that is nearer: the followed
@@ -291,7 +305,8 @@ class _Model:
         model.cases.extend((p, mode) for mode in modes for p in range(len(problems)))
         for problem, target, mode in model._each():
             metrics = model._case_metrics(np.zeros(model.size), problem, mode)
-            side, _ = model.side(problem, metrics, target)
+            held = (model.sheet, metrics, problem.thickness, problem.poisson, target)
+            side, _ = side_preference(*held)
             model.sides.append((min(side, 0.0), max(abs(side), SIDE_FLOOR)))
         return model
 
@@ -379,29 +394,21 @@ class _Model:
         return ((per_vertex @ self.basis) * self.units).ravel()
 
     def evaluate(self, c: np.ndarray, states: list) -> tuple[float, np.ndarray, list]:
-        """The objective, its gradient and the equilibria reached from ``states``."""
+        """The objective, its gradient and the equilibria reached from ``states``; the
+        cases followed side by side (:func:`follow`, over the cores)."""
         value, gradient = self._penalty(c)
+        sheet = self.sheet
+        metrics = [self._case_metrics(c, problem, mode) for problem, _, mode in self._each()]
+        cases = zip(self._each(), metrics, states, self.sides, strict=True)
+        calls = [
+            (sheet.points, sheet.triangles, m, p.thickness, p.poisson, x, target, p.patch_size, b)
+            for (p, target, _), m, x, b in cases
+        ]
+        followed = parallel_map(FOLLOW, calls, WARM)
         reached = []
-        for (problem, target, mode), state, bound in zip(
-            self._each(), states, self.sides, strict=True
-        ):
-            metrics = self._case_metrics(c, problem, mode)
-            shell = build_shell(self.sheet, metrics, problem.thickness, problem.poisson)
-            tolerance = Settings().tolerance * self.sheet.edge_length()
-            x, _, _ = minimise(shell, state, tolerance, Settings().max_iterations, exact=True)
+        for (problem, _, mode), (term, d_metric, x) in zip(self._each(), followed, strict=True):
+            value += term
             reached.append(x)
-            distance = aligned_distance(x, target, problem.patch_size)
-            side, d_side = self._side_penalty(problem, metrics, target, bound)
-            share = distance.value / TOLERANCE**2
-            value += share**2 + side
-            d_metric = d_side + metric_gradient(
-                self.sheet,
-                metrics,
-                problem.thickness,
-                problem.poisson,
-                x,
-                2 * share / TOLERANCE**2 * distance.gradient,
-            )
             per_vertex = np.zeros((1 + len(self.eps), len(self.theta)))
             for weight, layers in self._parts(c, mode):
                 for z, (t, e), d_m in zip(self.heights, layers, d_metric, strict=True):
@@ -412,28 +419,6 @@ class _Model:
                     per_vertex[1:] += z * d_eps
             gradient = gradient + self._chain(per_vertex)
         return value, gradient, reached
-
-    def side(self, problem, metrics: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray]:
-        """The energy of the sheet held at its target less that held at the target's mirror
-        image (< 0: the layers favour the target's side), and its gradient in the metrics
-        (L, F, 3). Only the terms odd in the curvature differ: the layers' natural curvature
-        against the target's."""
-        mirror = target * np.array([1.0, 1.0, -1.0])
-        held = [
-            energy_gradient(self.sheet, metrics, problem.thickness, problem.poisson, x)
-            for x in (target, mirror)
-        ]
-        return held[0][0] - held[1][0], held[0][1] - held[1][1]
-
-    def _side_penalty(
-        self, problem, metrics: np.ndarray, target: np.ndarray, bound: tuple[float, float]
-    ) -> tuple[float, np.ndarray]:
-        """The squared excess of :meth:`side` over ``bound`` (limit, scale): the layers may
-        favour the target's side no less than the first-order layering did."""
-        limit, scale = bound
-        side, gradient = self.side(problem, metrics, target)
-        excess = max(side - limit, 0.0) / scale
-        return SIDE_PENALTY * excess**2, SIDE_PENALTY * 2 * excess / scale * gradient
 
     def distances(self, states: list) -> tuple[float, ...]:
         """RMS distance per case (shares of the patch) at the equilibria ``states``."""
@@ -454,27 +439,31 @@ class _Model:
         value = self._penalty(c)[0] + sum((r / TOLERANCE) ** 4 for r in self.distances(states))
         for (problem, target, mode), bound in zip(self._each(), self.sides, strict=True):
             metrics = self._case_metrics(c, problem, mode)
-            value += self._side_penalty(problem, metrics, target, bound)[0]
+            held = (self.sheet, metrics, problem.thickness, problem.poisson, target)
+            value += _side_penalty(*held, bound)[0]
         return value
 
     def ramped(self, c: np.ndarray) -> list:
         """The equilibria (V, 3) under every target's stimulus at ``c``, each simulated as
-        a verdict's from the dome start, along the slow ramp from the flat sheet as made."""
+        a verdict's from the dome start, along the slow ramp from the flat sheet as made
+        (the cases side by side, over the cores)."""
         mesh = self.problems[0].mesh
-        ends = []
-        for problem, _, mode in self._each():
-            ends.append(
-                simulate(
-                    mesh.points,
-                    mesh.triangles,
-                    self._case_metrics(c, problem, mode),
-                    problem.thickness,
-                    problem.poisson,
-                    Settings(),
-                    start_metrics=self._case_metrics(c, problem, mode, surface=0),
-                ).positions
+        calls = [
+            (
+                mesh.points,
+                mesh.triangles,
+                self._case_metrics(c, problem, mode),
+                problem.thickness,
+                problem.poisson,
+                Settings(),
+                None,
+                self._case_metrics(c, problem, mode, surface=0),
+                0,
+                None,
             )
-        return ends
+            for problem, _, mode in self._each()
+        ]
+        return [end.positions for end in parallel_map(RAMP_PART, calls, WARM)]
 
     def layering(self, c: np.ndarray) -> Layering:
         """The design's layering with the corrections ``c`` on its whole grid."""
@@ -489,6 +478,85 @@ class _Model:
         slope = np.where(valid, np.sign(slope) * np.minimum(np.abs(slope), room), np.nan)
         turn = np.clip(turn, -MAX_TURN / reach, MAX_TURN / reach)
         return Layering(layering.count, layering.thickness, turn, slope)
+
+
+def follow(
+    points: np.ndarray,
+    triangles: np.ndarray,
+    metrics: np.ndarray,
+    thickness: float,
+    poisson: float,
+    state: np.ndarray,
+    target: np.ndarray,
+    patch_size: float,
+    bound: tuple[float, float],
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """One case of the objective (module docstring): the sheet (``points`` (V, 2),
+    ``triangles`` (F, 3)) under per-layer ``metrics`` (L, F, 2, 2) followed from ``state``
+    (V, 3) to its equilibrium x; returns its term (RMS to ``target`` (V, 3) over the
+    patch's diameter ``patch_size`` over :data:`TOLERANCE`, to the fourth, plus the side
+    penalty against ``bound``), that term's derivative in the metrics (L, F, 3) and x.
+    Raises :class:`FabkitError` when x is not reached within :data:`FOLLOW_ITERATIONS`.
+    Plain data in and out: run in a worker (:func:`fabkit.background.parallel_map`)."""
+    triangles = np.asarray(triangles, dtype=np.int64)
+    sheet = _sheet(np.asarray(points, dtype=float).tobytes(), triangles.tobytes(), len(points))
+    with threadpool_limits(limits=1, user_api="blas"):  # as every simulation
+        shell = build_shell(sheet, metrics, thickness, poisson)
+        tolerance = Settings().tolerance * sheet.edge_length()
+        x, _, converged = minimise(shell, state, tolerance, FOLLOW_ITERATIONS, exact=True)
+        if not converged:  # snapped far away: the step is refused, not followed there
+            raise FabkitError("refine: the followed equilibrium ran away")
+        distance = aligned_distance(x, target, patch_size)
+        side, d_side = _side_penalty(sheet, metrics, thickness, poisson, target, bound)
+        share = distance.value / TOLERANCE**2
+        d_distance = 2 * share / TOLERANCE**2 * distance.gradient
+        d_metric = metric_gradient(sheet, metrics, thickness, poisson, x, d_distance)
+    return share**2 + side, d_side + d_metric, x
+
+
+@functools.lru_cache(maxsize=4)
+def _sheet(points: bytes, triangles: bytes, count: int) -> Sheet:
+    """The sheet of a flat mesh given as bytes (a worker builds each once)."""
+    flat = np.frombuffer(points, dtype=float).reshape(count, -1)
+    return Sheet.build(flat, np.frombuffer(triangles, dtype=np.int64).reshape(-1, 3))
+
+
+def side_preference(
+    sheet: Sheet,
+    metrics: np.ndarray,
+    thickness: float,
+    poisson: float,
+    target: np.ndarray,
+    gradient: bool = False,
+) -> tuple[float, np.ndarray | None]:
+    """The energy of the sheet (``thickness`` in design units, ``poisson`` ratio) held at
+    its ``target`` (V, 3) less that held at the target's mirror image (< 0: the layers
+    favour the target's side), and with ``gradient`` its derivative in the metrics
+    (L, F, 3). Only the terms odd in the curvature differ: the layers' natural curvature
+    against the target's."""
+    mirror = target * np.array([1.0, 1.0, -1.0])
+    return energy_difference(sheet, metrics, thickness, poisson, target, mirror, gradient)
+
+
+def _side_penalty(
+    sheet: Sheet,
+    metrics: np.ndarray,
+    thickness: float,
+    poisson: float,
+    target: np.ndarray,
+    bound: tuple[float, float],
+) -> tuple[float, np.ndarray]:
+    """The squared excess of :func:`side_preference` over ``bound`` (limit, scale): the
+    layers may favour the target's side no less than the first-order layering did. Its
+    gradient is computed only where it is not zero."""
+    limit, scale = bound
+    held = (sheet, metrics, thickness, poisson, target)
+    side, _ = side_preference(*held)
+    excess = max(side - limit, 0.0) / scale
+    if excess == 0.0:
+        return 0.0, np.zeros((*metrics.shape[:2], 3))
+    _, gradient = side_preference(*held, gradient=True)
+    return SIDE_PENALTY * excess**2, SIDE_PENALTY * 2 * excess / scale * gradient
 
 
 def _polynomials(points: np.ndarray, degree: int) -> np.ndarray:
