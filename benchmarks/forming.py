@@ -4,7 +4,8 @@ Run from the repository root: ``python benchmarks/forming.py`` (about 30 minutes
 2-core machine; ``--sizes``, ``--specs``, ``--layers`` change the grid). For every
 example spec that prints and every size it runs ``fabkit run SPEC --size S`` with no
 layer option, as issue 35's acceptance asks (the run chooses its layers; ``--layers K``
-passes one on), on the README's route (marlin_diw_pneumatic, verified from the G-code),
+passes one on; ``--refine`` refines them against the simulation, minutes a run), on the
+README's route (marlin_diw_pneumatic, verified from the G-code),
 and prints, per target, how many
 of the six starts (``fabkit.mechanics.simulate.STARTS``) form it as fabricated, the
 worst RMS (% of the patch diameter) and why the others miss it (M: the mirror image, N:
@@ -28,12 +29,15 @@ SPECS = ("two_shapes.toml", "three_shapes.toml", "ball_hypar.toml", "bowl_saddle
 """The example specs that print (examples/README.md)."""
 
 
-def run(spec: str, size: float, layers: int | None, folder: Path) -> tuple[dict, float]:
-    """``fabkit run`` of one spec at one size (``layers`` None: no layer option); its
-    report.json and wall time (s)."""
+def run(
+    spec: str, size: float, layers: int | None, refine: bool, folder: Path
+) -> tuple[dict, float]:
+    """``fabkit run`` of one spec at one size (``layers`` None: no layer option; ``refine``:
+    with ``--refine``); its report.json and wall time (s)."""
     out = folder / f"{Path(spec).stem}-{size:g}-{layers}"
     command = [sys.executable, "-m", "fabkit", "run", spec, "--size", f"{size:g}", "--out"]
     command += [str(out), "--overwrite", *(("--layers", str(layers)) if layers else ())]
+    command += ["--refine"] if refine else []
     started = time.monotonic()
     subprocess.run(command, check=True, capture_output=True, cwd=ROOT)
     return json.loads((out / "report.json").read_text()), time.monotonic() - started
@@ -57,8 +61,10 @@ def main() -> int:
     parser.add_argument("--specs", nargs="+", default=list(SPECS))
     parser.add_argument("--sizes", nargs="+", type=float, default=[40, 50, 60, 70, 80])
     parser.add_argument("--layers", type=int, default=None)
+    parser.add_argument("--refine", action="store_true", help="fabkit run --refine")
     args = parser.parse_args()
     option = f" --layers {args.layers}" if args.layers else ""
+    option += " --refine" if args.refine else ""
     print(
         f"fabkit run SPEC --size S{option}: the sheet as fabricated, per "
         "target: starts formed of 6, worst RMS (% of the patch diameter), M mirror image, "
@@ -68,7 +74,9 @@ def main() -> int:
         for spec in args.specs:
             for size in args.sizes:
                 try:
-                    figures, seconds = run(f"examples/{spec}", size, args.layers, Path(folder))
+                    figures, seconds = run(
+                        f"examples/{spec}", size, args.layers, args.refine, Path(folder)
+                    )
                 except subprocess.CalledProcessError as exc:
                     print(f"{spec} {size:g} mm: FAILED: {exc.stderr.decode().strip()[-200:]}")
                     return 1
