@@ -12,6 +12,8 @@ face ends on its side but farther than the limit. The run's last line is that ve
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 
 import numpy as np
@@ -31,9 +33,25 @@ def layered_run(folder, request):
     from fabkit.cli import main
 
     out = folder / "three_layered"
-    code = main(["run", str(THREE), "--layers", "2", "--out", str(out), "--no-pictures"])
+    said = io.StringIO()
+    with contextlib.redirect_stdout(said):
+        code = main(["run", str(THREE), "--layers", "2", "--out", str(out), "--no-pictures"])
     assert code == 0
+    (out / "said.txt").write_text(said.getvalue())
     return out
+
+
+@pytest.mark.slow
+def test_a_target_missed_unrefined_names_refine_before_the_verdict(layered_run):
+    """The face is missed as fabricated without --refine: the line before the verdict says
+    what would change it."""
+    from fabkit.commands.run import NOT_REFINED
+
+    figures = json.loads((layered_run / "report.json").read_text())
+    assert not figures["verdict"]["formed"] and not figures["layers"]["refined"]
+    lines = (layered_run / "said.txt").read_text().splitlines()
+    assert lines[-1].startswith("done: the sheet as fabricated does NOT form face")
+    assert lines[-2].strip() == NOT_REFINED
 
 
 @pytest.mark.slow

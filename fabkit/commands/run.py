@@ -13,6 +13,12 @@ from fabkit.machines import DEFAULT_MACHINE
 from fabkit.run.inputs import BAROMORPH_MACHINE, FORMAT_FILES, RunOptions
 from fabkit.run.pipeline import run_pipeline
 
+NOT_REFINED = (
+    "what would change it: --refine refines the layers against the simulation, as designed "
+    "and as printed, the print's error in the loop (minutes; docs/layers.md)"
+)
+"""What a layered run whose sheet misses a target says before its verdict, unrefined."""
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = commands.add_command(subparsers, "run")
@@ -131,10 +137,13 @@ def run(args: argparse.Namespace) -> int:
         print(f"      the sheet {verdict['what']}:")
     for line in verdict["lines"]:
         print(f"        {line}")
+    missed = not all(v["formed"] for v in figures["verdicts"])
+    layers = figures.get("layers")
+    if missed and layers and not layers["refined"] and figures["verdicts"]:
+        print(f"      {NOT_REFINED}")
     left_out = ""
     if args.ignore_features:  # the machine file cannot make the designed sheet: say so first
         names = ", ".join(args.ignore_features)
         left_out = f"NOT ENCODED in the machine file (--ignore-feature): {names}; "
     print(f"done: {left_out}{verdict['headline']}; {check}; see {args.out}/report.html")
-    missed = not all(v["formed"] for v in figures["verdicts"])
     return 1 if args.strict and (missed or not figures["check"]["passed"]) else 0
