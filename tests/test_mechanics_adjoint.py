@@ -135,15 +135,22 @@ def test_refining_brings_the_farthest_target_nearer_from_every_start(layered_fig
 def test_refined_as_printed_the_sheet_forms_with_its_error_and_with_it_turned_over(
     layered_fig1, monkeypatch
 ):
-    """A print that turns every layer's director by a smooth few degrees: refined with
-    that error in the loop, the sheet printed with the same error is nearer its targets,
-    judged as a print is (the error added, and turned over); the figures reported are the
-    worse of the two."""
+    """A print that turns every layer's director by a smooth few degrees and leaves a
+    corner of the sheet unmade: refined with that error in the loop, the sheet printed with
+    the same error is nearer its targets, judged as a print is (the error added, and turned
+    over, on the sheet that was made); the figures reported are the worse of the two, and
+    before refining they are the verdict's (the refinement once meshed the whole designed
+    sheet: Fig. 1's bump 1.20 % where the verdict on the print found 3.05 %)."""
+    corner = np.quantile(design_mesh(layered_fig1).points, 0.85, axis=0)
 
     def printed(design, k: int) -> SheetFields:
         own = design_fields(design.layer(k))
+
+        def made(p: np.ndarray) -> np.ndarray:
+            return own.made(p) & ~np.all(p > corner, axis=1)
+
         return SheetFields(
-            lambda p: own.theta(p) + 0.05 * np.sin(3 * p[:, 0] + k), own.features, own.made
+            lambda p: own.theta(p) + 0.05 * np.sin(3 * p[:, 0] + k), own.features, made
         )
 
     def judged(design):
@@ -156,5 +163,11 @@ def test_refined_as_printed_the_sheet_forms_with_its_error_and_with_it_turned_ov
     refined = refine_layering(layered_fig1, UNBOUNDED, stride=1, fabricated=made)
     before, after = judged(layered_fig1), judged(refined.design)
     assert max(s.rms for s in after) < 0.9 * max(s.rms for s in before)
-    assert refined.before == pytest.approx([s.rms for s in before], abs=0.002)
-    assert refined.after == pytest.approx([s.rms for s in after], abs=0.002)
+    # the figures are the dome start's (the worse is the error as printed, not turned over,
+    # here), as the verdict finds them; the verdict's own figure is the worst of six starts
+    dome = [[s.starts[0].rms for s in shapes] for shapes in (before, after)]
+    assert [s.starts[0].start for s in before] == ["dome", "dome"]
+    assert refined.before == pytest.approx(dome[0], abs=1e-6)
+    # after: the worse of the error and the error turned over from the dome start; the
+    # refinement sees no other start (here random-1 ends 1 % farther from the bump)
+    assert all(a >= d - 1e-6 for a, d in zip(refined.after, dome[1], strict=True))

@@ -37,7 +37,7 @@ def layered_run(folder, request):
     with contextlib.redirect_stdout(said):
         code = main(["run", str(THREE), "--layers", "2", "--out", str(out), "--no-pictures"])
     assert code == 0
-    (out / "said.txt").write_text(said.getvalue())
+    (folder / "three_layered.said.txt").write_text(said.getvalue())  # not in the run
     return out
 
 
@@ -49,7 +49,7 @@ def test_a_target_missed_unrefined_names_refine_before_the_verdict(layered_run):
 
     figures = json.loads((layered_run / "report.json").read_text())
     assert not figures["verdict"]["formed"] and not figures["layers"]["refined"]
-    lines = (layered_run / "said.txt").read_text().splitlines()
+    lines = (layered_run.parent / "three_layered.said.txt").read_text().splitlines()
     assert lines[-1].startswith("done: the sheet as fabricated does NOT form face")
     assert lines[-2].strip() == NOT_REFINED
 

@@ -37,6 +37,7 @@ What is refined is then judged as everything else, from every start
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
 from collections.abc import Sequence
@@ -82,7 +83,7 @@ ROUNDS = 4
 """Rounds of descent. Each ends with every target simulated along the ramp from the
 dome start (as a verdict does), and is kept only if that is nearer: the followed
 equilibrium may not be the one the ramp reaches (a sheet has several)."""
-RADIUS = 1.0
+RADIUS = 0.1
 """The first round's trust radius (units of :data:`UNIT`, per unknown); the next round's
 is twice the largest change of an unknown the last round kept, or a quarter of the one
 it tried when it kept none."""
@@ -172,6 +173,8 @@ def refine_layering(
         raise ValueError("refine_layering: the design has no layers")
     stride = stride or grid_stride(design)
     fields = [design_fields(design.layer(k)) for k in range(layering.count)]
+    if fabricated is not None:  # meshed where the print made its first layer, as the verdict
+        fields = [replace(f, made=fabricated[0].made) for f in fields]
     surfaces = embedded_targets(design)
     problems = [
         sheet_problem(design, fields, s, layering.thickness, part=part, stride=stride)
@@ -207,6 +210,10 @@ def refine_layering(
     return Refined(refined, names, first, after, simulations * len(model.cases), seconds)
 
 
+class _Spent(Exception):
+    """A round's evaluations are spent (raised inside L-BFGS-B to stop it)."""
+
+
 def _descend(
     model: _Model, c: np.ndarray, states: list, evaluations: int, radius: float
 ) -> tuple[np.ndarray, int]:
@@ -218,6 +225,8 @@ def _descend(
 
     def objective(trial: np.ndarray) -> tuple[float, np.ndarray]:
         nonlocal count
+        if count == evaluations:  # L-BFGS-B checks its budget only between iterations
+            raise _Spent
         count += 1
         try:
             value, gradient, reached = model.evaluate(trial, best["states"])
@@ -227,14 +236,15 @@ def _descend(
             best.update(value=value, states=reached, c=trial.copy())
         return value, gradient
 
-    minimize(
-        objective,
-        c,
-        jac=True,
-        method="L-BFGS-B",
-        bounds=np.clip(np.stack([c - radius, c + radius], 1), -LIMIT, LIMIT),
-        options={"maxfun": evaluations, "maxiter": evaluations},
-    )
+    with contextlib.suppress(_Spent):
+        minimize(
+            objective,
+            c,
+            jac=True,
+            method="L-BFGS-B",
+            bounds=np.clip(np.stack([c - radius, c + radius], 1), -LIMIT, LIMIT),
+            options={"maxfun": evaluations, "maxiter": evaluations},
+        )
     return best["c"], count
 
 

@@ -266,6 +266,10 @@ def _layers_words(layers: Mapping[str, Any]) -> str:
             if printed
             else ""
         )
+        prints = layers.get("prints") or []
+        if prints:
+            judged = "; ".join(f"{k + 1}: {p['headline']}" for k, p in enumerate(prints))
+            then += f" Printed in memory and judged as fabricated, print {judged}."
         return (
             "The layers differ so that the sheet's natural curvature selects every target: "
             "the first-order layering refined against the simulation "

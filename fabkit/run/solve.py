@@ -176,6 +176,7 @@ def layer_design(
             "refined": False,
             "refinement": None,
             "printed_refinement": None,
+            "prints": [],
             "shares_tried": {},
             **report.to_dict(),
         }
@@ -222,6 +223,7 @@ def layer_design(
         "refined": label == "refined",
         "refinement": None if refinement is None else refinement.to_dict(),
         "printed_refinement": None,
+        "prints": [],
         "shares_tried": {t[0]: t[4].headline() for t in tried},
         **report.to_dict(),
     }

@@ -290,6 +290,28 @@ def read_back(
     )  # fmt: skip
 
 
+def simulate_reading(
+    reading: Reading,
+    options: VerifyOptions,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[tuple[TargetDistance, ...], tuple[Shape, ...]]:
+    """The sheet ``reading`` read back simulated under every target's stimulus from every
+    start (:func:`~fabkit.verify.as_fabricated.simulate_targets`, as :func:`verify` does):
+    its distances and shapes."""
+    return simulate_targets(
+        reading.design,
+        reading.fields(options),
+        reading.flat.part,
+        reading.thickness_mm,
+        float(reading.flat.mm_per_unit),
+        stride=options.stride,
+        max_iterations=options.max_iterations,
+        with_reference=options.reference,
+        tolerance=options.form_tolerance,
+        progress=progress,
+    )
+
+
 def verify(
     design_path: str | Path,
     machine_file: str | Path,
@@ -306,7 +328,6 @@ def verify(
     design, machine, process = reading.design, reading.choice.profile, reading.process
     readbacks, sheets, readings = reading.readbacks, reading.sheets, reading.readings
     layers, thickness_mm, flat = len(readbacks), reading.thickness_mm, reading.flat
-    scale = float(flat.mm_per_unit)
     features, sheet = readings[0], sheets[0]
     notes = list(dict.fromkeys(note for r in readbacks for note in r.notes))
     missing = sorted({f.feature for reading in readings for f in reading if f.cells == 0})
@@ -323,18 +344,7 @@ def verify(
     elif reading.resolution.ignored or missing:
         notes.append("not simulated: a feature of the design is not in the machine file")
     else:
-        targets, shapes = simulate_targets(
-            design,
-            reading.fields(options),
-            flat.part,
-            thickness_mm,
-            scale,
-            stride=options.stride,
-            max_iterations=options.max_iterations,
-            with_reference=options.reference,
-            tolerance=options.form_tolerance,
-            progress=progress,
-        )
+        targets, shapes = simulate_reading(reading, options, progress)
         smoothing = _smoothing_mm(options, readbacks[0], thickness_mm)
         simulation = simulation_figures(smoothing, readbacks[0], thickness_mm, layers)
         notes.append(simulation_note(simulation))
