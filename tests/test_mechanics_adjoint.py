@@ -160,7 +160,7 @@ def test_refined_as_printed_the_sheet_forms_with_its_error_and_with_it_turned_ov
 
     made = [printed(layered_fig1, k) for k in (0, 1)]
     monkeypatch.setattr(refine, "ROUNDS", 2)  # 0.81 of the worst RMS, as 4 rounds give 0.82
-    refined = refine_layering(layered_fig1, UNBOUNDED, stride=1, fabricated=made)
+    refined = refine_layering(layered_fig1, UNBOUNDED, stride=1, fabricated=[(layered_fig1, made)])
     before, after = judged(layered_fig1), judged(refined.design)
     assert max(s.rms for s in after) < 0.9 * max(s.rms for s in before)
     # the figures are the dome start's (the worse is the error as printed, not turned over,

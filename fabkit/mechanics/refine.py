@@ -54,6 +54,7 @@ from fabkit.errors import FabkitError
 from fabkit.field.part import Part
 from fabkit.mechanics.adjoint import aligned_distance, energy_difference, metric_gradient
 from fabkit.mechanics.fabricated import (
+    PointFunction,
     SheetFields,
     design_fields,
     sheet_metrics,
@@ -158,23 +159,26 @@ def refine_layering(
     stride: int | None = None,
     evaluations: int = EVALUATIONS,
     degree: int = DEGREE,
-    fabricated: Sequence[SheetFields] | None = None,
+    fabricated: Sequence[tuple[Design, Sequence[SheetFields]]] = (),
 ) -> Refined:
     """``design`` (layered) with its turn and slopes corrected to bring every embedded
     target's simulated shape nearer (module docstring); ``bounds`` (N, 2) the features'
     ranges, the sheet simulated on ``part`` at grid ``stride`` (default: the verdict's).
-    ``fabricated``: the layers of a print of ``design`` as read back (bottom first): the
-    sheet is then refined as printed, its print's error added and turned over (both must
-    form every target, as the verdict on a printed sheet asks), that error taken to stay
-    what it was when the design changes a little."""
+    ``fabricated``: prints, each a design printed (``design`` or one before it) and its
+    layers as read back (bottom first): the sheet is then refined as printed, every
+    print's error (its layers less its design's) added and turned over (each must form
+    every target, as the verdict on a printed sheet asks), that error taken to stay what it
+    was when the design changes a little; several prints' errors ask the design to form
+    whichever of them the next print makes."""
     started = time.perf_counter()
     layering = design.layering
     if layering is None:
         raise ValueError("refine_layering: the design has no layers")
     stride = stride or grid_stride(design)
     fields = [design_fields(design.layer(k)) for k in range(layering.count)]
-    if fabricated is not None:  # meshed where the print made its first layer, as the verdict
-        fields = [replace(f, made=fabricated[0].made) for f in fields]
+    if fabricated:  # meshed where every print made its first layer, as the verdict meshes one
+        made = [layers[0].made for _, layers in fabricated]
+        fields = [replace(f, made=_everywhere(made)) for f in fields]
     surfaces = embedded_targets(design)
     problems = [
         sheet_problem(design, fields, s, layering.thickness, part=part, stride=stride)
@@ -276,7 +280,7 @@ class _Model:
     heights: np.ndarray
     bounds: np.ndarray
     spread: float
-    error: tuple | None = None
+    errors: tuple = ()
     cases: list = field(default_factory=list)
     sides: list = field(default_factory=list)
 
@@ -287,7 +291,7 @@ class _Model:
         problems: list,
         bounds: np.ndarray,
         degree: int,
-        fabricated: Sequence[SheetFields] | None = None,
+        fabricated: Sequence[tuple[Design, Sequence[SheetFields]]] = (),
     ) -> _Model:
         first = problems[0]
         mesh, coarse = first.mesh, first.coarse
@@ -320,9 +324,9 @@ class _Model:
             np.asarray(bounds, dtype=float),
             float(layering.heights[-1] - layering.heights[0]),
         )
-        if fabricated is not None:
-            model = replace(model, error=_error(design, mesh, fabricated))
-        modes = ("designed",) if model.error is None else ("printed", "turned")
+        model = replace(model, errors=tuple(_error(d, mesh, made) for d, made in fabricated))
+        modes = [(kind, k) for k in range(len(model.errors)) for kind in ("printed", "turned")]
+        modes = modes or [("designed", None)]
         model.cases.extend((p, mode) for mode in modes for p in range(len(problems)))
         for problem, target, mode in model._each():
             metrics = model._case_metrics(np.zeros(model.size), problem, mode)
@@ -332,21 +336,23 @@ class _Model:
         return model
 
     def _each(self) -> list[tuple]:
-        """Every case simulated: (problem, its target points, its mode: ``designed``, or
-        ``printed`` (the print's error added) and ``turned`` (that error turned over)."""
+        """Every case simulated: (problem, its target points, its mode: (``designed``,
+        None), or (``printed``, k) (print k's error added) and (``turned``, k) (that error
+        turned over))."""
         return [(self.problems[p], self.targets[p], mode) for p, mode in self.cases]
 
-    def _parts(self, c: np.ndarray, mode: str) -> list[tuple[float, list]]:
+    def _parts(self, c: np.ndarray, mode: tuple) -> list[tuple[float, list]]:
         """The layers whose metrics make a case's, with their weights: the designed
         layers; the printed ones (the error added); or, turned over as the verdict turns
         a print's error (:func:`~fabkit.mechanics.fabricated.turned_over`), twice the
         designed metrics less the printed ones."""
-        if mode == "designed":
+        kind, k = mode
+        if kind == "designed":
             return [(1.0, self._layers(c))]
-        printed = self._layers(c, self.error)
-        return [(1.0, printed)] if mode == "printed" else [(2.0, self._layers(c)), (-1.0, printed)]
+        printed = self._layers(c, self.errors[k])
+        return [(1.0, printed)] if kind == "printed" else [(2.0, self._layers(c)), (-1.0, printed)]
 
-    def _case_metrics(self, c: np.ndarray, problem, mode: str, surface: int | None = None):
+    def _case_metrics(self, c: np.ndarray, problem, mode: tuple, surface: int | None = None):
         """A case's per-layer metrics (L, F, 2, 2) under ``surface``'s stimulus (default:
         the problem's target's); a turned-over metric that is no metric is the designed
         one, as in the verdict."""
@@ -356,7 +362,7 @@ class _Model:
             for weight, layers in self._parts(c, mode)
         ]
         metrics = sum(weight * m for weight, m in parts)
-        if mode == "turned":
+        if mode[0] == "turned":
             ok = np.all(np.linalg.eigvalsh(metrics) > 0, axis=-1)
             metrics = np.where(ok[..., None, None], metrics, parts[0][1])
         return metrics
@@ -588,11 +594,17 @@ def _polynomials(points: np.ndarray, degree: int) -> np.ndarray:
     )
 
 
+def _everywhere(made: list) -> PointFunction:
+    """Where every one of the ``made`` functions (of (n, 2) points) says made."""
+    return lambda points: np.logical_and.reduce([m(points) for m in made])
+
+
 def _error(
     design: Design, mesh, fabricated: Sequence[SheetFields]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The print's error at the mesh's vertices: the read-back layers' director angles
-    (L, V) and features (L, N, V) less the designed layers'."""
+    """A print's error at the mesh's vertices: the read-back layers' director angles
+    (L, V) and features (L, N, V) less those of the layers of ``design``, the design
+    printed."""
     count = design.layering.count
     if len(fabricated) != count:
         raise FabkitError(f"refine: {len(fabricated)} layers read back for a sheet of {count}")

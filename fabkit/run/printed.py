@@ -10,15 +10,16 @@ bump 0.28 % as designed, 2.71-3.70 % as fabricated).
 :func:`refine_as_printed` prints the design in memory (the print lines planned and the
 G-code written into a temporary folder, as the run does) and judges it as ``fabkit verify``
 does: read back layer by layer and simulated from every start. While that print misses a
-target, the layers are refined again with its error added and turned over
-(:func:`fabkit.mechanics.refine.refine_layering` with ``fabricated``), the error taken to
-stay what it was when the design changes a little, and the refined design is printed and
-judged in turn, up to :data:`PRINTS` prints. It does not quite stay: a refined design
-prints with its own error, and a round's prediction missed the next print by up to 1.4 %
-RMS on Fig. 1's bump (stop 50), which one round alone left at 3.05-3.46 %, missed. The
-run keeps the design whose print formed the most targets (then the nearest), so the run's
-own print, the same design through the same planner and writer, is the one judged best.
-A refinement is not printed when its sheet as designed forms fewer targets than the one
+target, the layers are refined again with the error of every print so far added and
+turned over (:func:`fabkit.mechanics.refine.refine_layering` with ``fabricated``), and the
+refined design is printed and judged in turn, up to :data:`PRINTS` prints. One print's
+error alone is not enough: a refined design prints with an error of its own, and on
+Fig. 1 at 60 mm each round refined against the last print alone predicted the bump at
+0.90 % and the next print made it 3.79 % and 3.74 % (stop 50); refined against both
+prints' errors it predicted 1.01 % and the print made 1.36 %, formed. The run keeps the
+design whose print formed the most targets (then the nearest), so the run's own print,
+the same design through the same planner and writer, is judged as that print was. A
+refinement is not printed when its sheet as designed forms fewer targets than the one
 it refines.
 """
 
@@ -82,9 +83,9 @@ def refine_as_printed(run: Run) -> Solved:
     prints = [_printed(run, solved.design, None)]
     while len(prints) < PRINTS and not prints[-1].verdict.formed:
         say(f"        print {len(prints)}: {prints[-1].verdict.headline()}")
-        last = prints[-1]
-        refined = refine_layering(last.design, bounds, solved.part, fabricated=last.fields)
-        say(f"        {refined.summary()}, the worse of the error and the error turned over")
+        made = [(p.design, p.fields) for p in prints]
+        refined = refine_layering(prints[-1].design, bounds, solved.part, fabricated=made)
+        say(f"        {refined.summary()}, the worst of {_errors(len(made))}")
         designed = design_verdict(
             refined.design,
             tolerance=options.form_tolerance,
@@ -113,6 +114,14 @@ def refine_as_printed(run: Run) -> Solved:
         mm_per_unit=solved.part.mm_per_unit,
     )
     return replace(solved, design=best.design, layering=layering, verdict=verdict)
+
+
+def _errors(count: int) -> str:
+    """``the error and the error turned over`` (one print), ``2 prints' errors, each as
+    printed and turned over``."""
+    if count == 1:
+        return "the error and the error turned over"
+    return f"{count} prints' errors, each as printed and turned over"
 
 
 def _printed(run: Run, design: Design, refinement: Refined | None) -> _Print:
