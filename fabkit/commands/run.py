@@ -109,8 +109,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--refine",
         action="store_true",
         help="refine the layers against the simulation (adjoint gradients, every target), "
-        "as designed, then as printed (the sheet printed and read back in memory, the print's "
-        "error in the loop); minutes more (docs/layers.md)",
+        "as designed, then as printed: printed in memory, read back and judged from every "
+        "start, refined again with every print's error while a print misses a target (up "
+        "to 3 prints), the best print's design kept; minutes more (docs/layers.md)",
     )
     verdict_arguments(
         parser, "exit 1 when the sheet (as designed or as fabricated) does not form every target"
