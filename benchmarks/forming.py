@@ -9,7 +9,8 @@ README's route (marlin_diw_pneumatic, verified from the G-code),
 and prints, per target, how many
 of the six starts (``fabkit.mechanics.simulate.STARTS``) form it as fabricated, the
 worst RMS (% of the patch diameter) and why the others miss it (M: the mirror image, N:
-not converged, F: farther than the limit); then the run's wall time. The table is the
+not converged, F: farther than the limit); then the run's wall time, and with ``--refine``
+the verdict on every print it judged in memory. The table is the
 one in docs/layers.md. Exit code 1 if a run fails (a target not formed is a figure, not
 a failure: issue 35 is open).
 """
@@ -84,6 +85,8 @@ def main() -> int:
                 cells = "; ".join(f"{t['target']} {cell(t)}" for t in verdict["targets"])
                 layers = figures["verify"]["verdict"].get("layers", 1)
                 print(f"{spec} {size:g} mm, {layers} layers: {cells} ({seconds:.0f} s)", flush=True)
+                for k, judged in enumerate(figures.get("layers", {}).get("prints", []), 1):
+                    print(f"    print {k} (in memory): {judged['headline']}", flush=True)
     return 0
 
 

@@ -133,6 +133,7 @@ LONGEST_FIRST = (
     "test_packaging.py",
     "test_link_marlin.py",
     "test_gcode_columns.py",
+    "test_run_refine.py",
     "test_report_browser.py",
     "test_pictures_read.py",
     "test_link_resend_property.py",
