@@ -43,15 +43,18 @@ def layered_run(folder, request):
 
 @pytest.mark.slow
 def test_a_target_missed_unrefined_names_refine_before_the_verdict(layered_run):
-    """The face is missed as fabricated without --refine: the line before the verdict says
-    what would change it."""
+    """The face is missed as fabricated without --refine: the line before the verdict's
+    lines says what would change it."""
     from fabkit.commands.run import NOT_REFINED
 
     figures = json.loads((layered_run / "report.json").read_text())
     assert not figures["verdict"]["formed"] and not figures["layers"]["refined"]
     lines = (layered_run.parent / "three_layered.said.txt").read_text().splitlines()
     assert lines[-1].startswith("done: the sheet as fabricated does NOT form face")
-    assert lines[-2].strip() == NOT_REFINED
+    count = len(figures["verdict"]["lines"])  # the verdict's lines end the run, as ever
+    assert [line.strip() for line in lines[-count - 1 : -1]] == figures["verdict"]["lines"]
+    assert lines[-count - 2].strip() == "the sheet as fabricated:"
+    assert lines[-count - 3].strip() == NOT_REFINED
 
 
 @pytest.mark.slow

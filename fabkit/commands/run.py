@@ -17,7 +17,8 @@ NOT_REFINED = (
     "what would change it: --refine refines the layers against the simulation, as designed "
     "and as printed, the print's error in the loop (minutes; docs/layers.md)"
 )
-"""What a layered run whose sheet misses a target says before its verdict, unrefined."""
+"""What a layered run whose sheet misses a target says before its verdict's lines,
+unrefined (the last lines are the verdict's)."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -134,14 +135,14 @@ def run(args: argparse.Namespace) -> int:
         "the design's check passed" if figures["check"]["passed"] else "the design's check FAILED"
     )
     verdict = figures["verdict"]
-    if verdict["lines"]:
-        print(f"      the sheet {verdict['what']}:")
-    for line in verdict["lines"]:
-        print(f"        {line}")
     missed = not all(v["formed"] for v in figures["verdicts"])
     layers = figures.get("layers")
     if missed and layers and not layers["refined"] and figures["verdicts"]:
         print(f"      {NOT_REFINED}")
+    if verdict["lines"]:
+        print(f"      the sheet {verdict['what']}:")
+    for line in verdict["lines"]:
+        print(f"        {line}")
     left_out = ""
     if args.ignore_features:  # the machine file cannot make the designed sheet: say so first
         names = ", ".join(args.ignore_features)
