@@ -46,7 +46,8 @@ def test_the_design_kept_is_the_best_print_and_the_run_judges_its_own_print_alik
     rms = [t["rms_pct"] for t in verify["targets"]]
     assert rms == pytest.approx(prints[kept]["rms_pct"], abs=1e-9)
     # the refinement kept started from the print before it: its figures before refining
-    # (from the dome start) are at most that print's worst over six starts
+    # (from the dome start) are at most that print's worst over six starts (to a few parts
+    # in 1e8: it meshes where every print so far made the sheet, the verdict where one did)
     if kept > 0:
         before = layers["printed_refinement"]["rms_pct_before"]
-        assert max(before) <= max(prints[kept - 1]["rms_pct"]) + 1e-9
+        assert max(before) <= max(prints[kept - 1]["rms_pct"]) * (1 + 1e-6)
