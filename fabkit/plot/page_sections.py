@@ -261,8 +261,8 @@ def _layers_words(layers: Mapping[str, Any]) -> str:
         printed = layers.get("printed_refinement")
         then = (
             f" Then refined as printed, the print's error read back and in the loop "
-            f"({printed['simulations']} simulations; the worse of the error and the error "
-            f"turned over: {_changes(printed)})."
+            f"({printed['simulations']} simulations; the worst of every print's error so "
+            f"far, as printed and turned over: {_changes(printed)})."
             if printed
             else ""
         )
