@@ -47,12 +47,14 @@ the last print's error."""
 @dataclass(frozen=True, eq=False)
 class _Print:
     """A design printed in memory: its ``verdict`` as fabricated, the layers it read back
-    (``fields``) and the ``refinement`` that made the design (None: the first)."""
+    (``fields``), the ``refinement`` that made the design and the verdict on its sheet as
+    ``designed`` (both None: the first, the run's own)."""
 
     design: Design
     verdict: Verdict
     fields: list
-    refinement: Refined | None
+    refinement: Refined | None = None
+    designed: Verdict | None = None
 
     def rank(self) -> tuple[int, float]:
         """Targets formed, then the worst RMS, negated: larger is better."""
@@ -80,7 +82,7 @@ def refine_as_printed(run: Run) -> Solved:
     names = feature_names(solved.design)
     bounds = run.inputs.process.resolve(names, ()).bounds(names)
     least = sum(s.formed for s in solved.verdict.shapes) if solved.verdict else 0
-    prints = [_printed(run, solved.design, None)]
+    prints = [_printed(run, solved.design)]
     while len(prints) < PRINTS and not prints[-1].verdict.formed:
         say(f"        print {len(prints)}: {prints[-1].verdict.headline()}")
         made = [(p.design, p.fields) for p in prints]
@@ -95,7 +97,7 @@ def refine_as_printed(run: Run) -> Solved:
         if sum(s.formed for s in designed.shapes) < least:
             say(f"        not printed: as designed it forms fewer targets ({designed.headline()})")
             break
-        prints.append(_printed(run, refined.design, refined))
+        prints.append(replace(_printed(run, refined.design), refinement=refined, designed=designed))
     say(f"        print {len(prints)}: {prints[-1].verdict.headline()}")
     number, best = max(enumerate(prints, 1), key=lambda item: item[1].rank())
     say(f"      kept print {number}'s design: its print forms the most targets, the nearest")
@@ -107,13 +109,7 @@ def refine_as_printed(run: Run) -> Solved:
     if best.refinement is None:
         return replace(solved, layering=layering)
     best.design.save(run.out / "design.npz")
-    verdict = design_verdict(
-        best.design,
-        tolerance=options.form_tolerance,
-        part=solved.part,
-        mm_per_unit=solved.part.mm_per_unit,
-    )
-    return replace(solved, design=best.design, layering=layering, verdict=verdict)
+    return replace(solved, design=best.design, layering=layering, verdict=best.designed)
 
 
 def _errors(count: int) -> str:
@@ -124,7 +120,7 @@ def _errors(count: int) -> str:
     return f"{count} prints' errors, each as printed and turned over"
 
 
-def _printed(run: Run, design: Design, refinement: Refined | None) -> _Print:
+def _printed(run: Run, design: Design) -> _Print:
     """``design`` printed into a temporary folder by the run's planner and writer, read
     back and judged as ``fabkit verify`` judges it."""
     options, inputs, solved = run.options, run.inputs, run.solved
@@ -147,4 +143,4 @@ def _printed(run: Run, design: Design, refinement: Refined | None) -> _Print:
         reading = read_back(out / "design.npz", out / "sheet.gcode", check, design)
     _, shapes = simulate_reading(reading, check)
     verdict = fabricated_verdict(shapes, len(reading.readbacks), reading.thickness_mm)
-    return _Print(design, verdict, reading.fields(check), refinement)
+    return _Print(design, verdict, reading.fields(check))
