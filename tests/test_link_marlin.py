@@ -213,10 +213,13 @@ def test_a_reset_during_the_job_stops_it():
 def test_a_reset_while_moves_are_planned_resumes_from_the_first_that_may_not_have_run(dialect):
     # at a real pace the machine holds acknowledged lines when it resets (its planner, and
     # Repetier acknowledges a line as it queues it): resuming after the last acknowledged
-    # one skipped them (found by a helper session on reset-repetier at time_scale=0.01)
-    url = f"sim://marlin?time_scale=0.01&baud=0&reset_after=600&dialect={dialect}"
+    # one skipped them (found by a helper session on reset-repetier at time_scale=0.01;
+    # 0.002 still holds about 20 lines when it resets, and sleeps 3 s where 0.01 slept 14)
+    url = f"sim://marlin?time_scale=0.002&baud=0&reset_after=600&dialect={dialect}"
     resumed, message = lost_and_resumed(url, f"{FAST}&dialect={dialect}", marlin_job(1200))
     assert "a reset drops the firmware's planned moves and queued commands" in message
+    first, last = map(int, re.search(r"file lines (\d+)-(\d+)", message).groups())
+    assert last - first >= 10, message  # moves were planned when it reset
     assert resumed, message
 
 
