@@ -6,11 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fabkit.field.flat import field_from_expression
 from fabkit.field.outlines import parse_shape
 from fabkit.toolpath.lines import print_lines, trim_lines
 from fabkit.toolpath.quality import measure_quality
+from fabkit.toolpath.stripes import _near_boundary
 
 W = 0.2
 BOUND = 0.03  # empty <= 3 %, overlap <= 3 %, angle <= 3 degrees
@@ -65,3 +68,23 @@ def test_lines_too_close_stop_and_the_shorter_one_yields():
     assert len(kept) == 2
     assert any(np.array_equal(k, long) for k in kept)
     assert any(np.array_equal(k, apart) for k in kept)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    corners=st.integers(3, 12),
+    seed=st.integers(0, 2**16),
+    reach=st.floats(0.05, 3.0),
+)
+def test_the_nodes_near_the_outline_are_those_a_distance_to_every_node_finds(corners, seed, reach):
+    # the stripes' boundary pins measure the distance only in a band around the outline
+    rng = np.random.default_rng(seed)
+    angles = (np.arange(corners) + rng.uniform(0.1, 0.9, corners)) * 2 * np.pi / corners
+    radii = rng.uniform(2.0, 10.0, corners)  # star-shaped, with concave corners
+    outline = shapely.Polygon(np.column_stack([radii * np.cos(angles), radii * np.sin(angles)]))
+    assert outline.is_valid
+    nodes = rng.uniform(-12, 12, (2000, 2))
+    reaches = rng.uniform(0.2, 1.0, len(nodes)) * reach
+    exact = shapely.distance(outline.boundary, shapely.points(nodes))
+    found = _near_boundary(outline, nodes, reaches)
+    assert found.tolist() == np.flatnonzero(exact <= reaches).tolist()

@@ -255,8 +255,7 @@ def _boundary_pins(
     """Targets that put a line ``pin_offset`` (mm) inside the outline where it runs along n."""
     boundary = field.outline.boundary
     spacing = 2 * np.pi / wavenumber
-    distance = shapely.distance(boundary, shapely.points(nodes))
-    near = np.flatnonzero(distance <= spacing)
+    near = _near_boundary(field.outline, nodes, spacing)
     if len(near) == 0:
         return _Pins(near, np.zeros(0), np.zeros(0, complex))
     points = nodes[near]
@@ -274,6 +273,25 @@ def _boundary_pins(
     phase = wavenumber[near] * ((points - line_point) * normal[near]).sum(axis=1)
     chosen = weight > 0
     return _Pins(near[chosen], weight[chosen], np.exp(1j * phase[chosen]))
+
+
+BAND_MARGIN = 1.05
+"""How much wider than the farthest pin distance the band of nodes whose exact distance to
+the outline is measured is drawn: a buffer's round joins are chords of their arcs, inside
+by 0.5 % of the radius at shapely's 8 segments a quarter circle."""
+
+
+def _near_boundary(outline: shapely.Geometry, nodes: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """The indices of ``nodes`` (n, 2) within ``reach`` (n,) mm of ``outline``'s boundary,
+    the exact distance measured only in a band around it (a node deep inside or far
+    outside is farther than every reach: on Fig. 1 the distance of every node took 0.27 s
+    a layer)."""
+    band = BAND_MARGIN * float(reach.max())
+    inner, outer = outline.buffer(-band), outline.buffer(band)
+    x, y = nodes[:, 0], nodes[:, 1]
+    candidate = np.flatnonzero(shapely.contains_xy(outer, x, y) & ~shapely.contains_xy(inner, x, y))
+    distance = shapely.distance(outline.boundary, shapely.points(nodes[candidate]))
+    return candidate[distance <= reach[candidate]]
 
 
 def _minimise(
