@@ -9,6 +9,7 @@ imported.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 
@@ -75,3 +76,37 @@ def test_every_command_is_listed_and_registered_by_its_module():
     for parser in (build_parser(), build_parser([])):
         action = parser._subparsers._group_actions[0]  # argparse keeps the sub-commands here
         assert {a.dest: a.help for a in action._choices_actions} == helps
+
+
+_BLAS = """
+import atexit, json, sys
+
+
+def threads():  # numpy's and scipy's OpenBLAS load here, after the command's first lines
+    import scipy.linalg
+    from threadpoolctl import threadpool_info
+
+    info = threadpool_info()
+    print(json.dumps([i["num_threads"] for i in info if i["internal_api"] == "openblas"]))
+
+
+atexit.register(threads)
+sys.argv = ["fabkit", "machines"]
+from fabkit.entry import run
+
+run()
+"""
+
+
+@pytest.mark.parametrize("given", [None, "2"])
+def test_a_command_runs_openblas_on_one_thread_unless_told_otherwise(given):
+    # fabkit/entry.py: idle OpenBLAS threads spun beside the simulations' and pictures'
+    # processes (the README's main command: 35-48 s with them, 26-27 s without, loaded)
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given:
+        env["OPENBLAS_NUM_THREADS"] = given
+    process = subprocess.run(
+        [sys.executable, "-c", _BLAS], capture_output=True, text=True, timeout=120, env=env
+    )
+    threads = json.loads(process.stdout.strip().splitlines()[-1])
+    assert len(threads) == 2 and set(threads) == {int(given or 1)}, process.stdout
