@@ -45,12 +45,17 @@ def _here(warm=()):
     yield _HereWorker()
 
 
-def _looked_at(figure: Figure, dpi: float, tight: bool) -> dict:
+def _looked_at(figure: Figure, dpi: float, bbox_inches) -> dict:
     """The smallest text as the report shows it (px), and whether anything drawn runs past
-    the edge of the saved picture."""
+    the edge of the saved picture (``bbox_inches`` as savefig had it: "tight", a box
+    worked out before, e.g. the preview's for all its formats, or None)."""
     renderer = FigureCanvasAgg(figure).get_renderer()
     figure.draw(renderer)  # lays the labels out where the saved picture has them
-    saved = figure.get_tightbbox(renderer) if tight else figure.bbox_inches
+    tight = bbox_inches is not None
+    if bbox_inches == "tight":
+        saved = figure.get_tightbbox(renderer)
+    else:
+        saved = bbox_inches or figure.bbox_inches
     shown = min(1.0, SHOWN_PX / (saved.width * dpi))
     texts = [t for t in figure.findobj(Text) if t.get_visible() and t.get_text().strip()]
     heights = [(t.get_fontsize() * dpi / 72 * shown, t.get_text()) for t in texts]
@@ -74,7 +79,7 @@ def test_every_picture_reads_at_the_size_the_report_shows_it(spec, tmp_path, mon
 
     def watched(figure, fname, *args, **kwargs):
         dpi = kwargs.get("dpi") or figure.dpi
-        seen.append(_looked_at(figure, dpi, kwargs.get("bbox_inches") == "tight"))
+        seen.append(_looked_at(figure, dpi, kwargs.get("bbox_inches")))
         return save(figure, fname, *args, **kwargs)
 
     monkeypatch.setattr("fabkit.run.pipeline.worker", _here)
