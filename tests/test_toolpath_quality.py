@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 import shapely
 import shapely.affinity
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fabkit.field.flat import field_from_expression
-from fabkit.toolpath.quality import measure_quality
+from fabkit.toolpath.quality import _Raster, _samples, measure_quality
 
 W = 0.4
 LENGTH = 20.0
@@ -59,3 +61,42 @@ def test_angle_error_is_length_weighted_and_head_tail_symmetric():
 def test_empty_domain_is_all_empty():
     quality = measure_quality([np.array([[100.0, 100.0], [101.0, 100.0]])], W, _strip(), W)
     assert quality.empty_fraction == 1.0 and quality.mean_overlap == 0.0
+
+
+def numpy_hits(grid: _Raster, paths: list[np.ndarray], width: float) -> np.ndarray:
+    """Distinct paths a pixel: the numpy formulation the compiled paint replaced, every
+    (sample, pixel) pair of a window around each sample gathered, then deduplicated."""
+    hits = np.zeros(grid.size, np.int32)
+    for path in paths:
+        points, radius, _ = _samples(path, np.full(len(path), width), grid.pixel)
+        reach = int(np.ceil(radius.max() / grid.pixel)) + 1
+        offsets = np.arange(-reach, reach + 1)
+        di, dj = (a.ravel() for a in np.meshgrid(offsets, offsets, indexing="ij"))
+        ci = np.floor((points[:, 0] - grid.x0) / grid.pixel).astype(int)
+        cj = np.floor((points[:, 1] - grid.y0) / grid.pixel).astype(int)
+        i, j = ci[:, None] + di, cj[:, None] + dj
+        dx = grid.x0 + (i + 0.5) * grid.pixel - points[:, :1]
+        dy = grid.y0 + (j + 0.5) * grid.pixel - points[:, 1:]
+        keep = (dx * dx + dy * dy <= (radius * radius)[:, None]) & (i >= 0) & (i < grid.nx)
+        keep &= (j >= 0) & (j < grid.ny)
+        hits[np.unique((i * grid.ny + j)[keep])] += 1
+    return hits
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**16), count=st.integers(1, 12), width=st.floats(0.1, 1.0))
+def test_the_compiled_paint_counts_what_the_numpy_formulation_counted(seed, count, width):
+    rng = np.random.default_rng(seed)
+    outline = shapely.box(0, 0, 6, 4)
+    grid = _Raster.covering(outline, width / 10)
+    paths = [
+        np.cumsum(rng.normal(0, 0.7, (int(rng.integers(2, 30)), 2)), axis=0) + (3, 2)
+        for _ in range(count)
+    ]  # some run past the raster's edges
+    hits = np.zeros(grid.size, np.int32)
+    owner = np.full(grid.size, -1, np.int64)
+    for index, path in enumerate(paths):
+        points, radius, _ = _samples(path, np.full(len(path), width), grid.pixel)
+        grid.paint(points, radius, index, hits, owner)
+    assert np.array_equal(hits, numpy_hits(grid, paths, width))
+    assert hits.max() >= 1

@@ -16,9 +16,11 @@ and joins). ``hits`` of a pixel counts the *distinct* paths covering it. Then:
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 
+import numba
 import numpy as np
 import shapely
 
@@ -75,10 +77,7 @@ def measure_quality(
     for index, path in enumerate(paths):
         width = widths if np.isscalar(widths) else widths[index]
         samples, radius, segment = _samples(path, np.broadcast_to(width, (len(path),)), pixel)
-        covered = grid.covered(samples, radius)
-        first = np.arange(len(covered))
-        owner[covered] = first
-        hits[covered[owner[covered] == first]] += 1
+        grid.paint(samples, radius, index, hits, owner)
         if len(segment):
             middle = 0.5 * (samples[:-1] + samples[1:])
             tangent = np.arctan2(segment[:, 1], segment[:, 0])
@@ -151,20 +150,31 @@ class _Raster:
     def size(self) -> int:
         return self.nx * self.ny
 
-    def covered(self, points: np.ndarray, radius: np.ndarray) -> np.ndarray:
-        """Flat indices of pixels within ``radius`` of any point (repeats possible)."""
-        reach = int(np.ceil(radius.max() / self.pixel)) + 1
-        offsets = np.arange(-reach, reach + 1)
-        di, dj = (a.ravel() for a in np.meshgrid(offsets, offsets, indexing="ij"))
-        result = []
-        for start in range(0, len(points), 4096):  # bounded memory
-            chunk, r = points[start : start + 4096], radius[start : start + 4096]
-            ci = np.floor((chunk[:, 0] - self.x0) / self.pixel).astype(int)
-            cj = np.floor((chunk[:, 1] - self.y0) / self.pixel).astype(int)
-            i, j = ci[:, None] + di, cj[:, None] + dj
-            dx = self.x0 + (i + 0.5) * self.pixel - chunk[:, :1]
-            dy = self.y0 + (j + 0.5) * self.pixel - chunk[:, 1:]
-            keep = (dx * dx + dy * dy <= (r * r)[:, None]) & (i >= 0) & (i < self.nx)
-            keep &= (j >= 0) & (j < self.ny)
-            result.append((i * self.ny + j)[keep])
-        return np.concatenate(result) if result else np.zeros(0, np.int64)
+    def paint(
+        self, points: np.ndarray, radius: np.ndarray, path: int, hits: np.ndarray, owner: np.ndarray
+    ) -> None:
+        """Count ``path`` once in ``hits`` (size,) at every pixel whose centre lies within
+        ``radius`` (m,) of one of its ``points`` (m, 2); ``owner`` (size,) holds the last
+        path counted at each pixel."""
+        _paint(points, radius, path, self.x0, self.y0, self.pixel, self.nx, self.ny, hits, owner)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _paint(points, radius, path, x0, y0, pixel, nx, ny, hits, owner):  # pragma: no cover
+    """:meth:`_Raster.paint`, compiled: the numpy formulation it replaced gathered every
+    (sample, pixel) pair of a window around each sample and took the distinct pixels, 0.6
+    s of the two layers' quality on Fig. 1 at 60 mm; the same pixels, the same condition
+    (tests/test_toolpath_quality.py)."""
+    reach = int(math.ceil(radius.max() / pixel)) + 1 if len(radius) else 0
+    for s in range(len(points)):
+        x, y, r2 = points[s, 0], points[s, 1], radius[s] * radius[s]
+        ci, cj = math.floor((x - x0) / pixel), math.floor((y - y0) / pixel)
+        for i in range(max(ci - reach, 0), min(ci + reach + 1, nx)):
+            dx = x0 + (i + 0.5) * pixel - x
+            for j in range(max(cj - reach, 0), min(cj + reach + 1, ny)):
+                dy = y0 + (j + 0.5) * pixel - y
+                if dx * dx + dy * dy <= r2:
+                    k = i * ny + j
+                    if owner[k] != path:
+                        owner[k] = path
+                        hits[k] += 1
