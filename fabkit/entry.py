@@ -19,6 +19,13 @@ without (user CPU 33-46 s -> 26 s), and the first barycentric transform of a Del
 triangulation (scipy's own OpenBLAS) took 0.5 s to start its threads, 3 ms without."""
 
 
+def one_blas_thread() -> None:
+    """:data:`BLAS_THREADS` for OpenBLAS, unless the environment says otherwise: read when
+    a BLAS library loads, so called before numpy and scipy load (spawned workers inherit
+    the environment)."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", BLAS_THREADS)
+
+
 def run() -> None:
     """Import and run :func:`fabkit.cli.main`; exit with its code."""
     # At exit the interpreter collects garbage several times while it takes the modules
@@ -29,8 +36,7 @@ def run() -> None:
     # at the next 8 kB: the progress is what a reader of the log waits for.
     if hasattr(sys.stdout, "reconfigure"):
         sys.stdout.reconfigure(line_buffering=True)
-    # Read when a BLAS library loads: before numpy and scipy do (spawned workers inherit it)
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", BLAS_THREADS)
+    one_blas_thread()
     try:
         from fabkit.cli import main
 

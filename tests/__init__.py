@@ -1,7 +1,8 @@
 """fabkit's tests. The commands they run in-process get the BLAS threads ``fabkit``'s
-entry gives a command (fabkit/entry.py, ``BLAS_THREADS``): set here, before numpy and
-scipy load their OpenBLAS, whose idle threads would spin beside the other test worker."""
+entry gives a command (:func:`fabkit.entry.one_blas_thread`; that module imports nothing
+but built-in ones): set here, before numpy and scipy load their OpenBLAS, whose idle
+threads would spin beside the other test worker."""
 
-import os
+from fabkit.entry import one_blas_thread
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+one_blas_thread()

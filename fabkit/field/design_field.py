@@ -207,17 +207,19 @@ class TriangleLocator:
     """Find the first triangle (lowest index) of a planar mesh containing each query point.
 
     Triangles are binned into a uniform grid of buckets :data:`BUCKET` times the median
-    triangle size; a query tests only the triangles of its bucket, vectorised over all
-    points.
+    triangle size; a query tests only the triangles of its bucket (compiled:
+    :func:`_locate`, which takes the arrays as they are kept here).
     """
 
     def __init__(self, points: np.ndarray, triangles: np.ndarray):
+        points = np.ascontiguousarray(points, dtype=float)
+        triangles = np.ascontiguousarray(triangles, dtype=np.int64)
         self.points, self.triangles = points, triangles
         corners = points[triangles]  # (T, 3, 2)
         low, high = corners.min(axis=1), corners.max(axis=1)
         size = BUCKET * float(np.median(np.max(high - low, axis=1))) or 1.0
         self.origin, self.size = low.min(axis=0), size
-        self.shape = np.floor((high.max(axis=0) - self.origin) / size).astype(int) + 1
+        self.shape = np.floor((high.max(axis=0) - self.origin) / size).astype(np.int64) + 1
         i0, j0 = self._bucket(low).T
         i1, j1 = self._bucket(high).T
         counts = (i1 - i0 + 1) * (j1 - j0 + 1)
@@ -238,13 +240,13 @@ class TriangleLocator:
         points = np.ascontiguousarray(points, dtype=float).reshape(-1, 2)
         return _locate(
             points,
-            self.origin.astype(float),
-            float(self.size),
-            self.shape.astype(np.int64),
-            self.starts.astype(np.int64),
-            self.members.astype(np.int64),
-            np.ascontiguousarray(self.points, dtype=float),
-            np.ascontiguousarray(self.triangles, dtype=np.int64),
+            self.origin,
+            self.size,
+            self.shape,
+            self.starts,
+            self.members,
+            self.points,
+            self.triangles,
         )
 
 
