@@ -418,11 +418,12 @@ class MarlinProtocol(Session):
     # -- sending ---------------------------------------------------------------------------
 
     def _fill(self) -> None:
-        """Send from ``cursor`` while the window has room, one write per line; a line gets
-        its number when it is first sent."""
+        """Send from ``cursor`` while the window has room, the lines in one write; a line
+        gets its number when it is first sent."""
         if self.control.paused and not self.aborting:
             return
         texts, inflight, takers, sums = self.texts, self.inflight, self.takers, self.job_sums
+        frames = []
         while True:
             n = self.cursor
             if n < len(texts):
@@ -454,7 +455,9 @@ class MarlinProtocol(Session):
             self.cursor = n + 1
             if n in takers:
                 takers[n] += 1
-            self.write(frame)
+            frames.append(frame)
+        if frames:
+            self.write(b"".join(frames))
 
     def _following(self) -> tuple[str, int] | None:
         """The line that comes after every numbered one (text, origin): a wanted or
