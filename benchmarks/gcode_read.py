@@ -14,7 +14,9 @@ examples/two_shapes.toml --layers 2``, its G-code only: ``--no-verify``) and a r
    and peak memory (targets <= 5 s, <= 1 GB);
 3. the emulator at ``time_scale=0`` (``sim://marlin?baud=0&time_scale=0``) on Fig. 1's
    file, through the whole protocol: lines/s, the best of ``--repeat`` sends (target
-   >= 50,000).
+   >= 50,000); and, for scale, the same sends against a firmware that answers each
+   move line ``ok`` without checking, parsing, moving or tracing it: the host and the
+   port alone.
 
     python benchmarks/gcode_read.py [--repeat 3] [--lines 1000000]
 """
@@ -25,6 +27,8 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from common import repeat_runs, timing_arguments
@@ -32,6 +36,7 @@ from gcode_write import raster
 
 from fabkit.cli import main as fabkit
 from fabkit.gcode.read import read_job_bytes
+from fabkit.link.emulator.marlin import MarlinFirmware
 from fabkit.link.host.job import job_machine, prepare_job
 from fabkit.link.host.send import send_file
 from fabkit.machines import load_machine
@@ -123,18 +128,52 @@ def dry_run(path: Path) -> None:
 
 def emulator(path: Path, repeat: int) -> None:
     """Section 3: the whole file through the emulator's protocol at time_scale=0, the best
-    of ``repeat`` sends (the send's own figure, from its handshake to the last ``ok``)."""
-    reports = [
-        send_file(path, "sim://marlin?baud=0&time_scale=0", show_progress=False)
-        for _ in range(repeat)
-    ]
-    report = min(reports, key=lambda r: r.elapsed_s)
+    of ``repeat`` sends (the send's own figure, from its handshake to the last ``ok``);
+    then the same against a firmware that only answers (:func:`_answering_only`)."""
+    report = _best_send(path, repeat)
     rate = report.lines_per_s
     print(
         f"3. emulator, sim://marlin?baud=0&time_scale=0: {report.job_lines:,} lines in "
         f"{report.elapsed_s:.2f} s (best of {repeat}), {rate:,.0f} lines/s "
         f"(target >= {EMULATOR_LINES_S:,.0f}: {verdict(rate >= EMULATOR_LINES_S)})"
     )
+    with _answering_only():
+        bound = _best_send(path, repeat)
+    print(
+        f"   the host and the port alone (a firmware that answers each move line ok, "
+        f"unchecked, unparsed, unmoved, untraced): {bound.elapsed_s:.2f} s, "
+        f"{bound.lines_per_s:,.0f} lines/s"
+    )
+
+
+def _best_send(path: Path, repeat: int):
+    reports = [
+        send_file(path, "sim://marlin?baud=0&time_scale=0", show_progress=False)
+        for _ in range(repeat)
+    ]
+    return min(reports, key=lambda r: r.elapsed_s)
+
+
+@contextmanager
+def _answering_only() -> Iterator[None]:
+    """The emulated Marlin's quick path for move lines replaced, for the ``with`` block, by
+    one that takes whatever arrives without a command word (the job's G0/G1 lines; the
+    handshake's M110, M115 and M105 take the general path) and answers each line ``ok``."""
+    real = MarlinFirmware.take_moves
+
+    def answer(firmware: MarlinFirmware, data: bytes, t: float) -> bool:
+        if firmware.queue or b"M" in data:
+            return False
+        lines = data.count(b"\n")
+        firmware.last_n += lines
+        firmware.out.raw(firmware.ok_bytes * lines, t)
+        return True
+
+    MarlinFirmware.take_moves = answer
+    try:
+        yield
+    finally:
+        MarlinFirmware.take_moves = real
 
 
 def main() -> None:
