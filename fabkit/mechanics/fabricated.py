@@ -148,9 +148,15 @@ def sheet_metrics(
 
 
 def _edge_lengths(
-    design: Design, mesh: DesignMesh, surface: int, theta: np.ndarray, eps: np.ndarray
+    design: Design,
+    mesh: DesignMesh,
+    surface: int,
+    theta: np.ndarray,
+    eps: np.ndarray,
+    jacobian: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Reference lengths (F, 3) of every face's edges, design units (module docstring).
+    """Reference lengths (F, 3) of every face's edges, design units (module docstring);
+    ``jacobian``: :func:`_flat_jacobian` of the design and mesh, if known.
 
     An edge step s in (u, v) has the length |diag(lambda1, lambda2) R(theta)^T J s| at a
     vertex, the square root of s^T A s taken as the norm of a vector: summing the two
@@ -160,7 +166,9 @@ def _edge_lengths(
     along = np.column_stack([np.cos(theta), np.sin(theta)])
     across = np.column_stack([-along[:, 1], along[:, 0]])
     scaled = np.stack([lambda1[:, None] * along, lambda2[:, None] * across], axis=1)
-    to_flat = scaled @ _flat_jacobian(design, mesh)  # (V, 2, 2): (u, v) step -> stretched
+    if jacobian is None:
+        jacobian = _flat_jacobian(design, mesh)
+    to_flat = scaled @ jacobian  # (V, 2, 2): (u, v) step -> stretched
     start, end = mesh.triangles[:, [1, 2, 0]], mesh.triangles[:, [2, 0, 1]]
     steps = design.step / mesh.refine * (mesh.grid[end] - mesh.grid[start])  # (F, 3, 2)
     speed = [
@@ -256,19 +264,6 @@ def _stretches(design: Design, surface: int, eps: np.ndarray) -> tuple[np.ndarra
     )
 
 
-def _metric_faces(
-    design: Design, mesh: DesignMesh, theta: np.ndarray, eps: np.ndarray
-) -> np.ndarray:
-    """Faces (F,) bool whose edge lengths make a metric at every stimulus (a sheet whose
-    director turns fast across a coarse face may break the triangle inequality there)."""
-    ok = np.ones(len(mesh.triangles), dtype=bool)
-    for surface in range(len(design.stimuli)):
-        lengths = _edge_lengths(design, mesh, surface, theta, eps)
-        a, b, c = lengths.T
-        ok &= (a < b + c) & (b < c + a) & (c < a + b)
-    return ok
-
-
 def _flat_jacobian(design: Design, mesh: DesignMesh) -> np.ndarray:
     """(V, 2, 2) Jacobian of the flat map r0(u, v) at the vertices: columns alpha n0 and
     beta t0, t0 perpendicular to n0 on the side of the v-curves."""
@@ -346,12 +341,28 @@ def sheet_problem(
     stride: int = 1,
 ) -> SheetProblem:
     """The sheet of ``fields`` (one, or one per equal layer, bottom first) under surface
-    ``surface``'s stimulus, ready to simulate.
+    ``surface``'s stimulus, ready to simulate (:func:`sheet_problems` of one surface)."""
+    return sheet_problems(design, fields, [surface], thickness, poisson, part, stride)[0]
+
+
+def sheet_problems(
+    design: Design,
+    fields: SheetFields | Sequence[SheetFields],
+    surfaces: Sequence[int],
+    thickness: float | None = None,
+    poisson: float = 0.5,
+    part: Part | None = None,
+    stride: int = 1,
+) -> list[SheetProblem]:
+    """The sheet of ``fields`` (one, or one per equal layer, bottom first) under each of
+    the ``surfaces``' stimuli, ready to simulate; the mesh, the fields at its vertices and
+    the reference lengths under each stimulus are worked out once for all of them.
 
     The mesh is the design's grid coarsened by ``stride`` (its cells in ``part``, as in
     :func:`~fabkit.mechanics.mesh.design_mesh`), restricted to where the first layer was
-    made. ``thickness`` (the whole sheet's, design units) defaults to 1 % of the diameter
-    of the design's whole solved flat domain (as ``fabkit simulate``).
+    made and to the faces whose edge lengths make a metric at every stimulus.
+    ``thickness`` (the whole sheet's, design units) defaults to 1 % of the diameter of the
+    design's whole solved flat domain (as ``fabkit simulate``).
     """
     layers = [fields] if isinstance(fields, SheetFields) else list(fields)
     coarse = coarsened(design, stride)
@@ -359,30 +370,59 @@ def sheet_problem(
     mesh = made_mesh(whole, layers[0].made)
     if thickness is None:
         thickness = default_thickness(design)
-
-    sampled = _sampled(layers, mesh)
-    ok = np.logical_and.reduce([_metric_faces(coarse, mesh, t, e) for t, e in sampled])
+    lengths = _LayerLengths(coarse, mesh, layers)
+    ok = np.ones(len(mesh.triangles), dtype=bool)
+    for s in range(len(design.stimuli)):
+        for layer in range(len(layers)):
+            a, b, c = lengths.at(s, layer).T
+            ok &= (a < b + c) & (b < c + a) & (c < a + b)
     if not ok.all():
         mesh = _faces(mesh, ok)
-        sampled = _sampled(layers, mesh)
+        lengths = _LayerLengths(coarse, mesh, layers)
 
     def metrics_at(s: int) -> np.ndarray:
-        stacked = np.stack([sheet_metrics(coarse, mesh, s, t, e) for t, e in sampled])
+        stacked = np.stack([
+            metric_from_lengths(mesh.points, mesh.triangles, lengths.at(s, layer))
+            for layer in range(len(layers))
+        ])  # fmt: skip
         return stacked[0] if len(stacked) == 1 else stacked
 
-    name = design.problem.targets[surface].name
-    return SheetProblem(
-        surface,
-        name,
-        coarse,
-        mesh,
-        metrics_at(0),
-        metrics_at(surface),
-        thickness,
-        poisson,
-        patch_size(coarse, surface, whole),
-        None if part is None else part.outline,
-    )
+    start = metrics_at(0)
+    return [
+        SheetProblem(
+            surface,
+            design.problem.targets[surface].name,
+            coarse,
+            mesh,
+            start,
+            metrics_at(surface),
+            thickness,
+            poisson,
+            patch_size(coarse, surface, whole),
+            None if part is None else part.outline,
+        )
+        for surface in surfaces
+    ]
+
+
+class _LayerLengths:
+    """Every layer's reference edge lengths (F, 3) on ``mesh`` under each stimulus, each
+    worked out when first asked for (:func:`_edge_lengths`)."""
+
+    def __init__(self, design: Design, mesh: DesignMesh, layers: Sequence[SheetFields]) -> None:
+        self._design, self._mesh = design, mesh
+        self._sampled = _sampled(layers, mesh)
+        self._jacobian = _flat_jacobian(design, mesh)
+        self._known: dict[tuple[int, int], np.ndarray] = {}
+
+    def at(self, surface: int, layer: int) -> np.ndarray:
+        key = (surface, layer)
+        if key not in self._known:
+            theta, eps = self._sampled[layer]
+            self._known[key] = _edge_lengths(
+                self._design, self._mesh, surface, theta, eps, self._jacobian
+            )
+        return self._known[key]
 
 
 def _sampled(

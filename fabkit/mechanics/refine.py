@@ -59,7 +59,7 @@ from fabkit.mechanics.fabricated import (
     design_fields,
     sheet_metrics,
     sheet_metrics_gradient,
-    sheet_problem,
+    sheet_problems,
 )
 from fabkit.mechanics.shell import Sheet, build_shell
 from fabkit.mechanics.simulate import Settings, minimise
@@ -180,10 +180,8 @@ def refine_layering(
         made = [layers[0].made for _, layers in fabricated]
         fields = [replace(f, made=_everywhere(made)) for f in fields]
     surfaces = embedded_targets(design)
-    problems = [
-        sheet_problem(design, fields, s, layering.thickness, part=part, stride=stride)
-        for s in surfaces
-    ]
+    thickness = layering.thickness
+    problems = sheet_problems(design, fields, surfaces, thickness, part=part, stride=stride)
     model = _Model.build(design, problems, bounds, degree, fabricated)
     c = np.zeros(model.size)
     states = model.ramped(c)

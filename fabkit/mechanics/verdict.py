@@ -47,7 +47,7 @@ from fabkit.mechanics.fabricated import (
     SheetFields,
     SheetProblem,
     design_fields,
-    sheet_problem,
+    sheet_problems,
     turned_over,
 )
 from fabkit.mechanics.metric import face_edges
@@ -402,10 +402,7 @@ def target_shapes(
     ``progress(done, total)`` counts them as they finish."""
     stride = stride or grid_stride(design)
     settings = settings or Settings()
-    problems = [
-        sheet_problem(design, list(layers), surface, thickness, part=part, stride=stride)
-        for surface in surfaces
-    ]
+    problems = sheet_problems(design, list(layers), surfaces, thickness, part=part, stride=stride)
     runs, turned = [], turned_starts(starts)
     for problem in problems:
         if designed is None or _symmetric(problem.metrics):  # no natural curvature to turn
