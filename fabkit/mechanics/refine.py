@@ -38,7 +38,6 @@ What is refined is then judged as everything else, from every start
 from __future__ import annotations
 
 import contextlib
-import functools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -61,7 +60,7 @@ from fabkit.mechanics.fabricated import (
     sheet_metrics_gradient,
     sheet_problems,
 )
-from fabkit.mechanics.shell import Sheet, build_shell
+from fabkit.mechanics.shell import Sheet, build_shell, flat_sheet
 from fabkit.mechanics.simulate import Settings, minimise
 from fabkit.mechanics.verdict import FORM_TOLERANCE, RAMP_PART, embedded_targets, grid_stride
 
@@ -523,8 +522,7 @@ def follow(
     penalty against ``bound``), that term's derivative in the metrics (L, F, 3) and x.
     Raises :class:`FabkitError` when x is not reached within :data:`FOLLOW_ITERATIONS`.
     Plain data in and out: run in a worker (:func:`fabkit.background.parallel_map`)."""
-    triangles = np.asarray(triangles, dtype=np.int64)
-    sheet = _sheet(np.asarray(points, dtype=float).tobytes(), triangles.tobytes(), len(points))
+    sheet = flat_sheet(points, np.asarray(triangles, dtype=np.int64))
     with threadpool_limits(limits=1, user_api="blas"):  # as every simulation
         shell = build_shell(sheet, metrics, thickness, poisson)
         tolerance = Settings().tolerance * sheet.edge_length()
@@ -537,13 +535,6 @@ def follow(
         d_distance = 2 * share / TOLERANCE**2 * distance.gradient
         d_metric = metric_gradient(sheet, metrics, thickness, poisson, x, d_distance)
     return share**2 + side, d_side + d_metric, x
-
-
-@functools.lru_cache(maxsize=4)
-def _sheet(points: bytes, triangles: bytes, count: int) -> Sheet:
-    """The sheet of a flat mesh given as bytes (a worker builds each once)."""
-    flat = np.frombuffer(points, dtype=float).reshape(count, -1)
-    return Sheet.build(flat, np.frombuffer(triangles, dtype=np.int64).reshape(-1, 3))
 
 
 def side_preference(

@@ -31,6 +31,7 @@ angles and the Hessian's per-face and per-hinge blocks are compiled loops
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -115,6 +116,21 @@ class Sheet:
     def edge_length(self) -> float:
         """Mean flat edge length (design units)."""
         return float(np.mean(np.linalg.norm(self.edges, axis=-1)))
+
+
+def flat_sheet(points: np.ndarray, triangles: np.ndarray) -> Sheet:
+    """:meth:`Sheet.build` of the flat mesh ``points`` (V, 2 or 3), ``triangles`` (F, 3),
+    kept for the next call with the same mesh (the last four): a verdict simulates one
+    mesh from six starts, a refinement one mesh many times. Its arrays are read-only."""
+    points = np.ascontiguousarray(points, dtype=float)
+    triangles = np.ascontiguousarray(triangles)
+    return _built(points.tobytes(), points.shape, triangles.tobytes(), triangles.dtype.str)
+
+
+@functools.lru_cache(maxsize=4)
+def _built(points: bytes, shape: tuple[int, ...], triangles: bytes, dtype: str) -> Sheet:
+    flat = np.frombuffer(points, dtype=float).reshape(shape)
+    return Sheet.build(flat, np.frombuffer(triangles, dtype=dtype).reshape(-1, 3))
 
 
 @dataclass(frozen=True)

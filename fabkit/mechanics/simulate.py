@@ -52,7 +52,7 @@ from fabkit.field.part import SIMULATE_THICKNESS, Part
 from fabkit.mechanics.factor import factorise
 from fabkit.mechanics.mesh import DesignMesh, design_mesh
 from fabkit.mechanics.metric import grid_edge_lengths, metric_from_lengths
-from fabkit.mechanics.shell import Sheet, Shell, build_shell
+from fabkit.mechanics.shell import Shell, build_shell, flat_sheet
 
 STARTS = ("dome", "dome-down", "saddle", "saddle-down", "random-1", "random-2")
 """The shapes a simulation can start from (:func:`seeded`): the flat sheet lifted out of
@@ -171,7 +171,7 @@ def simulate(
         )
     if settings.max_iterations < 1:
         raise FabkitError("max_iterations: at least one Newton iteration per step is needed")
-    sheet = Sheet.build(points, triangles)
+    sheet = flat_sheet(points, triangles)
     target = np.asarray(metrics, dtype=float)
     target = target[None] if target.ndim == 3 else target
     start = np.broadcast_to(np.eye(2), target.shape) if start_metrics is None else start_metrics
