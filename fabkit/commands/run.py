@@ -114,6 +114,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "start, refined again with every print's error while a print misses a target (up "
         "to 3 prints), the best print's design kept; minutes more (docs/layers.md)",
     )
+    parser.add_argument(
+        "--prints",
+        type=int,
+        default=1,
+        metavar="K",
+        help="judge K prints of the design as fabricated: the machine file's and K - 1 made "
+        "in memory with the print lines shifted k/K of their spacing (equally good prints, "
+        "their errors elsewhere); a target is formed only when every print forms it "
+        "(default 1: the verdict is the machine file's print's; docs/layers.md)",
+    )
     verdict_arguments(
         parser, "exit 1 when the sheet (as designed or as fabricated) does not form every target"
     )

@@ -335,6 +335,21 @@ class Verdict:
         }
 
 
+def worst_of(verdicts: Sequence[Verdict]) -> Verdict:
+    """The verdict of several prints (or sheets) of one design, target by target the worst
+    of them: a target not formed by one of them if any (the farthest), else the farthest
+    formed one. So a target is formed only where every one of ``verdicts`` forms it."""
+    first = verdicts[0]
+    names = [shape.target for shape in first.shapes]
+    if any([shape.target for shape in v.shapes] != names for v in verdicts):
+        raise ValueError("worst_of: the verdicts judge different targets")
+    shapes = tuple(
+        min((v.shapes[i] for v in verdicts), key=lambda shape: (shape.formed, -shape.rms))
+        for i in range(len(names))
+    )
+    return replace(first, shapes=shapes)
+
+
 def embedded_targets(design: Design) -> list[int]:
     """The surfaces (indices > 0) embedded in 3D: the ones a shape can be compared with."""
     targets = design.problem.targets

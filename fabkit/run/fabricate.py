@@ -3,26 +3,31 @@
 :func:`fabricate` writes the machine files of the run's route (print lines and their
 G-code or DXF, laser patterns on a laser writer, or baromorph channels and their DXF),
 reads the first back and checks it (:mod:`fabkit.verify`, unless ``--no-verify``),
-writes the shape the sheet takes under every target's stimulus (``as_fabricated/``,
-else ``as_designed/``) and sends the G-code (``--send``). The pictures are handed to the
-run's worker (:class:`Drawings`) and written at the report. Called by
+with ``--prints K`` judges K - 1 more prints of the design made in memory (the stripes
+shifted k / K of their spacing: :func:`print_in_memory`), writes the shape the sheet
+takes under every target's stimulus (``as_fabricated/``, else ``as_designed/``) and
+sends the G-code (``--send``). The pictures are handed to the run's worker
+(:class:`Drawings`) and written at the report. Called by
 :func:`fabkit.run.pipeline.run_pipeline`.
 """
 
 from __future__ import annotations
 
+import math
+import tempfile
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import partial
 from multiprocessing.pool import AsyncResult
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from fabkit.background import Worker
+from fabkit.design.design import Design
 from fabkit.files.atomic import atomic_path, inside, record
 from fabkit.machines import MachineProfile
 from fabkit.mechanics.mesh import save_mesh
-from fabkit.mechanics.verdict import Verdict
+from fabkit.mechanics.verdict import Verdict, worst_of
 from fabkit.run.inputs import FORMAT_FILES, LASER_WRITER, RunInputs, RunOptions
 from fabkit.run.solve import Solved
 from fabkit.toolpath.job import ChannelJob, JobResult, ToolpathJob, run_channel_job, run_job
@@ -100,6 +105,7 @@ class Made:
     final: Verdict | None
     shapes: dict[str, Any] | None
     sent: dict[str, Any] | None
+    prints: list[dict[str, Any]] | None = None
 
 
 def fabricate(run: Run) -> Made:
@@ -113,9 +119,11 @@ def fabricate(run: Run) -> Made:
         fabricated = _print_lines(run)
 
     verification = _verify(run)
-    final = run.solved.verdict
+    final, prints = run.solved.verdict, None
     if verification is not None and verification.verdict is not None:
         final = verification.verdict
+        if options.prints > 1:
+            final, prints = _other_prints(run, final)
     shapes = _shapes(run, final) if final is not None else None
 
     sent = None
@@ -124,7 +132,7 @@ def fabricate(run: Run) -> Made:
         sent = _send(run.out / "sheet.gcode", options, run.inputs.machine).figures()
     else:
         run.say("[6/7] not sending (no --send)")
-    return Made(fabricated, fabricated.machine_file, verification, final, shapes, sent)
+    return Made(fabricated, fabricated.machine_file, verification, final, shapes, sent, prints)
 
 
 def _shapes(run: Run, verdict: Verdict) -> dict[str, Any]:
@@ -199,6 +207,69 @@ def _verify(run: Run) -> Verification | None:
     return result
 
 
+def _other_prints(run: Run, verdict: Verdict) -> tuple[Verdict, list[dict[str, Any]]]:
+    """``--prints K``: the design printed K - 1 more times in memory, the stripes of print k
+    shifted k / K of their spacing (an equally good print, its roads elsewhere), each
+    judged from every start as the machine file was (``verdict``); returns the worst of
+    them all, target by target (:func:`~fabkit.mechanics.verdict.worst_of`), and
+    report.json's ``prints``."""
+    count, say = run.options.prints, run.say
+    judged = [(0.0, "the machine file", verdict)]
+    for k in range(1, count):
+        phase = 2 * math.pi * k / count
+        shift = f"its lines shifted {k}/{count} of their spacing"
+        say(f"      print {k + 1} of {count}, in memory, {shift}:")
+        other, _ = print_in_memory(run, run.solved.design, phase)
+        say(f"        {other.headline()}")
+        judged.append((phase, "in memory", other))
+    worst = worst_of([v for _, _, v in judged])
+    say(f"      over the {count} prints (each target as its worst print makes it):")
+    say(f"        {worst.headline()}")
+    prints = [
+        {
+            "phase_rad": phase,
+            "file": where,
+            "headline": v.headline(),
+            "formed": v.formed,
+            "targets_formed": [shape.formed for shape in v.shapes],
+            "rms_pct": [100 * shape.rms for shape in v.shapes],
+        }
+        for phase, where, v in judged
+    ]
+    return worst, prints
+
+
+def print_in_memory(run: Run, design: Design, phase_rad: float = 0.0) -> tuple[Verdict, list]:
+    """``design`` printed into a temporary folder by the run's planner (the stripes at
+    ``phase_rad``) and writer, read back and judged as ``fabkit verify`` judges it: the
+    verdict as fabricated and the layers read back (:class:`~fabkit.mechanics.fabricated.
+    SheetFields`, bottom first)."""
+    from fabkit.verify.as_fabricated import fabricated_verdict
+    from fabkit.verify.machine_file import VerifyOptions, read_back, simulate_reading
+
+    options, inputs, solved = run.options, run.inputs, run.solved
+    with tempfile.TemporaryDirectory(prefix="fabkit-printed-") as folder:
+        out = Path(folder)
+        quiet = replace(
+            run,
+            options=replace(options, out=folder),
+            solved=replace(solved, design=design),
+            drawings=Drawings(None),
+        )
+        job = plan_print(quiet, out, phase_rad)
+        write_machine_file(job.plan.toolpath, inputs.machine, "gcode", out / "sheet.gcode")
+        check = VerifyOptions(
+            machine=inputs.machine,
+            process=inputs.process,
+            part=solved.part,
+            form_tolerance=options.form_tolerance,
+        )
+        reading = read_back(out / "design.npz", out / "sheet.gcode", check, design)
+    _, shapes = simulate_reading(reading, check)
+    verdict = fabricated_verdict(shapes, len(reading.readbacks), reading.thickness_mm)
+    return verdict, reading.fields(check)
+
+
 def _send(path: Path, options: RunOptions, machine: MachineProfile) -> SendReport | HostReport:
     """Send the machine file to ``options.send``, a port or a printer host, for ``machine``."""
     from fabkit.link.host.send import send_file
@@ -226,8 +297,9 @@ class _Fabricated:
     machine_file: dict[str, Any]
 
 
-def plan_print(run: Run, out: Path) -> JobResult:
-    """The run's print lines planned from its solved design, toolpath.npz written into
+def plan_print(run: Run, out: Path, phase_rad: float = 0.0) -> JobResult:
+    """The run's print lines planned from its solved design (the stripes at ``phase_rad``:
+    :class:`~fabkit.toolpath.plan.PlanSettings`), toolpath.npz written into
     ``out``/toolpath (no preview)."""
     options, solved = run.options, run.solved
     return run_job(
@@ -236,6 +308,7 @@ def plan_print(run: Run, out: Path) -> JobResult:
             process=run.inputs.process,
             size_mm=options.size_mm,
             ignore_features=options.ignore_features,
+            phase_rad=phase_rad,
             out=str(out / "toolpath"),
             part=solved.part,
             design=solved.design,

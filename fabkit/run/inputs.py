@@ -32,6 +32,8 @@ from fabkit.toolpath.process_file import load_process, resolve_channels
 FORMAT_FILES = {"gcode": "sheet.gcode", "dxf": "sheet.dxf", "laser": "laser"}
 BAROMORPH_MACHINE = "laser_cutter"
 LASER_WRITER = "laser_writer"
+MAX_PRINTS = 8
+"""Most prints ``--prints`` judges (each costs a planning, a read-back and a verdict)."""
 
 
 @dataclass(frozen=True)
@@ -57,7 +59,9 @@ class RunOptions:
     fabricated, and held to ``form_tolerance`` (RMS, a share of the patch diameter);
     ``strict`` makes a target not formed an error (the run's exit code). ``simulate``
     False skips those simulations: no verdict on the shapes (refused with ``strict``,
-    which needs one).
+    which needs one). ``prints`` > 1 judges that many prints of the design as fabricated
+    (the machine file's and ``prints`` - 1 made in memory with the stripes shifted), the
+    verdict each target's worst.
     ``send`` is a port, a pyserial URL or a printer host's URL
     (:mod:`fabkit.link.host.web`), whose API key is ``api_key``, else the first line of
     ``api_key_file``, else the environment's FABKIT_API_KEY; the key is never shown nor
@@ -88,6 +92,7 @@ class RunOptions:
     strict: bool = False
     form_tolerance: float = FORM_TOLERANCE
     simulate: bool = True
+    prints: int = 1
 
 
 @dataclass(frozen=True)
@@ -152,6 +157,13 @@ def check_inputs(options: RunOptions, machine: MachineProfile) -> RunInputs:
             f"--refine with --layers {options.layers}: it refines the differences between "
             "layers; print two or more (--layers 2, a printer's default)"
         )
+    if not 1 <= options.prints <= MAX_PRINTS:
+        raise FabkitError(f"--prints {options.prints}: expected 1 to {MAX_PRINTS} prints")
+    if options.prints > 1 and not (options.verify and options.simulate):
+        raise FabkitError(
+            f"--prints {options.prints} with --no-verify or --no-simulate: it judges every "
+            "print as the machine file is judged, read back and simulated; leave one out"
+        )
     if not (math.isfinite(options.form_tolerance) and 0 < options.form_tolerance < 1):
         raise FabkitError(
             f"--form-tolerance {100 * options.form_tolerance:g}: expected a percentage "
@@ -171,6 +183,11 @@ def check_inputs(options: RunOptions, machine: MachineProfile) -> RunInputs:
     elif machine.kind == LASER_WRITER and options.formats != ("laser",):
         raise FabkitError(
             f"{options.machine} is a laser writer: use --format laser (or no --format)"
+        )
+    if options.prints > 1 and (options.baromorph or machine.kind == LASER_WRITER):
+        raise FabkitError(
+            f"--prints {options.prints}: only print lines have a phase to shift; a "
+            f"{'baromorph' if options.baromorph else 'laser writer'} run makes one pattern"
         )
     what = one_layer_route(options, machine)
     if options.layers > 1 and what:

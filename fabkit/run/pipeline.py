@@ -151,6 +151,7 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
         **made.fabricated.figures,
         "machine file": made.machine_file,
         "verify": verification,
+        **({"prints": made.prints} if made.prints else {}),
         "sent": made.sent,
         "meshes": meshes,
         "shapes": made.shapes,

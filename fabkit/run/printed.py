@@ -25,19 +25,14 @@ it refines.
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 from fabkit.design.design import Design
 from fabkit.field.design_field import feature_names
 from fabkit.mechanics.refine import Refined, refine_layering
 from fabkit.mechanics.verdict import Verdict, design_verdict
-from fabkit.run.fabricate import Drawings, Run, plan_print
+from fabkit.run.fabricate import Run, print_in_memory
 from fabkit.run.solve import Solved
-from fabkit.verify.as_fabricated import fabricated_verdict
-from fabkit.verify.machine_file import VerifyOptions, read_back, simulate_reading
-from fabkit.writers.export import write_machine_file
 
 PRINTS = 3
 """Most provisional prints judged: the refined design's, then up to two refined again with
@@ -121,26 +116,7 @@ def _errors(count: int) -> str:
 
 
 def _printed(run: Run, design: Design) -> _Print:
-    """``design`` printed into a temporary folder by the run's planner and writer, read
-    back and judged as ``fabkit verify`` judges it."""
-    options, inputs, solved = run.options, run.inputs, run.solved
-    with tempfile.TemporaryDirectory(prefix="fabkit-printed-") as folder:
-        out = Path(folder)
-        quiet = replace(
-            run,
-            options=replace(options, out=folder),
-            solved=replace(solved, design=design),
-            drawings=Drawings(None),
-        )
-        job = plan_print(quiet, out)
-        write_machine_file(job.plan.toolpath, inputs.machine, "gcode", out / "sheet.gcode")
-        check = VerifyOptions(
-            machine=inputs.machine,
-            process=inputs.process,
-            part=solved.part,
-            form_tolerance=options.form_tolerance,
-        )
-        reading = read_back(out / "design.npz", out / "sheet.gcode", check, design)
-    _, shapes = simulate_reading(reading, check)
-    verdict = fabricated_verdict(shapes, len(reading.readbacks), reading.thickness_mm)
-    return _Print(design, verdict, reading.fields(check))
+    """``design`` printed in memory by the run's planner and writer, read back and judged
+    as ``fabkit verify`` judges it (:func:`~fabkit.run.fabricate.print_in_memory`)."""
+    verdict, fields = print_in_memory(run, design)
+    return _Print(design, verdict, fields)

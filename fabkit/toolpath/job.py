@@ -78,6 +78,7 @@ class ToolpathJob:
     ignore_features: tuple[str, ...] = ()
     clip_eps: bool = False
     end_inset: float = LineSettings().end_inset
+    phase_rad: float = 0.0
     out: str = "toolpath"
     json: bool = False
     preview: bool = True
@@ -147,6 +148,7 @@ def _plan(job: ToolpathJob) -> tuple[Plan, Process, list[FlatField]]:
         encode=job.encode,
         ignore=job.ignore_features,
         lines=LineSettings(end_inset=job.end_inset),
+        phase_rad=job.phase_rad,
     )
     return plan_toolpath(fields, process, settings), process, fields
 

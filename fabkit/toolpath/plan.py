@@ -34,13 +34,17 @@ PATTERNS = ("same", "alternate")
 @dataclass(frozen=True)
 class PlanSettings:
     """Number of layers, layer pattern, whether to encode the features, the features left
-    out on purpose (``--ignore-feature``), and the line settings."""
+    out on purpose (``--ignore-feature``), the line settings, and the stripes' phase
+    (radians: every line shifted by ``phase_rad`` / 2 pi of its spacing; 0, the default,
+    and any other phase give equally good prints of the same fields, their roads
+    elsewhere: ``fabkit run --prints``)."""
 
     layers: int = 1
     pattern: str = "same"
     encode: bool = True
     ignore: tuple[str, ...] = ()
     lines: LineSettings = field(default_factory=LineSettings)
+    phase_rad: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -59,7 +63,8 @@ def plan_toolpath(
     _check(fields, settings)
     w = process.road_width_mm
     per_field = settings.layers // len(fields)
-    phases = (0.0, np.pi) if settings.pattern == "alternate" and per_field > 1 else (0.0,)
+    staggered = (0.0, np.pi) if settings.pattern == "alternate" and per_field > 1 else (0.0,)
+    phases = tuple(settings.phase_rad + phase for phase in staggered)
     resolutions = [_resolve(flat, process, settings) for flat in fields]
     names = {p: "+".join(c.features) for r in resolutions for c in r.channels for p in c.parameters}
     layers, qualities, warnings = [], [], []
