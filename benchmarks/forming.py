@@ -4,7 +4,8 @@ Run from the repository root: ``python benchmarks/forming.py`` (about 30 minutes
 2-core machine; ``--sizes``, ``--specs``, ``--layers`` change the grid). For every
 example spec that prints and every size it runs ``fabkit run SPEC --size S`` with no
 layer option, as issue 35's acceptance asks (the run chooses its layers; ``--layers K``
-passes one on; ``--refine`` refines them against the simulation, minutes a run), on the
+passes one on; ``--refine`` refines them against the simulation, minutes a run;
+``--prints K`` judges K prints, the lines shifted, each target its worst print), on the
 README's route (marlin_diw_pneumatic, verified from the G-code),
 and prints, per target, how many
 of the six starts (``fabkit.mechanics.simulate.STARTS``) form it as fabricated, the
@@ -31,14 +32,15 @@ SPECS = ("two_shapes.toml", "three_shapes.toml", "ball_hypar.toml", "bowl_saddle
 
 
 def run(
-    spec: str, size: float, layers: int | None, refine: bool, folder: Path
+    spec: str, size: float, layers: int | None, refine: bool, folder: Path, prints: int = 1
 ) -> tuple[dict, float]:
     """``fabkit run`` of one spec at one size (``layers`` None: no layer option; ``refine``:
-    with ``--refine``); its report.json and wall time (s)."""
+    with ``--refine``; ``prints``: ``--prints``); its report.json and wall time (s)."""
     out = folder / f"{Path(spec).stem}-{size:g}-{layers}"
     command = [sys.executable, "-m", "fabkit", "run", spec, "--size", f"{size:g}", "--out"]
     command += [str(out), "--overwrite", *(("--layers", str(layers)) if layers else ())]
     command += ["--refine"] if refine else []
+    command += ["--prints", str(prints)] if prints > 1 else []
     started = time.monotonic()
     subprocess.run(command, check=True, capture_output=True, cwd=ROOT)
     return json.loads((out / "report.json").read_text()), time.monotonic() - started
@@ -63,9 +65,11 @@ def main() -> int:
     parser.add_argument("--sizes", nargs="+", type=float, default=[40, 50, 60, 70, 80])
     parser.add_argument("--layers", type=int, default=None)
     parser.add_argument("--refine", action="store_true", help="fabkit run --refine")
+    parser.add_argument("--prints", type=int, default=1, help="fabkit run --prints")
     args = parser.parse_args()
     option = f" --layers {args.layers}" if args.layers else ""
     option += " --refine" if args.refine else ""
+    option += f" --prints {args.prints}" if args.prints > 1 else ""
     print(
         f"fabkit run SPEC --size S{option}: the sheet as fabricated, per "
         "target: starts formed of 6, worst RMS (% of the patch diameter), M mirror image, "
@@ -75,13 +79,14 @@ def main() -> int:
         for spec in args.specs:
             for size in args.sizes:
                 try:
+                    example = f"examples/{spec}"
                     figures, seconds = run(
-                        f"examples/{spec}", size, args.layers, args.refine, Path(folder)
+                        example, size, args.layers, args.refine, Path(folder), args.prints
                     )
                 except subprocess.CalledProcessError as exc:
                     print(f"{spec} {size:g} mm: FAILED: {exc.stderr.decode().strip()[-200:]}")
                     return 1
-                verdict = figures["verify"]["verdict"]
+                verdict = figures["verdicts"][-1]  # with --prints: each target's worst print
                 cells = "; ".join(f"{t['target']} {cell(t)}" for t in verdict["targets"])
                 layers = figures["verify"]["verdict"].get("layers", 1)
                 print(f"{spec} {size:g} mm, {layers} layers: {cells} ({seconds:.0f} s)", flush=True)
