@@ -25,12 +25,13 @@ def two_prints(tmp_path_factory):
         code = main([*args, "--no-pictures", "--out", str(out)])
     text = said.getvalue()
     assert code in (0, 1), text
-    return json.loads((out / "report.json").read_text()), text
+    page = (out / "report.html").read_text(encoding="utf-8")
+    return json.loads((out / "report.json").read_text()), text, page
 
 
 @pytest.mark.slow
 def test_a_target_is_formed_only_where_every_print_forms_it(two_prints):
-    figures, text = two_prints
+    figures, text, page = two_prints
     validate_report(figures)
     prints, final = figures["prints"], figures["verdicts"][-1]
     assert [p["file"] for p in prints] == ["the machine file", "in memory"]
@@ -45,6 +46,9 @@ def test_a_target_is_formed_only_where_every_print_forms_it(two_prints):
         held = [p["rms_pct"][i] for p in prints if p["targets_formed"][i] == all(formed)]
         assert target["rms_pct"] == pytest.approx(max(held), abs=1e-9)
     assert figures["verdict"]["formed"] == all(p["formed"] for p in prints)
+    # the report says what the terminal said: every print's verdict, the combined one
+    assert "Judged over 2 prints (--prints 2)" in page
+    assert f"Print 1 (the machine file): {prints[0]['headline']}." in page
 
 
 @pytest.mark.parametrize(

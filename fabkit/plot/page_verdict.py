@@ -29,6 +29,8 @@ def verdict_section(figures: Mapping[str, Any]) -> Section:
     final = figures["verdicts"][-1] if figures["verdicts"] else {"what": "not simulated"}
     if figures["verdicts"]:
         blocks.append(Paragraph((_sheet_simulated(final, figures),)))
+    if figures.get("prints"):
+        blocks.append(Paragraph((_prints(figures["prints"]),)))
     for target in final.get("targets", ()):
         blocks.append(Paragraph((target["line"],), "formed" if target["formed"] else "missed"))
     if final["what"] == "as fabricated":
@@ -63,6 +65,22 @@ def _sheet_simulated(verdict: Mapping[str, Any], figures: Mapping[str, Any]) -> 
         "converged, the sheet is not the target's mirror image and it ends within the limit "
         "of the target (RMS distance after the best rigid motion, as a share of the patch "
         "diameter); the figures are the worst start's:"
+    )
+
+
+def _prints(prints: list[Mapping[str, Any]]) -> str:
+    """The prints a ``--prints`` run judged, in one sentence."""
+    count = len(prints)
+    each = ". ".join(
+        f"Print {k + 1} ({p['file']}"
+        + (f", its lines shifted {k}/{count} of their spacing" if k else "")
+        + f"): {p['headline']}"
+        for k, p in enumerate(prints)
+    )
+    return (
+        f"Judged over {count} prints (--prints {count}), equally good prints of the design "
+        "with their errors elsewhere; a target is formed only when every print forms it, and "
+        f"each target's figures below are its worst print's. {each}."
     )
 
 
