@@ -5,9 +5,11 @@ mirror image or an isometric neighbour of it, and takes the sphere's and the fac
 mirror images from some starts. Two layers programmed with every target's curvature give
 every target its side from every start, as designed and as fabricated (read back layer by
 layer from the G-code and simulated at the printed thickness), three of the starts on the
-sheet with the print's error turned over; the sphere and the wavy sheet are formed, the
-face ends on its side but farther than the limit. The run's last line is that verdict
-(tests/test_solve_layers.py: one layer, --strict, solve --layers).
+sheet with the print's error turned over; the sphere and the wavy sheet are formed by
+each of three prints (``--prints 3``: the machine file's and two with the lines shifted a
+third of their spacing: a verdict that one print's roads decided would not hold on all
+three), the face ends on its side but farther than the limit. The run's last line is that
+verdict (tests/test_solve_layers.py: one layer, --strict, solve --layers).
 """
 
 from __future__ import annotations
@@ -29,13 +31,14 @@ THREE = EXAMPLES / "three_shapes.toml"
 
 @pytest.fixture(scope="module")
 def layered_run(folder, request):
-    """The acceptance run: Fig. 3, two layers, the default size and machine."""
+    """The acceptance run: Fig. 3, two layers, the default size and machine, three prints."""
     from fabkit.cli import main
 
     out = folder / "three_layered"
     said = io.StringIO()
+    args = ["run", str(THREE), "--layers", "2", "--prints", "3", "--no-pictures"]
     with contextlib.redirect_stdout(said):
-        code = main(["run", str(THREE), "--layers", "2", "--out", str(out), "--no-pictures"])
+        code = main([*args, "--out", str(out)])
     assert code == 0
     (folder / "three_layered.said.txt").write_text(said.getvalue())  # not in the run
     return out
@@ -58,7 +61,7 @@ def test_a_target_missed_unrefined_names_refine_before_the_verdict(layered_run):
 
 
 @pytest.mark.slow
-def test_two_layers_form_the_wavy_sheet_as_fabricated_from_every_start(layered_run):
+def test_two_layers_form_the_wavy_sheet_as_fabricated_from_every_start_and_print(layered_run):
     figures = json.loads((layered_run / "report.json").read_text())
     verify = figures["verify"]
     wavy = next(t for t in verify["verdict"]["targets"] if t["target"] == "wavy")
@@ -91,7 +94,12 @@ def test_two_layers_form_the_wavy_sheet_as_fabricated_from_every_start(layered_r
         assert len(starts) == 6 and target["formed"] == all(s["formed"] for s in starts)
         largest = max(s["rms_pct"] for s in starts)  # of ends in one state, the first
         assert target["rms_pct"] == pytest.approx(largest, abs=1e-4) or not target["formed"]
-    assert verify["verdict"]["formed"] == figures["verdict"]["formed"]
+    # formed by every print: the machine file's and the two with their lines shifted
+    prints = figures["prints"]
+    assert [p["file"] for p in prints] == ["the machine file", "in memory", "in memory"]
+    combined = {t["target"]: t for t in figures["verdicts"][-1]["targets"]}
+    assert combined["wavy"]["formed"] and combined["sphere"]["formed"], combined["wavy"]["line"]
+    assert figures["verdict"]["formed"] == all(p["formed"] for p in prints)
     validate_report(figures)
 
 
