@@ -381,10 +381,7 @@ def sheet_problems(
         lengths = _LayerLengths(coarse, mesh, layers)
 
     def metrics_at(s: int) -> np.ndarray:
-        stacked = np.stack([
-            metric_from_lengths(mesh.points, mesh.triangles, lengths.at(s, layer))
-            for layer in range(len(layers))
-        ])  # fmt: skip
+        stacked = lengths.metrics(s)
         return stacked[0] if len(stacked) == 1 else stacked
 
     start = metrics_at(0)
@@ -407,7 +404,7 @@ def sheet_problems(
 
 class _LayerLengths:
     """Every layer's reference edge lengths (F, 3) on ``mesh`` under each stimulus, each
-    worked out when first asked for (:func:`_edge_lengths`)."""
+    worked out when first asked for (:func:`_edge_lengths`), and the metrics they make."""
 
     def __init__(self, design: Design, mesh: DesignMesh, layers: Sequence[SheetFields]) -> None:
         self._design, self._mesh = design, mesh
@@ -423,6 +420,15 @@ class _LayerLengths:
                 self._design, self._mesh, surface, theta, eps, self._jacobian
             )
         return self._known[key]
+
+    def metrics(self, surface: int) -> np.ndarray:
+        """Every layer's per-face metrics (L, F, 2, 2) under surface ``surface``'s stimulus
+        (:func:`sheet_metrics` of each layer)."""
+        mesh = self._mesh
+        return np.stack([
+            metric_from_lengths(mesh.points, mesh.triangles, self.at(surface, layer))
+            for layer in range(len(self._sampled))
+        ])  # fmt: skip
 
 
 def _sampled(
@@ -444,11 +450,10 @@ def turned_over(problem: SheetProblem, designed: Sequence[SheetFields]) -> Sheet
     that is no metric). It stands for another print whose every error is this one's
     negated: a side that the design programs holds on both, a side that the print's error
     chose flips (:mod:`fabkit.mechanics.verdict`)."""
-    mesh, coarse = problem.mesh, problem.coarse
-    sampled = _sampled(designed, mesh)
+    lengths = _LayerLengths(problem.coarse, problem.mesh, designed)
 
     def reflected(made: np.ndarray, surface: int) -> np.ndarray:
-        stacked = np.stack([sheet_metrics(coarse, mesh, surface, t, e) for t, e in sampled])
+        stacked = lengths.metrics(surface)
         own = stacked[0] if made.ndim == 3 else stacked
         if own.shape != made.shape:
             raise FabkitError(
