@@ -3,18 +3,21 @@
 from __future__ import annotations
 
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial import Delaunay
+from scipy.spatial import Delaunay, cKDTree
 
 from fabkit.design.design import Design
 from fabkit.design.layers import layered, second_forms
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
+from fabkit.field.design_field import field_from_design
 from fabkit.mechanics.simulate import simulate
 from fabkit.problem.spec import build_spec
+from fabkit.toolpath.job import ToolpathJob, plan_job
 from tests.conftest import coarse_design
 from tests.test_mechanics_simulate import fit_circle
 
@@ -149,3 +152,39 @@ def test_what_the_layers_of_fig3_can_reach_and_what_not(fig3):
     # the face (L = (2, 0)) curves across the director, where eps2 acts on nothing at L2 = 0
     assert reach.out_of_reach[2, 2] > 0.8 and report.matched[2] < 0.1
     assert "of its curvature is across the director, which no feature reaches" in lines[1]
+
+
+def test_the_layers_are_printed_along_one_set_of_lines_turned_to_each_layer(fig3):
+    """The print's roads wander about a degree from the director; a layer's turn is a
+    fraction of one. Printed along one set of lines, turned per layer, the layers differ
+    by the designed turn and nothing else; planned apart (a turn too large to share), by
+    their roads' wander."""
+    design, _ = layered(fig3, 2, THICKNESS)
+
+    def turn_error_deg(layered_design: Design) -> np.ndarray:
+        """Per top-layer segment: its angle less the nearest bottom segment's, less the
+        designed turn between the layers there (degrees)."""
+        job = ToolpathJob(inputs=("fig3.npz",), design=layered_design, size_mm=20.0)
+        result = plan_job(job)
+        plan, part = result.plan, result.parts[0]
+        fields = [field_from_design(layered_design.layer(k), part=part) for k in (0, 1)]
+        middles, angles = [], []
+        for layer in plan.toolpath.layers:
+            lines = [m.xyz[:, :2] for m in layer.moves if m.kind == "print"]
+            step = np.concatenate([np.diff(line, axis=0) for line in lines])
+            middles.append(
+                np.concatenate([line[:-1] + 0.5 * np.diff(line, axis=0) for line in lines])
+            )
+            angles.append(np.arctan2(step[:, 1], step[:, 0]))
+        _, nearest = cKDTree(middles[0]).query(middles[1])
+        designed = fields[1].theta(middles[1]) - fields[0].theta(middles[1])
+        error = angles[1] - angles[0][nearest] - designed
+        return np.degrees(np.abs(np.pi / 2 - np.mod(np.pi / 2 - error, np.pi)))
+
+    shared = turn_error_deg(design)
+    assert np.median(shared) < 0.01 and np.percentile(shared, 90) < 0.05
+    # a turn too large to share (3 degrees between the layers): planned apart, they wander apart
+    spread = design.layering.heights[-1] - design.layering.heights[0]
+    wide = replace(design.layering, turn=np.where(fig3.valid, np.radians(3.0) / spread, np.nan))
+    apart = turn_error_deg(design.with_layering(wide))
+    assert np.percentile(apart, 90) > 0.5

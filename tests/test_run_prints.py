@@ -51,6 +51,22 @@ def test_a_target_is_formed_only_where_every_print_forms_it(two_prints):
     assert f"Print 1 (the machine file): {prints[0]['headline']}." in page
 
 
+@pytest.mark.slow
+def test_a_target_missed_unrefined_names_refine_before_the_verdict(two_prints):
+    """The sphere of Fig. 1 at 20 mm is missed (8 % RMS): the line before the verdict's
+    lines says what would change it, and the last line names the target missed."""
+    from fabkit.commands.run import NOT_REFINED
+
+    figures, text, _ = two_prints
+    assert not figures["verdict"]["formed"] and not figures["layers"]["refined"]
+    lines = text.splitlines()
+    assert lines[-1].startswith("done: the sheet as fabricated does NOT form sphere")
+    count = len(figures["verdict"]["lines"])  # the verdict's lines end the run, as ever
+    assert [line.strip() for line in lines[-count - 1 : -1]] == figures["verdict"]["lines"]
+    assert lines[-count - 2].strip() == "the sheet as fabricated:"
+    assert lines[-count - 3].strip() == NOT_REFINED
+
+
 @pytest.mark.parametrize(
     ("options", "message"),
     [

@@ -149,8 +149,25 @@ def _plan(job: ToolpathJob) -> tuple[Plan, Process, list[FlatField]]:
         ignore=job.ignore_features,
         lines=LineSettings(end_inset=job.end_inset),
         phase_rad=job.phase_rad,
+        shared_lines=_small_turn(job.design),
     )
     return plan_toolpath(fields, process, settings), process, fields
+
+
+SHARED_TURN_DEG = 2.0
+"""Largest turn (degrees) between a layered design's bottom and top layers whose layers
+are printed along one set of lines, turned (:mod:`fabkit.toolpath.plan`); lines turned
+further would drift apart along their length, so those layers are planned apart."""
+
+
+def _small_turn(design: Design | None) -> bool:
+    """Whether ``design`` is layered, its layers' directors within SHARED_TURN_DEG."""
+    if design is None or design.layering is None:
+        return False
+    layering = design.layering
+    spread = float(layering.heights[-1] - layering.heights[0])
+    turn = np.nanmax(np.abs(layering.turn), initial=0.0) * spread
+    return bool(turn <= np.radians(SHARED_TURN_DEG))
 
 
 def _result(plan: Plan, files: tuple[Path, ...], fields: list[FlatField]) -> JobResult:

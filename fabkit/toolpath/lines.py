@@ -110,6 +110,39 @@ def lines_from_pattern(
     return [line for line in lines if polyline_length(line) >= settings.min_length * w]
 
 
+def turned_lines(
+    lines: list[np.ndarray], base: FlatField, own: FlatField, settings: LineSettings, w: float
+) -> list[np.ndarray]:
+    """``lines``, planned along ``base``'s director, turned to follow ``own``'s: every
+    segment turned by the difference of the two directors at its middle (rad), each line
+    held at its middle vertex (a closed line closed again by spreading its gap along it),
+    then clipped to ``own``'s outline shrunk by ``end_inset * w`` (mm) as print lines are.
+
+    The layers of a layered design differ by a turn of a fraction of a degree: printed
+    along lines turned from one set, they share that set's wander from the director (a
+    degree or so, which lines planned apart would not share) and differ by the turn.
+    """
+    if not lines:
+        return []
+    segments = [np.diff(line, axis=0) for line in lines]
+    middles = np.concatenate([line[:-1] + 0.5 * d for line, d in zip(lines, segments, strict=True)])
+    turn = _wrap(own.theta(middles) - base.theta(middles))
+    cos, sin = np.cos(turn), np.sin(turn)
+    out, start = [], 0
+    for line, d in zip(lines, segments, strict=True):
+        c, s = cos[start : start + len(d)], sin[start : start + len(d)]
+        start += len(d)
+        step = np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]])
+        if is_closed(line):
+            arc = np.cumsum(np.linalg.norm(d, axis=1))
+            step -= np.outer(np.diff(np.concatenate([[0.0], arc])) / arc[-1], step.sum(axis=0))
+        path = np.vstack([np.zeros(2), np.cumsum(step, axis=0)])
+        middle = len(line) // 2
+        out.append(path + (line[middle] - path[middle]))
+    inner = own.outline.buffer(-settings.end_inset * w)
+    return [line for line in clip_lines(out, inner) if len(line) >= 2]
+
+
 def polyline_length(line: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(line, axis=0), axis=1).sum())
 
