@@ -66,6 +66,12 @@ from fabkit.design.design import MAX_LAYERS, Design, Layering
 from fabkit.errors import FabkitError
 
 TINY = 1e-12
+SHARED_TURN_DEG = 2.0
+"""Largest turn (degrees) between a layering's bottom and top layers that is printed
+along one set of lines, turned per layer (:mod:`fabkit.toolpath.plan`); layers turned
+further are planned apart, and their roads' wander (about a degree) differs between
+them, a twist no design asked for. The first-order layering turns the layers a fraction
+of a degree; the refinement (:mod:`fabkit.mechanics.refine`) keeps within it."""
 EXPLAINED = 0.5
 """A target asked for its curvature that gets less than this share of it is told why."""
 REACHES = 1e-6

@@ -38,6 +38,7 @@ What is refined is then judged as everything else, from every start
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -48,7 +49,7 @@ from threadpoolctl import threadpool_limits
 
 from fabkit.background import parallel_map
 from fabkit.design.design import Design, Layering
-from fabkit.design.layers import slope_room
+from fabkit.design.layers import SHARED_TURN_DEG, slope_room
 from fabkit.errors import FabkitError
 from fabkit.field.part import Part
 from fabkit.mechanics.adjoint import aligned_distance, energy_difference, metric_gradient
@@ -70,8 +71,13 @@ WARM = ("fabkit.mechanics.refine",)
 """What a worker imports before its first case."""
 DEGREE = 4
 """Largest total degree of the correction polynomials (15 terms per field)."""
-MAX_TURN = 0.35
-"""Largest director turn (rad) of any layer from the design's director."""
+MAX_TURN = math.radians(SHARED_TURN_DEG) / 2
+"""Largest director turn (rad) of any layer from the design's director: the outer layers
+within :data:`~fabkit.design.layers.SHARED_TURN_DEG` of each other, so that the layers
+are printed along one set of lines. It was 0.35 rad (stop 53): the refined layers turned
+up to 40 degrees apart, were planned apart, and each print's roads wandered apart again
+(Fig. 1, --refine: 265 s, three prints; capped, 104 s, two; ball_hypar's hypar formed from
+the first print, 100 s, 632 s before)."""
 EVALUATIONS = 10
 """Most evaluations (a followed equilibrium of every target) per round of descent."""
 FOLLOW_ITERATIONS = 40

@@ -26,6 +26,7 @@ import numpy as np
 import shapely
 
 from fabkit.design.design import Design
+from fabkit.design.layers import SHARED_TURN_DEG
 from fabkit.errors import FabkitError
 from fabkit.field.design_field import field_from_design
 from fabkit.field.director_file import load_director_file
@@ -154,20 +155,16 @@ def _plan(job: ToolpathJob) -> tuple[Plan, Process, list[FlatField]]:
     return plan_toolpath(fields, process, settings), process, fields
 
 
-SHARED_TURN_DEG = 2.0
-"""Largest turn (degrees) between a layered design's bottom and top layers whose layers
-are printed along one set of lines, turned (:mod:`fabkit.toolpath.plan`); lines turned
-further would drift apart along their length, so those layers are planned apart."""
-
-
 def _small_turn(design: Design | None) -> bool:
-    """Whether ``design`` is layered, its layers' directors within SHARED_TURN_DEG."""
+    """Whether ``design`` is layered, its bottom and top layers' directors within
+    :data:`~fabkit.design.layers.SHARED_TURN_DEG` (lines turned further would drift apart
+    along their length, so those layers are planned apart)."""
     if design is None or design.layering is None:
         return False
     layering = design.layering
     spread = float(layering.heights[-1] - layering.heights[0])
     turn = np.nanmax(np.abs(layering.turn), initial=0.0) * spread
-    return bool(turn <= np.radians(SHARED_TURN_DEG))
+    return bool(turn <= np.radians(SHARED_TURN_DEG) * (1 + 1e-9))  # the refinement's cap
 
 
 def _result(plan: Plan, files: tuple[Path, ...], fields: list[FlatField]) -> JobResult:
