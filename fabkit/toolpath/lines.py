@@ -134,8 +134,8 @@ def turned_lines(
         start += len(d)
         step = np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1]])
         if is_closed(line):
-            arc = np.cumsum(np.linalg.norm(d, axis=1))
-            step -= np.outer(np.diff(np.concatenate([[0.0], arc])) / arc[-1], step.sum(axis=0))
+            lengths = np.linalg.norm(d, axis=1)
+            step -= np.outer(lengths / lengths.sum(), step.sum(axis=0))
         path = np.vstack([np.zeros(2), np.cumsum(step, axis=0)])
         middle = len(line) // 2
         out.append(path + (line[middle] - path[middle]))

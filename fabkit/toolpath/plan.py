@@ -9,9 +9,8 @@ the layers of one layered design, whose directors differ by a fraction of a degr
 printed along the lines planned for the first, each field's turned to its own director
 (:func:`~fabkit.toolpath.lines.turned_lines`) and encoding its own features: a print's
 roads wander from the director (about a degree on average), and two layers planned apart
-wander apart, a twist between them some fifty times the one designed (Fig. 3 at 60 mm:
-turns of 0.02 degrees median, 0.46 at most), which alone took its face from 2.1 % to
-4.5-6.6 % RMS as fabricated.
+wander apart, a twist between them far larger than the one designed (docs/layers.md,
+"One set of lines for every layer", has the figures).
 
 Every feature of a field is encoded on every vertex by the process's channel for it
 (:meth:`fabkit.process.Process.resolve`: a feature without a channel is an error unless
