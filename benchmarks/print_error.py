@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fabkit.field.flat import director_angle
 from fabkit.mechanics.fabricated import SheetFields, design_fields
 from fabkit.mechanics.verdict import embedded_targets, target_shapes
 from fabkit.verify.machine_file import VerifyOptions, read_back
@@ -51,11 +52,6 @@ PARTS = {
 features mean, features difference), each 0 or 1."""
 
 
-def wrapped(angle: np.ndarray) -> np.ndarray:
-    """A director angle difference in (-pi/2, pi/2]."""
-    return np.pi / 2 - np.mod(np.pi / 2 - angle, np.pi)
-
-
 def with_error(
     own: list[SheetFields], made: list[SheetFields], weights: tuple[int, int, int, int]
 ) -> list[SheetFields]:
@@ -70,7 +66,7 @@ def with_error(
 
     def layer(k: int) -> SheetFields:
         def theta(points: np.ndarray) -> np.ndarray:
-            errors = [wrapped(m.theta(points) - o.theta(points)) for m, o in pairs]
+            errors = [director_angle(m.theta(points) - o.theta(points)) for m, o in pairs]
             return own[k].theta(points) + split(errors, k, weights[0], weights[1])
 
         def features(points: np.ndarray) -> np.ndarray:

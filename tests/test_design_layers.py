@@ -15,6 +15,7 @@ from fabkit.design.layers import layered, second_forms
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.field.design_field import field_from_design
+from fabkit.field.flat import director_angle
 from fabkit.mechanics.simulate import simulate
 from fabkit.problem.spec import build_spec
 from fabkit.toolpath.job import ToolpathJob, plan_job
@@ -179,7 +180,7 @@ def test_the_layers_are_printed_along_one_set_of_lines_turned_to_each_layer(fig3
         _, nearest = cKDTree(middles[0]).query(middles[1])
         designed = fields[1].theta(middles[1]) - fields[0].theta(middles[1])
         error = angles[1] - angles[0][nearest] - designed
-        return np.degrees(np.abs(np.pi / 2 - np.mod(np.pi / 2 - error, np.pi)))
+        return np.degrees(np.abs(director_angle(error)))
 
     shared = turn_error_deg(design)
     assert np.median(shared) < 0.01 and np.percentile(shared, 90) < 0.05

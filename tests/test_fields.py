@@ -8,11 +8,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 import shapely
+from hypothesis import given
+from hypothesis import strategies as st
 
 from fabkit.errors import FabkitError
 from fabkit.field.design_field import field_from_design
 from fabkit.field.director_file import load_director_file
-from fabkit.field.flat import field_from_expression, field_from_grid, planar_expression
+from fabkit.field.flat import (
+    director_angle,
+    field_from_expression,
+    field_from_grid,
+    planar_expression,
+)
 from fabkit.field.outlines import parse_shape
 from fabkit.field.part import DEFAULT_SIZE_MM, SIZE_TOLERANCE
 
@@ -292,3 +299,11 @@ def test_bad_director_grid_files_are_one_line_errors(tmp_path, arrays, message):
     with pytest.raises(FabkitError, match=message) as info:
         load_director_file(tmp_path / "d.toml")
     assert "\n" not in str(info.value)
+
+
+@given(st.floats(-1e3, 1e3, allow_nan=False))
+def test_a_director_angle_is_taken_mod_pi_into_the_half_open_half_turn(angle):
+    wrapped = float(director_angle(np.array(angle)))
+    assert -np.pi / 2 < wrapped <= np.pi / 2
+    turns = (angle - wrapped) / np.pi
+    assert abs(turns - round(turns)) < 1e-9 * max(1.0, abs(angle))

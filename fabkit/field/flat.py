@@ -49,6 +49,12 @@ EXPRESSION_NAMES = ("x", "y", "r", "phi")
 phi = arctan2(y, x) (radians). ``arctan2(a, b)`` may also be called with two arguments."""
 
 
+def director_angle(angle: np.ndarray) -> np.ndarray:
+    """A director angle, or the difference of two (radians), taken mod pi into
+    (-pi/2, pi/2]: a director has no head or tail."""
+    return np.pi / 2 - np.mod(np.pi / 2 - angle, np.pi)
+
+
 @dataclass(frozen=True, eq=False)
 class FlatField:
     """A director field and its features on the flat sheet; lengths in mm, angles in rad.
@@ -81,7 +87,7 @@ class FlatField:
         """
         points = np.asarray(points, dtype=float).reshape(-1, 2)
         angles = _finite_values(self.theta_fn, points, self.outline, self.key("theta"))
-        return np.pi / 2 - np.mod(np.pi / 2 - angles, np.pi)
+        return director_angle(angles)
 
     def director(self, points: np.ndarray) -> np.ndarray:
         """Unit director (n, 2) at (n, 2) points (sign arbitrary)."""
@@ -115,7 +121,7 @@ class FlatField:
         if self.joint_fn is None:
             return self.theta(points), {name: self.feature(name, points) for name in self.names}
         theta, *values = self.joint_fn(points[:, 0], points[:, 1])
-        theta = np.pi / 2 - np.mod(np.pi / 2 - theta, np.pi)
+        theta = director_angle(theta)
         return theta, dict(zip(self.names, values, strict=True))
 
     def eps(self, points: np.ndarray) -> np.ndarray:

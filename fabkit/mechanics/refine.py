@@ -51,6 +51,7 @@ from fabkit.background import parallel_map
 from fabkit.design.design import Design, Layering
 from fabkit.design.layers import SHARED_TURN_DEG, slope_room
 from fabkit.errors import FabkitError
+from fabkit.field.flat import director_angle
 from fabkit.field.part import Part
 from fabkit.mechanics.adjoint import aligned_distance, energy_difference, metric_gradient
 from fabkit.mechanics.fabricated import (
@@ -607,6 +608,6 @@ def _error(
     for k, made in enumerate(fabricated):
         own = design_fields(design.layer(k))
         turn = made.theta(mesh.points) - own.theta(mesh.points)
-        d_theta.append((turn + np.pi / 2) % np.pi - np.pi / 2)  # a director is mod pi
+        d_theta.append(director_angle(turn))
         d_eps.append(made.features(mesh.points) - own.features(mesh.points))
     return np.array(d_theta), np.array(d_eps)

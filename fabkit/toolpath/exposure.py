@@ -18,6 +18,7 @@ import numpy as np
 import shapely
 
 from fabkit.errors import FabkitError
+from fabkit.field.flat import director_angle
 from fabkit.machines import DEFAULT_RELATION, RELATIONS, LaserOptics, MachineProfile
 from fabkit.process import Process, Resolution
 
@@ -221,13 +222,8 @@ def bin_angles(grid: DirectorGrid, bins: int) -> Binning:
     label = np.where(grid.mask, np.rint(np.nan_to_num(grid.theta) / width) % bins, -1)
     label = label.astype(np.int64)
     centres = np.arange(bins) * width
-    error = np.abs(_wrap(grid.theta - centres[np.maximum(label, 0)]))
+    error = np.abs(director_angle(grid.theta - centres[np.maximum(label, 0)]))
     return Binning(label, centres, np.where(grid.mask, error, np.nan))
-
-
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """An angle mod pi, in [-pi/2, pi/2)."""
-    return np.mod(angle + np.pi / 2, np.pi) - np.pi / 2
 
 
 @dataclass(frozen=True)

@@ -34,7 +34,7 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
-from fabkit.field.flat import FlatField
+from fabkit.field.flat import FlatField, director_angle
 from fabkit.toolpath.stripe_lines import stripe_lines
 from fabkit.toolpath.stripes import Spacing, StripePattern, StripeSettings, solve_stripes
 
@@ -126,7 +126,7 @@ def turned_lines(
         return []
     segments = [np.diff(line, axis=0) for line in lines]
     middles = np.concatenate([line[:-1] + 0.5 * d for line, d in zip(lines, segments, strict=True)])
-    turn = _wrap(own.theta(middles) - base.theta(middles))
+    turn = director_angle(own.theta(middles) - base.theta(middles))
     cos, sin = np.cos(turn), np.sin(turn)
     out, start = [], 0
     for line, d in zip(lines, segments, strict=True):
@@ -241,16 +241,12 @@ def _angle_error(lines: list[np.ndarray], flat: FlatField) -> np.ndarray:
     for line in lines:
         segment = np.diff(line, axis=0)
         middle = line[:-1] + 0.5 * segment
-        error = np.abs(_wrap(np.arctan2(segment[:, 1], segment[:, 0]) - flat.theta(middle)))
+        tangent = np.arctan2(segment[:, 1], segment[:, 0])
+        error = np.abs(director_angle(tangent - flat.theta(middle)))
         errors.append(
             np.maximum(np.concatenate([error[:1], error]), np.concatenate([error, error[-1:]]))
         )
     return np.concatenate(errors)
-
-
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """Angle difference of two directors, in (-pi/2, pi/2]."""
-    return np.pi / 2 - np.mod(np.pi / 2 - angle, np.pi)
 
 
 def _end_runs(flag: np.ndarray) -> np.ndarray:

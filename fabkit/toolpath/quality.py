@@ -24,7 +24,7 @@ import numba
 import numpy as np
 import shapely
 
-from fabkit.field.flat import FlatField
+from fabkit.field.flat import FlatField, director_angle
 
 PIXELS_PER_WIDTH = 10
 
@@ -81,7 +81,7 @@ def measure_quality(
         if len(segment):
             middle = 0.5 * (samples[:-1] + samples[1:])
             tangent = np.arctan2(segment[:, 1], segment[:, 0])
-            error = np.abs(np.pi / 2 - np.mod(np.pi / 2 - (tangent - flat.theta(middle)), np.pi))
+            error = np.abs(director_angle(tangent - flat.theta(middle)))
             lengths = np.linalg.norm(segment, axis=1)
             angle_sum += float((error * lengths).sum())
             length_sum += float(lengths.sum())

@@ -21,7 +21,7 @@ import shapely
 from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.design_field import field_from_design
-from fabkit.field.flat import FlatField
+from fabkit.field.flat import FlatField, director_angle
 from fabkit.process import Resolution
 from fabkit.verify.raster import Readback
 
@@ -116,7 +116,7 @@ class ComparedSheet:
         covered = inside & (readback.hits > 0)
         points = np.column_stack([x[covered], y[covered]])
         designed, features = flat.sample(points)
-        error = np.abs(_wrap(readback.theta[covered] - designed))
+        error = np.abs(director_angle(readback.theta[covered] - designed))
         degrees = np.degrees(error) if len(error) else np.array([np.nan])
         hits = readback.hits[covered]
         return cls(
@@ -129,11 +129,6 @@ class ComparedSheet:
             director_mean=float(np.mean(degrees)),
             director_p95=float(np.percentile(degrees, 95)),
         )
-
-
-def _wrap(angle: np.ndarray) -> np.ndarray:
-    """An angle mod pi in [-pi/2, pi/2)."""
-    return np.mod(angle + np.pi / 2, np.pi) - np.pi / 2
 
 
 def decode_features(readback: Readback, resolution: Resolution) -> dict[str, np.ndarray]:
