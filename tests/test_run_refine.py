@@ -20,7 +20,7 @@ def refined_run(folder):
     out = folder / "refined"
     said = io.StringIO()
     args = ["run", str(EXAMPLES / "two_shapes.toml"), "--step", "0.1", "--diagonals", "30"]
-    args += ["--size", "40", "--refine", "--no-pictures", "--out", str(out)]
+    args += ["--size", "40", "--layers", "2", "--refine", "--no-pictures", "--out", str(out)]
     with contextlib.redirect_stdout(said):
         code = main(args)
     assert code in (0, 1)

@@ -277,11 +277,19 @@ def _layers_words(layers: Mapping[str, Any]) -> str:
             f"{_changes(refinement)}; docs/layers.md).{then} What the refined layers program:"
         )
     share = f"{100 * layers.get('share', 1.0):.0f} % of the first-order layering"
-    if layers.get("shares_tried"):
+    tried = layers.get("shares_tried") or {}
+    if "refined" in tried:
         return (
             "The layers differ so that the sheet's natural curvature is a share of every "
             f"target's curvature: {share}, not refined (the refined layers formed fewer "
             "targets as designed; docs/layers.md):"
+        )
+    if tried:
+        shares = ", ".join(f"{100 * float(label):g} %" for label in tried)
+        return (
+            "The layers differ so that the sheet's natural curvature is a share of every "
+            f"target's curvature: {share} (shares tried, largest first: {shares}; the "
+            "largest whose sheet as designed forms every target is kept; docs/layers.md):"
         )
     return (
         "The layers differ so that the sheet's natural curvature is a share of every "
@@ -311,7 +319,22 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
     reasons = tuple(
         Paragraph((f"{name}: {why}.",)) for name, why in layers.get("why", {}).items() if why
     )
+    tried = layers.get("layers_tried") or {}
+    counts = (
+        (
+            Paragraph(
+                (
+                    f"{figures['verdicts'][0]['layers']} layers, chosen by the run (no "
+                    "--layers) among the layer counts it judged as designed:",
+                )
+            ),
+            Table(("layers", "the sheet as designed"), tuple(tried.items())),
+        )
+        if tried and figures.get("verdicts")
+        else ()
+    )
     blocks = (
+        *counts,
         Paragraph((_layers_words(layers),)),
         Table(
             (

@@ -53,8 +53,9 @@ class RunOptions:
     ``part_request`` cuts the part (:class:`fabkit.field.part.PartRequest`). ``layers``
     (>= 2) prints the sheet in that many layers programmed with each target's curvature
     (:mod:`fabkit.design.layers`); None lets the run choose (:func:`with_defaults`:
-    :data:`AUTO_LAYERS` on a printer, one where the route makes one; ``layers_chosen``
-    then True); ``refine`` refines those layers against the simulation
+    :data:`AUTO_LAYERS` on a printer, which the solve stage may raise to one of
+    :func:`layer_choices`, one where the route makes one; ``layers_chosen`` then True);
+    ``refine`` refines those layers against the simulation
     (:mod:`fabkit.mechanics.refine`). Every target is simulated, as designed and as
     fabricated, and held to ``form_tolerance`` (RMS, a share of the patch diameter);
     ``strict`` makes a target not formed an error (the run's exit code). ``simulate``
@@ -232,10 +233,27 @@ def machine_name(options: RunOptions) -> str:
 
 
 AUTO_LAYERS = 2
-"""The layers a printed run makes when none are asked for: the fewest that program a
-natural curvature, and so each target's side. A sheet of one layer has none: whatever
-its metric, a target and its mirror image are equally its shapes, and it takes the one
-its start favours (docs/layers.md)."""
+"""The fewest layers that program a natural curvature, and so each target's side: a
+sheet of one layer has none, whatever its metric a target and its mirror image are
+equally its shapes, and it takes the one its start favours (docs/layers.md). A printed
+run with no ``--layers`` judges this many and more (:func:`layer_choices`), or prints
+this many where it judges nothing (``--no-simulate``)."""
+LAYER_CHOICES = (AUTO_LAYERS, 3, 4, 5)
+"""The layer counts a printed run with no ``--layers`` judges as designed
+(:func:`fabkit.run.solve.choose_layers`): a thicker sheet averages more of the print's
+error over its thickness and is trimmed nearer its targets' bending lengths, but bends
+less far (docs/layers.md, "How many layers")."""
+MIN_SIZE_PER_THICKNESS = 30.0
+"""The thickest sheet a run chooses for its size: the part's longest side at least this
+many times the sheet's thickness (Fig. 1 at 40 mm in 5 layers of 0.3 mm, 27 times: its
+sphere 14.5 % RMS from its target as designed)."""
+
+
+def layer_choices(size_mm: float, layer_height_mm: float) -> tuple[int, ...]:
+    """The layer counts of :data:`LAYER_CHOICES` a run of a part ``size_mm`` long (its
+    longest side) judges (:data:`MIN_SIZE_PER_THICKNESS`); at least the fewest."""
+    thin = [k for k in LAYER_CHOICES if size_mm >= MIN_SIZE_PER_THICKNESS * k * layer_height_mm]
+    return tuple(thin) or LAYER_CHOICES[:1]
 
 
 def one_layer_route(options: RunOptions, machine: MachineProfile) -> str:
@@ -257,10 +275,19 @@ def layers_notice(options: RunOptions, inputs: RunInputs) -> str:
             f"ONE LAYER: {route} make one layer, so no target's side is programmed: the "
             "sheet takes each target or its mirror image, as it happens to start"
         )
+    height = inputs.process.layer_height_mm
+    choices = layer_choices(options.size_mm, height) if options.simulate else (options.layers,)
+    counts = f"{choices[0]} to {choices[-1]}" if len(choices) > 1 else f"{choices[0]}"
+    judged = (
+        ", judged as designed: the run prints the thickest sheet that forms every target "
+        "with room for the print's error (--layers K decides)"
+        if len(choices) > 1
+        else ""
+    )
     return (
-        f"LAYERS CHOSEN: {options.layers} layers of {inputs.process.layer_height_mm:g} mm "
-        "(no --layers), programmed with every target's side, which one layer cannot "
-        "program (--layers 1 prints one)"
+        f"LAYERS CHOSEN: {counts} layers of {height:g} mm (no --layers){judged}, each "
+        "programmed with every target's side, which one layer cannot program (--layers 1 "
+        "prints one)"
     )
 
 

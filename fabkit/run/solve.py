@@ -2,8 +2,10 @@
 
 :func:`solve_stage` solves and checks the spec into design.npz, cuts the part of the
 flat sheet that is made (:func:`design_part`, or a baromorph's), programs the layers of
-a layered sheet (:func:`layer_design`, also ``fabkit solve --layers``) and gives the
-verdict on the sheet as designed (:class:`Solved`). Called by
+a layered sheet (:func:`layer_design`, also ``fabkit solve --layers``; with no
+``--layers`` on a printer, of the layer counts :func:`layer_choices` allows the one
+:func:`chosen_layers` picks) and gives the verdict on the sheet as designed
+(:class:`Solved`). Called by
 :func:`fabkit.run.pipeline.run_pipeline`.
 """
 
@@ -29,9 +31,10 @@ from fabkit.field.part import (
 )
 from fabkit.figures import AREA_UNIT
 from fabkit.mechanics.refine import refine_layering
+from fabkit.mechanics.simulate import STARTS
 from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict, design_verdict
 from fabkit.process import Process
-from fabkit.run.inputs import RunInputs, RunOptions
+from fabkit.run.inputs import MIN_SIZE_PER_THICKNESS, RunInputs, RunOptions, layer_choices
 
 NOT_SIMULATED = (
     "NOT SIMULATED (--no-simulate): no verdict on the shapes the sheet takes; the design's "
@@ -76,13 +79,16 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
         + ", ".join(f"{k} {v:.4g}" for k, v in solved["area_design_units2"].items())
     )
     design = result.solution.design
-    part = _part(options, inputs, design)
+    layers, tried = options.layers, {}
+    if options.layers_chosen and layers > 1 and options.simulate:
+        layers, tried = choose_layers(design, options, inputs, say)
+    part = _part(options, inputs, design, layers)
     say(f"      {part.summary()}")
-    thickness_mm = options.layers * inputs.process.layer_height_mm if inputs.process else None
+    thickness_mm = layers * inputs.process.layer_height_mm if inputs.process else None
     layering, verdict = None, None
-    if options.layers > 1:
+    if layers > 1:
         request = LayerRequest(
-            options.layers,
+            layers,
             inputs.process,
             part,
             options.ignore_features,
@@ -90,7 +96,8 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
             options.refine,
         )
         made = layer_design(design, request, say, simulate=options.simulate)
-        design, layering, verdict = made.design, made.figures, made.as_designed
+        design, verdict = made.design, made.as_designed
+        layering = {**made.figures, "layers_tried": tried}
         design.save(Path(options.out) / "design.npz")
     if not options.simulate:
         say(f"      {NOT_SIMULATED}")
@@ -108,6 +115,74 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
     return Solved(design, check, result.maps, solved, part, layering, verdict)
 
 
+CHOOSING_STARTS = ("dome", "dome-down")
+"""The starts a run judges each layer count from while it chooses (a side not programmed
+shows between these two); the count chosen is judged from every start."""
+PRINT_MARGIN = 0.01
+"""How far inside each target's limit (a share of the patch diameter) a sheet as designed
+must end for a run to choose it for its thickness: the print's error took the examples'
+sheets 0.3 to 1.3 % farther from their targets (docs/layers.md)."""
+
+
+def chosen_layers(verdicts: dict[int, Verdict]) -> tuple[int, str]:
+    """Of the sheets as designed in several layer counts (count -> verdict), the count a
+    run prints and why: the thickest that forms every target :data:`PRINT_MARGIN` inside
+    its limit; else, of those that form every target, the one nearest its targets; else
+    the one that forms the most of them, nearest."""
+
+    def room(k: int) -> float:
+        return min(s.tolerance - s.rms for s in verdicts[k].shapes)
+
+    formed = [k for k, v in verdicts.items() if v.formed]
+    clear = [k for k in formed if room(k) >= PRINT_MARGIN]
+    if clear:
+        why = (
+            f"the thickest sheet that forms every target {100 * PRINT_MARGIN:g} % inside its limit"
+        )
+        return max(clear), why
+    if formed:
+        why = f"none forms every target {100 * PRINT_MARGIN:g} % inside its limit: the nearest"
+        return max(formed, key=room), why
+    best = max(verdicts, key=lambda k: (sum(s.formed for s in verdicts[k].shapes), room(k)))
+    return best, "none forms every target as designed: the one that forms the most, nearest"
+
+
+def choose_layers(
+    design: Design, options: RunOptions, inputs: RunInputs, say: Callable[[str], None]
+) -> tuple[int, dict[str, str]]:
+    """The layer count of a printed run with no ``--layers`` and what each count judged
+    did (count -> one line): every count of :func:`layer_choices` layered and judged as
+    designed from :data:`CHOOSING_STARTS`, each on its own part (the trim follows the
+    thickness); :func:`chosen_layers` picks."""
+    height = inputs.process.layer_height_mm
+    choices = layer_choices(options.size_mm, height)
+    if len(choices) == 1:
+        return choices[0], {}
+    say(
+        f"      layers judged as designed: {choices[0]} to {choices[-1]} of {height:g} mm "
+        f"(no --layers; the sheet at most 1/{MIN_SIZE_PER_THICKNESS:g} of its size thick)"
+    )
+    verdicts, tried = {}, {}
+    for k in choices:
+        part = _part(options, inputs, design, k)
+        request = LayerRequest(
+            k, inputs.process, part, options.ignore_features, options.form_tolerance,
+            starts=CHOOSING_STARTS,
+        )  # fmt: skip
+        verdicts[k] = verdict = layer_design(design, request, lambda line: None).as_designed
+        nearest = min(verdict.shapes, key=lambda s: s.tolerance - s.rms)
+        tried[str(k)] = (
+            f"forms every target, nearest its limit {nearest.target} {100 * nearest.rms:.2f} % "
+            f"(limit {100 * nearest.tolerance:g} %)"
+            if verdict.formed
+            else verdict.headline().split(" as designed ", 1)[1]
+        )
+        say(f"        {k} layers ({k * height:.2g} mm): {tried[str(k)]}")
+    chosen, why = chosen_layers(verdicts)
+    say(f"      chosen: {chosen} layers, {why}")
+    return chosen, tried
+
+
 @dataclass(frozen=True)
 class LayerRequest:
     """A layered sheet asked for: ``layers`` of the ``process``'s layer height on the
@@ -122,6 +197,7 @@ class LayerRequest:
     ignore_features: tuple[str, ...] = ()
     tolerance: float = FORM_TOLERANCE
     refine: bool = False
+    starts: tuple[str, ...] = STARTS
 
 
 SHARES = (1.0, 0.1)
@@ -164,7 +240,12 @@ def layer_design(
 
     def judged(sheet: Design) -> Verdict:
         return design_verdict(
-            sheet, thickness, tolerance=request.tolerance, part=part, mm_per_unit=part.mm_per_unit
+            sheet,
+            thickness,
+            tolerance=request.tolerance,
+            part=part,
+            mm_per_unit=part.mm_per_unit,
+            starts=request.starts,
         )
 
     if not simulate:
@@ -178,6 +259,7 @@ def layer_design(
             "printed_refinement": None,
             "prints": [],
             "shares_tried": {},
+            "layers_tried": {},
             **report.to_dict(),
         }
         return Layered(unjudged, figures, None)
@@ -225,6 +307,7 @@ def layer_design(
         "printed_refinement": None,
         "prints": [],
         "shares_tried": {t[0]: t[4].headline() for t in tried},
+        "layers_tried": {},
         **report.to_dict(),
     }
     return Layered(chosen, figures, verdict)
@@ -249,14 +332,13 @@ def design_part(
     return part_of_size(design, size_mm, options, solved)
 
 
-def _part(options: RunOptions, inputs: RunInputs, design: Design) -> Part:
+def _part(options: RunOptions, inputs: RunInputs, design: Design, layers: int) -> Part:
     """The part of the flat sheet that is made, at the run's size, for its process: the
-    road width (a baromorph's: two channel pitches) and the sheet's thickness (its layers'
-    heights; a baromorph's part thickness) set the default minimum width and the trim."""
+    road width (a baromorph's: two channel pitches) and the sheet's thickness (``layers``
+    of its layer height; a baromorph's part thickness) set the default minimum width and
+    the trim."""
     if not options.baromorph:
-        return design_part(
-            design, options.size_mm, inputs.process, options.layers, options.part_request
-        )
+        return design_part(design, options.size_mm, inputs.process, layers, options.part_request)
     settings = inputs.baromorph
     solved = solved_region(design)
     return part_of_size(
