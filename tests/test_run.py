@@ -23,7 +23,7 @@ def test_run_writes_every_file(run_cli, tmp_path):
     out = tmp_path / "out"
     figures, text = run_ok(
         run_cli, "two_shapes.toml", out, "--format", "gcode", "--format", "dxf", "--no-verify",
-        "--step", "0.1", "--diagonals", "30",
+        "--step", "0.1", "--diagonals", "30", "--layers", "2",  # the choice: test_auto_layers
     )  # fmt: skip
     expected = [
         "design.npz",

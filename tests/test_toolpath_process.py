@@ -131,7 +131,18 @@ def test_an_eps_outside_the_table_names_options_the_command_has(run_cli, tmp_pat
     spec = ROOT / "examples" / "two_shapes.toml"
     out = tmp_path / "out"
     code, _, err = run_cli(
-        "run", spec, "--out", out, "--process", narrow, "--step", "0.1", "--diagonals", "30"
+        "run",
+        spec,
+        "--out",
+        out,
+        "--process",
+        narrow,
+        "--step",
+        "0.1",
+        "--diagonals",
+        "30",
+        "--layers",
+        "2",
     )
     assert code != 0 and "outside the calibrated range" in err and len(err.splitlines()) == 1, err
     named_commands = ("run", "toolpath")

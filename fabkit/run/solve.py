@@ -79,9 +79,9 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
         + ", ".join(f"{k} {v:.4g}" for k, v in solved["area_design_units2"].items())
     )
     design = result.solution.design
-    layers, tried = options.layers, {}
+    layers, tried, missed = options.layers, {}, ()
     if options.layers_chosen and layers > 1 and options.simulate:
-        layers, tried = choose_layers(design, options, inputs, say)
+        layers, tried, missed = choose_layers(design, options, inputs, say)
     part = _part(options, inputs, design, layers)
     say(f"      {part.summary()}")
     thickness_mm = layers * inputs.process.layer_height_mm if inputs.process else None
@@ -94,6 +94,7 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
             options.ignore_features,
             options.form_tolerance,
             options.refine,
+            missed=missed,
         )
         made = layer_design(design, request, say, simulate=options.simulate)
         design, verdict = made.design, made.as_designed
@@ -149,27 +150,30 @@ def chosen_layers(verdicts: dict[int, Verdict]) -> tuple[int, str]:
 
 def choose_layers(
     design: Design, options: RunOptions, inputs: RunInputs, say: Callable[[str], None]
-) -> tuple[int, dict[str, str]]:
-    """The layer count of a printed run with no ``--layers`` and what each count judged
-    did (count -> one line): every count of :func:`layer_choices` layered and judged as
+) -> tuple[int, dict[str, str], tuple[tuple[float, Verdict], ...]]:
+    """The layer count of a printed run with no ``--layers``, what each count judged did
+    (count -> one line) and the shares of the chosen count that missed (for
+    :attr:`LayerRequest.missed`): every count of :func:`layer_choices` layered and judged as
     designed from :data:`CHOOSING_STARTS`, each on its own part (the trim follows the
     thickness); :func:`chosen_layers` picks."""
     height = inputs.process.layer_height_mm
     choices = layer_choices(options.size_mm, height)
     if len(choices) == 1:
-        return choices[0], {}
+        return choices[0], {}, ()
     say(
         f"      layers judged as designed: {choices[0]} to {choices[-1]} of {height:g} mm "
         f"(no --layers; the sheet at most 1/{MIN_SIZE_PER_THICKNESS:g} of its size thick)"
     )
-    verdicts, tried = {}, {}
+    verdicts, tried, missed = {}, {}, {}
     for k in choices:
         part = _part(options, inputs, design, k)
         request = LayerRequest(
             k, inputs.process, part, options.ignore_features, options.form_tolerance,
             starts=CHOOSING_STARTS,
         )  # fmt: skip
-        verdicts[k] = verdict = layer_design(design, request, lambda line: None).as_designed
+        made = layer_design(design, request, lambda line: None)
+        verdicts[k] = verdict = made.as_designed
+        missed[k] = made.missed
         nearest = min(verdict.shapes, key=lambda s: s.tolerance - s.rms)
         tried[str(k)] = (
             f"forms every target, nearest its limit {nearest.target} {100 * nearest.rms:.2f} % "
@@ -180,7 +184,7 @@ def choose_layers(
         say(f"        {k} layers ({k * height:.2g} mm): {tried[str(k)]}")
     chosen, why = chosen_layers(verdicts)
     say(f"      chosen: {chosen} layers, {why}")
-    return chosen, tried
+    return chosen, tried, missed[chosen]
 
 
 @dataclass(frozen=True)
@@ -189,7 +193,9 @@ class LayerRequest:
     ``part`` (its scale sets the thickness in design units), features within the ranges
     their channels encode (``ignore_features`` left out), targets held to ``tolerance``;
     ``refine``: the first-order layering refined against the simulation first
-    (:mod:`fabkit.mechanics.refine`, ``--refine``)."""
+    (:mod:`fabkit.mechanics.refine`, ``--refine``); ``starts``: those each share is judged
+    from; ``missed``: (share, verdict) of shares already judged from fewer starts that miss
+    a target (a miss from some starts is a miss from all), not judged again."""
 
     layers: int
     process: Process
@@ -198,6 +204,7 @@ class LayerRequest:
     tolerance: float = FORM_TOLERANCE
     refine: bool = False
     starts: tuple[str, ...] = STARTS
+    missed: tuple[tuple[float, Verdict], ...] = ()
 
 
 SHARES = (1.0, 0.1)
@@ -216,6 +223,8 @@ class Layered:
     design: Design
     figures: dict[str, Any]
     as_designed: Verdict | None
+    missed: tuple[tuple[float, Verdict], ...] = ()
+    """(share, verdict) of the shares whose sheet missed a target."""
 
 
 def layer_design(
@@ -272,7 +281,7 @@ def layer_design(
         f"      {request.layers} layers of {process.layer_height_mm:g} mm, programmed with "
         f"every target's curvature ({how}; docs/layers.md):"
     )
-    tried, refinement = [], None
+    tried, refinement, known = [], None, dict(request.missed)
     if request.refine:
         whole, _ = layered(design, request.layers, thickness, bounds)
         refinement = refine_layering(whole, bounds, part)
@@ -283,14 +292,22 @@ def layer_design(
         tried.append(("refined", 1.0, refinement.design, report, verdict))
     for share in () if tried and tried[0][4].formed else SHARES:
         candidate, report = layered(design, request.layers, thickness, bounds, share=share)
-        verdict = judged(candidate)
+        verdict = known.get(share) or judged(candidate)
         tried.append((f"{share:g}", share, candidate, report, verdict))
-        say(f"        {share:.0%}{', not refined' if request.refine else ''}: {verdict.headline()}")
+        judged_from = ""
+        if share in known:
+            judged_from = f" (from {', '.join(end.start for end in verdict.shapes[0].starts)})"
+        say(
+            f"        {share:.0%}{', not refined' if request.refine else ''}: "
+            f"{verdict.headline()}{judged_from}"
+        )
         if verdict.formed:
             break
     label, share, chosen, report, verdict = max(
         tried, key=lambda t: (sum(s.formed for s in t[4].shapes), t[0] == "refined", t[1])
     )
+    if label != "refined" and share in known:
+        verdict = judged(chosen)  # the sheet printed is judged from every start
     say(f"      chosen: {'refined' if label == 'refined' else f'{share:.0%} of the layering'}")
     if label == "refined":
         say(
@@ -310,7 +327,8 @@ def layer_design(
         "layers_tried": {},
         **report.to_dict(),
     }
-    return Layered(chosen, figures, verdict)
+    missed = tuple((t[1], t[4]) for t in tried if t[0] != "refined" and not t[4].formed)
+    return Layered(chosen, figures, verdict, missed)
 
 
 def design_part(
