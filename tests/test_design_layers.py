@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial import Delaunay, cKDTree
 
 from fabkit.design.design import Design
-from fabkit.design.layers import layered, second_forms
+from fabkit.design.layers import layered
 from fabkit.design.solver import solve
 from fabkit.errors import FabkitError
 from fabkit.field.design_field import field_from_design
@@ -64,7 +64,7 @@ def fig3() -> Design:
 def test_second_forms_of_the_sphere_are_its_metric_over_its_radius(fig3):
     # a sphere of radius R is umbilic: II = A / R in any coordinates, here (u, v), where the
     # designed metric at its stimulus is diag((alpha lambda1)^2, (beta lambda2)^2)
-    forms = second_forms(fig3)
+    forms = fig3.second_forms
     assert np.all(forms[0][:, fig3.valid] == 0)  # the flat sheet
     response = fig3.problem.material.response(np.nan_to_num(fig3.eps), fig3.stimuli[1:2])
     a_uu = (fig3.alpha * response.lambda1[0]) ** 2

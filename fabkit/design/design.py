@@ -108,6 +108,31 @@ class Design:
         """The spec this design solves, rebuilt once from the embedded JSON ``spec``."""
         return spec_from_json(self.spec)
 
+    @cached_property
+    def second_forms(self) -> np.ndarray:
+        """(S, 3, nu, nv) second fundamental forms (II_uu, II_uv, II_vv) of every surface
+        at the grid points, in material coordinates (u, v), with the surface's normal
+        X_u x X_v; NaN where not solved or not embedded (the flat sheet: 0). Computed once
+        per design (every layering of it asks for them: :mod:`fabkit.design.layers`)."""
+        forms = np.full((len(self.problem.targets), 3, *self.valid.shape), np.nan)
+        forms[0] = np.where(self.valid, 0.0, np.nan)
+        for k, target in enumerate(self.problem.targets[1:], start=1):
+            with np.errstate(all="ignore"):
+                points = target.surface.embed(np.where(self.valid[..., None], self.r[k], 0.0))
+            if points is None:
+                continue
+            points = np.where(self.valid[..., None], points, np.nan)
+            x_u = _grid_derivative(points, self.step, 0)
+            x_v = _grid_derivative(points, self.step, 1)
+            normal = np.cross(x_u, x_v)
+            normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+            x_uu = _grid_derivative(x_u, self.step, 0)
+            x_uv = 0.5 * (_grid_derivative(x_u, self.step, 1) + _grid_derivative(x_v, self.step, 0))
+            x_vv = _grid_derivative(x_v, self.step, 1)
+            for i, second in enumerate((x_uu, x_uv, x_vv)):
+                forms[k, i] = np.sum(second * normal, axis=-1)
+        return forms
+
     def knowing(self, spec: Spec) -> Design:
         """This design with :attr:`problem` set to ``spec``, the spec it was solved from,
         so that the embedded JSON is not parsed again; returns the design itself."""
@@ -353,3 +378,16 @@ def check_names(spec: str, where: str | Path) -> None:
     for index, surface in enumerate(surfaces if isinstance(surfaces, list) else []):
         if isinstance(surface, dict) and "name" in surface:
             check_name(surface["name"], f"{where}: surfaces[{index}].name")
+
+
+def _grid_derivative(values: np.ndarray, step: float, axis: int) -> np.ndarray:
+    """d values / d (u or v) (axis 0 or 1 of (nu, nv, ...)): central where both
+    neighbours are finite, else one-sided; NaN where neither neighbour is."""
+    moved = np.moveaxis(values, axis, 0)
+    ahead = np.full_like(moved, np.nan)
+    behind = np.full_like(moved, np.nan)
+    ahead[:-1] = (moved[1:] - moved[:-1]) / step
+    behind[1:] = (moved[1:] - moved[:-1]) / step
+    central = 0.5 * (ahead + behind)
+    out = np.where(np.isfinite(central), central, np.where(np.isfinite(ahead), ahead, behind))
+    return np.moveaxis(out, 0, axis)

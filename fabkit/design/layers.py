@@ -248,7 +248,7 @@ def layered(
         )
     if not (np.isfinite(thickness) and thickness > 0):
         raise FabkitError(f"layers: the sheet's thickness must be positive, got {thickness:g}")
-    forms = second_forms(design)
+    forms = design.second_forms
     if not np.isfinite(forms[1:]).any():
         raise FabkitError(
             "--layers: no target is embedded in 3D (metric-only surfaces), so there is no "
@@ -280,7 +280,7 @@ def layering_report(
     if layering is None:
         raise FabkitError("layers: the design has no layers to report on")
     weights = np.ones(len(design.stimuli)) if weights is None else np.asarray(weights, float)
-    system = _System.build(design, second_forms(design), layering.count, weights)
+    system = _System.build(design, design.second_forms, layering.count, weights)
     turn, slope = np.nan_to_num(layering.turn), np.nan_to_num(layering.slope)
     limited = np.zeros(len(slope))
     if bounds is not None:
@@ -290,44 +290,6 @@ def layering_report(
         at_bound = (np.abs(slope) >= room - TINY) & (room < np.inf) & valid & (slope != 0)
         limited = at_bound.sum(axis=(1, 2)) / max(int(valid.sum()), 1)
     return system.report(design, layered, turn, slope, limited)
-
-
-def second_forms(design: Design) -> np.ndarray:
-    """(S, 3, nu, nv) second fundamental forms (II_uu, II_uv, II_vv) of every surface at
-    the design's grid points, in material coordinates (u, v), with the surface's normal
-    X_u x X_v; NaN where not solved or not embedded (the flat sheet: 0)."""
-    spec = design.problem
-    forms = np.full((len(spec.targets), 3, *design.valid.shape), np.nan)
-    forms[0] = np.where(design.valid, 0.0, np.nan)
-    for k, target in enumerate(spec.targets[1:], start=1):
-        with np.errstate(all="ignore"):
-            points = target.surface.embed(np.where(design.valid[..., None], design.r[k], 0.0))
-        if points is None:
-            continue
-        points = np.where(design.valid[..., None], points, np.nan)
-        x_u = _derivative(points, design.step, 0)
-        x_v = _derivative(points, design.step, 1)
-        normal = np.cross(x_u, x_v)
-        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-        x_uu = _derivative(x_u, design.step, 0)
-        x_uv = 0.5 * (_derivative(x_u, design.step, 1) + _derivative(x_v, design.step, 0))
-        x_vv = _derivative(x_v, design.step, 1)
-        for i, second in enumerate((x_uu, x_uv, x_vv)):
-            forms[k, i] = np.sum(second * normal, axis=-1)
-    return forms
-
-
-def _derivative(values: np.ndarray, step: float, axis: int) -> np.ndarray:
-    """d values / d (u or v) (axis 0 or 1 of (nu, nv, ...)): central where both
-    neighbours are finite, else one-sided; NaN where neither neighbour is."""
-    moved = np.moveaxis(values, axis, 0)
-    ahead = np.full_like(moved, np.nan)
-    behind = np.full_like(moved, np.nan)
-    ahead[:-1] = (moved[1:] - moved[:-1]) / step
-    behind[1:] = (moved[1:] - moved[:-1]) / step
-    central = 0.5 * (ahead + behind)
-    out = np.where(np.isfinite(central), central, np.where(np.isfinite(ahead), ahead, behind))
-    return np.moveaxis(out, 0, axis)
 
 
 @dataclass(frozen=True)
@@ -568,17 +530,20 @@ def _metric_errors(design: Design, layered: Design) -> np.ndarray:
     design's, over every stimulus and component."""
     material = design.problem.material
     base = material.response(np.nan_to_num(design.eps), design.stimuli)
-    count = layered.layers
+    layering = layered.layering
+    count = layering.count
+    heights = layering.heights[:, None, None]  # (K, 1, 1)
+    # every layer's features at once, (N, K, nu, nv), as Design.layer gives them
+    eps = np.nan_to_num(layered.eps[:, None] + heights * layering.slope[:, None])
+    response = material.response(eps, design.stimuli)  # (S, K, nu, nv)
+    l1, l2 = response.lambda1**2, response.lambda2**2
+    turn = heights * np.nan_to_num(layering.turn)
+    cos, sin = np.cos(turn), np.sin(turn)
     mean = np.zeros((3, *base.lambda1.shape))
     for k in range(count):
-        layer = layered.layer(k)
-        response = material.response(np.nan_to_num(layer.eps), design.stimuli)
-        turn = layered.layering.heights[k] * np.nan_to_num(layered.layering.turn)
-        cos, sin = np.cos(turn), np.sin(turn)
-        l1, l2 = response.lambda1**2, response.lambda2**2
-        mean[0] += (cos**2 * l1 + sin**2 * l2) / count
-        mean[1] += cos * sin * (l1 - l2) / count
-        mean[2] += (sin**2 * l1 + cos**2 * l2) / count
+        mean[0] += (cos[k] ** 2 * l1[:, k] + sin[k] ** 2 * l2[:, k]) / count
+        mean[1] += cos[k] * sin[k] * (l1[:, k] - l2[:, k]) / count
+        mean[2] += (sin[k] ** 2 * l1[:, k] + cos[k] ** 2 * l2[:, k]) / count
     expected = (base.lambda1**2, 0.0, base.lambda2**2)
     scale = np.sqrt(base.lambda1**2 * base.lambda2**2)
     errors = [
