@@ -8,13 +8,15 @@ tests/test_run_layers.py's."""
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass, field, replace
+from types import SimpleNamespace
 
 import pytest
 
 from fabkit.design.design import Design
 from fabkit.mechanics.verdict import Shape, Verdict
 from fabkit.run.inputs import layer_choices
-from fabkit.run.solve import PRINT_MARGIN, chosen_layers
+from fabkit.run.solve import PRINT_MARGIN, chosen_layers, fallback_layers
 from tests.conftest import EXAMPLES
 
 QUICK = ("--step", "0.1", "--diagonals", "30", "--size", "12", "--no-verify", "--no-simulate",
@@ -82,6 +84,15 @@ def test_the_thickest_sheet_clear_of_every_limit_by_the_print_s_margin_is_chosen
     assert chosen == 2 and "none forms every target" in why
 
 
+def test_the_counts_printed_next_are_those_formed_as_designed_farthest_inside_first():
+    # bowl_saddle_trough at 60 mm as measured: 2 chosen (clear), 3 formed, 4 and 5 missed
+    bowl = {2: _sheet(2, 0.0122), 3: _sheet(3, 0.0258), 4: _sheet(4, 0.0335), 5: _sheet(5, 0.0351)}
+    assert chosen_layers(bowl)[0] == 2 and fallback_layers(bowl, 2) == (3,)
+    fig1 = {2: _sheet(2, 0.0293), 3: _sheet(3, 0.0257), 4: _sheet(4, 0.0227), 5: _sheet(5, 0.0865)}
+    assert fallback_layers(fig1, 4) == (3, 2)
+    assert fallback_layers({2: _sheet(2, 0.05), 3: _sheet(3, 0.02)}, 3) == ()
+
+
 @pytest.mark.slow
 def test_a_run_at_a_size_that_allows_thicker_sheets_judges_each_and_prints_one(run_cli, tmp_path):
     out = tmp_path / "thirty"
@@ -102,3 +113,75 @@ def test_a_run_at_a_size_that_allows_thicker_sheets_judges_each_and_prints_one(r
     assert Design.load(out / "design.npz").layers == layers
     assert report["as designed"]["layers"] == layers
     assert f";LAYER_COUNT:{layers}" in (out / "sheet.gcode").read_text()
+
+
+@dataclass(frozen=True)
+class _Sheet:
+    """What the run's print loop asks of a solved design: its layers, saved."""
+
+    layers: int
+    saved: list = field(default_factory=list, compare=False)
+
+    def save(self, path) -> None:
+        self.saved.append(path)
+
+
+@dataclass(frozen=True)
+class _Solved:
+    design: _Sheet
+    layering: dict | None
+    fallbacks: tuple = ()
+
+
+def _print_loop(monkeypatch, tmp_path, chosen: int, fallbacks: tuple[int, ...], printed: dict):
+    """``fabkit.run.pipeline._printed`` with every count's print judged as ``printed``
+    (count -> verdict as fabricated) instead of made: the counts made, in order, and what
+    the loop returned."""
+    from fabkit.run import pipeline
+    from fabkit.run.fabricate import Run
+    from fabkit.run.solve import LayerChoice
+
+    made = []
+
+    def make(run):
+        made.append(run.solved.design.layers)
+        return SimpleNamespace(verification=object(), final=printed[made[-1]]), []
+
+    def layer(solved, choice, options, inputs, say, tried):
+        assert tried == {"2": "judged"}  # the choice's lines go on with every count
+        return replace(solved, design=_Sheet(choice.layers), layering={"layers_tried": tried})
+
+    monkeypatch.setattr(pipeline, "_made", make)
+    monkeypatch.setattr(pipeline, "layers_solved", layer)
+    solved = _Solved(
+        _Sheet(chosen), {"layers_tried": {"2": "judged"}}, tuple(map(LayerChoice, fallbacks))
+    )
+    said = []
+    run = Run(SimpleNamespace(out=str(tmp_path)), None, solved, None, said.append)
+    kept, _, _ = pipeline._printed(run)
+    return made, kept, said
+
+
+def test_a_print_that_misses_a_target_hands_over_to_the_next_count(monkeypatch, tmp_path):
+    # bowl_saddle_trough at 60 mm as measured: 2 layers chosen, its print misses the saddle
+    # and the trough; 3 layers, which formed every target as designed too, forms them
+    printed = {2: _sheet(2, 0.0123, 0.0414, 0.0395), 3: _sheet(3, 0.0261, 0.0107, 0.008)}
+    made, kept, said = _print_loop(monkeypatch, tmp_path, 2, (3, 4), printed)
+    assert made == [2, 3] and kept.design.layers == 3  # 4 is not printed: 3 formed
+    assert kept.layering["counts_printed"] == {str(k): v.outcome() for k, v in printed.items()}
+    assert "the print of 2 layers does NOT form t1 (4.14 % RMS); t2 (3.95 % RMS)" in said[0]
+    assert "printing 3 layers" in said[0]
+    # a print that forms every target first is the run's only one
+    made, kept, _ = _print_loop(monkeypatch, tmp_path, 3, (2,), printed)
+    assert made == [3] and "counts_printed" not in kept.layering
+
+
+def test_when_no_count_s_print_forms_every_target_the_best_print_is_made_again(
+    monkeypatch, tmp_path
+):
+    printed = {2: _sheet(2, 0.035), 3: _sheet(3, 0.05), 4: _sheet(4, 0.04)}
+    made, kept, said = _print_loop(monkeypatch, tmp_path, 2, (3, 4), printed)
+    assert made == [2, 3, 4, 2] and kept.design.layers == 2  # nearest: 2 layers, made last
+    assert kept.design.saved == [tmp_path / "design.npz"]  # its design.npz written again
+    assert "making 2 layers again, the print that formed the most, nearest" in said[-1]
+    assert list(kept.layering["counts_printed"]) == ["2", "3", "4"]

@@ -314,12 +314,15 @@ class Verdict:
 
     def headline(self) -> str:
         """One line for the end of a run: which targets the sheet forms."""
+        return f"the sheet {self.what} {self.outcome()}"
+
+    def outcome(self) -> str:
+        """What the sheet does, without naming the sheet: ``forms every target (sphere,
+        bump)`` or ``does NOT form saddle (4.14 % RMS); trough (3.95 % RMS)``."""
         missed = [s for s in self.shapes if not s.formed]
-        sheet = f"the sheet {self.what}"
         if not missed:
-            names = ", ".join(s.target for s in self.shapes)
-            return f"{sheet} forms every target ({names})"
-        return f"{sheet} does NOT form " + "; ".join(s.miss() for s in missed)
+            return f"forms every target ({', '.join(s.target for s in self.shapes)})"
+        return "does NOT form " + "; ".join(s.miss() for s in missed)
 
     def lines(self) -> list[str]:
         return [shape.line() for shape in self.shapes]

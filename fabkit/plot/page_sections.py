@@ -320,12 +320,14 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
         Paragraph((f"{name}: {why}.",)) for name, why in layers.get("why", {}).items() if why
     )
     tried = layers.get("layers_tried") or {}
+    printed = layers.get("counts_printed") or {}
     counts = (
         (
             Paragraph(
                 (
                     f"{figures['verdicts'][0]['layers']} layers, chosen by the run (no "
-                    "--layers) among the layer counts it judged as designed:",
+                    "--layers) among the layer counts it judged as designed"
+                    + (", when the print of its first choice missed (below):" if printed else ":"),
                 )
             ),
             Table(("layers", "the sheet as designed"), tuple(tried.items())),
@@ -333,8 +335,23 @@ def _layers_section(figures: Mapping[str, Any]) -> Section:
         if tried and figures.get("verdicts")
         else ()
     )
+    prints = (
+        (
+            Paragraph(
+                (
+                    "The print of the count chosen first missed a target: the run printed "
+                    "the next count whose sheet as designed forms every target, in turn, and "
+                    "kept the print that formed the most:",
+                )
+            ),
+            Table(("layers", "the sheet as fabricated"), tuple(printed.items())),
+        )
+        if printed
+        else ()
+    )
     blocks = (
         *counts,
+        *prints,
         Paragraph((_layers_words(layers),)),
         Table(
             (

@@ -95,21 +95,20 @@ class Made:
     """What the stages after the solve made: the ``fabricated`` figures and preview, the
     first ``machine_file``'s figures, its ``verification`` (None with --no-verify), the
     ``final`` verdict (as fabricated when the machine file was simulated, else as
-    designed; None when nothing was simulated), the ``shapes`` it found (report.json's
-    ``shapes``, None when nothing was simulated) and the ``sent`` figures (None without
-    --send)."""
+    designed; None when nothing was simulated) and the ``shapes`` it found (report.json's
+    ``shapes``, None when nothing was simulated)."""
 
     fabricated: _Fabricated
     machine_file: dict[str, Any]
     verification: Verification | None
     final: Verdict | None
     shapes: dict[str, Any] | None
-    sent: dict[str, Any] | None
     prints: list[dict[str, Any]] | None = None
 
 
 def fabricate(run: Run) -> Made:
-    """The machine files, their verification, the shapes the sheet takes and the send."""
+    """The machine files, their verification and the shapes the sheet takes (not sent:
+    :func:`send_stage`)."""
     options = run.options
     if options.baromorph:
         fabricated = _channels(run)
@@ -125,14 +124,17 @@ def fabricate(run: Run) -> Made:
         if options.prints > 1:
             final, prints = _other_prints(run, final)
     shapes = _shapes(run, final) if final is not None else None
+    return Made(fabricated, fabricated.machine_file, verification, final, shapes, prints)
 
-    sent = None
-    if options.send:
-        run.say(f"[6/7] sending sheet.gcode to {options.send}")
-        sent = _send(run.out / "sheet.gcode", options, run.inputs.machine).figures()
-    else:
+
+def send_stage(run: Run) -> dict[str, Any] | None:
+    """The machine file sent to ``--send`` (report.json's ``sent``; None without it)."""
+    options = run.options
+    if not options.send:
         run.say("[6/7] not sending (no --send)")
-    return Made(fabricated, fabricated.machine_file, verification, final, shapes, sent, prints)
+        return None
+    run.say(f"[6/7] sending sheet.gcode to {options.send}")
+    return _send(run.out / "sheet.gcode", options, run.inputs.machine).figures()
 
 
 def _shapes(run: Run, verdict: Verdict) -> dict[str, Any]:

@@ -1,6 +1,9 @@
 """``fabkit run``: spec to machine files in one go, by calling each stage in turn.
 
-spec -> solve -> check -> part -> pictures -> toolpath -> export -> verify (-> send). The
+spec -> solve -> check -> part -> pictures -> toolpath -> export -> verify (-> send).
+With no ``--layers`` on a printer, a print that misses a target as verified hands over to
+the next layer count whose sheet as designed forms every target, from the layering on
+(:func:`_printed`); nothing is sent before the print kept is known. The
 part of the flat sheet that is made (:mod:`fabkit.field.part`: a smooth outline inside the
 solved cells, trimmed of regions too narrow to take their shape, no narrower than the
 minimum width, within ``--outline``) is cut once, right after the solve, and every later
@@ -47,6 +50,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from contextlib import nullcontext, suppress
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -62,7 +66,7 @@ from fabkit.plot.html import html_report
 from fabkit.plot.page_sections import run_page
 from fabkit.plot.scene import scene
 from fabkit.plot.view3d import shapes_3d
-from fabkit.run.fabricate import Drawings, Run, fabricate
+from fabkit.run.fabricate import Drawings, Made, Run, fabricate, send_stage
 from fabkit.run.inputs import (
     RunInputs,
     RunOptions,
@@ -73,7 +77,7 @@ from fabkit.run.inputs import (
     with_defaults,
 )
 from fabkit.run.printed import refine_as_printed
-from fabkit.run.solve import NOT_JUDGED_LAYERS, NOT_SIMULATED, solve_stage
+from fabkit.run.solve import NOT_JUDGED_LAYERS, NOT_SIMULATED, Solved, layers_solved, solve_stage
 
 WORKER_MODULES = ("fabkit.plot.design", "fabkit.toolpath.preview", "fabkit.plot.shapes")
 """What the worker imports while the run solves: the drawings it will be given."""
@@ -112,19 +116,9 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
         solved = solve_stage(options, inputs, say)
         if options.refine and solved.design.layering is not None:
             solved = refine_as_printed(Run(options, inputs, solved, drawings, say))
-        drawing = "drawing pictures and" if options.pictures else "no pictures (--no-pictures);"
-        say(f"[2/7] {drawing} patch meshes")
-        design = solved.design
-        drawings.draw(
-            "fabkit.plot:draw_design",
-            (scene(design, solved.part, solved.maps),),
-            partial(write_pictures, folder=out / "pictures"),
-        )
-        meshes = [
-            str(path) for path in write_patch_meshes(design, out / "patches", options.mesh_format)
-        ]
         try:
-            made = fabricate(Run(options, inputs, solved, drawings, say))
+            solved, made, meshes = _printed(Run(options, inputs, solved, drawings, say))
+            sent = send_stage(Run(options, inputs, solved, drawings, say))
         except FabkitError:
             with suppress(Exception):  # the run fails with its own error; keep what it drew
                 drawings.write()
@@ -152,7 +146,7 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
         "machine file": made.machine_file,
         "verify": verification,
         **({"prints": made.prints} if made.prints else {}),
-        "sent": made.sent,
+        "sent": sent,
         "meshes": meshes,
         "shapes": made.shapes,
     }
@@ -167,6 +161,74 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
     with atomic_path(out / "report.json") as tmp:
         tmp.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
     return figures
+
+
+def _printed(run: Run) -> tuple[Solved, Made, list[str]]:
+    """The design's pictures, patch meshes and machine files, verified (:func:`_made`);
+    while the print misses a target and the run chose its layers, the next layer count
+    whose sheet as designed forms every target (:attr:`Solved.fallbacks`) is layered and
+    made in its place. The print that forms the most targets, nearest, is the one left in
+    the folder (made again if a later one was not better). Returns it: the solved design,
+    what was made and the patch meshes' paths."""
+    options, inputs, say = run.options, run.inputs, run.say
+    solved = run.solved
+    made, meshes = _made(run)
+    tries = [(solved, made, meshes)]
+    while solved.fallbacks and _misses(made):
+        choice = solved.fallbacks[0]
+        say(
+            f"      the print of {solved.design.layers} layers {made.final.outcome()}: printing "
+            f"{choice.layers} layers, the next count whose sheet as designed forms every "
+            "target (--layers K prints K)"
+        )
+        tried = (solved.layering or {}).get("layers_tried")
+        remaining = replace(solved, fallbacks=solved.fallbacks[1:])
+        solved = layers_solved(remaining, choice, options, inputs, say, tried)
+        made, meshes = _made(replace(run, solved=solved))
+        tries.append((solved, made, meshes))
+    if len(tries) == 1:
+        return solved, made, meshes
+    printed = {str(t[0].design.layers): t[1].final.outcome() for t in tries}
+    best = max(tries, key=lambda t: _rank(t[1].final))
+    if best is not tries[-1]:
+        solved = best[0]
+        say(
+            f"      no count's print forms every target: making {solved.design.layers} layers "
+            "again, the print that formed the most, nearest"
+        )
+        solved.design.save(run.out / "design.npz")
+        made, meshes = _made(replace(run, solved=solved))
+    layering = {**(solved.layering or {}), "counts_printed": printed}
+    return replace(solved, layering=layering), made, meshes
+
+
+def _made(run: Run) -> tuple[Made, list[str]]:
+    """The design's pictures and patch meshes, then its machine files, verified
+    (:func:`~fabkit.run.fabricate.fabricate`); the patch meshes' paths."""
+    drawing = "drawing pictures and" if run.options.pictures else "no pictures (--no-pictures);"
+    run.say(f"[2/7] {drawing} patch meshes")
+    design = run.solved.design
+    run.drawings.draw(
+        "fabkit.plot:draw_design",
+        (scene(design, run.solved.part, run.solved.maps),),
+        partial(write_pictures, folder=run.out / "pictures"),
+    )
+    folder = run.out / "patches"
+    meshes = [str(path) for path in write_patch_meshes(design, folder, run.options.mesh_format)]
+    return fabricate(run), meshes
+
+
+def _misses(made: Made) -> bool:
+    """Whether the machine file was read back and simulated and misses a target."""
+    verified = made.verification is not None and made.final is not None
+    return verified and not made.final.formed
+
+
+def _rank(verdict: Verdict | None) -> tuple[int, float]:
+    """Targets formed, then the worst RMS, negated: larger is better."""
+    if verdict is None:
+        return 0, 0.0
+    return sum(s.formed for s in verdict.shapes), -max(s.rms for s in verdict.shapes)
 
 
 def _not_simulated(options: RunOptions) -> str:

@@ -4,15 +4,16 @@
 flat sheet that is made (:func:`design_part`, or a baromorph's), programs the layers of
 a layered sheet (:func:`layer_design`, also ``fabkit solve --layers``; with no
 ``--layers`` on a printer, of the layer counts :func:`layer_choices` allows the one
-:func:`chosen_layers` picks) and gives the verdict on the sheet as designed
-(:class:`Solved`). Called by
-:func:`fabkit.run.pipeline.run_pipeline`.
+:func:`chosen_layers` picks, the others that form every target as designed kept for the
+run to print in turn while a print misses one: :func:`fallback_layers`) and gives the
+verdict on the sheet as designed (:class:`Solved`). Called by
+:func:`fabkit.run.pipeline.run_pipeline` (:func:`layers_solved` again for another count).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +50,16 @@ NOT_JUDGED_LAYERS = (
 
 
 @dataclass(frozen=True)
+class LayerChoice:
+    """A layer count a run may print: ``layers``, and the shares of its first-order
+    layering whose sheet already missed a target while the run chose it (share, verdict:
+    :attr:`LayerRequest.missed`, not judged again)."""
+
+    layers: int
+    missed: tuple[tuple[float, Verdict], ...] = ()
+
+
+@dataclass(frozen=True)
 class Solved:
     """The solve stage's results: the ``design`` (layered when asked), its check
     (``check``, the residual ``maps``), the solver's ``summary``, the ``part`` that is
@@ -62,6 +73,11 @@ class Solved:
     part: Part
     layering: dict[str, Any] | None
     verdict: Verdict | None
+    unlayered: Design | None = None
+    """The design before it was layered (another layer count starts from it)."""
+    fallbacks: tuple[LayerChoice, ...] = ()
+    """The layer counts a run printing ``design`` tries next, in turn, when its print
+    misses a target (:func:`choose_layers`; none when ``--layers`` was given)."""
 
 
 def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) -> Solved:
@@ -79,9 +95,27 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
         + ", ".join(f"{k} {v:.4g}" for k, v in solved["area_design_units2"].items())
     )
     design = result.solution.design
-    layers, tried, missed = options.layers, {}, ()
-    if options.layers_chosen and layers > 1 and options.simulate:
-        layers, tried, missed = choose_layers(design, options, inputs, say)
+    choices, tried = (LayerChoice(options.layers),), {}
+    if options.layers_chosen and options.layers > 1 and options.simulate:
+        choices, tried = choose_layers(design, options, inputs, say)
+    fallbacks = () if options.refine else choices[1:]  # --refine reprints its own design
+    unlayered = Solved(design, check, result.maps, solved, None, None, None, design, fallbacks)
+    return layers_solved(unlayered, choices[0], options, inputs, say, tried)
+
+
+def layers_solved(
+    solved: Solved,
+    choice: LayerChoice,
+    options: RunOptions,
+    inputs: RunInputs,
+    say: Callable[[str], None],
+    tried: dict[str, str] | None = None,
+) -> Solved:
+    """``solved``'s unlayered design (:attr:`Solved.unlayered`) made of ``choice.layers``
+    layers: the part cut for that thickness, the layers programmed (:func:`layer_design`)
+    and the sheet as designed judged; the design saved as design.npz. ``tried``: the
+    counts judged while choosing (report.json's ``layers.layers_tried``)."""
+    design, layers = solved.unlayered, choice.layers
     part = _part(options, inputs, design, layers)
     say(f"      {part.summary()}")
     thickness_mm = layers * inputs.process.layer_height_mm if inputs.process else None
@@ -94,15 +128,15 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
             options.ignore_features,
             options.form_tolerance,
             options.refine,
-            missed=missed,
+            missed=choice.missed,
         )
         made = layer_design(design, request, say, simulate=options.simulate)
         design, verdict = made.design, made.as_designed
-        layering = {**made.figures, "layers_tried": tried}
+        layering = {**made.figures, "layers_tried": tried or {}}
         design.save(Path(options.out) / "design.npz")
     if not options.simulate:
         say(f"      {NOT_SIMULATED}")
-        return Solved(design, check, result.maps, solved, part, layering, None)
+        return replace(solved, design=design, part=part, layering=layering, verdict=None)
     verdict = verdict or design_verdict(
         design,
         None if thickness_mm is None else thickness_mm / part.mm_per_unit,
@@ -113,16 +147,26 @@ def solve_stage(options: RunOptions, inputs: RunInputs, say: Callable[[str], Non
     say(f"      {verdict.headline()}:")
     for line in verdict.lines():
         say(f"        {line}")
-    return Solved(design, check, result.maps, solved, part, layering, verdict)
+    return replace(solved, design=design, part=part, layering=layering, verdict=verdict)
 
 
 CHOOSING_STARTS = ("dome", "dome-down")
 """The starts a run judges each layer count from while it chooses (a side not programmed
 shows between these two); the count chosen is judged from every start."""
+COUNTS_PRINTED = 3
+"""The most layer counts a run with no ``--layers`` prints while their prints miss a
+target (each a whole print verified: 20-40 s at 60 mm): the count chosen and the next two
+of :func:`fallback_layers`."""
 PRINT_MARGIN = 0.01
 """How far inside each target's limit (a share of the patch diameter) a sheet as designed
 must end for a run to choose it for its thickness: the print's error took the examples'
 sheets 0.3 to 1.3 % farther from their targets (docs/layers.md)."""
+
+
+def _room(verdict: Verdict) -> float:
+    """How far inside its limit the sheet ends from the target nearest its limit (a share
+    of the patch diameter; negative: outside)."""
+    return min(s.tolerance - s.rms for s in verdict.shapes)
 
 
 def chosen_layers(verdicts: dict[int, Verdict]) -> tuple[int, str]:
@@ -132,7 +176,7 @@ def chosen_layers(verdicts: dict[int, Verdict]) -> tuple[int, str]:
     the one that forms the most of them, nearest."""
 
     def room(k: int) -> float:
-        return min(s.tolerance - s.rms for s in verdicts[k].shapes)
+        return _room(verdicts[k])
 
     formed = [k for k, v in verdicts.items() if v.formed]
     clear = [k for k in formed if room(k) >= PRINT_MARGIN]
@@ -148,18 +192,26 @@ def chosen_layers(verdicts: dict[int, Verdict]) -> tuple[int, str]:
     return best, "none forms every target as designed: the one that forms the most, nearest"
 
 
+def fallback_layers(verdicts: dict[int, Verdict], chosen: int) -> tuple[int, ...]:
+    """The counts a run prints in turn after ``chosen`` while a print misses a target: the
+    others whose sheet as designed forms every target, farthest inside its limits first."""
+    formed = [k for k, v in verdicts.items() if v.formed and k != chosen]
+    return tuple(sorted(formed, key=lambda k: -_room(verdicts[k])))
+
+
 def choose_layers(
     design: Design, options: RunOptions, inputs: RunInputs, say: Callable[[str], None]
-) -> tuple[int, dict[str, str], tuple[tuple[float, Verdict], ...]]:
-    """The layer count of a printed run with no ``--layers``, what each count judged did
-    (count -> one line) and the shares of the chosen count that missed (for
-    :attr:`LayerRequest.missed`): every count of :func:`layer_choices` layered and judged as
-    designed from :data:`CHOOSING_STARTS`, each on its own part (the trim follows the
-    thickness); :func:`chosen_layers` picks."""
+) -> tuple[tuple[LayerChoice, ...], dict[str, str]]:
+    """The layer counts a printed run with no ``--layers`` may print, the one it prints
+    first, and what each count judged did (count -> one line): every count of
+    :func:`layer_choices` layered and judged as designed from :data:`CHOOSING_STARTS`, each
+    on its own part (the trim follows the thickness); :func:`chosen_layers` picks the first;
+    the others whose sheet forms every target follow, farthest inside its limits first
+    (the run prints them in turn while a print misses a target)."""
     height = inputs.process.layer_height_mm
     choices = layer_choices(options.size_mm, height)
     if len(choices) == 1:
-        return choices[0], {}, ()
+        return (LayerChoice(choices[0]),), {}
     say(
         f"      layers judged as designed: {choices[0]} to {choices[-1]} of {height:g} mm "
         f"(no --layers; the sheet at most 1/{MIN_SIZE_PER_THICKNESS:g} of its size thick)"
@@ -179,12 +231,13 @@ def choose_layers(
             f"forms every target, nearest its limit {nearest.target} {100 * nearest.rms:.2f} % "
             f"(limit {100 * nearest.tolerance:g} %)"
             if verdict.formed
-            else verdict.headline().split(" as designed ", 1)[1]
+            else verdict.outcome()
         )
         say(f"        {k} layers ({k * height:.2g} mm): {tried[str(k)]}")
     chosen, why = chosen_layers(verdicts)
     say(f"      chosen: {chosen} layers, {why}")
-    return chosen, tried, missed[chosen]
+    counts = (chosen, *fallback_layers(verdicts, chosen))[:COUNTS_PRINTED]
+    return tuple(LayerChoice(k, missed[k]) for k in counts), tried
 
 
 @dataclass(frozen=True)
@@ -269,6 +322,7 @@ def layer_design(
             "prints": [],
             "shares_tried": {},
             "layers_tried": {},
+            "counts_printed": {},
             **report.to_dict(),
         }
         return Layered(unjudged, figures, None)
@@ -325,6 +379,7 @@ def layer_design(
         "prints": [],
         "shares_tried": {t[0]: t[4].headline() for t in tried},
         "layers_tried": {},
+        "counts_printed": {},
         **report.to_dict(),
     }
     missed = tuple((t[1], t[4]) for t in tried if t[0] != "refined" and not t[4].formed)
