@@ -50,7 +50,7 @@ from fabkit.design.design import Design
 from fabkit.errors import FabkitError
 from fabkit.field.part import SIMULATE_THICKNESS, Part
 from fabkit.mechanics.factor import factorise
-from fabkit.mechanics.mesh import DesignMesh, design_mesh
+from fabkit.mechanics.mesh import DesignMesh, design_mesh, disc_mesh
 from fabkit.mechanics.metric import grid_edge_lengths, metric_from_lengths
 from fabkit.mechanics.shell import Shell, build_shell, flat_sheet
 
@@ -193,6 +193,20 @@ def simulate(
                 progress(step, len(shares))
     elapsed = time.perf_counter() - started
     return Simulation(x, shell.energy(x), total, converged, elapsed)
+
+
+def warm_kernels() -> float:
+    """Compile the shell's numba kernels (or load them from numba's cache beside the
+    package) by simulating a small disc of two layers, one stretched: a first run after
+    an install compiles them here, in a worker beside the command (``fabkit run``), while
+    the command solves, and its own simulations then load them (about 6 s of compiling
+    on a 2-core machine). Returns the seconds it took."""
+    started = time.perf_counter()
+    points, triangles = disc_mesh(1.0, 2)
+    faces = len(triangles)
+    layers = np.array([np.eye(2), 1.1 * np.eye(2)])  # bottom, top
+    simulate(points, triangles, np.repeat(layers[:, None], faces, axis=1), 0.05)
+    return time.perf_counter() - started
 
 
 SLOW_STEPS, EQUAL_STEPS = 5, 2

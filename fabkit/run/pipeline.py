@@ -113,6 +113,10 @@ def _stages(options: RunOptions, inputs: RunInputs, say: Callable[[str], None]) 
         say(f"      {notice}")
     with worker(warm=WORKER_MODULES) if options.pictures else nullcontext() as background:
         drawings = Drawings(background)
+        if background is not None and options.simulate:
+            # the shell's kernels compiled beside the solve: a first run after an install
+            # would compile them at its first simulation (fabkit.mechanics.simulate)
+            background.start("fabkit.mechanics.simulate:warm_kernels")
         solved = solve_stage(options, inputs, say)
         if options.refine and solved.design.layering is not None:
             solved = refine_as_printed(Run(options, inputs, solved, drawings, say))
