@@ -117,9 +117,12 @@ def test_a_run_at_a_size_that_allows_thicker_sheets_judges_each_and_prints_one(r
 
 @dataclass(frozen=True)
 class _Sheet:
-    """What the run's print loop asks of a solved design: its layers, saved."""
+    """What the run's print loop asks of a solved design: its layers (``refined``: a
+    refinement as printed of them), saved."""
 
     layers: int
+    refined: bool = False
+    layering: bool = True
     saved: list = field(default_factory=list, compare=False)
 
     def save(self, path) -> None:
@@ -133,10 +136,13 @@ class _Solved:
     fallbacks: tuple = ()
 
 
-def _print_loop(monkeypatch, tmp_path, chosen: int, fallbacks: tuple[int, ...], printed: dict):
+def _print_loop(
+    monkeypatch, tmp_path, chosen: int, fallbacks: tuple[int, ...], printed: dict, given=False
+):
     """``fabkit.run.pipeline._printed`` with every count's print judged as ``printed``
-    (count -> verdict as fabricated) instead of made: the counts made, in order, and what
-    the loop returned."""
+    (count, or (count, "refined") for its layers refined as printed -> verdict as
+    fabricated) instead of made, and a refinement as printed that refines when
+    ``printed`` has one: the prints made, in order, and what the loop returned."""
     from fabkit.run import pipeline
     from fabkit.run.fabricate import Run
     from fabkit.run.solve import LayerChoice
@@ -144,21 +150,29 @@ def _print_loop(monkeypatch, tmp_path, chosen: int, fallbacks: tuple[int, ...], 
     made = []
 
     def make(run):
-        made.append(run.solved.design.layers)
+        design = run.solved.design
+        made.append((design.layers, "refined") if design.refined else design.layers)
         return SimpleNamespace(verification=object(), final=printed[made[-1]]), []
 
     def layer(solved, choice, options, inputs, say, tried):
         assert tried == {"2": "judged"}  # the choice's lines go on with every count
         return replace(solved, design=_Sheet(choice.layers), layering={"layers_tried": tried})
 
+    def refine(run):
+        key = (run.solved.design.layers, "refined")
+        if key not in printed:
+            return run.solved
+        return replace(run.solved, design=_Sheet(key[0], refined=True))
+
     monkeypatch.setattr(pipeline, "_made", make)
     monkeypatch.setattr(pipeline, "layers_solved", layer)
+    monkeypatch.setattr(pipeline, "refine_as_printed", refine)
     solved = _Solved(
         _Sheet(chosen), {"layers_tried": {"2": "judged"}}, tuple(map(LayerChoice, fallbacks))
     )
     said = []
-    run = Run(SimpleNamespace(out=str(tmp_path)), None, solved, None, said.append)
-    kept, _, _ = pipeline._printed(run)
+    options = SimpleNamespace(out=str(tmp_path), layers_chosen=not given, refine=False)
+    kept, _, _ = pipeline._printed(Run(options, None, solved, None, said.append))
     return made, kept, said
 
 
@@ -176,12 +190,22 @@ def test_a_print_that_misses_a_target_hands_over_to_the_next_count(monkeypatch, 
     assert made == [3] and "counts_printed" not in kept.layering
 
 
-def test_when_no_count_s_print_forms_every_target_the_best_print_is_made_again(
+def test_when_no_count_s_print_forms_every_target_the_best_is_refined_as_printed(
     monkeypatch, tmp_path
 ):
     printed = {2: _sheet(2, 0.035), 3: _sheet(3, 0.05), 4: _sheet(4, 0.04)}
     made, kept, said = _print_loop(monkeypatch, tmp_path, 2, (3, 4), printed)
     assert made == [2, 3, 4, 2] and kept.design.layers == 2  # nearest: 2 layers, made last
     assert kept.design.saved == [tmp_path / "design.npz"]  # its design.npz written again
-    assert "making 2 layers again, the print that formed the most, nearest" in said[-1]
+    assert "making 2 layers again, the print that formed the most, nearest" in said[-2]
+    assert "refining its layers as printed" in said[-1]  # no refinement kept: it stands
     assert list(kept.layering["counts_printed"]) == ["2", "3", "4"]
+    # Fig. 3 at 50 mm as measured: 3, 2 and 4 layers miss the face, 4 refined forms it
+    printed = {3: _sheet(3, 0.0533), 2: _sheet(2, 0.0727), 4: _sheet(4, 0.0332)}
+    printed[4, "refined"] = _sheet(4, 0.0239)
+    made, kept, said = _print_loop(monkeypatch, tmp_path, 3, (2, 4), printed)
+    assert made == [3, 2, 4, (4, "refined")] and kept.design.refined
+    assert "the print of 4 layers does NOT form t0 (3.32 % RMS): refining" in said[-1]
+    # layers given: one print, not refined again (--refine refined it before)
+    made, kept, said = _print_loop(monkeypatch, tmp_path, 4, (), printed, given=True)
+    assert made == [4] and not kept.design.refined and not said

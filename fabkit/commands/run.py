@@ -106,8 +106,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "neighbour; 1 prints one layer, which programs no target's side (default on a "
         "printer: 2 to 5 judged as designed, at most 1/30 of --size thick, and the "
         "thickest that forms every target 1 %% inside its limit printed, the next "
-        "while its print misses a target (at most 3), as the run's first line says; 1 "
-        "for laser writers and baromorphs)",
+        "while its print misses a target (at most 3), then the nearest refined as "
+        "printed as --refine does (minutes), as the run's first line says; 1 for laser "
+        "writers and baromorphs)",
     )
     parser.add_argument(
         "--refine",

@@ -280,8 +280,8 @@ def layers_notice(options: RunOptions, inputs: RunInputs) -> str:
     counts = f"{choices[0]} to {choices[-1]}" if len(choices) > 1 else f"{choices[0]}"
     judged = (
         ", judged as designed: the run prints the thickest sheet that forms every target "
-        "with room for the print's error, and the next while a print misses one (--layers "
-        "K decides)"
+        "with room for the print's error, the next while a print misses one, then refines "
+        "the nearest as printed (minutes; --layers K decides)"
         if len(choices) > 1
         else ""
     )

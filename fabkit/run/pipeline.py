@@ -2,7 +2,8 @@
 
 spec -> solve -> check -> part -> pictures -> toolpath -> export -> verify (-> send).
 With no ``--layers`` on a printer, a print that misses a target as verified hands over to
-the next layer count whose sheet as designed forms every target, from the layering on
+the next layer count whose sheet as designed forms every target, from the layering on,
+and when none of their prints forms every target the nearest is refined as printed
 (:func:`_printed`); nothing is sent before the print kept is known. The
 part of the flat sheet that is made (:mod:`fabkit.field.part`: a smooth outline inside the
 solved cells, trimmed of regions too narrow to take their shape, no narrower than the
@@ -172,8 +173,9 @@ def _printed(run: Run) -> tuple[Solved, Made, list[str]]:
     while the print misses a target and the run chose its layers, the next layer count
     whose sheet as designed forms every target (:attr:`Solved.fallbacks`) is layered and
     made in its place. The print that forms the most targets, nearest, is the one left in
-    the folder (made again if a later one was not better). Returns it: the solved design,
-    what was made and the patch meshes' paths."""
+    the folder (made again if a later one was not better); if it still misses a target,
+    its layers are refined as printed (:func:`_refined_print`). Returns the print kept: the
+    solved design, what was made and the patch meshes' paths."""
     options, inputs, say = run.options, run.inputs, run.say
     solved = run.solved
     made, meshes = _made(run)
@@ -190,20 +192,39 @@ def _printed(run: Run) -> tuple[Solved, Made, list[str]]:
         solved = layers_solved(remaining, choice, options, inputs, say, tried)
         made, meshes = _made(replace(run, solved=solved))
         tries.append((solved, made, meshes))
-    if len(tries) == 1:
-        return solved, made, meshes
-    printed = {str(t[0].design.layers): t[1].final.outcome() for t in tries}
-    best = max(tries, key=lambda t: _rank(t[1].final))
-    if best is not tries[-1]:
-        solved = best[0]
-        say(
-            f"      no count's print forms every target: making {solved.design.layers} layers "
-            "again, the print that formed the most, nearest"
-        )
-        solved.design.save(run.out / "design.npz")
-        made, meshes = _made(replace(run, solved=solved))
-    layering = {**(solved.layering or {}), "counts_printed": printed}
-    return replace(solved, layering=layering), made, meshes
+    if len(tries) > 1:
+        printed = {str(t[0].design.layers): t[1].final.outcome() for t in tries}
+        best = max(tries, key=lambda t: _rank(t[1].final))
+        if best is not tries[-1]:
+            solved = best[0]
+            say(
+                f"      no count's print forms every target: making {solved.design.layers} "
+                "layers again, the print that formed the most, nearest"
+            )
+            solved.design.save(run.out / "design.npz")
+            made, meshes = _made(replace(run, solved=solved))
+        solved = replace(solved, layering={**(solved.layering or {}), "counts_printed": printed})
+    chose = options.layers_chosen and not options.refine
+    if chose and solved.design.layering is not None and _misses(made):
+        return _refined_print(replace(run, solved=solved), made, meshes)
+    return solved, made, meshes
+
+
+def _refined_print(run: Run, made: Made, meshes: list[str]) -> tuple[Solved, Made, list[str]]:
+    """The layers of the print kept refined as printed (:func:`~fabkit.run.printed.
+    refine_as_printed`, ``--refine``'s second round) when no layer count's print formed
+    every target; the refined design made in its place when a refinement is kept."""
+    solved = run.solved
+    run.say(
+        f"      the print of {solved.design.layers} layers {made.final.outcome()}: refining "
+        "its layers as printed (--refine's second round; minutes; --layers K prints K "
+        "without it)"
+    )
+    refined = refine_as_printed(run)
+    if refined.design is solved.design:  # no refinement printed better: the print stands
+        return refined, made, meshes
+    made, meshes = _made(replace(run, solved=refined))
+    return refined, made, meshes
 
 
 def _made(run: Run) -> tuple[Made, list[str]]:
