@@ -167,11 +167,10 @@ def _print_loop(
     monkeypatch.setattr(pipeline, "_made", make)
     monkeypatch.setattr(pipeline, "layers_solved", layer)
     monkeypatch.setattr(pipeline, "refine_as_printed", refine)
-    solved = _Solved(
-        _Sheet(chosen), {"layers_tried": {"2": "judged"}}, tuple(map(LayerChoice, fallbacks))
-    )
+    tried = {} if given else {"2": "judged"}
+    solved = _Solved(_Sheet(chosen), {"layers_tried": tried}, tuple(map(LayerChoice, fallbacks)))
     said = []
-    options = SimpleNamespace(out=str(tmp_path), layers_chosen=not given, refine=False)
+    options = SimpleNamespace(out=str(tmp_path), refine=False)
     kept, _, _ = pipeline._printed(Run(options, None, solved, None, said.append))
     return made, kept, said
 
@@ -206,6 +205,6 @@ def test_when_no_count_s_print_forms_every_target_the_best_is_refined_as_printed
     made, kept, said = _print_loop(monkeypatch, tmp_path, 3, (2, 4), printed)
     assert made == [3, 2, 4, (4, "refined")] and kept.design.refined
     assert "the print of 4 layers does NOT form t0 (3.32 % RMS): refining" in said[-1]
-    # layers given: one print, not refined again (--refine refined it before)
+    # layers given, or a part too small to judge more than two: one print, not refined
     made, kept, said = _print_loop(monkeypatch, tmp_path, 4, (), printed, given=True)
     assert made == [4] and not kept.design.refined and not said

@@ -204,8 +204,10 @@ def _printed(run: Run) -> tuple[Solved, Made, list[str]]:
             solved.design.save(run.out / "design.npz")
             made, meshes = _made(replace(run, solved=solved))
         solved = replace(solved, layering={**(solved.layering or {}), "counts_printed": printed})
-    chose = options.layers_chosen and not options.refine
-    if chose and solved.design.layering is not None and _misses(made):
+    # a run that judged several counts (a part too small for more than two gets two, as
+    # they come: tests/test_auto_layers.py) refines the nearest; --refine did already
+    chose = bool((solved.layering or {}).get("layers_tried")) and not options.refine
+    if chose and _misses(made):
         return _refined_print(replace(run, solved=solved), made, meshes)
     return solved, made, meshes
 
