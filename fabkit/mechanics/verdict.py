@@ -316,6 +316,11 @@ class Verdict:
         """One line for the end of a run: which targets the sheet forms."""
         return f"the sheet {self.what} {self.outcome()}"
 
+    def rank(self) -> tuple[int, float]:
+        """Targets formed, then the worst RMS, negated: of two sheets' verdicts, the larger
+        is the better."""
+        return sum(s.formed for s in self.shapes), -max(s.rms for s in self.shapes)
+
     def outcome(self) -> str:
         """What the sheet does, without naming the sheet: ``forms every target (sphere,
         bump)`` or ``does NOT form saddle (4.14 % RMS); trough (3.95 % RMS)``."""

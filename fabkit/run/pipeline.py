@@ -194,7 +194,7 @@ def _printed(run: Run) -> tuple[Solved, Made, list[str]]:
         tries.append((solved, made, meshes))
     if len(tries) > 1:
         printed = {str(t[0].design.layers): t[1].final.outcome() for t in tries}
-        best = max(tries, key=lambda t: _rank(t[1].final))
+        best = max(tries, key=lambda t: t[1].final.rank())
         if best is not tries[-1]:
             solved = best[0]
             say(
@@ -249,13 +249,6 @@ def _misses(made: Made) -> bool:
     """Whether the machine file was read back and simulated and misses a target."""
     verified = made.verification is not None and made.final is not None
     return verified and not made.final.formed
-
-
-def _rank(verdict: Verdict | None) -> tuple[int, float]:
-    """Targets formed, then the worst RMS, negated: larger is better."""
-    if verdict is None:
-        return 0, 0.0
-    return sum(s.formed for s in verdict.shapes), -max(s.rms for s in verdict.shapes)
 
 
 def _not_simulated(options: RunOptions) -> str:

@@ -52,8 +52,8 @@ class _Print:
     designed: Verdict | None = None
 
     def rank(self) -> tuple[int, float]:
-        """Targets formed, then the worst RMS, negated: larger is better."""
-        return sum(s.formed for s in self.verdict.shapes), -max(s.rms for s in self.verdict.shapes)
+        """Its verdict's :meth:`~fabkit.mechanics.verdict.Verdict.rank`."""
+        return self.verdict.rank()
 
     def to_dict(self) -> dict:
         """report.json's ``layers.prints`` item."""
