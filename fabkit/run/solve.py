@@ -33,7 +33,7 @@ from fabkit.field.part import (
 from fabkit.figures import AREA_UNIT
 from fabkit.mechanics.refine import refine_layering
 from fabkit.mechanics.simulate import STARTS
-from fabkit.mechanics.verdict import FORM_TOLERANCE, Verdict, design_verdict
+from fabkit.mechanics.verdict import FORM_TOLERANCE, Shape, Verdict, design_verdict
 from fabkit.process import Process
 from fabkit.run.inputs import MIN_SIZE_PER_THICKNESS, RunInputs, RunOptions, layer_choices
 
@@ -163,10 +163,16 @@ must end for a run to choose it for its thickness: the print's error took the ex
 sheets 0.3 to 1.3 % farther from their targets (docs/layers.md)."""
 
 
+def _nearest(verdict: Verdict) -> Shape:
+    """The target the sheet ends nearest its limit (or farthest outside it)."""
+    return min(verdict.shapes, key=lambda s: s.tolerance - s.rms)
+
+
 def _room(verdict: Verdict) -> float:
     """How far inside its limit the sheet ends from the target nearest its limit (a share
     of the patch diameter; negative: outside)."""
-    return min(s.tolerance - s.rms for s in verdict.shapes)
+    nearest = _nearest(verdict)
+    return nearest.tolerance - nearest.rms
 
 
 def chosen_layers(verdicts: dict[int, Verdict]) -> tuple[int, str]:
@@ -226,7 +232,7 @@ def choose_layers(
         made = layer_design(design, request, lambda line: None)
         verdicts[k] = verdict = made.as_designed
         missed[k] = made.missed
-        nearest = min(verdict.shapes, key=lambda s: s.tolerance - s.rms)
+        nearest = _nearest(verdict)
         tried[str(k)] = (
             f"forms every target, nearest its limit {nearest.target} {100 * nearest.rms:.2f} % "
             f"(limit {100 * nearest.tolerance:g} %)"
